@@ -1,0 +1,12 @@
+"""spiel-edge: 3-D ultrasonic echolocation (PaCE) for robots.
+
+Data flow, mirrored by the package layout:
+bytes (link/) -> frames (firmware_protocol) -> acquisitions (device.py, io/) ->
+echoes (pipeline/preprocess, detect, memg) -> features (pipeline/features) ->
+associations (pipeline/associate) -> positions (pipeline/locate) -> outputs (outputs/).
+"""
+
+from spiel_edge.errors import SpielError
+
+__version__ = "0.1.0"
+__all__ = ["SpielError", "__version__"]
