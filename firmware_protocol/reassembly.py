@@ -1,0 +1,155 @@
+"""Reassembly of per-channel STREAM_DATA frames into whole acquisitions (pure, numpy out).
+
+Rules (PROTOCOL.md "Streaming"): the frame counter (``aux``) increases by one per STREAM_DATA
+frame, so a jump counts the missing frames as gaps. Channels of one acquisition may come in
+any order, but all of them before any frame of a later acquisition; an acquisition still
+incomplete when a later one starts is dropped and counted. Indices and counters wrap at 2**32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from firmware_protocol.stream import SAMPLE_DTYPE, SampleFormat, StreamData
+
+__all__ = ["Acquisition", "AcquisitionAssembler", "AssemblerStats"]
+
+_MASK = 0xFFFFFFFF
+_HALF = 1 << 31
+
+
+def _ahead(a: int, b: int) -> int:
+    """How far ``a`` is after ``b`` in u32 serial arithmetic (negative if before)."""
+    d = (a - b) & _MASK
+    return d - (1 << 32) if d >= _HALF else d
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    index: int
+    timestamp_us: int
+    sample_rate_hz: int
+    sample_format: int
+    samples: np.ndarray  # (n_channels, n_samples), dtype SAMPLE_DTYPE[sample_format]
+
+    @property
+    def n_channels(self) -> int:
+        return int(self.samples.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.samples.shape[1])
+
+
+@dataclass(slots=True)
+class AssemblerStats:
+    frames: int = 0  # STREAM_DATA messages fed
+    acquisitions: int = 0  # complete acquisitions returned
+    gaps: int = 0  # missing counter values (lost frames)
+    incomplete: int = 0  # acquisitions dropped because a channel never came
+    duplicates: int = 0  # repeated counter, or a channel already received
+    stale: int = 0  # frames of an acquisition older than the current one
+    inconsistent: int = 0  # sub-header disagrees with the acquisition's other channels
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class AcquisitionAssembler:
+    """``feed(StreamData, counter) -> Acquisition | None``; call ``reset()`` per stream."""
+
+    def __init__(self) -> None:
+        self.stats = AssemblerStats()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget stream state (a new STREAM_START); the stats are kept."""
+        self._next_counter: int | None = None
+        self._last_done: int | None = None
+        self._first: StreamData | None = None
+        self._channels: dict[int, bytes] = {}
+
+    def flush(self) -> None:
+        """Drop a pending partial acquisition (stream ended), counting it incomplete."""
+        if self._first is not None:
+            self.stats.incomplete += 1
+        self._first = None
+        self._channels = {}
+
+    def feed(self, msg: StreamData, counter: int | None = None) -> Acquisition | None:
+        self.stats.frames += 1
+        if counter is not None and not self._count(counter):
+            return None
+        if not self._admit(msg):
+            return None
+        if msg.channel in self._channels:
+            self.stats.duplicates += 1
+            return None
+        self._channels[msg.channel] = msg.samples
+        if len(self._channels) < msg.n_channels:
+            return None
+        return self._complete()
+
+    def _count(self, counter: int) -> bool:
+        """Track the frame counter; False for a repeated or older frame."""
+        if self._next_counter is not None:
+            ahead = _ahead(counter, self._next_counter)
+            if ahead < 0:
+                self.stats.duplicates += 1
+                return False
+            self.stats.gaps += ahead
+        self._next_counter = (counter + 1) & _MASK
+        return True
+
+    def _admit(self, msg: StreamData) -> bool:
+        """Place ``msg`` in the current acquisition, starting a new one if it is later."""
+        first = self._first
+        if first is None or _ahead(msg.acquisition, first.acquisition) > 0:
+            if self._last_done is not None and _ahead(msg.acquisition, self._last_done) <= 0:
+                self.stats.stale += 1
+                return False
+            if first is not None:
+                self.stats.incomplete += 1
+            return self._start(msg)
+        if msg.acquisition != first.acquisition:
+            self.stats.stale += 1
+            return False
+        if not _consistent(first, msg):
+            self.stats.inconsistent += 1
+            return False
+        return True
+
+    def _start(self, msg: StreamData) -> bool:
+        self._first, self._channels = None, {}
+        valid = 0 <= msg.channel < msg.n_channels and msg.sample_format in SAMPLE_DTYPE
+        if not valid:
+            self.stats.inconsistent += 1
+            return False
+        self._first = msg
+        return True
+
+    def _complete(self) -> Acquisition:
+        first = self._first
+        assert first is not None
+        dtype = SAMPLE_DTYPE[SampleFormat(first.sample_format)]
+        rows = b"".join(self._channels[c] for c in range(first.n_channels))
+        samples = np.frombuffer(rows, dtype).reshape(first.n_channels, -1)
+        self._last_done, self._first, self._channels = first.acquisition, None, {}
+        self.stats.acquisitions += 1
+        return Acquisition(
+            first.acquisition, first.timestamp_us, first.sample_rate_hz, first.sample_format,
+            samples,
+        )  # fmt: skip
+
+
+def _consistent(first: StreamData, msg: StreamData) -> bool:
+    return (
+        0 <= msg.channel < first.n_channels
+        and msg.n_channels == first.n_channels
+        and msg.sample_format == first.sample_format
+        and msg.sample_rate_hz == first.sample_rate_hz
+        and msg.timestamp_us == first.timestamp_us
+        and len(msg.samples) == len(first.samples)
+    )

@@ -1,0 +1,105 @@
+"""STREAM_DATA: one channel of one acquisition per frame, with a 24-byte sub-header.
+
+The sub-header carries its own size (``header_size``) so it can grow without moving the
+samples; samples follow it little-endian. The frame's ``aux`` is the stream counter.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import ClassVar
+
+import numpy as np
+
+from firmware_protocol._codec import Message
+from firmware_protocol.errors import MessageError
+from firmware_protocol.framing import MAX_PAYLOAD
+
+__all__ = [
+    "MAX_SAMPLES_PER_FRAME",
+    "SAMPLE_DTYPE",
+    "SAMPLE_SIZE",
+    "STREAM_HEADER",
+    "SampleFormat",
+    "StreamData",
+]
+
+STREAM_DATA_TYPE = 0x0013
+
+
+class SampleFormat(IntEnum):
+    U16_ENVELOPE = 0  # rectified, filtered envelope, unsigned 16-bit
+    I16_RF = 1  # raw RF samples, signed 16-bit
+    F32 = 2  # IEEE-754 binary32 (processed on the board)
+
+
+SAMPLE_SIZE = {SampleFormat.U16_ENVELOPE: 2, SampleFormat.I16_RF: 2, SampleFormat.F32: 4}
+SAMPLE_DTYPE = {
+    SampleFormat.U16_ENVELOPE: np.dtype("<u2"),
+    SampleFormat.I16_RF: np.dtype("<i2"),
+    SampleFormat.F32: np.dtype("<f4"),
+}
+# acquisition u32, channel u8, n_channels u8, sample_format u8, header_size u8,
+# sample_rate_hz u32, timestamp_us u64, n_samples u16, reserved u16 (0)
+STREAM_HEADER = struct.Struct("<IBBBBIQHH")
+MAX_SAMPLES_PER_FRAME = {
+    fmt: (MAX_PAYLOAD - STREAM_HEADER.size) // size for fmt, size in SAMPLE_SIZE.items()
+}
+
+
+def _sample_size(sample_format: int) -> int:
+    try:
+        return SAMPLE_SIZE[SampleFormat(sample_format)]
+    except ValueError:
+        raise MessageError(f"unknown sample format {sample_format}") from None
+
+
+@dataclass(frozen=True)
+class StreamData(Message):
+    """Device -> host (flags STREAM, unacknowledged): one channel of one acquisition."""
+
+    MSG_TYPE: ClassVar[int] = STREAM_DATA_TYPE
+    _STRUCT: ClassVar[struct.Struct] = STREAM_HEADER
+    acquisition: int = 0  # index, +1 per acquisition (ping), wraps at 2**32
+    channel: int = 0  # 0 .. n_channels-1
+    n_channels: int = 1  # channels in this acquisition
+    sample_format: int = SampleFormat.U16_ENVELOPE
+    sample_rate_hz: int = 0
+    timestamp_us: int = 0  # device clock at the acquisition's first sample (same per channel)
+    samples: bytes = b""  # little-endian samples of sample_format
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.samples) // _sample_size(self.sample_format)
+
+    def samples_array(self) -> np.ndarray:
+        """The samples as a read-only numpy view (dtype from ``SAMPLE_DTYPE``)."""
+        return np.frombuffer(self.samples, SAMPLE_DTYPE[SampleFormat(self.sample_format)])
+
+    def pack(self) -> bytes:
+        size = _sample_size(self.sample_format)
+        if len(self.samples) % size:
+            raise MessageError(f"{len(self.samples)} sample bytes is not a multiple of {size}")
+        try:
+            header = STREAM_HEADER.pack(
+                self.acquisition, self.channel, self.n_channels, self.sample_format,
+                STREAM_HEADER.size, self.sample_rate_hz, self.timestamp_us,
+                len(self.samples) // size, 0,
+            )  # fmt: skip
+        except struct.error as exc:
+            raise MessageError(f"StreamData: {exc}") from exc
+        return header + bytes(self.samples)
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> StreamData:
+        if len(payload) < STREAM_HEADER.size:
+            raise MessageError(f"STREAM_DATA of {len(payload)} bytes is shorter than its header")
+        acq, ch, n_ch, fmt, hsize, rate, ts, n, _ = STREAM_HEADER.unpack_from(payload)
+        if hsize < STREAM_HEADER.size:
+            raise MessageError(f"STREAM_DATA header_size {hsize} < {STREAM_HEADER.size}")
+        end = hsize + n * _sample_size(fmt)
+        if end > len(payload):
+            raise MessageError(f"STREAM_DATA declares {n} samples but is truncated")
+        return cls(acq, ch, n_ch, fmt, rate, ts, bytes(payload[hsize:end]))
