@@ -1,0 +1,1 @@
+"""Recorded acquisitions in and out (spiel-csv folders; MCAP lives in outputs/)."""

@@ -1,0 +1,89 @@
+"""Stage 2, detect: echo candidates per channel from the envelope's gradient (paper eq. 1).
+
+An echo starts where the gradient rises above ``threshold`` and ends once it falls below
+``threshold * hysteresis``; its candidate time is the envelope's maximum between its start
+and the next start. Hysteresis keeps one ragged rise from splitting into several echoes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from spiel_edge.errors import InputError
+from spiel_edge.pipeline._validate import as_frames
+
+
+def detect(
+    envelope: np.ndarray,
+    *,
+    threshold: float,
+    hysteresis: float = 0.5,
+    min_amplitude: float = 0.0,
+    max_echoes: int = 6,
+    first_sample: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(peaks, counts)``: per channel up to ``max_echoes`` peak sample indices
+    (int64, ascending, padded with -1) of the strongest echoes, and how many there are.
+
+    Rises before ``first_sample`` are ignored: the edge of a blanked blind zone is no echo.
+    """
+    y = as_frames(envelope, "envelope")
+    if threshold <= 0 or not 0.0 <= hysteresis <= 1.0 or max_echoes < 1:
+        raise InputError("detect needs threshold > 0, hysteresis in [0, 1] and max_echoes >= 1")
+    peaks = np.full((y.shape[0], max_echoes), -1, dtype=np.int64)
+    counts = np.zeros(y.shape[0], dtype=np.int64)
+    _detect_kernel(
+        y, float(threshold), float(threshold * hysteresis), float(min_amplitude), int(first_sample), peaks, counts
+    )
+    return peaks, counts
+
+
+@njit(cache=True, nogil=True)
+def _detect_kernel(y, hi, lo, min_amp, first, peaks, counts):
+    n_ch, n_t = y.shape
+    k_max = peaks.shape[1]
+    starts = np.empty(n_t, dtype=np.int64)
+    cand = np.empty(n_t, dtype=np.int64)
+    amp = np.empty(n_t)
+    for c in range(n_ch):
+        n_start = 0
+        rising = False
+        for t in range(max(1, first + 1), n_t):
+            g = y[c, t] - y[c, t - 1]
+            if not rising and g > hi:
+                rising = True
+                starts[n_start] = t - 1
+                n_start += 1
+            elif rising and g < lo:
+                rising = False
+        n_cand = 0
+        for i in range(n_start):
+            end = starts[i + 1] if i + 1 < n_start else n_t
+            best = starts[i]
+            for t in range(starts[i], end):
+                if y[c, t] > y[c, best]:
+                    best = t
+            if y[c, best] >= min_amp:
+                cand[n_cand] = best
+                amp[n_cand] = y[c, best]
+                n_cand += 1
+        # keep the strongest k_max, then report them in time order
+        keep = min(n_cand, k_max)
+        for j in range(keep):
+            m = j
+            for i in range(j + 1, n_cand):
+                if amp[i] > amp[m]:
+                    m = i
+            amp[j], amp[m] = amp[m], amp[j]
+            cand[j], cand[m] = cand[m], cand[j]
+        for j in range(1, keep):
+            v = cand[j]
+            i = j - 1
+            while i >= 0 and cand[i] > v:
+                cand[i + 1] = cand[i]
+                i -= 1
+            cand[i + 1] = v
+        for j in range(keep):
+            peaks[c, j] = cand[j]
+        counts[c] = keep

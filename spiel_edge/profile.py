@@ -1,0 +1,321 @@
+"""Device profiles: the hardware geometry and timing plus the pipeline's tuning, from TOML.
+
+A profile is one frozen dataclass tree. Built-in profiles live in ``spiel_edge/profiles/``;
+users copy one and edit it. A calibration file is a partial profile (usually ``[geometry]``
+only) applied over a base profile.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spiel_edge.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+TOA_METHODS = ("mode", "mu", "half", "peak")
+ASSOCIATION_METHODS = ("auto", "onnx", "geometric")
+
+
+@dataclass(frozen=True)
+class AcquisitionSpec:
+    sample_rate_hz: float = 22000.0
+    n_samples: int = 64
+    signal: str = "envelope"
+    carrier_hz: float = 175000.0
+
+
+@dataclass(frozen=True)
+class Geometry:
+    channels_mm: np.ndarray
+    emitter_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    facing: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    listening: np.ndarray | None = None
+    delay_samples: np.ndarray | None = None
+    speed_of_sound_m_s: float = 343.0
+
+    @property
+    def n_channels(self) -> int:
+        return int(self.channels_mm.shape[0])
+
+    def listening_mask(self) -> np.ndarray:
+        if self.listening is None:
+            return np.ones(self.n_channels, dtype=np.bool_)
+        return self.listening
+
+    def delays(self) -> np.ndarray:
+        if self.delay_samples is None:
+            return np.zeros(self.n_channels)
+        return self.delay_samples
+
+
+@dataclass(frozen=True)
+class PreprocessSpec:
+    background_subtraction: bool = True
+    blind_zone_samples: int = 0
+
+
+@dataclass(frozen=True)
+class DetectSpec:
+    threshold: float = 30.0
+    hysteresis: float = 0.5
+    min_amplitude: float = 60.0
+    max_echoes: int = 6
+
+
+@dataclass(frozen=True)
+class MemgSpec:
+    max_iterations: int = 30
+    mu_window: float = 3.0
+    toa: str = "mode"
+
+
+@dataclass(frozen=True)
+class AssociateSpec:
+    method: str = "auto"
+    tolerance_mm: float = 12.0
+    max_residual_mm: float = 15.0
+    missing_penalty_mm: float = 4.0
+    min_channels: int = 3
+
+
+@dataclass(frozen=True)
+class Profile:
+    name: str
+    geometry: Geometry
+    acquisition: AcquisitionSpec = AcquisitionSpec()
+    preprocess: PreprocessSpec = PreprocessSpec()
+    detect: DetectSpec = DetectSpec()
+    memg: MemgSpec = MemgSpec()
+    associate: AssociateSpec = AssociateSpec()
+    description: str = ""
+
+    @property
+    def mm_per_sample(self) -> float:
+        """Echo path length (mm) travelled in one sample period."""
+        return self.geometry.speed_of_sound_m_s * 1000.0 / self.acquisition.sample_rate_hz
+
+    def replace(self, **sections: Any) -> Profile:
+        return dataclasses.replace(self, **sections)
+
+
+_SECTIONS = {
+    "acquisition": AcquisitionSpec,
+    "preprocess": PreprocessSpec,
+    "detect": DetectSpec,
+    "memg": MemgSpec,
+    "associate": AssociateSpec,
+}
+_GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
+
+
+def builtin_profiles() -> list[str]:
+    folder = resources.files("spiel_edge") / "profiles"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_profile(name_or_path: str | Path = "spiel-icra23") -> Profile:
+    """Load a built-in profile by name, or a profile TOML file by path."""
+    text, origin = _read_profile_text(name_or_path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{origin}: not valid TOML: {exc}") from exc
+    return profile_from_dict(data, origin=origin)
+
+
+def apply_calibration(profile: Profile, path: str | Path) -> Profile:
+    """Overlay a calibration (a partial profile TOML, e.g. only [geometry]) on ``profile``."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: calibration file not found") from exc
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read calibration: {exc}") from exc
+    merged = profile_to_dict(profile)
+    for key, value in data.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key].update(value)
+        else:
+            merged[key] = value
+    return profile_from_dict(merged, origin=str(path))
+
+
+def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
+    candidate = Path(name_or_path)
+    if candidate.suffix == ".toml" or candidate.exists():
+        try:
+            return candidate.read_text(), str(candidate)
+        except FileNotFoundError as exc:
+            raise ConfigError(f"{candidate}: profile file not found") from exc
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{candidate}: cannot read profile: {exc}") from exc
+    name = str(name_or_path)
+    if name not in builtin_profiles():
+        raise ConfigError(
+            f"unknown profile {name!r}; built-in profiles: {', '.join(builtin_profiles())} "
+            "(or give a path to a .toml file)"
+        )
+    return (resources.files("spiel_edge") / "profiles" / f"{name}.toml").read_text(), name
+
+
+def profile_from_dict(data: dict[str, Any], *, origin: str = "profile") -> Profile:
+    data = dict(data)
+    allowed = {"name", "description", "geometry", *_SECTIONS}
+    unknown = set(data) - allowed
+    if unknown:
+        raise ConfigError(f"{origin}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+    sections = {key: _section(origin, key, cls, data.get(key, {})) for key, cls in _SECTIONS.items()}
+    geometry = _geometry(origin, data.get("geometry"))
+    profile = Profile(
+        name=str(data.get("name", Path(origin).stem)),
+        description=str(data.get("description", "")),
+        geometry=geometry,
+        **sections,
+    )
+    validate_profile(profile, origin)
+    return profile
+
+
+def _section(origin: str, key: str, cls: type, values: Any) -> Any:
+    if not isinstance(values, dict):
+        raise ConfigError(f"{origin}: [{key}] must be a table")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = set(values) - set(fields)
+    if unknown:
+        raise ConfigError(f"{origin}: unknown key(s) {sorted(unknown)} in [{key}]; allowed: {sorted(fields)}")
+    defaults = cls()
+    converted = {}
+    for name, value in values.items():
+        expected = type(getattr(defaults, name))
+        if expected is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
+            raise ConfigError(f"{origin}: {key}.{name} must be {expected.__name__}, got {value!r}")
+        converted[name] = value
+    return cls(**converted)
+
+
+def _geometry(origin: str, values: Any) -> Geometry:
+    if not isinstance(values, dict) or "channels_mm" not in values:
+        raise ConfigError(f"{origin}: [geometry] with channels_mm (one [x, y, z] per channel) is required")
+    unknown = set(values) - _GEOMETRY_KEYS
+    if unknown:
+        raise ConfigError(f"{origin}: unknown key(s) {sorted(unknown)} in [geometry]; allowed: {sorted(_GEOMETRY_KEYS)}")
+    channels = _array(origin, "geometry.channels_mm", values["channels_mm"], ndim=2)
+    n = channels.shape[0]
+    kwargs: dict[str, Any] = {"channels_mm": channels}
+    if "emitter_mm" in values:
+        kwargs["emitter_mm"] = _array(origin, "geometry.emitter_mm", values["emitter_mm"], shape=(3,))
+    if "facing" in values:
+        facing = _array(origin, "geometry.facing", values["facing"], shape=(3,))
+        norm = float(np.linalg.norm(facing))
+        if norm == 0:
+            raise ConfigError(f"{origin}: geometry.facing must be a non-zero vector")
+        kwargs["facing"] = facing / norm
+    if "listening" in values:
+        listening = values["listening"]
+        if not (isinstance(listening, list) and len(listening) == n and all(isinstance(v, bool) for v in listening)):
+            raise ConfigError(f"{origin}: geometry.listening must be {n} booleans, one per channel")
+        kwargs["listening"] = np.array(listening, dtype=np.bool_)
+    if "delay_samples" in values:
+        kwargs["delay_samples"] = _array(origin, "geometry.delay_samples", values["delay_samples"], shape=(n,))
+    if "speed_of_sound_m_s" in values:
+        speed = values["speed_of_sound_m_s"]
+        if not isinstance(speed, (int, float)) or isinstance(speed, bool) or not 200.0 <= speed <= 2000.0:
+            raise ConfigError(f"{origin}: geometry.speed_of_sound_m_s must be a number in [200, 2000], got {speed!r}")
+        kwargs["speed_of_sound_m_s"] = float(speed)
+    return Geometry(**kwargs)
+
+
+def _array(origin: str, key: str, value: Any, *, ndim: int | None = None, shape: tuple | None = None) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{origin}: {key} must be numbers, got {value!r}") from exc
+    if ndim == 2 and (arr.ndim != 2 or arr.shape[1] != 3):
+        raise ConfigError(f"{origin}: {key} must be a list of [x, y, z] rows, got shape {arr.shape}")
+    if shape is not None and arr.shape != shape:
+        raise ConfigError(f"{origin}: {key} must have shape {list(shape)}, got {list(arr.shape)}")
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{origin}: {key} must be finite numbers")
+    arr.setflags(write=False)
+    return arr
+
+
+def validate_profile(p: Profile, origin: str = "profile") -> None:
+    """Cross-field rules; raises ConfigError naming the key and the allowed range."""
+    def need(ok: bool, msg: str) -> None:
+        if not ok:
+            raise ConfigError(f"{origin}: {msg}")
+
+    a, g = p.acquisition, p.geometry
+    need(1000.0 <= a.sample_rate_hz <= 10e6, f"acquisition.sample_rate_hz must be in [1e3, 1e7], got {a.sample_rate_hz}")
+    need(8 <= a.n_samples <= 4096, f"acquisition.n_samples must be in [8, 4096], got {a.n_samples}")
+    need(a.signal in ("envelope", "rf"), f"acquisition.signal must be 'envelope' or 'rf', got {a.signal!r}")
+    if a.signal == "rf":
+        need(0 < a.carrier_hz < a.sample_rate_hz / 2, "acquisition.carrier_hz must be below half the sample rate for signal = 'rf'")
+    n_listen = int(g.listening_mask().sum())
+    need(n_listen >= 3, f"geometry needs at least 3 listening channels, has {n_listen}")
+    need(0 <= p.preprocess.blind_zone_samples < a.n_samples, f"preprocess.blind_zone_samples must be in [0, {a.n_samples})")
+    d = p.detect
+    need(d.threshold > 0, f"detect.threshold must be > 0, got {d.threshold}")
+    need(0.0 <= d.hysteresis <= 1.0, f"detect.hysteresis must be in [0, 1], got {d.hysteresis}")
+    need(d.min_amplitude >= 0, f"detect.min_amplitude must be >= 0, got {d.min_amplitude}")
+    need(1 <= d.max_echoes <= 16, f"detect.max_echoes must be in [1, 16], got {d.max_echoes}")
+    m = p.memg
+    need(1 <= m.max_iterations <= 200, f"memg.max_iterations must be in [1, 200], got {m.max_iterations}")
+    need(0.5 <= m.mu_window <= 20, f"memg.mu_window must be in [0.5, 20], got {m.mu_window}")
+    need(m.toa in TOA_METHODS, f"memg.toa must be one of {TOA_METHODS}, got {m.toa!r}")
+    s = p.associate
+    need(s.method in ASSOCIATION_METHODS, f"associate.method must be one of {ASSOCIATION_METHODS}, got {s.method!r}")
+    need(3 <= s.min_channels <= n_listen, f"associate.min_channels must be in [3, {n_listen}], got {s.min_channels}")
+    need(s.tolerance_mm >= 0 and s.max_residual_mm > 0, "associate.tolerance_mm must be >= 0 and max_residual_mm > 0")
+
+
+def profile_to_dict(p: Profile) -> dict[str, Any]:
+    """The profile as TOML-ready nested dicts (arrays as lists)."""
+    g = p.geometry
+    geometry: dict[str, Any] = {
+        "speed_of_sound_m_s": g.speed_of_sound_m_s,
+        "emitter_mm": g.emitter_mm.tolist(),
+        "facing": g.facing.tolist(),
+        "channels_mm": g.channels_mm.tolist(),
+        "listening": g.listening_mask().tolist(),
+        "delay_samples": g.delays().tolist(),
+    }
+    out: dict[str, Any] = {"name": p.name, "description": p.description, "geometry": geometry}
+    for key in _SECTIONS:
+        out[key] = dataclasses.asdict(getattr(p, key))
+    return out
+
+
+def dump_toml(data: dict[str, Any]) -> str:
+    """A minimal TOML writer for profile-shaped data (tables of scalars and lists)."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for key, table in data.items():
+        if isinstance(table, dict):
+            lines.append(f"\n[{key}]")
+            lines.extend(f"{k} = {_toml_value(v)}" for k, v in table.items())
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
