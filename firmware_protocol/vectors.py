@@ -131,11 +131,13 @@ def _header(version: int = 1, flags: int = 0, length: int | None = None, payload
     return HEADER.pack(version, flags, 0x0004, 1, n, 0) + payload
 
 
+def _bad_crc(body: bytes) -> bytes:
+    return cobs.encode(body + (crc32c(body) ^ 1).to_bytes(4, "little")) + b"\x00"
+
+
 def _invalid() -> list[dict[str, Any]]:
-    good = bytearray(encode_frame(0x0004, b"ab", seq=1))
-    bad_crc = bytes(good[:5]) + bytes([good[5] ^ 0x01]) + bytes(good[6:])
     cases = [
-        ("crc", "crc", bad_crc),
+        ("crc", "crc", _bad_crc(_header())),
         ("version_2", "version", wrap_body(_header(version=2))),
         ("version_0", "version", wrap_body(_header(version=0))),
         ("unknown_flag_0x20", "flags", wrap_body(_header(flags=0x20))),
@@ -152,8 +154,7 @@ def _invalid() -> list[dict[str, Any]]:
 def _stream() -> dict[str, Any]:
     """Garbage, a frame, a corrupted frame, a frame: only the intact ones come out."""
     a = encode_frame(0x0004, b"first", seq=1)
-    body = HEADER.pack(PROTOCOL_VERSION, 0, 0x0004, 2, 6, 0) + b"broken"
-    b = cobs.encode(body + (crc32c(body) ^ 1).to_bytes(4, "little")) + b"\x00"
+    b = _bad_crc(HEADER.pack(PROTOCOL_VERSION, 0, 0x0004, 2, 6, 0) + b"broken")
     c = encode_frame(0x0004, b"second", seq=3, flags=int(Flags.RESPONSE))
     wire = b"\x13\x37garbage\x00" + a + b"\x00\x00" + b + c
     decoder = FrameDecoder()

@@ -172,4 +172,4 @@ def test_error_table_has_text_for_every_code() -> None:
 def test_schema_hash_is_stable() -> None:
     from firmware_protocol import load_test_vectors
 
-    assert SCHEMA_HASH == load_test_vectors()["schema_hash"]
+    assert load_test_vectors()["schema_hash"] == SCHEMA_HASH
