@@ -1,0 +1,34 @@
+"""Build a Pipeline with the associator a profile or the command line asks for."""
+
+from __future__ import annotations
+
+import logging
+
+from spiel_edge.errors import ModelError
+from spiel_edge.pipeline.associate import GeometricAssociator
+from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.profile import Profile
+
+log = logging.getLogger(__name__)
+
+
+def build_associator(profile: Profile, method: str | None = None):
+    """``onnx``/``auto``: the learned associator when its model loads, else a warning and the
+    geometric one (never a crash); ``geometric``: the geometric one."""
+    method = method or profile.associate.method
+    if method == "geometric":
+        return GeometricAssociator(profile)
+    try:
+        from spiel_edge.pipeline.associate_onnx import OnnxAssociator
+    except ImportError as exc:  # the learned associator is not built into this install
+        log.warning("learned association unavailable (%s); using geometric association", exc)
+        return GeometricAssociator(profile)
+    try:
+        return OnnxAssociator(profile)
+    except ModelError as exc:
+        log.warning("%s; using geometric association", exc)
+        return GeometricAssociator(profile)
+
+
+def build_pipeline(profile: Profile, association: str | None = None) -> Pipeline:
+    return Pipeline(profile, build_associator(profile, association))
