@@ -1,0 +1,130 @@
+/* Test driver for firmware_protocol/c: reads commands on stdin, prints results on stdout.
+ *   crc <hex>                              -> crc %08x
+ *   cobs <hex>                             -> cobs <hex>
+ *   hdr <hex12>                            -> hdr version flags msg_type seq len aux <hex12>
+ *   enc <flags> <type> <seq> <aux> <hex>   -> enc <wirehex> | enc error
+ *   dec <hex>   (fed byte by byte)         -> frame flags type seq aux <hex> ... then stats ...
+ * An empty hex string is written as "-".
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "spiel_proto.h"
+
+#define MAX_BYTES (1u << 19)
+
+static char line[2 * MAX_BYTES + 256];
+static uint8_t data[MAX_BYTES];
+static uint8_t out[2 * MAX_BYTES];
+static sp_decoder_t decoder;
+
+static size_t parse_hex(const char *s)
+{
+    size_t n = 0;
+    if (strcmp(s, "-") == 0) {
+        return 0;
+    }
+    while (s[0] && s[1] && n < MAX_BYTES) {
+        unsigned v;
+        sscanf(s, "%2x", &v);
+        data[n++] = (uint8_t)v;
+        s += 2;
+    }
+    return n;
+}
+
+static void print_hex(const uint8_t *p, size_t n)
+{
+    size_t i;
+    if (n == 0) {
+        fputs("-", stdout);
+    }
+    for (i = 0; i < n; i++) {
+        printf("%02x", p[i]);
+    }
+}
+
+static void cmd_dec(const char *hex)
+{
+    size_t i, n = parse_hex(hex);
+    sp_frame_t f;
+    sp_stats_t *s = &decoder.stats;
+    sp_decoder_init(&decoder);
+    for (i = 0; i < n; i++) {
+        if (sp_decoder_feed(&decoder, data[i], &f)) {
+            printf("frame %u %u %u %lu ", f.header.flags, f.header.msg_type, f.header.seq,
+                   (unsigned long)f.header.aux);
+            print_hex(f.payload, f.header.payload_len);
+            putchar('\n');
+        }
+    }
+    printf("stats %lu %lu %lu %lu %lu %lu %lu\n", (unsigned long)s->frames,
+           (unsigned long)s->crc, (unsigned long)s->cobs, (unsigned long)s->length,
+           (unsigned long)s->oversize, (unsigned long)s->version, (unsigned long)s->flags);
+}
+
+static void cmd_enc(char *args)
+{
+    unsigned flags, type, seq;
+    unsigned long aux;
+    static char hex[2 * MAX_BYTES + 2];
+    size_t n, w = 0;
+    if (sscanf(args, "%u %u %u %lu %s", &flags, &type, &seq, &aux, hex) != 5) {
+        puts("enc error");
+        return;
+    }
+    n = parse_hex(hex);
+    if (n <= 0xFFFFu) {
+        w = sp_frame_encode((uint16_t)type, (uint16_t)seq, (uint8_t)flags, (uint32_t)aux, data,
+                            (uint16_t)n, out, SP_MAX_WIRE);
+    }
+    if (w == 0) {
+        puts("enc error");
+        return;
+    }
+    fputs("enc ", stdout);
+    print_hex(out, w);
+    putchar('\n');
+}
+
+static void cmd_hdr(const char *hex)
+{
+    sp_header_t h;
+    uint8_t packed[SP_HEADER_SIZE];
+    parse_hex(hex);
+    sp_header_unpack(data, &h);
+    sp_header_pack(&h, packed);
+    printf("hdr %u %u %u %u %u %lu ", h.version, h.flags, h.msg_type, h.seq, h.payload_len,
+           (unsigned long)h.aux);
+    print_hex(packed, SP_HEADER_SIZE);
+    putchar('\n');
+}
+
+int main(void)
+{
+    while (fgets(line, sizeof line, stdin)) {
+        char *arg = strchr(line, ' ');
+        line[strcspn(line, "\r\n")] = 0;
+        if (!arg) {
+            continue;
+        }
+        *arg++ = 0;
+        if (strcmp(line, "crc") == 0) {
+            size_t n = parse_hex(arg);
+            printf("crc %08lx\n", (unsigned long)sp_crc32c(0, data, n));
+        } else if (strcmp(line, "cobs") == 0) {
+            size_t n = parse_hex(arg);
+            fputs("cobs ", stdout);
+            print_hex(out, sp_cobs_encode(data, n, out, sizeof out));
+            putchar('\n');
+        } else if (strcmp(line, "hdr") == 0) {
+            cmd_hdr(arg);
+        } else if (strcmp(line, "enc") == 0) {
+            cmd_enc(arg);
+        } else if (strcmp(line, "dec") == 0) {
+            cmd_dec(arg);
+        }
+    }
+    return 0;
+}
