@@ -15,9 +15,10 @@ from typing import Any, ClassVar, TypeVar
 
 from firmware_protocol.errors import MessageError
 
-__all__ = ["Message", "item_codes"]
+__all__ = ["REGISTRY", "Message", "item_codes", "register"]
 
 M = TypeVar("M", bound="Message")
+C = TypeVar("C", bound="type[Message]")
 _ITEM = re.compile(r"(\d*)([a-zA-Z?])")
 
 
@@ -90,3 +91,15 @@ def _to_bytes(value: Any, limit: int | None, name: str) -> bytes:
     if limit is not None and len(data) > limit:
         raise MessageError(f"{name}: {len(data)} bytes is too long")
     return data
+
+
+REGISTRY: dict[tuple[int, bool], type[Message]] = {}
+
+
+def register(cls: C) -> C:
+    """Add a message class to REGISTRY under (MSG_TYPE, RESPONSE)."""
+    key = (cls.MSG_TYPE, cls.RESPONSE)
+    if key in REGISTRY:
+        raise RuntimeError(f"duplicate message key {key}")
+    REGISTRY[key] = cls
+    return cls

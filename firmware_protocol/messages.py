@@ -10,11 +10,22 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag
-from typing import ClassVar, TypeVar
+from typing import ClassVar
 
 from crc32c import crc32c
 
-from firmware_protocol._codec import Message
+from firmware_protocol._codec import REGISTRY, Message, register
+from firmware_protocol.config_messages import (
+    ConfigCommit,
+    ConfigCommitResponse,
+    ConfigRead,
+    ConfigReadResponse,
+    ConfigSource,
+    ConfigStatus,
+    ConfigStatusRequest,
+    ConfigWrite,
+    ConfigWriteResponse,
+)
 from firmware_protocol.errors import MessageError, RemoteError, UnknownMessageError
 from firmware_protocol.framing import Flags, Frame, encode_frame
 from firmware_protocol.stream import SampleFormat, StreamData
@@ -89,26 +100,9 @@ class Capability(IntFlag):
     TIME_SYNC = 0x20  # timestamp_us is synchronised to the host (otherwise free-running)
 
 
-class ConfigSource(IntEnum):
-    ACTIVE = 0  # the active flash slot
-    STAGING = 1  # the RAM staging buffer
-
-
 class RebootMode(IntEnum):
     NORMAL = 0
     BOOTLOADER = 1
-
-
-REGISTRY: dict[tuple[int, bool], type[Message]] = {}
-M = TypeVar("M", bound=type[Message])
-
-
-def register(cls: M) -> M:
-    key = (cls.MSG_TYPE, cls.RESPONSE)
-    if key in REGISTRY:
-        raise RuntimeError(f"duplicate message key {key}")
-    REGISTRY[key] = cls
-    return cls
 
 
 # --- session ---------------------------------------------------------------------------
@@ -289,96 +283,6 @@ class StreamStatus(Message):
 
 
 register(StreamData)
-
-
-# --- configuration ---------------------------------------------------------------------
-
-
-@register
-@dataclass(frozen=True)
-class ConfigRead(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_READ
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IHB")
-    offset: int = 0
-    length: int = 0  # <= max_payload - 6
-    source: int = ConfigSource.ACTIVE
-
-
-@register
-@dataclass(frozen=True)
-class ConfigReadResponse(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_READ
-    RESPONSE: ClassVar[bool] = True
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IH")
-    _TAIL: ClassVar[str] = "data"
-    offset: int = 0
-    data: bytes = b""  # shorter than asked at the end of the config
-
-
-@register
-@dataclass(frozen=True)
-class ConfigWrite(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_WRITE
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IH")
-    _TAIL: ClassVar[str] = "data"
-    offset: int = 0  # offset in the RAM staging buffer; 0 starts a new staging
-    data: bytes = b""
-
-
-@register
-@dataclass(frozen=True)
-class ConfigWriteResponse(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_WRITE
-    RESPONSE: ClassVar[bool] = True
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<I")
-    staged_length: int = 0  # highest offset + length written since staging started
-
-
-@register
-@dataclass(frozen=True)
-class ConfigCommit(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_COMMIT
-    TIMEOUT_S: ClassVar[float] = 3.0  # erase + write + verify of a flash slot
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<II")
-    total_length: int = 0
-    expected_crc: int = 0  # CRC-32C of staging[0:total_length]
-
-
-@register
-@dataclass(frozen=True)
-class ConfigCommitResponse(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_COMMIT
-    RESPONSE: ClassVar[bool] = True
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<BIII")
-    slot: int = 0  # the slot now active
-    generation: int = 0
-    length: int = 0
-    crc: int = 0
-
-
-@register
-@dataclass(frozen=True)
-class ConfigStatusRequest(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_STATUS
-
-
-@register
-@dataclass(frozen=True)
-class ConfigStatus(Message):
-    MSG_TYPE: ClassVar[int] = MsgType.CONFIG_STATUS
-    RESPONSE: ClassVar[bool] = True
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<BIIIIIBIIIB")
-    active_slot: int = 0xFF  # 0 or 1; 0xFF = no valid slot (factory defaults in use)
-    staged_length: int = 0
-    max_length: int = 0  # capacity of a slot / the staging buffer
-    slot0_generation: int = 0
-    slot0_length: int = 0
-    slot0_crc: int = 0
-    slot0_valid: int = 0
-    slot1_generation: int = 0
-    slot1_length: int = 0
-    slot1_crc: int = 0
-    slot1_valid: int = 0
 
 
 # --- codec -----------------------------------------------------------------------------

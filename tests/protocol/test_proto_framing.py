@@ -37,11 +37,11 @@ def test_crc32c_check_value() -> None:
 
 
 def test_worked_example_bytes() -> None:
-    # PROTOCOL.md worked example 1: PING request, seq 1, payload "ab"
-    wire = encode_frame(0x0004, b"ab", seq=1)
-    body = bytes.fromhex("01 00 0400 0100 0200 00000000 6162")
-    assert crc32c(body) == 0xAD46ED78
-    assert wire == bytes.fromhex("02 01 02 04 02 01 02 02 01 01 01 01 07 61 62 78 ed 46 ad 00")
+    # PROTOCOL.md worked example 1: type 0x8001, seq 1, payload "ab"
+    wire = encode_frame(0x8001, b"ab", seq=1)
+    body = bytes.fromhex("01 00 0180 0100 0200 00000000 6162")
+    assert crc32c(body) == 0xBEAD6F22
+    assert wire == bytes.fromhex("02 01 04 01 80 01 02 02 01 01 01 01 07 61 62 22 6f ad be 00")
 
 
 def test_header_fields_round_trip() -> None:
