@@ -83,7 +83,9 @@ class AssociateSpec:
     method: str = "auto"
     tolerance_mm: float = 12.0
     max_residual_mm: float = 15.0
-    missing_penalty_mm: float = 4.0
+    missing_penalty_mm: float = 10.0
+    strength_weight_mm: float = 0.0
+    range_weight: float = 0.0
     min_channels: int = 3
 
 

@@ -7,7 +7,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from spiel_edge.errors import InputError, SpielError
 from spiel_edge.io.spiel_csv import Recording, iter_recordings
 from spiel_edge.pipeline.run import Pipeline, Result

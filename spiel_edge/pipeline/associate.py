@@ -7,8 +7,13 @@ channel and ``matched`` an int64 (channels,) index into each channel's echoes, -
 The geometric associator searches the combinations depth-first. Two paths that share the
 emitter can differ by at most the distance between their receivers
 (| |p - r_i| - |p - r_j| | <= |r_i - r_j|), which prunes almost every combination before any
-solve; the survivors are located and scored by rms residual plus a penalty per channel left
-out. The learned associator (``spiel_edge.association``) plugs into the same interface.
+solve; the survivors are located and scored by
+
+    cost = rms residual + missing_penalty * channels left out
+           - strength_weight * mean log(alpha) + range_weight * range
+
+so that, among consistent combinations, strong and near echoes win over weak ones and over
+multiple reflections (which arrive later, at about twice the path, and are also consistent). The learned associator (``spiel_edge.association``) plugs into the same interface.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ class GeometricAssociator:
         self.max_residual_mm = s.max_residual_mm
         self.missing_penalty_mm = s.missing_penalty_mm
         self.min_channels = s.min_channels
+        self.strength_weight_mm = s.strength_weight_mm
+        self.range_weight = s.range_weight
         diff = self.channels[:, None, :] - self.channels[None, :, :]
         self.max_path_diff = np.ascontiguousarray(np.sqrt((diff**2).sum(-1)) + self.tolerance_mm)
 
@@ -65,16 +72,20 @@ class GeometricAssociator:
         if allowed is None:
             allowed = np.isfinite(paths)
         allowed = np.ascontiguousarray(allowed & np.isfinite(paths), dtype=np.bool_)
+        alpha = features[:, :, 0]
+        strength = np.ascontiguousarray(np.log(np.where(np.isfinite(alpha) & (alpha > 1.0), alpha, 1.0)))
+        weights = np.array([self.max_residual_mm, self.missing_penalty_mm, self.strength_weight_mm, self.range_weight])
         matched = np.full(self.channels.shape[0], -1, dtype=np.int64)
         cost = _search_kernel(
-            paths, counts, allowed, self.listening, self.channels, self.emitter, self.facing,
-            self.max_path_diff, self.max_residual_mm, self.missing_penalty_mm, self.min_channels, matched,
+            paths, strength, counts, allowed, self.listening, self.channels, self.emitter, self.facing,
+            self.max_path_diff, weights, self.min_channels, matched,
         )
         return matched, cost
 
 
 @njit(cache=True, nogil=True)
-def _search_kernel(paths, counts, allowed, listening, ch, e, facing, max_diff, max_res, penalty, min_ch, best):
+def _search_kernel(paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best):
+    max_res, penalty, strength_weight, range_weight = weights[0], weights[1], weights[2], weights[3]
     n_ch = paths.shape[0]
     choice = np.full(n_ch, -1, dtype=np.int64)
     d = np.empty(n_ch)
@@ -117,7 +128,13 @@ def _search_kernel(paths, counts, allowed, listening, ch, e, facing, max_diff, m
         ok, rms = _locate_kernel(d, use, e, ch, facing, 20, pos)
         if not ok or rms > max_res:
             continue
-        cost = rms + penalty * (n_ch - n_used)
+        mean_strength = 0.0
+        for j in range(n_ch):
+            if choice[j] >= 0:
+                mean_strength += strength[j, choice[j]]
+        mean_strength /= n_used
+        distance = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2)
+        cost = rms + penalty * (n_ch - n_used) - strength_weight * mean_strength + range_weight * distance
         if cost < best_cost:
             best_cost = cost
             best[:] = choice

@@ -1,0 +1,176 @@
+"""Learned echo association (PaCE paper, section IV) run by onnxruntime, with a geometric guard.
+
+The model (``spiel_edge/models/association.onnx``, card beside it) maps each echo's 8 features
+to a target score and a 4-D embedding. Per acquisition, one ``run`` call scores every echo;
+the highest score is the reference echo, and each echo's embedding distance to it (paper
+eq. 19) says how alike they are. Echoes within the model's distance threshold are the
+candidates; the geometric associator then picks the combination consistent with one target
+among them (the guard against a confident but impossible match). Without any consistent
+combination among the candidates, the unrestricted geometric search decides.
+
+Built by :func:`spiel_edge.pipeline.factory.build_associator`; a missing or unusable model
+raises ModelError there, which becomes a warning and geometric association.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from spiel_edge.errors import InputError, ModelError
+from spiel_edge.pipeline.associate import GeometricAssociator
+from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
+from spiel_edge.profile import Profile
+
+log = logging.getLogger(__name__)
+
+INPUT_NAME = "features"
+OUTPUTS = ("score", "embedding")
+DEFAULT_DISTANCE_THRESHOLD = 1.0  # used when the model carries no "spiel.distance_threshold"
+
+
+def default_model_path() -> Path:
+    return Path(str(resources.files("spiel_edge") / "models" / "association.onnx"))
+
+
+def load_session(path: str | Path):
+    """An onnxruntime session for one small core, checked for the association interface."""
+    import onnxruntime as ort
+
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"association model {path} not found")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.log_severity_level = 3  # errors only: a bad file is reported through ModelError
+    try:
+        session = ort.InferenceSession(path.read_bytes(), sess_options=opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own untyped errors for corrupt files
+        raise ModelError(f"association model {path} cannot be loaded: {exc}") from exc
+    _check_interface(session, path)
+    return session
+
+
+def _check_interface(session, path: Path) -> None:
+    inputs = session.get_inputs()
+    if len(inputs) != 1 or inputs[0].name != INPUT_NAME:
+        raise ModelError(f"association model {path}: expected one input {INPUT_NAME!r}, got {[i.name for i in inputs]}")
+    shape = inputs[0].shape
+    if len(shape) != 2 or shape[1] != N_FEATURES or isinstance(shape[0], int) and shape[0] != -1:
+        raise ModelError(
+            f"association model {path}: input {INPUT_NAME!r} must be (batch, {N_FEATURES}) "
+            f"with a dynamic batch axis, got {shape}"
+        )
+    if inputs[0].type != "tensor(float)":
+        raise ModelError(f"association model {path}: input must be float32, got {inputs[0].type}")
+    names = {o.name for o in session.get_outputs()}
+    if not set(OUTPUTS) <= names:
+        raise ModelError(f"association model {path}: outputs {sorted(names)} lack {sorted(set(OUTPUTS) - names)}")
+
+
+def echo_rows(features: np.ndarray, counts: np.ndarray, listening: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(channel, echo) indices of the echoes to score: present, listening, finite ToA."""
+    k_max = features.shape[1]
+    valid = (np.arange(k_max)[None, :] < counts[:, None]) & listening[:, None]
+    valid &= np.isfinite(features[:, :, TOA_COLUMN])
+    return np.nonzero(valid)
+
+
+def candidate_mask(
+    shape: tuple[int, int], rows: tuple[np.ndarray, np.ndarray], score: np.ndarray,
+    embedding: np.ndarray, threshold: float,
+) -> np.ndarray:
+    """(channels, max_echoes) bool: echoes within ``threshold`` embedding distance of the
+    reference (the highest-scoring echo), which is always a candidate."""
+    allowed = np.zeros(shape, dtype=np.bool_)
+    if score.size == 0:
+        return allowed
+    ref = int(np.argmax(score))
+    d = np.sqrt(((embedding - embedding[ref]) ** 2).sum(axis=1))
+    allowed[rows[0], rows[1]] = d <= threshold
+    return allowed
+
+
+def guarded_match(
+    geometric: GeometricAssociator, features: np.ndarray, counts: np.ndarray, allowed: np.ndarray
+) -> np.ndarray:
+    """The geometrically consistent combination among the candidates, else the unrestricted one."""
+    matched, cost = geometric.candidates(features, counts, allowed)
+    if math.isfinite(cost):
+        return matched
+    return geometric.candidates(features, counts)[0]
+
+
+class OnnxAssociator:
+    """``associator(features, counts) -> matched`` with the learned model and a geometric guard."""
+
+    name = "onnx"
+
+    def __init__(self, profile: Profile, model_path: str | Path | None = None, *, distance_threshold: float | None = None):
+        self.model_path = Path(model_path) if model_path is not None else default_model_path()
+        self.session = load_session(self.model_path)
+        self.geometric = GeometricAssociator(profile)
+        self.listening = np.asarray(profile.geometry.listening_mask(), dtype=np.bool_)
+        self.n_channels = profile.geometry.n_channels
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if distance_threshold is None:
+            distance_threshold = float(meta.get("spiel.distance_threshold", DEFAULT_DISTANCE_THRESHOLD))
+        self.distance_threshold = distance_threshold
+        log.debug("association model %s loaded (threshold %.3g)", self.model_path, distance_threshold)
+
+    def score(self, features: np.ndarray, counts: np.ndarray):
+        """One ``run`` over every echo: (rows, score (n,), embedding (n, 4))."""
+        features = np.asarray(features)
+        counts = np.asarray(counts, dtype=np.int64)
+        if features.ndim != 3 or features.shape[0] != self.n_channels or features.shape[2] != N_FEATURES:
+            raise InputError(f"features must be ({self.n_channels}, max_echoes, {N_FEATURES}), got {features.shape}")
+        rows = echo_rows(features, counts, self.listening)
+        x = np.ascontiguousarray(features[rows], dtype=np.float32)
+        if x.shape[0] == 0:
+            return rows, np.zeros(0, np.float32), np.zeros((0, 4), np.float32)
+        score, embedding = self.session.run(list(OUTPUTS), {INPUT_NAME: x})
+        return rows, score[:, 0], embedding
+
+    def __call__(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
+        rows, score, embedding = self.score(features, counts)
+        allowed = candidate_mask(np.shape(features)[:2], rows, score, embedding, self.distance_threshold)
+        return guarded_match(self.geometric, features, counts, allowed)
+
+
+def bench_scoring(n: int = 2000, profile: Profile | None = None, model_path: str | Path | None = None) -> dict:
+    """Median and p99 wall time (us) of scoring one acquisition (the ``run`` call with its
+    input packing) and of the whole association, over the vendored recordings."""
+    from spiel_edge.data import load_subset
+    from spiel_edge.pipeline.run import Pipeline
+    from spiel_edge.profile import load_profile
+
+    profile = profile or load_profile("spiel-icra23")
+    assoc = OnnxAssociator(profile, model_path)
+    pipe = Pipeline(profile, assoc)
+    data = load_subset()
+    inputs = []
+    for i in range(min(len(data), 64)):
+        r = pipe.process(data.frames[i], data.backgrounds[i])
+        inputs.append((r.features, r.counts))
+    times = {"scoring_us": [], "associate_us": []}
+    for i in range(n):
+        f, c = inputs[i % len(inputs)]
+        t0 = time.perf_counter_ns()
+        assoc.score(f, c)
+        t1 = time.perf_counter_ns()
+        assoc(f, c)
+        t2 = time.perf_counter_ns()
+        times["scoring_us"].append((t1 - t0) / 1e3)
+        times["associate_us"].append((t2 - t1) / 1e3)
+    out: dict = {"n": n, "echoes_per_acquisition": float(np.mean([c.sum() for _, c in inputs]))}
+    for key, values in times.items():
+        out[key] = {"median": float(np.median(values)), "p99": float(np.percentile(values, 99))}
+    return out
