@@ -5,7 +5,12 @@ from __future__ import annotations
 import click
 
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
-from spiel_edge.cli._options import association_option, calibration_option, profile_option, resolve_profile
+from spiel_edge.cli._options import (
+    association_option,
+    calibration_option,
+    profile_option,
+    resolve_profile,
+)
 from spiel_edge.outputs.ndjson import NdjsonSink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.replay import FORMATS, iter_sources, replay
