@@ -2,14 +2,20 @@
 
 A Sink takes JSON-ready record dicts (see the README's record schema) and must be closed;
 raw acquisitions go to sinks that want them (recordings) through ``write_acquisition``.
+:func:`open_outputs` builds the MultiSink the command-line options ask for.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Protocol
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
+
+from spiel_edge.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -33,12 +39,19 @@ class MultiSink:
             except OSError as exc:
                 log.error("output %s failed, dropping it: %s", type(sink).__name__, exc)
                 self.sinks.remove(sink)
+                _close_quietly(sink)
 
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
-        for sink in self.sinks:
+        for sink in list(self.sinks):
             hook = getattr(sink, "write_acquisition", None)
-            if hook is not None:
+            if hook is None:
+                continue
+            try:
                 hook(acquisition, frames)
+            except OSError as exc:  # disk full, ...: stop recording, keep publishing
+                log.error("output %s failed, dropping it: %s", type(sink).__name__, exc)
+                self.sinks.remove(sink)
+                _close_quietly(sink)
 
     def close(self) -> None:
         for sink in self.sinks:
@@ -52,3 +65,81 @@ class MultiSink:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _close_quietly(sink: Sink) -> None:
+    try:
+        sink.close()
+    except Exception as exc:  # already failing; the first error was logged
+        log.debug("closing %s: %s", type(sink).__name__, exc)
+
+
+def recording_path(template: str | Path, now: float | None = None) -> Path:
+    """Expand strftime fields (``spiel-%Y%m%d-%H%M%S.mcap``) so a restarted service never
+    overwrites the recording of the run before."""
+    text = str(template)
+    if "%" in text:
+        text = time.strftime(text, time.localtime(now))
+    path = Path(text)
+    if path.suffix != ".mcap":
+        raise ConfigError(f"--record {template}: the file name must end in .mcap")
+    if not path.parent.is_dir():
+        raise ConfigError(f"--record {template}: folder {path.parent} does not exist")
+    return path
+
+
+def open_outputs(output: str | None = "-", record: str | Path | None = None, udp: Sequence[str] | str | None = None,
+                 foxglove: str | None = None, zenoh: str | None = None, *,
+                 metadata: dict[str, Any] | None = None, receivers_mm: Any = None) -> MultiSink:
+    """The sinks the options ask for, all at once: NDJSON (``output``; None for none), an MCAP
+    recording, UDP targets, a Foxglove live view, Zenoh. Closes what it opened on failure."""
+    from spiel_edge.outputs.ndjson import NdjsonSink
+
+    factories: list = []
+    if output is not None:
+        factories.append(lambda: NdjsonSink(output))
+    if record is not None:
+        path = recording_path(record)
+        factories.append(lambda: _mcap_sink(path, metadata))
+    for target in [udp] if isinstance(udp, str) else list(udp or []):
+        factories.append(lambda target=target: _udp_sink(target))
+    if foxglove is not None:
+        factories.append(lambda: _foxglove_sink(foxglove, receivers_mm))
+    if zenoh is not None:
+        factories.append(lambda: _zenoh_sink(zenoh))
+    sinks: list[Sink] = []
+    try:
+        for make in factories:
+            sinks.append(make())
+    except BaseException:
+        for sink in sinks:
+            _close_quietly(sink)
+        raise
+    return MultiSink(sinks)
+
+
+def _mcap_sink(path: Path, metadata: dict[str, Any] | None) -> Sink:
+    from spiel_edge.outputs.mcap import McapSink
+
+    try:
+        return McapSink(path, metadata=metadata)
+    except OSError as exc:
+        raise ConfigError(f"--record {path}: cannot write: {exc}") from exc
+
+
+def _udp_sink(target: str) -> Sink:
+    from spiel_edge.outputs.udp import UdpSink
+
+    return UdpSink(target)
+
+
+def _foxglove_sink(bind: str, receivers_mm: Any) -> Sink:
+    from spiel_edge.outputs.foxglove import FoxgloveSink
+
+    return FoxgloveSink(bind, receivers_mm=receivers_mm)
+
+
+def _zenoh_sink(key: str) -> Sink:
+    from spiel_edge.outputs.zenoh import ZenohSink
+
+    return ZenohSink(key)

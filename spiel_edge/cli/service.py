@@ -1,0 +1,49 @@
+"""``spiel-edge service``: install the systemd unit, udev rule and /etc/spiel-edge config."""
+
+from __future__ import annotations
+
+import click
+
+from spiel_edge import service_kit
+
+
+@click.group("service")
+def command() -> None:
+    """The systemd service kit (unit, service user, udev rule, config)."""
+
+
+@command.command("install")
+@click.option("--prefix", default="/", show_default=True, type=click.Path(file_okay=False),
+              help="Root to write under (e.g. a staging folder or an image being built).")
+@click.option("--exec", "exec_path", default=None,
+              help="spiel-edge executable for ExecStart (default: the one beside this Python).")
+@click.option("--dry-run", is_flag=True, help="Print the files and commands; write nothing.")
+def install(prefix: str, exec_path: str | None, dry_run: bool) -> int:
+    """Write the kit under PREFIX; an existing spiel-edge.env is kept. Prints what to run next."""
+    files = service_kit.plan(exec_path or service_kit.default_exec())
+    if dry_run:
+        for kit_file in files:
+            note = " (kept if it exists)" if kit_file.config else ""
+            click.echo(f"--- would write {prefix.rstrip('/')}/{kit_file.path}{note}")
+            click.echo(kit_file.text)
+    else:
+        try:
+            results = service_kit.install(files, prefix)
+        except PermissionError as exc:
+            raise click.ClickException(f"{exc}; run with sudo, or --prefix a folder you can write") from exc
+        for path, what in results:
+            click.echo(f"{what:9} {path}")
+    click.echo("\nthen, as root:" if not dry_run else "--- then, as root:")
+    for step in service_kit.next_steps(prefix):
+        click.echo(f"  {step}")
+    return 0
+
+
+@command.command("show")
+@click.argument("what", type=click.Choice(["unit", "udev", "sysusers", "env"]))
+def show(what: str) -> int:
+    """Print one kit file (e.g. to review it, or pipe it where you want)."""
+    render = {"unit": lambda: service_kit.render_unit(service_kit.default_exec()), "udev": service_kit.render_udev,
+              "sysusers": service_kit.render_sysusers, "env": service_kit.render_env}[what]
+    click.echo(render(), nl=False)
+    return 0

@@ -1,0 +1,262 @@
+"""MCAP recordings: raw acquisitions and positions on separate JSON channels, and replay.
+
+Channels (message encoding ``json``, schemas ``jsonschema``, so Foxglove opens the file and
+``mcap``/rosbag2 tooling lists it):
+
+* ``/spiel/acquisition``: one raw acquisition (``frames``: channels x samples) plus the
+  acquisition's metadata (``seq``, timestamps, ...);
+* ``/spiel/background``: the target-free capture, written when it changes; it applies to the
+  acquisitions that follow it;
+* ``/spiel/position``: one pipeline record per acquisition.
+
+The file is finalized (summary, indexes) on :meth:`McapSink.close`, at interpreter exit
+(exceptions included) and on SIGTERM; a file cut short by a hard kill is still replayed up
+to its last complete chunk.
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import logging
+import signal
+import struct
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, SeekingReader
+from mcap.writer import CompressionType, Writer
+
+from spiel_edge import __version__
+from spiel_edge.errors import InputError
+from spiel_edge.io.spiel_csv import Recording
+from spiel_edge.service import signals_deferred, stop_on_sigterm
+
+log = logging.getLogger(__name__)
+
+ACQUISITION_TOPIC = "/spiel/acquisition"
+BACKGROUND_TOPIC = "/spiel/background"
+POSITION_TOPIC = "/spiel/position"
+MCAP_PROFILE = ""  # no ROS message definitions: plain JSON with JSON schemas
+CHUNK_SIZE = 256 * 1024  # about 2 s at 100 Hz: the most a hard kill can lose
+
+_FRAMES = {"type": "array", "items": {"type": "array", "items": {"type": ["number", "null"]}},
+           "description": "channels x samples, raw counts"}
+ACQUISITION_SCHEMA = {
+    "title": "spiel_edge.Acquisition", "type": "object",
+    "properties": {"seq": {"type": "integer"}, "timestamp_ns": {"type": "integer"}, "frames": _FRAMES},
+    "required": ["frames"],
+}
+BACKGROUND_SCHEMA = {"title": "spiel_edge.Background", "type": "object", "properties": {"frames": _FRAMES},
+                     "required": ["frames"]}
+POSITION_SCHEMA = {
+    "title": "spiel_edge.Position", "type": "object",
+    "properties": {
+        "position_mm": {"type": ["array", "null"], "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+        "reason": {"type": ["string", "null"]},
+        "residual_mm": {"type": ["number", "null"]},
+        "echoes": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+        "matched": {"type": "array", "items": {"type": ["integer", "null"]}},
+    },
+}
+
+
+class McapSink:
+    """Record acquisitions and records to ``path`` (overwritten); always call close()."""
+
+    def __init__(self, path: str | Path, *, metadata: dict[str, Any] | None = None,
+                 chunk_size: int = CHUNK_SIZE, compression: str = "zstd"):
+        self.path = Path(path)
+        self._fh: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=CompressionType[compression.upper()])
+        self._writer.start(profile=MCAP_PROFILE, library=f"spiel-edge {__version__}")
+        self._channels = {topic: self._channel(topic, schema) for topic, schema in (
+            (ACQUISITION_TOPIC, ACQUISITION_SCHEMA), (BACKGROUND_TOPIC, BACKGROUND_SCHEMA),
+            (POSITION_TOPIC, POSITION_SCHEMA))}
+        self._writer.add_metadata("spiel-edge", {"version": __version__,
+                                                 **{k: str(v) for k, v in (metadata or {}).items()}})
+        self._sequence = 0
+        self._background: np.ndarray | None = None
+        self.closed = False
+        self.counts = {"acquisitions": 0, "records": 0}
+        atexit.register(self.close)
+        self._sigterm = _own_sigterm()
+
+    def _channel(self, topic: str, schema: dict) -> int:
+        schema_id = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+        return self._writer.register_channel(topic, "json", schema_id)
+
+    def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
+        """One raw acquisition; a ``background`` entry in ``acquisition`` goes to its own channel."""
+        meta = {k: v for k, v in acquisition.items() if k not in ("frames", "background")}
+        stamp = _stamp(meta)
+        background = acquisition.get("background")
+        if background is not None and (self._background is None or not np.array_equal(background, self._background)):
+            self._background = np.array(background, copy=True)
+            self._add(BACKGROUND_TOPIC, {"frames": _samples(self._background)}, stamp)
+        self._add(ACQUISITION_TOPIC, {**meta, "frames": _samples(np.asarray(frames))}, stamp)
+        self.counts["acquisitions"] += 1
+
+    def write(self, record: dict) -> None:
+        self._add(POSITION_TOPIC, record, _stamp(record))
+        self.counts["records"] += 1
+
+    def _add(self, topic: str, payload: dict, stamp: int) -> None:
+        if self.closed:
+            raise ValueError(f"{self.path}: recording already closed")
+        data = _dumps(payload)
+        now = time.time_ns()
+        with signals_deferred():  # a raising SIGTERM handler must not tear a chunk in half
+            self._writer.add_message(self._channels[topic], log_time=now, data=data,
+                                     publish_time=stamp or now, sequence=self._sequence)
+        self._sequence += 1
+
+    def close(self) -> None:
+        """Write the summary and close the file; safe to call more than once."""
+        if self.closed:
+            return
+        self.closed = True
+        atexit.unregister(self.close)
+        try:
+            with signals_deferred():
+                self._writer.finish()
+        finally:
+            self._fh.close()
+            if self._sigterm is not None:
+                self._sigterm.__exit__(None, None, None)
+        log.info("recording %s finalized: %d acquisitions, %d records", self.path,
+                 self.counts["acquisitions"], self.counts["records"])
+
+    def __enter__(self) -> McapSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _own_sigterm():
+    """When nobody handles SIGTERM, make it raise so finally/atexit finalize the file."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return None
+    handler = stop_on_sigterm()
+    handler.__enter__()
+    return handler
+
+
+def _stamp(meta: dict) -> int:
+    value = meta.get("timestamp_ns")
+    return int(value) if isinstance(value, (int, np.integer)) and value > 0 else 0
+
+
+def _samples(frames: np.ndarray) -> list:
+    """Integers when the samples are integral (they are raw counts), None for non-finite."""
+    if np.issubdtype(frames.dtype, np.integer):
+        return frames.tolist()
+    finite = np.isfinite(frames)
+    if finite.all():
+        return frames.astype(np.int64).tolist() if np.array_equal(frames, np.round(frames)) else frames.tolist()
+    return np.where(finite, frames, None).tolist()
+
+
+def _default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, (bytes, bytearray)):
+        return obj.hex()
+    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
+
+
+def _dumps(payload: dict) -> bytes:
+    return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=_default).encode()
+
+
+# -- reading ---------------------------------------------------------------------------------
+
+def iter_mcap_recordings(path: str | Path) -> Iterator[Recording]:
+    """Each recorded acquisition with the background in force; bad messages become errors.
+
+    A file that was never finalized is read up to where it ends, then one error entry says so.
+    """
+    path = Path(path)
+    try:
+        fh = open(path, "rb")  # noqa: SIM115 - closed below
+    except OSError as exc:
+        raise InputError(f"{path}: cannot open recording: {exc}") from exc
+    with fh:
+        yield from _recordings(fh, path)
+
+
+def _recordings(fh: IO[bytes], path: str | Path) -> Iterator[Recording]:
+    path = Path(path)
+    if fh.read(8) != b"\x89MCAP0\r\n":
+        raise InputError(f"{path}: not an MCAP file")
+    fh.seek(0)
+    background: np.ndarray | str | None = None  # str: why the last background is unreadable
+    count = 0
+    try:
+        for topic, data, sequence in _messages(fh):
+            if topic == BACKGROUND_TOPIC:
+                background = _background_of(data, sequence)
+                continue
+            count += 1
+            yield _recording(path.name, data, sequence, background)
+    except (McapError, ValueError, EOFError, OSError, struct.error) as exc:  # truncated or corrupt tail
+        message = f"{path.name}: recording ends early after {count} acquisitions ({type(exc).__name__}: {exc})"
+        log.warning("%s", message)
+        yield Recording(f"{path.name}#end", None, None, message)
+
+
+def _messages(fh: IO[bytes]) -> Iterator[tuple[str, bytes, int]]:
+    """(topic, data, sequence) in file order; the index when the file is finalized, else a scan."""
+    topics = [ACQUISITION_TOPIC, BACKGROUND_TOPIC]
+    try:
+        reader = SeekingReader(fh)
+        reader.get_summary()  # raises on a file without footer/summary
+    except (McapError, ValueError, EOFError, OSError, struct.error):
+        fh.seek(0)
+        reader = NonSeekingReader(fh)
+    for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
+        yield channel.topic, message.data, message.sequence
+
+
+def _background_of(data: bytes, sequence: int) -> np.ndarray | str:
+    try:
+        return _frames_of(json.loads(data))
+    except (ValueError, TypeError, KeyError) as exc:
+        return f"background message {sequence} is unreadable: {exc!r}"
+
+
+def _recording(name: str, data: bytes, sequence: int, background: np.ndarray | str | None) -> Recording:
+    source = f"{name}#{sequence}"
+    try:
+        payload = json.loads(data)
+        source = f"{name}#{payload.get('seq', sequence)}"
+        frames = _frames_of(payload)
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
+        return Recording(source, None, None, f"{source}: bad acquisition message: {exc!r}")
+    if isinstance(background, str):
+        return Recording(source, None, None, f"{source}: {background}")
+    if not np.all(np.isfinite(frames)):
+        return Recording(source, None, None, f"{source}: frames contain missing or non-finite samples")
+    if background is not None and background.shape != frames.shape:
+        return Recording(source, None, None,
+                         f"{source}: background shape {background.shape} differs from frames {frames.shape}")
+    return Recording(source, frames, background)
+
+
+def _frames_of(payload: dict) -> np.ndarray:
+    if not isinstance(payload, dict):
+        raise TypeError(f"expected a JSON object, got {type(payload).__name__}")
+    frames = np.array(payload["frames"], dtype=np.float64)  # None -> nan; ragged -> ValueError
+    if frames.ndim != 2:
+        raise ValueError(f"frames must be channels x samples, got shape {frames.shape}")
+    return frames

@@ -1,0 +1,200 @@
+"""The service kit: systemd unit, sysusers entry, udev rule and /etc/spiel-edge config.
+
+The texts are rendered here (the wheel carries no data files outside the package), and
+``packaging/`` in the repository holds the default rendering; a test keeps them identical.
+:func:`plan` is pure; :func:`install` writes a plan under a prefix and never overwrites a
+config file the user may have edited.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+SERVICE_USER = "spiel-edge"
+GROUPS = ("dialout", "plugdev")
+DEFAULT_EXEC = "/usr/local/bin/spiel-edge"
+CONFIG_DIR = "/etc/spiel-edge"
+UNIT_PATH = "etc/systemd/system/spiel-edge.service"
+SYSUSERS_PATH = "etc/sysusers.d/spiel-edge.conf"
+UDEV_PATH = "etc/udev/rules.d/99-spiel-edge.rules"
+ENV_PATH = "etc/spiel-edge/spiel-edge.env"
+WATCHDOG_SEC = 10
+
+
+# The pid.codes test id the link layer uses until the board has its own PID.
+FALLBACK_USB_IDS = ((0x1209, 0x0001),)
+
+
+def usb_ids() -> tuple[tuple[int, int], ...]:
+    """The board's USB ids, from the link layer (the one source of truth) when present."""
+    try:
+        from spiel_edge.link.discover import BOARD_USB_IDS
+    except ImportError:
+        return FALLBACK_USB_IDS
+    return BOARD_USB_IDS
+
+
+def render_unit(exec_path: str = DEFAULT_EXEC) -> str:
+    return f"""\
+# spiel-edge: 3-D ultrasonic echolocation, published headless.
+# Installed by `spiel-edge service install`; settings live in {CONFIG_DIR}/spiel-edge.env.
+[Unit]
+Description=spiel-edge ultrasonic echolocation
+After=network-online.target
+Wants=network-online.target
+StartLimitIntervalSec=120
+StartLimitBurst=10
+
+[Service]
+Type=notify
+NotifyAccess=main
+User={SERVICE_USER}
+Group={SERVICE_USER}
+SupplementaryGroups={" ".join(GROUPS)}
+# numba compiles the pipeline on first start and caches it here; the install stays read-only.
+CacheDirectory=spiel-edge
+Environment=NUMBA_CACHE_DIR=/var/cache/spiel-edge/numba
+# Recordings (--record /var/lib/spiel-edge/...) go here.
+StateDirectory=spiel-edge
+Environment=PYTHONUNBUFFERED=1
+EnvironmentFile=-{CONFIG_DIR}/spiel-edge.env
+ExecStart={exec_path} $SPIEL_VERBOSITY run $SPIEL_RUN_OPTIONS
+# READY comes after the pipeline is compiled or loaded from the cache; WATCHDOG on progress.
+TimeoutStartSec=180
+WatchdogSec={WATCHDOG_SEC}
+Restart=on-failure
+RestartSec=2
+# SIGTERM finalizes the recording and exits; 130/143 are the interrupted-run statuses.
+TimeoutStopSec=5
+SuccessExitStatus=130 143
+NoNewPrivileges=yes
+ProtectSystem=strict
+ProtectHome=yes
+PrivateTmp=yes
+ProtectKernelTunables=yes
+ProtectControlGroups=yes
+RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK
+
+[Install]
+WantedBy=multi-user.target
+"""
+
+
+def render_sysusers() -> str:
+    lines = [f'u {SERVICE_USER} - "spiel-edge sensor driver" /var/lib/spiel-edge']
+    lines += [f"m {SERVICE_USER} {group}" for group in GROUPS]
+    return "# The unprivileged service user, in the groups that own the board's device nodes.\n" + "\n".join(lines) + "\n"
+
+
+def render_udev(ids: tuple[tuple[int, int], ...] | None = None) -> str:
+    ids = usb_ids() if ids is None else ids
+    out = [
+        "# spiel-edge transducer board: group access, stable names, ModemManager kept away.",
+        "# /dev/spiel-<serial> names one board; /dev/spiel-0 is the last board plugged in.",
+    ]
+    for vid, pid in ids:
+        match = f'ATTRS{{idVendor}}=="{vid:04x}", ATTRS{{idProduct}}=="{pid:04x}"'
+        out += [
+            f"# USB {vid:04x}:{pid:04x}",
+            f'SUBSYSTEM=="tty", {match}, GROUP="dialout", MODE="0660", ENV{{ID_MM_DEVICE_IGNORE}}="1", SYMLINK+="spiel-0"',
+            f'SUBSYSTEM=="tty", {match}, ATTRS{{serial}}=="?*", SYMLINK+="spiel-%s{{serial}}"',
+            f'SUBSYSTEM=="usb", ENV{{DEVTYPE}}=="usb_device", {match.replace("ATTRS", "ATTR")}, '
+            f'GROUP="plugdev", MODE="0660", ENV{{ID_MM_DEVICE_IGNORE}}="1"',
+        ]
+    return "\n".join(out) + "\n"
+
+
+def render_env() -> str:
+    return f"""\
+# spiel-edge service settings (systemd EnvironmentFile: KEY=VALUE, no shell syntax).
+# After editing: sudo systemctl restart spiel-edge. Check with: spiel-edge doctor --config {CONFIG_DIR}
+
+# The board: a device path, a stable udev name, usb://VID:PID[/SERIAL], or sim:// (virtual board).
+SPIEL_PORT=/dev/spiel-0
+
+# Options of `spiel-edge run`, split on spaces. Profile: a built-in name or a TOML path
+# (copy one here to edit it); calibration: the file `spiel-edge calibrate` writes.
+#   --calibration {CONFIG_DIR}/calibration.toml
+#   --record /var/lib/spiel-edge/spiel-%Y%m%d-%H%M%S.mcap   (strftime: one file per start)
+#   --udp HOST:PORT   --foxglove 127.0.0.1:8765   --zenoh robots/r1/spiel
+# NDJSON goes to /dev/null here: on stdout it would fill the journal at the frame rate.
+SPIEL_RUN_OPTIONS=--profile spiel-icra23 --output /dev/null --udp 127.0.0.1:9870
+
+# -v for info logs, -vv for debug.
+SPIEL_VERBOSITY=-v
+"""
+
+
+@dataclass(frozen=True)
+class KitFile:
+    path: str  # relative to the prefix
+    text: str
+    config: bool = False  # the user's to edit: never overwritten
+
+
+def plan(exec_path: str = DEFAULT_EXEC) -> list[KitFile]:
+    return [
+        KitFile(UNIT_PATH, render_unit(exec_path)),
+        KitFile(SYSUSERS_PATH, render_sysusers()),
+        KitFile(UDEV_PATH, render_udev()),
+        KitFile(ENV_PATH, render_env(), config=True),
+    ]
+
+
+def default_exec() -> str:
+    """The spiel-edge script beside this interpreter (a venv install), else on PATH."""
+    beside = Path(sys.executable).parent / "spiel-edge"
+    if beside.exists():
+        return str(beside)
+    return shutil.which("spiel-edge") or DEFAULT_EXEC
+
+
+def install(files: list[KitFile], prefix: str | Path = "/") -> list[tuple[Path, str]]:
+    """Write ``files`` under ``prefix``; returns (path, "written" | "kept" | "unchanged")."""
+    done = []
+    for kit_file in files:
+        target = Path(prefix) / kit_file.path
+        if target.exists() and (kit_file.config or target.read_text() == kit_file.text):
+            done.append((target, "kept" if target.read_text() != kit_file.text else "unchanged"))
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(kit_file.text)
+        done.append((target, "written"))
+    return done
+
+
+def next_steps(prefix: str | Path = "/") -> list[str]:
+    """Commands to run after install (as root); spelled out, never run for the user."""
+    steps = [
+        "systemd-sysusers                      # creates the spiel-edge user and its groups",
+        "udevadm control --reload && udevadm trigger --subsystem-match=tty --subsystem-match=usb",
+        "systemctl daemon-reload",
+        "systemctl enable --now spiel-edge",
+        "journalctl -u spiel-edge -f           # logs; `spiel-edge doctor` if it does not start",
+    ]
+    if Path(prefix).resolve() != Path("/"):
+        steps.insert(0, f"# files were written under {prefix}: copy them to / first")
+    return steps
+
+
+# Where each kit file sits in the repository's packaging/ folder.
+PACKAGING_LAYOUT = {UNIT_PATH: "systemd/spiel-edge.service", SYSUSERS_PATH: "sysusers/spiel-edge.conf",
+                    UDEV_PATH: "udev/99-spiel-edge.rules", ENV_PATH: "etc/spiel-edge/spiel-edge.env"}
+
+
+def packaging_files() -> dict[str, str]:
+    """packaging/-relative path -> text, with the default ExecStart."""
+    return {PACKAGING_LAYOUT[f.path]: f.text for f in plan(DEFAULT_EXEC)}
+
+
+def write_packaging(root: str | Path = "packaging") -> None:
+    for rel, text in packaging_files().items():
+        target = Path(root) / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text)

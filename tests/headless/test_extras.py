@@ -1,0 +1,105 @@
+"""The optional live outputs on loopback: Foxglove WebSocket and Zenoh (skipped without the extra)."""
+
+from __future__ import annotations
+
+import json
+import socket
+import struct
+import time
+from pathlib import Path
+
+import pytest
+
+from ._ws import MiniWebSocket
+
+RECORD = {"seq": 3, "position_mm": [10.0, -20.0, 300.0], "reason": None, "residual_mm": 0.5,
+          "echoes": [[12.0]] * 4, "matched": [0, 0, 0, 0]}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_foxglove_serves_scene_and_records_on_localhost():
+    pytest.importorskip("foxglove", reason="extra 'foxglove' not installed (pip install 'spiel-edge[foxglove]')")
+    from spiel_edge.outputs.foxglove import POSITION_TOPIC, SCENE_TOPIC, FoxgloveSink
+
+    sink = FoxgloveSink("0", receivers_mm=[[0, 0, 0], [75, 0, 0]])  # port only: localhost
+    ws = MiniWebSocket("127.0.0.1", sink.port, "foxglove.sdk.v1")
+    try:
+        channels: dict[str, dict] = {}
+        deadline = time.monotonic() + 5
+        while len(channels) < 2 and time.monotonic() < deadline:
+            message = json.loads(ws.recv()[1])
+            if message["op"] == "advertise":
+                channels.update({c["topic"]: c for c in message["channels"]})
+        assert channels[SCENE_TOPIC]["schemaName"] == "foxglove.SceneUpdate"
+        assert channels[POSITION_TOPIC]["encoding"] == "json"
+        ws.send_json({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels[POSITION_TOPIC]["id"]},
+                                                           {"id": 2, "channelId": channels[SCENE_TOPIC]["id"]}]})
+        got: dict[int, bytes] = {}
+        while len(got) < 2 and time.monotonic() < deadline:
+            sink.write(RECORD)  # until the subscription is in place
+            frame = ws.recv(wait_s=0.1)
+            if frame is None:
+                continue
+            opcode, payload = frame
+            if opcode == 2 and payload[0] == 1:  # binary MessageData
+                sub_id = struct.unpack_from("<I", payload, 1)[0]
+                got[sub_id] = payload[13:]
+        assert json.loads(got[1]) == RECORD
+        assert b"target" in got[2] and b"receivers" in got[2]  # protobuf SceneUpdate entity ids
+    finally:
+        ws.close()
+        sink.close()
+
+
+def test_foxglove_binds_localhost_by_default():
+    pytest.importorskip("foxglove", reason="extra 'foxglove' not installed (pip install 'spiel-edge[foxglove]')")
+    from spiel_edge.outputs.foxglove import FoxgloveSink
+
+    sink = FoxgloveSink("0")
+    try:
+        with socket.socket() as probe:
+            probe.settimeout(2)
+            probe.connect(("127.0.0.1", sink.port))  # reachable on loopback
+        rows = [line.split() for line in Path("/proc/net/tcp").read_text().splitlines()[1:]]
+        hosts = {r[1].rsplit(":", 1)[0] for r in rows if r[3] == "0A" and int(r[1].rsplit(":", 1)[1], 16) == sink.port}
+        assert hosts == {"0100007F"}  # listening on 127.0.0.1 only
+    finally:
+        sink.close()
+
+
+def test_zenoh_publishes_records_on_the_key():
+    zenoh = pytest.importorskip("zenoh", reason="extra 'zenoh' not installed (pip install 'spiel-edge[zenoh]')")
+    from spiel_edge.outputs.zenoh import ZenohSink
+
+    port = _free_port()
+    quiet = {"scouting": {"multicast": {"enabled": False}}}
+    pub = zenoh.Config.from_json5(json.dumps({**quiet, "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}))
+    sub = zenoh.Config.from_json5(json.dumps({**quiet, "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}))
+    sink = ZenohSink("test/robot1/spiel", pub)
+    received: list[tuple[str, str]] = []
+    session = zenoh.open(sub)
+    try:
+        session.declare_subscriber("test/*/spiel", lambda s: received.append((str(s.key_expr), s.payload.to_string())))
+        deadline = time.monotonic() + 10
+        while not received and time.monotonic() < deadline:
+            sink.write(RECORD)  # until the subscriber's declaration has reached the publisher
+            time.sleep(0.02)
+        assert received and received[0][0] == "test/robot1/spiel"
+        assert json.loads(received[0][1]) == RECORD
+    finally:
+        session.close()
+        sink.close()
+
+
+def test_zenoh_rejects_a_bad_key():
+    pytest.importorskip("zenoh", reason="extra 'zenoh' not installed (pip install 'spiel-edge[zenoh]')")
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.outputs.zenoh import ZenohSink
+
+    with pytest.raises(ConfigError, match="not a valid key expression"):
+        ZenohSink("robots//bad/")
