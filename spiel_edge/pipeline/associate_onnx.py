@@ -6,7 +6,9 @@ the highest score is the reference echo, and each echo's embedding distance to i
 eq. 19) says how alike they are. Echoes within the model's distance threshold are the
 candidates; the geometric associator then picks the combination consistent with one target
 among them (the guard against a confident but impossible match). Without any consistent
-combination among the candidates, the unrestricted geometric search decides.
+combination among the candidates, or when the unrestricted geometric search finds one cheaper
+by more than the model's cost slack, the unrestricted search decides. Threshold and slack are
+chosen on the training split and travel in the model's metadata.
 
 Built by :func:`spiel_edge.pipeline.factory.build_associator`; a missing or unusable model
 raises ModelError there, which becomes a warning and geometric association.
@@ -31,7 +33,9 @@ log = logging.getLogger(__name__)
 
 INPUT_NAME = "features"
 OUTPUTS = ("score", "embedding")
-DEFAULT_DISTANCE_THRESHOLD = 1.0  # used when the model carries no "spiel.distance_threshold"
+# used when the model's metadata lacks "spiel.distance_threshold" / "spiel.cost_slack_mm"
+DEFAULT_DISTANCE_THRESHOLD = 1.0
+DEFAULT_COST_SLACK_MM = math.inf
 
 
 def default_model_path() -> Path:
@@ -100,13 +104,17 @@ def candidate_mask(
 
 
 def guarded_match(
-    geometric: GeometricAssociator, features: np.ndarray, counts: np.ndarray, allowed: np.ndarray
+    geometric: GeometricAssociator, features: np.ndarray, counts: np.ndarray, allowed: np.ndarray,
+    slack_mm: float = math.inf,
 ) -> np.ndarray:
-    """The geometrically consistent combination among the candidates, else the unrestricted one."""
+    """The best geometrically consistent combination among the candidates, unless the
+    unrestricted search finds one cheaper by more than ``slack_mm`` (then the net most likely
+    left the target's echo out) or the candidates hold no consistent combination at all."""
     matched, cost = geometric.candidates(features, counts, allowed)
-    if math.isfinite(cost):
+    if math.isfinite(cost) and math.isinf(slack_mm):
         return matched
-    return geometric.candidates(features, counts)[0]
+    free, free_cost = geometric.candidates(features, counts)
+    return matched if math.isfinite(cost) and cost <= free_cost + slack_mm else free
 
 
 class OnnxAssociator:
@@ -114,7 +122,10 @@ class OnnxAssociator:
 
     name = "onnx"
 
-    def __init__(self, profile: Profile, model_path: str | Path | None = None, *, distance_threshold: float | None = None):
+    def __init__(
+        self, profile: Profile, model_path: str | Path | None = None, *,
+        distance_threshold: float | None = None, cost_slack_mm: float | None = None,
+    ):
         self.model_path = Path(model_path) if model_path is not None else default_model_path()
         self.session = load_session(self.model_path)
         self.geometric = GeometricAssociator(profile)
@@ -123,8 +134,11 @@ class OnnxAssociator:
         meta = self.session.get_modelmeta().custom_metadata_map
         if distance_threshold is None:
             distance_threshold = float(meta.get("spiel.distance_threshold", DEFAULT_DISTANCE_THRESHOLD))
-        self.distance_threshold = distance_threshold
-        log.debug("association model %s loaded (threshold %.3g)", self.model_path, distance_threshold)
+        if cost_slack_mm is None:
+            cost_slack_mm = float(meta.get("spiel.cost_slack_mm", DEFAULT_COST_SLACK_MM))
+        self.distance_threshold, self.cost_slack_mm = distance_threshold, cost_slack_mm
+        log.debug("association model %s loaded (threshold %.3g, slack %.3g mm)", self.model_path,
+                  distance_threshold, cost_slack_mm)
 
     def score(self, features: np.ndarray, counts: np.ndarray):
         """One ``run`` over every echo: (rows, score (n,), embedding (n, 4))."""
@@ -142,7 +156,7 @@ class OnnxAssociator:
     def __call__(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
         rows, score, embedding = self.score(features, counts)
         allowed = candidate_mask(np.shape(features)[:2], rows, score, embedding, self.distance_threshold)
-        return guarded_match(self.geometric, features, counts, allowed)
+        return guarded_match(self.geometric, features, counts, allowed, self.cost_slack_mm)
 
 
 def bench_scoring(n: int = 2000, profile: Profile | None = None, model_path: str | Path | None = None) -> dict:

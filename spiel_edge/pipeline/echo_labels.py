@@ -18,18 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spiel_edge.evaluate import GT_TOLERANCE_SAMPLES, expected_toa
 from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.profile import Profile
 
-DEFAULT_TOLERANCE = 2.0  # samples (31 mm of path): ~98 % of target echoes fall within 2 samples
-
-
-def expected_toa(profile: Profile, truth_mm: np.ndarray) -> np.ndarray:
-    """Per-channel echo time (samples) a target at ``truth_mm`` produces under ``profile``."""
-    g = profile.geometry
-    p = np.asarray(truth_mm, dtype=np.float64)
-    paths = np.linalg.norm(p - g.emitter_mm) + np.linalg.norm(p - g.channels_mm, axis=1)
-    return paths / profile.mm_per_sample + g.delays()
+# the same ground truth as `spiel-edge evaluate` (1.5 samples = 23 mm of path)
+DEFAULT_TOLERANCE = GT_TOLERANCE_SAMPLES
+__all__ = ["DEFAULT_TOLERANCE", "AssociationScore", "expected_toa", "label_echoes", "score_association"]
 
 
 def label_echoes(
