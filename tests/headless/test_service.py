@@ -113,3 +113,17 @@ def test_stderr_is_journal_matches_the_stream(tmp_path):
         assert stderr_is_journal({"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}, fd=fh.fileno())
         assert not stderr_is_journal({"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino + 1}"}, fd=fh.fileno())
     assert not stderr_is_journal({})
+
+
+def test_cli_logging_uses_priority_prefixes_when_stderr_is_the_journal(tmp_path):
+    import subprocess
+    import sys
+
+    script = ("import logging; from spiel_edge.cli import setup_logging; setup_logging(1); "
+              "logging.getLogger('spiel_edge.t').warning('careful'); logging.getLogger('spiel_edge.t').info('fyi')")
+    log_file = tmp_path / "stderr"
+    with open(log_file, "w") as err:
+        st = os.fstat(err.fileno())
+        env = {**os.environ, "JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}
+        subprocess.run([sys.executable, "-c", script], stderr=err, env=env, timeout=60, check=True)
+    assert log_file.read_text().splitlines() == ["<4>spiel_edge.t: careful", "<6>spiel_edge.t: fyi"]
