@@ -13,7 +13,11 @@ solve; the survivors are located and scored by
            - strength_weight * mean log(alpha) + range_weight * range
 
 so that, among consistent combinations, strong and near echoes win over weak ones and over
-multiple reflections (which arrive later, at about twice the path, and are also consistent). The learned associator (``spiel_edge.association``) plugs into the same interface.
+multiple reflections (which arrive later, at about twice the path, and are also consistent). Up to EXHAUSTIVE_MAX_CHANNELS listening channels the search is exhaustive (optimal). Larger
+arrays use hypothesise-and-verify, linear in the channel count: every feasible echo triple of
+a few well-spread anchor channels gives a position, which predicts every other channel's echo
+path; the nearest echo within the tolerance joins, and the joined set is solved and scored.
+The learned associator (``associate_onnx``) plugs into the same interface.
 """
 
 from __future__ import annotations
@@ -27,6 +31,27 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.locate import _locate_kernel
 from spiel_edge.profile import Profile
+
+EXHAUSTIVE_MAX_CHANNELS = 6
+MAX_SOLVES = 4096  # bound on located combinations per acquisition: time stays bounded in clutter
+MAX_ANCHOR_TRIPLES = 3
+
+
+def anchor_triples(channels: np.ndarray, emitter: np.ndarray, listening: np.ndarray) -> np.ndarray:
+    """Up to MAX_ANCHOR_TRIPLES disjoint channel triples with wide baselines: the first starts
+    at the channel nearest the emitter (its range is the most direct), the rest greedily."""
+    free = [int(c) for c in listening]
+    triples = []
+    while len(free) >= 3 and len(triples) < MAX_ANCHOR_TRIPLES:
+        first = min(free, key=lambda c: np.linalg.norm(channels[c] - emitter))
+        rest = [c for c in free if c != first]
+        best = max(
+            ((b, c) for i, b in enumerate(rest) for c in rest[i + 1:]),
+            key=lambda bc: np.linalg.norm(np.cross(channels[bc[0]] - channels[first], channels[bc[1]] - channels[first])),
+        )
+        triples.append((first, *best))
+        free = [c for c in free if c not in (first, *best)]
+    return np.array(triples, dtype=np.int64)
 
 
 class GeometricAssociator:
@@ -51,6 +76,9 @@ class GeometricAssociator:
         self.range_weight = s.range_weight
         diff = self.channels[:, None, :] - self.channels[None, :, :]
         self.max_path_diff = np.ascontiguousarray(np.sqrt((diff**2).sum(-1)) + self.tolerance_mm)
+        listening = np.flatnonzero(self.listening)
+        self.anchors = None if len(listening) <= EXHAUSTIVE_MAX_CHANNELS else anchor_triples(
+            self.channels, self.emitter, listening)
 
     def paths_mm(self, features: np.ndarray) -> np.ndarray:
         """Echo path length (mm) of every echo, after the per-channel delay."""
@@ -76,42 +104,64 @@ class GeometricAssociator:
         strength = np.ascontiguousarray(np.log(np.where(np.isfinite(alpha) & (alpha > 1.0), alpha, 1.0)))
         weights = np.array([self.max_residual_mm, self.missing_penalty_mm, self.strength_weight_mm, self.range_weight])
         matched = np.full(self.channels.shape[0], -1, dtype=np.int64)
-        cost = _search_kernel(
-            paths, strength, counts, allowed, self.listening, self.channels, self.emitter, self.facing,
-            self.max_path_diff, weights, self.min_channels, matched,
-        )
+        args = (paths, strength, counts, allowed, self.listening, self.channels, self.emitter, self.facing,
+                self.max_path_diff, weights, self.min_channels, matched)
+        if self.anchors is None:
+            cost = _exhaustive_kernel(*args)
+        else:
+            cost = _hypothesis_kernel(*args, self.anchors)
         return matched, cost
 
 
 @njit(cache=True, nogil=True)
-def _search_kernel(paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best):
+def _score(choice, paths, strength, use, d, e, ch, facing, weights, pos):
+    """Locate the chosen echoes; cost as in the module docstring, inf when infeasible."""
     max_res, penalty, strength_weight, range_weight = weights[0], weights[1], weights[2], weights[3]
+    n_ch = paths.shape[0]
+    n_used = 0
+    mean_strength = 0.0
+    for j in range(n_ch):
+        use[j] = choice[j] >= 0
+        d[j] = paths[j, choice[j]] if choice[j] >= 0 else 0.0
+        if use[j]:
+            n_used += 1
+            mean_strength += strength[j, choice[j]]
+    ok, rms = _locate_kernel(d, use, e, ch, facing, 20, pos)
+    if not ok or rms > max_res:
+        return math.inf
+    distance = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2)
+    return rms + penalty * (n_ch - n_used) - strength_weight * mean_strength / n_used + range_weight * distance
+
+
+@njit(cache=True, nogil=True)
+def _feasible(paths, choice, c, k, max_diff):
+    for j in range(c):
+        if choice[j] >= 0 and abs(paths[c, k] - paths[j, choice[j]]) > max_diff[c, j]:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _exhaustive_kernel(paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best):
     n_ch = paths.shape[0]
     choice = np.full(n_ch, -1, dtype=np.int64)
     d = np.empty(n_ch)
     use = np.zeros(n_ch, dtype=np.bool_)
     pos = np.empty(3)
     best_cost = math.inf
+    solves = 0
     # iterative depth-first search: choice[c] runs over -1 (no echo), 0 .. counts[c] - 1
     c = 0
     choice[0] = -2
-    while c >= 0:
+    while c >= 0 and solves < MAX_SOLVES:
         choice[c] += 1
         if choice[c] >= counts[c] or (choice[c] >= 0 and not listening[c]):
             choice[c] = -2
             c -= 1
             continue
         k = choice[c]
-        if k >= 0:
-            if not allowed[c, k]:
-                continue
-            feasible = True
-            for j in range(c):
-                if choice[j] >= 0 and abs(paths[c, k] - paths[j, choice[j]]) > max_diff[c, j]:
-                    feasible = False
-                    break
-            if not feasible:
-                continue
+        if k >= 0 and not (allowed[c, k] and _feasible(paths, choice, c, k, max_diff)):
+            continue
         n_used = 0
         for j in range(c + 1):
             if choice[j] >= 0:
@@ -122,20 +172,69 @@ def _search_kernel(paths, strength, counts, allowed, listening, ch, e, facing, m
             c += 1
             choice[c] = -2
             continue
-        for j in range(n_ch):
-            use[j] = choice[j] >= 0
-            d[j] = paths[j, choice[j]] if choice[j] >= 0 else 0.0
-        ok, rms = _locate_kernel(d, use, e, ch, facing, 20, pos)
-        if not ok or rms > max_res:
-            continue
-        mean_strength = 0.0
-        for j in range(n_ch):
-            if choice[j] >= 0:
-                mean_strength += strength[j, choice[j]]
-        mean_strength /= n_used
-        distance = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2)
-        cost = rms + penalty * (n_ch - n_used) - strength_weight * mean_strength + range_weight * distance
+        solves += 1
+        cost = _score(choice, paths, strength, use, d, e, ch, facing, weights, pos)
         if cost < best_cost:
             best_cost = cost
             best[:] = choice
+    return best_cost
+
+
+@njit(cache=True, nogil=True)
+def _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice):
+    """Give every channel the echo nearest the path the position predicts (within gate)."""
+    n_used = 0
+    for j in range(paths.shape[0]):
+        choice[j] = -1
+        if not listening[j]:
+            continue
+        pred = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2) + math.sqrt(
+            (pos[0] - ch[j, 0]) ** 2 + (pos[1] - ch[j, 1]) ** 2 + (pos[2] - ch[j, 2]) ** 2)
+        best_err = gate
+        for k in range(counts[j]):
+            err = abs(paths[j, k] - pred)
+            if allowed[j, k] and err <= best_err:
+                best_err = err
+                choice[j] = k
+        if choice[j] >= 0:
+            n_used += 1
+    return n_used
+
+
+@njit(cache=True, nogil=True)
+def _hypothesis_kernel(paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch,
+                       best, anchors):
+    n_ch = paths.shape[0]
+    gate = max_diff[0, 0]  # the tolerance: the diagonal holds |r_i - r_i| + tolerance
+    choice = np.full(n_ch, -1, dtype=np.int64)
+    d = np.zeros(n_ch)
+    use = np.zeros(n_ch, dtype=np.bool_)
+    pos = np.empty(3)
+    best_cost = math.inf
+    solves = 0
+    for t in range(anchors.shape[0]):
+        a, b, c = anchors[t, 0], anchors[t, 1], anchors[t, 2]
+        for ka in range(counts[a]):
+            for kb in range(counts[b]):
+                if not (allowed[a, ka] and allowed[b, kb]) or abs(paths[a, ka] - paths[b, kb]) > max_diff[a, b]:
+                    continue
+                for kc in range(counts[c]):
+                    if not allowed[c, kc] or abs(paths[c, kc] - paths[a, ka]) > max_diff[c, a] or abs(
+                            paths[c, kc] - paths[b, kb]) > max_diff[c, b]:
+                        continue
+                    if solves >= MAX_SOLVES:
+                        return best_cost
+                    solves += 1
+                    use[:] = False
+                    use[a] = use[b] = use[c] = True
+                    d[a], d[b], d[c] = paths[a, ka], paths[b, kb], paths[c, kc]
+                    ok, rms = _locate_kernel(d, use, e, ch, facing, 20, pos)
+                    if not ok:
+                        continue
+                    if _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice) < min_ch:
+                        continue
+                    cost = _score(choice, paths, strength, use, d, e, ch, facing, weights, pos)
+                    if cost < best_cost:
+                        best_cost = cost
+                        best[:] = choice
     return best_cost

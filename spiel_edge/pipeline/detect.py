@@ -68,12 +68,12 @@ def _detect_kernel(y, hi, lo, min_amp, first, peaks, counts):
                 cand[n_cand] = best
                 amp[n_cand] = y[c, best]
                 n_cand += 1
-        # keep the strongest k_max, then report them in time order
+        # keep the strongest k_max (the earlier of equally strong), then report in time order
         keep = min(n_cand, k_max)
         for j in range(keep):
             m = j
             for i in range(j + 1, n_cand):
-                if amp[i] > amp[m]:
+                if amp[i] > amp[m] or (amp[i] == amp[m] and cand[i] < cand[m]):
                     m = i
             amp[j], amp[m] = amp[m], amp[j]
             cand[j], cand[m] = cand[m], cand[j]

@@ -24,7 +24,8 @@ TOA_COLUMN = FEATURE_NAMES.index("toa")
 
 
 def echo_features(envelope: np.ndarray, params: np.ndarray, peaks: np.ndarray, toa: str = "mode") -> np.ndarray:
-    """Return features (channels, max_echoes, 8), NaN where there is no echo."""
+    """Return features (channels, max_echoes, 8), NaN where there is no echo; each channel's
+    echoes ordered by ToA (fitted modes of overlapping echoes can swap their detection order)."""
     y = as_frames(envelope, "envelope")
     params = np.ascontiguousarray(params, dtype=np.float64)
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
@@ -34,7 +35,8 @@ def echo_features(envelope: np.ndarray, params: np.ndarray, peaks: np.ndarray, t
         raise InputError(f"toa must be one of {sorted(TOA_CODES)}, got {toa!r}")
     out = np.full(params.shape[:2] + (N_FEATURES,), np.nan)
     _features_kernel(y, params, peaks, TOA_CODES[toa], out)
-    return out
+    order = np.argsort(np.where(np.isnan(out[:, :, TOA_COLUMN]), np.inf, out[:, :, TOA_COLUMN]), axis=1, kind="stable")
+    return np.take_along_axis(out, order[:, :, None], axis=1)
 
 
 @njit(cache=True, nogil=True)
@@ -88,6 +90,16 @@ def _interpolated_peak(y, k):
     return k + 0.5 * (y[k - 1] - y[k + 1]) / den
 
 
+SUPPORT_SIGMAS = 6.0  # a component is below 1e-7 of its peak beyond mu +- 6 sigma
+
+
+@njit(cache=True, nogil=True)
+def _support(mu, sigma, n_t):
+    lo = max(0, int(math.floor(mu - SUPPORT_SIGMAS * sigma)))
+    hi = min(n_t, int(math.ceil(mu + SUPPORT_SIGMAS * sigma)) + 1)
+    return lo, hi
+
+
 @njit(cache=True, nogil=True)
 def _features_kernel(y, params, peaks, toa_code, out):
     n_ch, n_t = y.shape
@@ -98,9 +110,12 @@ def _features_kernel(y, params, peaks, toa_code, out):
         energy = 0.0
         for t in range(n_t):
             energy += y[c, t] * y[c, t]
-            for k in range(k_max):
-                if not math.isnan(params[c, k, 0]):
-                    model[t] += emg_value(float(t), params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3])
+        for k in range(k_max):
+            if math.isnan(params[c, k, 0]):
+                continue
+            lo, hi = _support(params[c, k, 1], params[c, k, 2], n_t)
+            for t in range(lo, hi):
+                model[t] += emg_value(float(t), params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3])
         resid = 0.0
         for t in range(n_t):
             resid += (y[c, t] - model[t]) ** 2
@@ -112,7 +127,8 @@ def _features_kernel(y, params, peaks, toa_code, out):
                 continue
             mode = _mode(alpha, mu, sigma, eta)
             power = 0.0
-            for t in range(n_t):
+            s_lo, s_hi = _support(mu, sigma, n_t)
+            for t in range(s_lo, s_hi):
                 power += emg_value(float(t), alpha, mu, sigma, eta)
             lo = max(0, int(math.floor(mode - 2.0 * sigma)))
             hi = min(n_t, int(math.ceil(mode + 2.0 * sigma)) + 1)

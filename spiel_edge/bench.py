@@ -1,0 +1,89 @@
+"""Benchmarks: microseconds per acquisition for each stage and end to end, and start-up time.
+
+Real 4 x 64 acquisitions come from the vendored recordings; synthetic 8 x 256 and 16 x 1024
+acquisitions from :mod:`spiel_edge.synthetic` (two targets each). Start-up is measured in
+fresh interpreters: the second start must load numba's compiled kernels from its cache.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from spiel_edge.data import load_subset
+from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.pipeline.run import STAGES, Pipeline
+from spiel_edge.profile import load_profile
+from spiel_edge.synthetic import ring_profile, synthesize
+
+STARTUP_SNIPPET = (
+    "from spiel_edge.data import load_subset;"
+    "from spiel_edge.pipeline.factory import build_pipeline;"
+    "from spiel_edge.profile import load_profile;"
+    "s = load_subset(); p = build_pipeline(load_profile());"
+    "p.process(s.frames[0], s.backgrounds[0])"
+)
+
+
+def _summarise(timings: list[dict[str, float]]) -> dict:
+    out = {}
+    for stage in (*STAGES, "end_to_end"):
+        values = np.array([t[stage] for t in timings])
+        out[stage] = {"median_us": round(float(np.median(values)), 2), "p95_us": round(float(np.percentile(values, 95)), 2)}
+    return out
+
+
+def time_pipeline(pipeline: Pipeline, frames: np.ndarray, backgrounds: np.ndarray | None, repeat: int) -> dict:
+    """Per-stage timings over every acquisition, after one warm-up pass."""
+    bgs = backgrounds if backgrounds is not None else [None] * len(frames)
+    for f, b in zip(frames, bgs, strict=True):
+        pipeline.process(f, b)
+    timings = [pipeline.process(f, b, timed=True).timings_us for _ in range(repeat) for f, b in zip(frames, bgs, strict=True)]
+    return {"acquisitions": len(timings), **_summarise(timings)}
+
+
+def synthetic_set(n_channels: int, n_samples: int, count: int, seed: int = 0):
+    profile = ring_profile(n_channels, n_samples)
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(count):
+        targets = np.c_[rng.uniform(-80, 80, (2, 2)), rng.uniform(100, 300, 2)]
+        frames.append(synthesize(profile, targets, rng=rng))
+    return profile, np.array(frames)
+
+
+def startup_seconds(runs: int = 2) -> list[float]:
+    """Wall time of fresh interpreters importing the pipeline and processing one acquisition."""
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", STARTUP_SNIPPET], check=True, capture_output=True, timeout=600)
+        times.append(round(time.perf_counter() - t0, 3))
+    return times
+
+
+def run_bench(repeat: int = 5, association: str | None = None, startup: bool = True) -> dict:
+    subset = load_subset()
+    profile = load_profile()
+    pipeline = build_pipeline(profile, association)
+    result = {
+        "association": getattr(pipeline.associator, "name", type(pipeline.associator).__name__),
+        "real_4x64": time_pipeline(pipeline, subset.frames, subset.backgrounds, repeat),
+    }
+    for n_ch, n_t, count in ((8, 256, 100), (16, 1024, 30)):
+        prof, frames = synthetic_set(n_ch, n_t, count)
+        result[f"synthetic_{n_ch}x{n_t}"] = time_pipeline(Pipeline(prof), frames, None, max(1, repeat // 2))
+    result["end_to_end"] = result["real_4x64"]["end_to_end"]
+    for stage in STAGES:
+        result[stage] = result["real_4x64"][stage]
+    if startup:
+        result["startup_s"] = startup_seconds()
+    return result
+
+
+def to_json(result: dict) -> str:
+    return json.dumps(result, separators=(",", ":"))

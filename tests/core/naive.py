@@ -1,0 +1,95 @@
+"""Plain numpy/scipy references for the numba kernels (slow, obvious, independent)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.special import erf
+
+
+def preprocess(frames, background, blind_zone):
+    y = frames - background if background is not None else frames.copy()
+    y = np.clip(y, 0.0, None)
+    y[:, :blind_zone] = 0.0
+    return y
+
+
+def envelope(rf, f):
+    n_t = rf.shape[1]
+    t = np.arange(n_t)
+    half = max(1, int(round(0.5 / f)))
+    out = np.empty_like(rf, dtype=float)
+    for c in range(rf.shape[0]):
+        v = rf[c] - rf[c].mean()
+        i = v * np.cos(2 * np.pi * f * t)
+        q = -v * np.sin(2 * np.pi * f * t)
+        for k in range(n_t):
+            lo, hi = max(0, k - half), min(n_t, k + half + 1)
+            out[c, k] = 2 * np.hypot(i[lo:hi].sum(), q[lo:hi].sum()) / (hi - lo)
+    return out
+
+
+def detect(y, threshold, hysteresis, min_amplitude, max_echoes, first_sample):
+    peaks = np.full((y.shape[0], max_echoes), -1)
+    counts = np.zeros(y.shape[0], dtype=int)
+    for c, row in enumerate(y):
+        starts, rising = [], False
+        for t in range(max(1, first_sample + 1), len(row)):
+            g = row[t] - row[t - 1]
+            if not rising and g > threshold:
+                rising = True
+                starts.append(t - 1)
+            elif rising and g < threshold * hysteresis:
+                rising = False
+        cands = []
+        for i, s in enumerate(starts):
+            end = starts[i + 1] if i + 1 < len(starts) else len(row)
+            best = s + int(np.argmax(row[s:end]))
+            if row[best] >= min_amplitude:
+                cands.append((row[best], best))
+        strongest = sorted(cands, key=lambda a: (-a[0], a[1]))[:max_echoes]
+        chosen = sorted(b for _, b in strongest)
+        peaks[c, : len(chosen)] = chosen
+        counts[c] = len(chosen)
+    return peaks, counts
+
+
+def emg(t, alpha, mu, sigma, eta):
+    u = (t - mu) / sigma
+    return alpha * np.exp(-0.5 * u * u) * (1 + erf(eta * u / np.sqrt(2)))
+
+
+def paths(position, channels, emitter):
+    return np.linalg.norm(position - emitter) + np.linalg.norm(position - channels, axis=1)
+
+
+def locate(d, channels, emitter, use, start):
+    def resid(p):
+        return paths(p, channels[use], emitter) - d[use]
+    sol = least_squares(resid, start, method="lm", xtol=1e-12, ftol=1e-12)
+    return sol.x, float(np.sqrt(np.mean(sol.fun**2)))
+
+
+def brute_force_association(paths_mm, counts, channels, emitter, facing, weights, strength, min_ch, max_diff, locate_fn):
+    """Every combination of one echo (or none) per channel, the same cost as the kernel."""
+    max_res, penalty, sw, rw = weights
+    n_ch = len(counts)
+    best, best_cost = None, np.inf
+    for choice in itertools.product(*[range(-1, int(k)) for k in counts]):
+        used = [c for c in range(n_ch) if choice[c] >= 0]
+        if len(used) < min_ch:
+            continue
+        if any(abs(paths_mm[i, choice[i]] - paths_mm[j, choice[j]]) > max_diff[i, j] for i in used for j in used if i < j):
+            continue
+        d = np.array([paths_mm[c, choice[c]] if choice[c] >= 0 else 0.0 for c in range(n_ch)])
+        use = np.array([k >= 0 for k in choice])
+        pos, rms, ok = locate_fn(d, channels, emitter, facing, use)
+        if not ok or rms > max_res:
+            continue
+        cost = rms + penalty * (n_ch - len(used)) - sw * np.mean([strength[c, choice[c]] for c in used]) \
+            + rw * np.linalg.norm(pos - emitter)
+        if cost < best_cost:
+            best, best_cost = choice, cost
+    return best, best_cost

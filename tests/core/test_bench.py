@@ -1,0 +1,17 @@
+import json
+
+from spiel_edge.cli import main
+
+
+def test_bench_json_is_the_last_line_with_stage_timings(capsys):
+    assert main(["bench", "--json", "--repeat", "1", "--no-startup", "--association", "geometric"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    stages = ("preprocess", "detect", "memg", "features", "associate", "locate")
+    for key in ("real_4x64", "synthetic_8x256", "synthetic_16x1024"):
+        block = result[key]
+        assert block["acquisitions"] > 0
+        for stage in (*stages, "end_to_end"):
+            assert 0 < block[stage]["median_us"] <= block[stage]["p95_us"]
+        assert block["end_to_end"]["median_us"] >= block["memg"]["median_us"]
+    assert result["end_to_end"] == result["real_4x64"]["end_to_end"]
+    assert result["association"] == "geometric"
