@@ -80,9 +80,21 @@ def run_bench(repeat: int = 5, association: str | None = None, startup: bool = T
     result["end_to_end"] = result["real_4x64"]["end_to_end"]
     for stage in STAGES:
         result[stage] = result["real_4x64"][stage]
+    result["onnx_scoring"] = _onnx_scoring(profile)
     if startup:
         result["startup_s"] = startup_seconds()
     return result
+
+
+def _onnx_scoring(profile) -> dict | None:
+    """Microseconds to score one acquisition's echoes with the ONNX model (None without it)."""
+    from spiel_edge.errors import ModelError
+
+    try:
+        from spiel_edge.pipeline.associate_onnx import bench_scoring
+        return bench_scoring(n=1000, profile=profile)
+    except (ImportError, ModelError):
+        return None
 
 
 def to_json(result: dict) -> str:

@@ -19,6 +19,8 @@ def command(as_json: bool, repeat: int, association: str | None, no_startup: boo
         e2e = result[name]["end_to_end"]
         stages = ", ".join(f"{s} {v['median_us']:.0f}" for s, v in result[name].items() if isinstance(v, dict) and s != "end_to_end")
         click.echo(f"{name}: end to end median {e2e['median_us']:.0f} us, p95 {e2e['p95_us']:.0f} us ({stages})")
+    if result.get("onnx_scoring"):
+        click.echo(f"onnx scoring: median {result['onnx_scoring']['scoring_us']['median']:.1f} us per acquisition")
     if "startup_s" in result:
         click.echo(f"start-up (fresh interpreter, import + first acquisition): {result['startup_s']} s")
     if as_json:

@@ -77,3 +77,15 @@ def test_calibration_overlays_geometry_only(tmp_path, profile):
     assert p.geometry.delays().tolist() == [1.0, 2.0, 3.0, 4.0]
     np.testing.assert_array_equal(p.geometry.channels_mm, profile.geometry.channels_mm)
     assert p.detect == profile.detect
+
+
+def test_profile_cli_prints_a_loadable_copy(tmp_path, capsys):
+    from spiel_edge.cli import main
+
+    assert main(["profile", "list"]) == 0
+    assert "spiel-icra23" in capsys.readouterr().out
+    assert main(["profile", "show", "spiel-icra23"]) == 0
+    copy = tmp_path / "mine.toml"
+    copy.write_text(capsys.readouterr().out)
+    assert profile_to_dict(load_profile(copy)) == profile_to_dict(load_profile("spiel-icra23"))
+    assert main(["profile", "show", "nope"]) == 2
