@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from spiel_edge.calibrate import FIXABLE, calibrate_frames, load_recordings, read_positions
@@ -48,10 +50,7 @@ def command(recordings, fmt, background, exclude_z, port, positions, captures, n
     else:
         if positions is None:
             raise ConfigError("live calibration needs --positions FILE.csv (x, y, z in mm per row)")
-        from spiel_edge.calibrate.live import capture_positions
-
-        frames, backgrounds, truth = capture_positions(
-            port, profile, read_positions(positions), captures=captures, prompt=not no_prompt)
+        frames, backgrounds, truth = _capture_live(port, profile, read_positions(positions), captures, not no_prompt)
         source = port
     cal = calibrate_frames(profile, frames, backgrounds, truth, fix=set(fix), reject_sigma=reject_sigma)
     for line in summary_lines(cal):
@@ -63,3 +62,34 @@ def command(recordings, fmt, background, exclude_z, port, positions, captures, n
         plot_calibration(cal, plot)
         click.echo(f"plot written to {plot}", err=True)
     return EXIT_OK
+
+
+def open_session(port: str):
+    """The board session (imported here: offline calibration needs no device stack)."""
+    from spiel_edge.device import DeviceSession
+
+    session = DeviceSession(port, reconnect=False)
+    session.open()
+    return session
+
+
+def _capture_live(port: str, profile, positions, captures: int, prompt: bool):
+    from spiel_edge.calibrate.live import capture_positions
+
+    def before_position(i: int, p) -> None:
+        if i < 0:
+            where = "Clear the scene (no target) for the background capture"
+        else:
+            where = f"Place the target at position {i + 1}/{len(positions)}: x={p[0]:g} y={p[1]:g} z={p[2]:g} mm"
+        if prompt:
+            click.prompt(where + ", then press Enter", default="", show_default=False, err=True)
+        else:
+            click.echo(where, err=True)
+
+    session = open_session(port)
+    try:
+        with click.progressbar(length=len(positions) * captures, label="capturing", file=sys.stderr) as bar:
+            return capture_positions(session, profile, positions, captures=captures,
+                                     before_position=before_position, progress=bar.update)
+    finally:
+        session.close()
