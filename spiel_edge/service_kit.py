@@ -48,8 +48,8 @@ def render_unit(exec_path: str = DEFAULT_EXEC) -> str:
 Description=spiel-edge ultrasonic echolocation
 After=network-online.target
 Wants=network-online.target
-StartLimitIntervalSec=120
-StartLimitBurst=10
+# A robot keeps retrying (board unplugged for a while, ...): never give up restarting.
+StartLimitIntervalSec=0
 
 [Service]
 Type=notify
@@ -69,7 +69,7 @@ ExecStart={exec_path} $SPIEL_VERBOSITY run $SPIEL_RUN_OPTIONS
 TimeoutStartSec=180
 WatchdogSec={WATCHDOG_SEC}
 Restart=on-failure
-RestartSec=2
+RestartSec=3
 # SIGTERM finalizes the recording and exits; 130/143 are the interrupted-run statuses.
 TimeoutStopSec=5
 SuccessExitStatus=130 143

@@ -19,10 +19,12 @@ from __future__ import annotations
 import atexit
 import json
 import logging
+import os
 import signal
 import struct
 import threading
 import time
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -35,7 +37,7 @@ from mcap.writer import CompressionType, Writer
 from spiel_edge import __version__
 from spiel_edge.errors import InputError
 from spiel_edge.io.spiel_csv import Recording
-from spiel_edge.service import signals_deferred, stop_on_sigterm
+from spiel_edge.service import Terminated, signals_deferred
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +87,7 @@ class McapSink:
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}
         atexit.register(self.close)
-        self._sigterm = _own_sigterm()
+        self._sigterm = _own_sigterm(self)
 
     def _channel(self, topic: str, schema: dict) -> int:
         schema_id = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
@@ -127,8 +129,8 @@ class McapSink:
                 self._writer.finish()
         finally:
             self._fh.close()
-            if self._sigterm is not None:
-                self._sigterm.__exit__(None, None, None)
+            if self._sigterm is not None and signal.getsignal(signal.SIGTERM) is self._sigterm:
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
         log.info("recording %s finalized: %d acquisitions, %d records", self.path,
                  self.counts["acquisitions"], self.counts["records"])
 
@@ -139,14 +141,23 @@ class McapSink:
         self.close()
 
 
-def _own_sigterm():
-    """When nobody handles SIGTERM, make it raise so finally/atexit finalize the file."""
+def _own_sigterm(sink: McapSink):
+    """When nobody handles SIGTERM, make it raise while ``sink`` is open, so finally blocks and
+    atexit finalize the file; once it is closed (or gone), SIGTERM does its default again."""
     if threading.current_thread() is not threading.main_thread():
         return None
     if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
         return None
-    handler = stop_on_sigterm()
-    handler.__enter__()
+    ref = weakref.ref(sink)
+
+    def handler(signum: int, frame: object) -> None:
+        alive = ref()
+        if alive is not None and not alive.closed:
+            raise Terminated(f"signal {signum}")
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    signal.signal(signal.SIGTERM, handler)
     return handler
 
 

@@ -142,6 +142,25 @@ def test_finalized_when_an_exception_escapes(tmp_path, subset):
         sink.write({"seq": 1})
 
 
+def test_sigterm_handler_only_while_open_and_only_if_unhandled(tmp_path):
+    previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        sink = McapSink(tmp_path / "a.mcap")
+        assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+        sink.close()
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+        def theirs(signum, frame):
+            pass
+
+        signal.signal(signal.SIGTERM, theirs)
+        with McapSink(tmp_path / "b.mcap"):
+            assert signal.getsignal(signal.SIGTERM) is theirs  # a caller's handler is left alone
+        assert signal.getsignal(signal.SIGTERM) is theirs
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 _WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
