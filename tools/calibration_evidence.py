@@ -46,7 +46,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("dataset", type=Path)
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--fix", default="emitter", help="comma-separated parameters to keep fixed")
+    ap.add_argument("--fix", default="", help="comma-separated parameters to keep fixed (default: none)")
     args = ap.parse_args()
     folder, bg = args.dataset / "train_val", args.dataset / "train_val_bg"
     train, val = split_by_position(p.name for p in frame_files(folder))
