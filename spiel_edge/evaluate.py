@@ -1,8 +1,9 @@
 """Measure the pipeline on labelled recordings: 3-D error, fix rate, association accuracy.
 
-Association accuracy counts, over channels, how often the matched echo is the one nearest
-the ground-truth echo time (the true path projected with the profile's geometry), with "no
-echo" right when no detected echo lies within ``gt_tolerance`` samples of that time.
+Association accuracy counts, over listening channels, how often the matched echo is the one
+nearest the ground-truth echo time (the true path projected with the profile's geometry), with
+"no echo" right when no detected echo lies within 1.5 samples of that time; F1 as in
+:mod:`spiel_edge.pipeline.echo_labels`.
 """
 
 from __future__ import annotations
@@ -15,32 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
+from spiel_edge.pipeline.echo_labels import (
+    AssociationScore,
+    expected_toa,
+    label_echoes,
+    score_association,
+)
 from spiel_edge.pipeline.run import Pipeline, Result
 from spiel_edge.profile import Profile
-
-GT_TOLERANCE_SAMPLES = 1.5
-
-
-def expected_toa(profile: Profile, position_mm: np.ndarray) -> np.ndarray:
-    """Per-channel echo time (samples) of a point target at ``position_mm``."""
-    g = profile.geometry
-    p = np.asarray(position_mm, dtype=np.float64)
-    path = np.linalg.norm(p - g.emitter_mm) + np.linalg.norm(p - g.channels_mm, axis=1)
-    return path / profile.mm_per_sample + g.delays()
-
-
-def truth_echo_indices(profile: Profile, result: Result, truth_mm: np.ndarray, tol: float = GT_TOLERANCE_SAMPLES) -> list[int | None]:
-    """Per channel the index of the detected echo nearest the true echo time, if within tol."""
-    t = expected_toa(profile, truth_mm)
-    out: list[int | None] = []
-    for c, echoes in enumerate(result.echoes):
-        if not echoes:
-            out.append(None)
-            continue
-        dist = np.abs(np.asarray(echoes) - t[c])
-        k = int(np.argmin(dist))
-        out.append(k if dist[k] <= tol else None)
-    return out
 
 
 @dataclass
@@ -50,21 +33,18 @@ class Evaluation:
     fixes: dict[float, int] = field(default_factory=dict)
     seen3: dict[float, int] = field(default_factory=dict)  # frames where >= 3 channels see the target
     fixes_seen3: dict[float, int] = field(default_factory=dict)
-    channels: int = 0
-    channels_correct: int = 0
+    association: AssociationScore = field(default_factory=AssociationScore)
     failed: list[str] = field(default_factory=list)
 
     def add(self, profile: Profile, result: Result, truth: np.ndarray) -> None:
         z = float(truth[2])
         self.frames[z] = self.frames.get(z, 0) + 1
-        gt = truth_echo_indices(profile, result, truth)
+        labels = label_echoes(result.features, result.counts, expected_toa(profile, truth))
         listening = profile.geometry.listening_mask()
-        seen = sum(1 for c, k in enumerate(gt) if k is not None and listening[c]) >= 3
+        seen = int(((labels >= 0) & listening).sum()) >= 3
         self.seen3[z] = self.seen3.get(z, 0) + seen
-        for c in range(len(gt)):
-            if listening[c]:
-                self.channels += 1
-                self.channels_correct += gt[c] == result.matched[c]
+        matched = np.array([-1 if m is None else m for m in result.matched])
+        self.association = self.association + score_association(matched, labels, listening)
         if result.position_mm is not None:
             self.fixes[z] = self.fixes.get(z, 0) + 1
             self.fixes_seen3[z] = self.fixes_seen3.get(z, 0) + seen
@@ -90,7 +70,8 @@ class Evaluation:
         chosen = [z for z in heights if max_z is None or z <= max_z]
         return {
             **stats(chosen),
-            "association_accuracy": round(self.channels_correct / self.channels, 4) if self.channels else None,
+            "association_accuracy": round(self.association.accuracy, 4) if self.association.channels else None,
+            "association_f1": round(self.association.f1, 4) if self.association.channels else None,
             "failed_inputs": len(self.failed),
             "by_height": {f"{z:g}": stats([z]) for z in heights},
         }

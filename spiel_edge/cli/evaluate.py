@@ -57,4 +57,4 @@ def _print_table(summary: dict) -> None:
             return "-" if v is None else format(v, spec)
         click.echo(f"{name:>8} {s['frames']:>7} {fmt(s['fix_rate'], '.0%'):>6} {fmt(s['mean_mm']):>7} "
                    f"{fmt(s['median_mm']):>7} {fmt(s['p95_mm']):>7}")
-    click.echo(f"association accuracy {summary['association_accuracy']:.1%} ({summary['association']})")
+    click.echo(f"association accuracy {summary['association_accuracy']:.1%}, F1 {summary['association_f1']:.3f} ({summary['association']})")

@@ -18,12 +18,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spiel_edge.evaluate import GT_TOLERANCE_SAMPLES, expected_toa
 from spiel_edge.pipeline.features import TOA_COLUMN
+from spiel_edge.profile import Profile
 
-# the same ground truth as `spiel-edge evaluate` (1.5 samples = 23 mm of path)
-DEFAULT_TOLERANCE = GT_TOLERANCE_SAMPLES
+# the ground truth of `spiel-edge evaluate` and of training (1.5 samples = 23 mm of path)
+DEFAULT_TOLERANCE = 1.5
 __all__ = ["DEFAULT_TOLERANCE", "AssociationScore", "expected_toa", "label_echoes", "score_association"]
+
+
+def expected_toa(profile: Profile, position_mm: np.ndarray) -> np.ndarray:
+    """Per-channel echo time (samples) of a point target at ``position_mm``."""
+    g = profile.geometry
+    p = np.asarray(position_mm, dtype=np.float64)
+    path = np.linalg.norm(p - g.emitter_mm) + np.linalg.norm(p - g.channels_mm, axis=1)
+    return path / profile.mm_per_sample + g.delays()
 
 
 def label_echoes(
