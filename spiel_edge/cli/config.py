@@ -24,6 +24,9 @@ def open_session(port: str):
     from spiel_edge.device import DeviceSession
 
     session = DeviceSession(port, reconnect=False)
+    missing = [m for m in ("read_config", "write_config", "commit_config", "config_status") if not hasattr(session, m)]
+    if missing:
+        raise DeviceError(f"this build's device session lacks {', '.join(missing)}: config transfer unavailable")
     session.open()
     return session
 
