@@ -23,3 +23,16 @@ class DeviceError(SpielError, OSError):
 
 class DeviceTimeoutError(DeviceError, TimeoutError):
     """The board did not answer in time."""
+
+
+class DeviceDisconnectedError(DeviceError):
+    """The link to the board went away (unplugged, reset, pty closed): reconnect may help."""
+
+
+class DeviceRequestError(DeviceError):
+    """The board answered a request with an error (``code``: firmware_protocol.ErrorCode)."""
+
+    def __init__(self, message: str, code: int = 0, request_type: int = 0) -> None:
+        super().__init__(message)
+        self.code = code
+        self.request_type = request_type

@@ -1,0 +1,69 @@
+"""ANNOTATION: a vendor extension that simulators and test rigs send beside the stream.
+
+Not part of firmware_protocol (a real board never sends it): msg_type 0x7E01 in the range
+this host treats as vendor extensions (0x7E00-0x7EFF), flags 0, ``aux`` = acquisition index.
+It carries the ground truth of an acquisition and, when it changed, the target-free
+background of the scene, one channel per frame (the host subtracts it). Senders put a 0x00
+before it so it always starts on a frame boundary. A host that does not know it ignores it.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from firmware_protocol import MAX_PAYLOAD, Message, encode_frame
+
+ANNOTATION_TYPE = 0x7E01
+VENDOR_TYPES = range(0x7E00, 0x7F00)
+NO_TRUTH = math.nan
+
+
+@dataclass(frozen=True)
+class Annotation(Message):
+    MSG_TYPE: ClassVar[int] = ANNOTATION_TYPE
+    # acquisition u32, truth x/y/z f32 (mm, NaN: unknown), n_channels u8 (rows of the whole
+    # background, 0: none here), first_channel u8, n_samples u16 (per row), then the byte
+    # length u16 of the tail: rows first_channel.. of the background, uint16 little-endian
+    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IfffBBHH")
+    _TAIL: ClassVar[str] = "background"
+    acquisition: int = 0
+    truth_x: float = NO_TRUTH
+    truth_y: float = NO_TRUTH
+    truth_z: float = NO_TRUTH
+    n_channels: int = 0
+    first_channel: int = 0
+    n_samples: int = 0
+    background: bytes = b""
+
+    @property
+    def truth_mm(self) -> np.ndarray | None:
+        truth = np.array([self.truth_x, self.truth_y, self.truth_z], dtype=np.float64)
+        return truth if np.all(np.isfinite(truth)) else None
+
+    def background_rows(self) -> np.ndarray:
+        """The rows this frame carries, (rows, n_samples) uint16 (empty when malformed)."""
+        if not self.n_samples or len(self.background) % (2 * self.n_samples):
+            return np.zeros((0, max(self.n_samples, 1)), dtype=np.uint16)
+        return np.frombuffer(self.background, "<u2").reshape(-1, self.n_samples)
+
+
+def encode_annotations(acquisition: int, truth_mm: np.ndarray | None, background: np.ndarray | None) -> list[bytes]:
+    """Wire bytes (each with a leading 0x00) of the annotations of one acquisition: one
+    frame with the truth, plus the background rows when given (as few frames as fit)."""
+    truth = (NO_TRUTH,) * 3 if truth_mm is None else tuple(float(v) for v in truth_mm)
+    if background is None:
+        msgs = [Annotation(acquisition, *truth)]
+    else:
+        rows = np.ascontiguousarray(background, dtype="<u2")
+        n_rows, n_samples = rows.shape
+        per_frame = max(1, (MAX_PAYLOAD - Annotation._STRUCT.size) // (2 * n_samples))
+        msgs = [
+            Annotation(acquisition, *truth, n_rows, first, n_samples, rows[first : first + per_frame].tobytes())
+            for first in range(0, n_rows, per_frame)
+        ]
+    return [b"\x00" + encode_frame(ANNOTATION_TYPE, m.pack(), aux=acquisition & 0xFFFFFFFF) for m in msgs]

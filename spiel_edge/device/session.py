@@ -1,0 +1,362 @@
+"""The device session: handshake, requests with retries, streaming and reconnection.
+
+Single-threaded and never blocking longer than ``poll_s``: every read has a timeout, so a
+stop event (SIGINT/SIGTERM in the CLI) is seen within one poll. Frames are handled in
+arrival order: while a request waits for its answer, stream frames keep being assembled.
+
+Requests carry a sequence number; a lost answer is retried with the same number at most
+MAX_RETRIES times, and the board answers a repeated number from its cache without executing
+the request again. When the link goes away (unplug, EIO, a board that stops answering) the
+session closes it, waits for the same board (same serial number) to come back, handshakes
+and resumes the stream it had: the caller's loop keeps running.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+import threading
+import time
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from firmware_protocol import (
+    MAX_PAYLOAD,
+    MAX_RETRIES,
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    ErrorResponse,
+    FrameDecoder,
+    Hello,
+    HelloResponse,
+    Message,
+    MessageError,
+    SampleFormat,
+    StreamStart,
+    StreamStartResponse,
+    StreamStatus,
+    StreamStatusRequest,
+    StreamStop,
+    decode_message,
+    encode_message,
+)  # fmt: skip
+from firmware_protocol.errors import ErrorCode
+from firmware_protocol.framing import Frame
+from spiel_edge.device.stream import LiveAcquisition, StreamTracker
+from spiel_edge.errors import (
+    DeviceDisconnectedError,
+    DeviceError,
+    DeviceRequestError,
+    DeviceTimeoutError,
+)
+from spiel_edge.link import Link, LinkIdentity, open_link
+from spiel_edge.link.discover import find_again
+
+log = logging.getLogger(__name__)
+
+POLL_S = 0.05  # the longest any single read blocks
+RECONNECT_POLL_S = 0.05  # how often to look for a board that went away
+
+
+@dataclass
+class SessionCounters:
+    retries: int = 0  # requests sent again after a lost answer
+    timeouts: int = 0  # requests still unanswered after all retries
+    stale: int = 0  # answers that came after their request had been retried or given up
+    unexpected: int = 0  # frames that are neither answers nor stream data
+    disconnects: int = 0  # times the link went away
+    reconnects: int = 0  # times it came back and the stream resumed
+    restarts: int = 0  # streams the board had stopped by itself (restarted)
+
+
+class DeviceSession:
+    """``with DeviceSession("sim://") as dev: dev.start_stream(rate_hz=50); for a in dev.acquisitions(stop): ...``"""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        reconnect: bool = True,
+        reconnect_timeout_s: float | None = None,
+        poll_s: float = POLL_S,
+        stall_s: float = 2.0,
+        link_options: dict[str, Any] | None = None,
+    ):
+        self.url = url
+        self.reconnect = reconnect
+        self.reconnect_timeout_s = reconnect_timeout_s
+        self.poll_s = poll_s
+        self.stall_s = stall_s  # no stream data this long: ask the board whether it is alive
+        self.link_options = link_options or {}
+        self.counters = SessionCounters()
+        self.tracker = StreamTracker()
+        self.decoder = FrameDecoder()
+        self.hello: HelloResponse | None = None
+        self.identity: LinkIdentity | None = None
+        self.stream: StreamStartResponse | None = None
+        self.device_status: StreamStatus | None = None
+        self._link: Link | None = None
+        self._inbox: deque[tuple[Frame, int]] = deque()
+        self._seq = random.getrandbits(16)
+        self._stream_request: StreamStart | None = None
+        self._overruns_before = 0  # board counters of earlier boots
+        self._last_data = time.monotonic()
+
+    # --- connection ----------------------------------------------------------------------
+
+    def __enter__(self) -> DeviceSession:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> HelloResponse:
+        """Open the link and handshake; DeviceError (with a hint) when that fails."""
+        self._connect(self.url)
+        assert self.hello is not None
+        return self.hello
+
+    def close(self) -> None:
+        """Stop the stream (best effort, short) and close the link."""
+        if self._link is not None and self._stream_request is not None:
+            try:
+                self.stop_stream(retries=0)
+            except DeviceError as exc:
+                log.debug("stop on close: %s", exc)
+        self._drop_link()
+
+    def _connect(self, url: str) -> None:
+        self._link = open_link(url, **self.link_options)
+        self.decoder.reset()
+        self._inbox.clear()
+        try:
+            self._handshake()
+        except BaseException:
+            self._drop_link()
+            raise
+
+    def _handshake(self) -> None:
+        hello = self.request(Hello(1, PROTOCOL_VERSION, MAX_PAYLOAD, 0))
+        assert isinstance(hello, HelloResponse)
+        previous = self.hello
+        if previous is not None and previous.serial and hello.serial != previous.serial:
+            raise DeviceError(f"{self.url}: a different board answered (serial {hello.serial!r}, expected {previous.serial!r})")
+        if hello.schema_hash != SCHEMA_HASH:
+            log.warning("%s: firmware %s was built against another protocol schema (0x%08x, host 0x%08x)",
+                        self.url, hello.firmware_version, hello.schema_hash, SCHEMA_HASH)  # fmt: skip
+        if previous is not None and hello.boot_id != previous.boot_id and self.device_status is not None:
+            self._overruns_before += self.device_status.overruns
+            self.device_status = None
+        self.hello = hello
+        assert self._link is not None
+        known = self._link.identity()
+        self.identity = LinkIdentity(self.url, known.vid or hello.usb_vid or None,
+                                     known.pid or hello.usb_pid or None, known.serial or hello.serial or None)  # fmt: skip
+        log.info("%s: board %s firmware %s, %d channels, protocol %d", self.url, hello.serial,
+                 hello.firmware_version, hello.n_channels, hello.protocol_version)  # fmt: skip
+
+    def _drop_link(self) -> None:
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    # --- requests ------------------------------------------------------------------------
+
+    def request(self, msg: Message, *, timeout_s: float | None = None, retries: int = MAX_RETRIES) -> Message:
+        """Send a request and return its answer; DeviceRequestError on an error answer,
+        DeviceTimeoutError when ``1 + retries`` tries got none."""
+        link = self._require_link()
+        self._seq = (self._seq + 1) & 0xFFFF
+        seq = self._seq
+        wire = encode_message(msg, seq=seq)
+        timeout = timeout_s if timeout_s is not None else type(msg).TIMEOUT_S
+        for attempt in range(1 + retries):
+            if attempt:
+                self.counters.retries += 1
+                log.debug("%s: retry %d of %s (seq %d)", self.url, attempt, type(msg).__name__, seq)
+            link.write(wire)
+            answer = self._await(seq, msg.MSG_TYPE, time.monotonic() + timeout)
+            if answer is not None:
+                break
+        else:
+            self.counters.timeouts += 1
+            raise DeviceTimeoutError(
+                f"{self.url}: no answer to {type(msg).__name__} after {1 + retries} tries of {timeout:g} s"
+            )
+        if isinstance(answer, ErrorResponse):
+            raise DeviceRequestError(f"{self.url}: {type(msg).__name__}: {answer.to_exception()}",
+                                     answer.code, answer.request_type)  # fmt: skip
+        return answer
+
+    def _await(self, seq: int, msg_type: int, deadline: float) -> Message | None:
+        while True:
+            while self._inbox:
+                frame, ns = self._inbox.popleft()
+                if frame.is_response and frame.seq == seq and frame.msg_type in (msg_type, ErrorResponse.MSG_TYPE):
+                    try:
+                        return decode_message(frame)
+                    except MessageError as exc:  # valid CRC but a payload we cannot read
+                        log.warning("%s: unreadable answer: %s", self.url, exc)
+                        continue
+                self._dispatch(frame, ns)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            self._fill(min(remaining, self.poll_s))
+
+    def _fill(self, timeout_s: float) -> None:
+        data = self._require_link().read(timeout_s)
+        if data:
+            ns = time.perf_counter_ns()
+            self._inbox.extend((frame, ns) for frame in self.decoder.feed(data))
+
+    def _dispatch(self, frame: Frame, ns: int) -> None:
+        if self.tracker.feed(frame, ns):
+            self._last_data = time.monotonic()
+        elif frame.is_response:
+            self.counters.stale += 1
+        else:
+            self.counters.unexpected += 1
+
+    def _require_link(self) -> Link:
+        if self._link is None:
+            raise DeviceDisconnectedError(f"{self.url}: not connected")
+        return self._link
+
+    # --- streaming -----------------------------------------------------------------------
+
+    def start_stream(self, *, rate_hz: float = 50.0, n_samples: int = 0, n_acquisitions: int = 0) -> StreamStartResponse:
+        """Start streaming (stopping any stream the board still runs)."""
+        request = StreamStart(n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, 0)
+        self._stop_quietly()
+        self.tracker.begin()
+        answer = self.request(request)
+        assert isinstance(answer, StreamStartResponse)
+        self.tracker.started(answer.first_acquisition)
+        self.stream, self._stream_request = answer, request
+        self._last_data = time.monotonic()
+        return answer
+
+    def stop_stream(self, *, retries: int = MAX_RETRIES) -> None:
+        self._stream_request = None
+        try:
+            self.request(StreamStop(), retries=retries)
+        finally:
+            self.tracker.stop()
+
+    def _stop_quietly(self) -> None:
+        try:
+            self.request(StreamStop())
+        except DeviceRequestError as exc:  # some firmware refuses to stop what is not running
+            if exc.code != ErrorCode.BAD_STATE:
+                raise
+
+    def stream_status(self) -> StreamStatus:
+        status = self.request(StreamStatusRequest())
+        assert isinstance(status, StreamStatus)
+        self.device_status = status
+        return status
+
+    def acquisitions(self, stop: threading.Event | None = None) -> Iterator[LiveAcquisition]:
+        """Acquisitions as they arrive, until ``stop`` is set; survives unplugs when
+        ``reconnect`` is on (else DeviceDisconnectedError ends it)."""
+        stop = stop or threading.Event()
+        ready = self.tracker.ready
+        while not stop.is_set():
+            if ready:
+                yield ready.popleft()
+                continue
+            try:
+                self._pump()
+            except (DeviceDisconnectedError, DeviceTimeoutError) as exc:
+                if not self.reconnect:
+                    raise
+                self._recover(exc, stop)
+
+    def _pump(self) -> None:
+        while self._inbox:
+            self._dispatch(*self._inbox.popleft())
+        if self.tracker.ready:
+            return
+        self._fill(self.poll_s)
+        while self._inbox:
+            self._dispatch(*self._inbox.popleft())
+        if self._stream_request is not None and time.monotonic() - self._last_data > self.stall_s:
+            self._check_alive()
+
+    def _check_alive(self) -> None:
+        """No data for a while: a board that does not answer is treated as gone; one that
+        stopped streaming by itself is asked to start again."""
+        status = self.stream_status()
+        self._last_data = time.monotonic()
+        if not status.streaming and self._stream_request is not None:
+            log.warning("%s: the board stopped streaming; starting again", self.url)
+            self.counters.restarts += 1
+            self._resume_stream()
+
+    def _resume_stream(self) -> None:
+        request = self._stream_request
+        if request is not None:
+            self.start_stream(rate_hz=request.rate_hz, n_samples=request.n_samples, n_acquisitions=request.n_acquisitions)
+
+    # --- reconnection --------------------------------------------------------------------
+
+    def _recover(self, cause: Exception, stop: threading.Event) -> None:
+        self.counters.disconnects += 1
+        log.warning("%s; waiting for the board to come back", cause)
+        self.tracker.stop()
+        self._drop_link()
+        lost_at = time.monotonic()
+        while not stop.wait(RECONNECT_POLL_S):
+            if self.reconnect_timeout_s is not None and time.monotonic() - lost_at > self.reconnect_timeout_s:
+                raise DeviceDisconnectedError(f"{self.url}: the board did not come back within {self.reconnect_timeout_s:g} s")
+            try:
+                self._reopen()
+            except DeviceError as exc:
+                log.debug("%s: not back yet: %s", self.url, exc)
+                self._drop_link()
+                continue
+            self.counters.reconnects += 1
+            log.warning("%s: board back after %.2f s; streaming again", self.url, time.monotonic() - lost_at)
+            return
+
+    def _reopen(self) -> None:
+        candidates = [self.url]
+        moved = find_again(self.identity) if self.identity is not None else None
+        if moved and moved != self.url:
+            candidates.append(moved)
+        error: DeviceError | None = None
+        for url in candidates:
+            try:
+                self._connect(url)
+                self._resume_stream()
+                return
+            except DeviceError as exc:
+                error = exc
+                self._drop_link()
+        assert error is not None
+        raise error
+
+    # --- reporting -----------------------------------------------------------------------
+
+    def counts(self) -> dict[str, int]:
+        """Every counter in one flat dict (see the README for their meaning)."""
+        assembler = self.tracker.assembler.stats
+        decoder = self.decoder.stats
+        status = self.device_status
+        return {
+            "acquisitions": self.tracker.acquisitions,
+            "lost": self.tracker.lost,
+            "damaged": assembler.incomplete,
+            "gaps": assembler.gaps,
+            "duplicates": assembler.duplicates,
+            "crc_errors": decoder.crc,
+            "framing_errors": decoder.errors - decoder.crc,
+            "bad_messages": self.tracker.bad_messages,
+            "overruns": self._overruns_before + (status.overruns if status else 0),
+            "device_rx_errors": status.rx_errors if status else 0,
+            **asdict(self.counters),
+        }

@@ -1,0 +1,144 @@
+"""From decoded stream frames to whole acquisitions, with the counters the session reports.
+
+Pure (no I/O): the session feeds it frames with the time their bytes were read. Channel
+frames go through firmware_protocol's AcquisitionAssembler; annotations (ground truth and
+scene background from a virtual board) are attached to the acquisition they name.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, StreamData
+from firmware_protocol.framing import Frame
+from spiel_edge.device.annotation import ANNOTATION_TYPE, Annotation
+
+log = logging.getLogger(__name__)
+
+_MASK = 0xFFFFFFFF
+MAX_PENDING_TRUTH = 256
+
+
+@dataclass(frozen=True)
+class LiveAcquisition:
+    """One acquisition from the board, as it arrived."""
+
+    index: int  # the board's acquisition index (restarts when the board reboots)
+    timestamp_us: int  # board clock at the first sample
+    sample_rate_hz: int
+    samples: np.ndarray  # (channels, samples), the wire dtype (uint16 envelope)
+    received_ns: int  # time.perf_counter_ns() when its last byte was read
+    host_time: float  # time.time() at that moment
+    truth_mm: np.ndarray | None = None  # ground truth, when a virtual board sends it
+    background: np.ndarray | None = None  # latest target-free scene the link sent, if any
+
+
+class StreamTracker:
+    """Feeds stream frames to the assembler; counts lost acquisitions by index gaps."""
+
+    def __init__(self) -> None:
+        self.assembler = AcquisitionAssembler()
+        self.ready: deque[LiveAcquisition] = deque()
+        self.acquisitions = 0  # delivered
+        self.lost = 0  # acquisition indices never delivered (damaged, dropped, overrun)
+        self.bad_messages = 0  # frames with a valid CRC whose payload did not decode
+        self.background: np.ndarray | None = None
+        self._last_index: int | None = None
+        self._truth: dict[int, np.ndarray] = {}
+        self._rows: dict[int, np.ndarray] = {}
+        self._rows_for = -1
+        self._first_delivered: int | None = None
+
+    def begin(self) -> None:
+        """A new stream is being requested: forget the old one's leftovers. Its first
+        frames may arrive before the answer (when the answer was lost and retried)."""
+        self.assembler.reset()
+        self.ready.clear()
+        self._truth.clear()
+        self._last_index = None
+        self._first_delivered: int | None = None
+
+    def started(self, first_acquisition: int) -> None:
+        """The board's answer: the stream began at ``first_acquisition``."""
+        if self._first_delivered is None:
+            self._last_index = (first_acquisition - 1) & _MASK
+        else:
+            self.lost += (self._first_delivered - first_acquisition) & _MASK
+
+    def stop(self) -> None:
+        """The stream ended or the link was lost: a partial acquisition is incomplete."""
+        self.assembler.flush()
+        self.assembler.reset()
+        self._last_index = None
+
+    def feed(self, frame: Frame, received_ns: int) -> bool:
+        """Handle a stream or annotation frame; False if it is neither."""
+        if frame.msg_type == MsgType.STREAM_DATA and not frame.is_response:
+            self._stream_data(frame, received_ns)
+            return True
+        if frame.msg_type == ANNOTATION_TYPE and not frame.is_response:
+            self._annotation(frame)
+            return True
+        return False
+
+    def _stream_data(self, frame: Frame, received_ns: int) -> None:
+        try:
+            msg = StreamData.unpack(frame.payload)
+        except MessageError as exc:
+            self.bad_messages += 1
+            log.debug("bad STREAM_DATA: %s", exc)
+            return
+        acq = self.assembler.feed(msg, frame.aux)
+        if acq is None:
+            return
+        if self._last_index is not None:
+            gap = (acq.index - self._last_index - 1) & _MASK
+            if gap < (1 << 31):
+                self.lost += gap
+        elif self._first_delivered is None:
+            self._first_delivered = acq.index
+        self._last_index = acq.index
+        self.acquisitions += 1
+        self.ready.append(
+            LiveAcquisition(
+                acq.index, acq.timestamp_us, acq.sample_rate_hz, acq.samples, received_ns,
+                time.time(), self._truth_for(acq.index), self.background,
+            )  # fmt: skip
+        )
+
+    def _truth_for(self, index: int) -> np.ndarray | None:
+        truth = self._truth.pop(index, None)
+        if len(self._truth) > MAX_PENDING_TRUTH:  # annotations whose acquisition never came
+            self._truth.clear()
+        return truth
+
+    def _annotation(self, frame: Frame) -> None:
+        try:
+            note = Annotation.unpack(frame.payload)
+        except MessageError:
+            self.bad_messages += 1
+            return
+        truth = note.truth_mm
+        if truth is not None:
+            self._truth[note.acquisition] = truth
+        if not note.n_channels:
+            return
+        if note.acquisition != self._rows_for:
+            self._rows, self._rows_for = {}, note.acquisition
+        rows = note.background_rows()
+        if not len(rows):
+            self.bad_messages += 1  # rows that do not divide into n_samples
+            return
+        for offset, row in enumerate(rows):
+            self._rows[note.first_channel + offset] = row
+        if len(self._rows) == note.n_channels and set(self._rows) == set(range(note.n_channels)):
+            rows, self._rows = [self._rows[c] for c in range(note.n_channels)], {}
+            if len({len(r) for r in rows}) != 1:
+                self.bad_messages += 1
+                return
+            self.background = np.stack(rows)

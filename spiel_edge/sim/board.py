@@ -1,0 +1,346 @@
+"""The board side of firmware_protocol: answers requests and streams a scene's acquisitions.
+
+Pure state machine driven by the caller's clock: ``receive(bytes, now)`` returns the frames
+to send back, ``due(now, room)`` the stream frames whose time has come. Requests are
+answered once per sequence number: a repeated request (the host retrying after a lost
+response) gets the cached response and is not executed again. A HELLO starts a new host
+session and clears that cache.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+from crc32c import crc32c
+
+from firmware_protocol import (
+    MAX_PAYLOAD,
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Capability,
+    ErrorCode,
+    ErrorResponse,
+    Flags,
+    FrameDecoder,
+    Hello,
+    MessageError,
+    Ping,
+    Pong,
+    SampleFormat,
+    StreamData,
+    StreamStart,
+    StreamStartResponse,
+    StreamStatus,
+    StreamStop,
+    StreamStopResponse,
+    decode_message,
+    encode_message,
+)  # fmt: skip
+from firmware_protocol import messages as m
+from firmware_protocol.framing import Frame
+from spiel_edge.device.annotation import encode_annotations
+from spiel_edge.sim.faults import Outgoing
+from spiel_edge.sim.flash import Flash, FlashError
+from spiel_edge.sim.scenes import EchoModelScene, ReplayScene
+
+log = logging.getLogger(__name__)
+
+FIRMWARE_VERSION = "sim-0.1.0"
+MAX_RATE_HZ = 10000.0
+RESPONSE_CACHE = 16
+_MASK = 0xFFFFFFFF
+
+
+@dataclass
+class _Stream:
+    rate_hz: float
+    n_samples: int
+    remaining: int | None  # None: endless
+    next_time: float
+    sent: int = 0
+
+    @property
+    def period(self) -> float:
+        return 1.0 / self.rate_hz if self.rate_hz > 0 else 0.0
+
+
+@dataclass
+class BoardStats:
+    acquisitions_sent: int = 0
+    frames_sent: int = 0
+    overruns: int = 0
+    requests: int = 0
+    repeated: int = 0  # requests answered from the cache (not executed again)
+    executed: dict[int, int] = field(default_factory=dict)  # msg_type -> times executed
+
+    def count(self, msg_type: int) -> None:
+        self.executed[msg_type] = self.executed.get(msg_type, 0) + 1
+
+
+class VirtualBoard:
+    def __init__(
+        self,
+        scene: ReplayScene | EchoModelScene,
+        *,
+        serial: str = "SIM0001",
+        vid: int = 0x1209,
+        pid: int = 0x0001,
+        flash: Flash | None = None,
+        seed: int = 0,
+        now: float = 0.0,
+    ):
+        self.scene = scene
+        self.serial, self.vid, self.pid = serial, vid, pid
+        self.flash = flash or Flash()
+        self.stats = BoardStats()
+        self.tx_dropped = 0  # set by the line: frames lost on the way out
+        self._rng = random.Random(seed)
+        self._decoder = FrameDecoder()
+        self.reboot_at: float | None = None
+        self.boot(now)
+
+    # --- power ---------------------------------------------------------------------------
+
+    def boot(self, now: float) -> None:
+        """Power on: a new boot id, no stream, empty RAM (staging, response cache)."""
+        self.boot_id = self._rng.getrandbits(32)
+        self._boot_time = now
+        self._decoder.reset()
+        self._cache: OrderedDict[int, tuple[int, bytes]] = OrderedDict()
+        self._staging = bytearray()
+        self._stream: _Stream | None = None
+        self._acquisition = 0
+        self._counter = 0
+        self._last_background: np.ndarray | None = None
+        self.reboot_at = None
+
+    @property
+    def streaming(self) -> bool:
+        return self._stream is not None
+
+    @property
+    def rx_errors(self) -> int:
+        return self._decoder.stats.errors
+
+    # --- host -> board -------------------------------------------------------------------
+
+    def receive(self, data: bytes, now: float) -> list[Outgoing]:
+        """Decode requests and return their responses (PowerCut propagates)."""
+        out = []
+        for frame in self._decoder.feed(data):
+            wire = self._answer(frame, now)
+            if wire is not None:
+                out.append(Outgoing(wire))
+        return out
+
+    def _answer(self, frame: Frame, now: float) -> bytes | None:
+        if frame.flags & (Flags.RESPONSE | Flags.STREAM):
+            return None  # not a request
+        self.stats.requests += 1
+        cached = self._cache.get(frame.seq)
+        if cached is not None and cached[0] == frame.msg_type and frame.msg_type != m.MsgType.HELLO:
+            self.stats.repeated += 1
+            return cached[1]
+        try:
+            request = decode_message(frame)
+        except MessageError as exc:
+            code = ErrorCode.UNSUPPORTED if "unknown message" in str(exc) else ErrorCode.INVALID
+            response: m.Message = ErrorResponse(code, frame.msg_type, str(exc)[:200])
+        else:
+            self.stats.count(frame.msg_type)
+            response = self._execute(request, now)
+        wire = encode_message(response, seq=frame.seq)
+        if frame.msg_type == m.MsgType.HELLO:
+            self._cache.clear()
+        self._cache[frame.seq] = (frame.msg_type, wire)
+        while len(self._cache) > RESPONSE_CACHE:
+            self._cache.popitem(last=False)
+        return wire
+
+    def _execute(self, req: m.Message, now: float) -> m.Message:
+        handler = {
+            Hello: self._hello, m.DeviceInfoRequest: self._device_info, Ping: self._ping,
+            m.Reboot: self._reboot, StreamStart: self._stream_start, StreamStop: self._stream_stop,
+            m.StreamStatusRequest: self._stream_status, m.ConfigRead: self._config_read,
+            m.ConfigWrite: self._config_write, m.ConfigCommit: self._config_commit,
+            m.ConfigStatusRequest: self._config_status,
+        }.get(type(req))  # fmt: skip
+        if handler is None:
+            return ErrorResponse(ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles")
+        return handler(req, now)
+
+    # --- session -------------------------------------------------------------------------
+
+    def _hello(self, req: Hello, now: float) -> m.Message:
+        if req.max_version < PROTOCOL_VERSION:
+            return ErrorResponse(ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}")
+        if req.min_version > PROTOCOL_VERSION:
+            return ErrorResponse(ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}")
+        caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
+        return m.HelloResponse(
+            PROTOCOL_VERSION, PROTOCOL_VERSION, PROTOCOL_VERSION, self.scene.n_channels, MAX_PAYLOAD,
+            4096, int(caps), SCHEMA_HASH, self.boot_id, FIRMWARE_VERSION, self.vid, self.pid, self.serial,
+        )  # fmt: skip
+
+    def _device_info(self, req: m.Message, now: float) -> m.Message:
+        speed = getattr(self.scene, "speed", 343.0)
+        celsius = 273.15 * ((speed / 331.3) ** 2 - 1.0)
+        return m.DeviceInfo(
+            1, self.scene.n_channels, 16, 175000, 100000, int((now - self._boot_time) * 1000) & _MASK,
+            max(-32768, min(32767, round(celsius * 100))), "spiel-sim",
+        )  # fmt: skip
+
+    def _ping(self, req: Ping, now: float) -> m.Message:
+        return Pong(req.data)
+
+    def _reboot(self, req: m.Reboot, now: float) -> m.Message:
+        self.reboot_at = now + req.delay_ms / 1000.0
+        return m.RebootResponse()
+
+    # --- streaming -----------------------------------------------------------------------
+
+    def _stream_start(self, req: StreamStart, now: float) -> m.Message:
+        n_ch = self.scene.n_channels
+        n_samples = req.n_samples or self.scene.n_samples
+        error = None
+        if req.sample_format != SampleFormat.U16_ENVELOPE:
+            error = (ErrorCode.UNSUPPORTED, "this board sends U16_ENVELOPE samples only")
+        elif req.channel_mask not in (0, (1 << n_ch) - 1):
+            error = (ErrorCode.UNSUPPORTED, "channel subsets are not supported; use all channels")
+        elif not self.scene.supports(n_samples):
+            error = (ErrorCode.INVALID, f"this scene cannot make {n_samples} samples per channel")
+        elif not (math.isfinite(req.rate_hz) and 0.0 <= req.rate_hz <= MAX_RATE_HZ):
+            error = (ErrorCode.INVALID, f"rate_hz must be in [0, {MAX_RATE_HZ:g}]")
+        if error:
+            return ErrorResponse(error[0], req.MSG_TYPE, error[1])
+        remaining = req.n_acquisitions or None
+        self._stream = _Stream(req.rate_hz, n_samples, remaining, now)
+        return StreamStartResponse(
+            self._acquisition, self._counter, self.scene.sample_rate_hz, n_samples, n_ch,
+            SampleFormat.U16_ENVELOPE,
+        )  # fmt: skip
+
+    def _stream_stop(self, req: StreamStop, now: float) -> m.Message:
+        sent = self._stream.sent if self._stream else 0
+        self._stream = None
+        return StreamStopResponse(sent, self._counter)
+
+    def _stream_status(self, req: m.Message, now: float) -> m.Message:
+        s = self.stats
+        return StreamStatus(
+            int(self.streaming), s.acquisitions_sent & _MASK, s.frames_sent & _MASK, s.overruns & _MASK,
+            self.rx_errors & _MASK, self.tx_dropped & _MASK,
+        )  # fmt: skip
+
+    def next_due(self) -> float | None:
+        return None if self._stream is None else self._stream.next_time
+
+    def acquisition_size(self) -> int:
+        """Upper bound of the wire bytes of one acquisition (annotations included)."""
+        n = self._stream.n_samples if self._stream else self.scene.n_samples
+        frame = 12 + 24 + 2 * n + 4
+        return 2 * self.scene.n_channels * (frame + frame // 254 + 3)
+
+    def due(self, now: float, room: int, limit: int | None = None) -> list[Outgoing]:
+        """Acquisitions due by ``now`` that fit in ``room`` bytes (the others overrun), at
+        most ``limit`` pings."""
+        out: list[Outgoing] = []
+        s = self._stream
+        size = self.acquisition_size()
+        while s is not None and s.next_time <= now and (limit is None or limit > 0):
+            limit = None if limit is None else limit - 1
+            if s.period == 0.0 and size > room:
+                break  # as fast as possible: wait for the host to drain
+            if size > room:
+                self.stats.overruns += 1
+                self._acquisition = (self._acquisition + 1) & _MASK
+            else:
+                out += self._acquire(s)
+                room -= size
+            s.next_time = now if s.period == 0.0 else s.next_time + s.period
+            s.sent += 1
+            if s.remaining is not None and s.sent >= s.remaining:
+                self._stream = s = None
+        return out
+
+    def skip_to(self, now: float) -> None:
+        """Frozen until ``now`` (a stall): pings that should have happened are overruns."""
+        s = self._stream
+        while s is not None and s.period and s.next_time < now:
+            self.stats.overruns += 1
+            self._acquisition = (self._acquisition + 1) & _MASK
+            s.next_time += s.period
+
+    def _acquire(self, s: _Stream) -> list[Outgoing]:
+        index, time_s = self._acquisition, s.next_time - self._boot_time
+        frame = self.scene.frame(index, s.n_samples, time_s)
+        background = frame.background
+        if background is not None and self._last_background is not None and np.array_equal(background, self._last_background):
+            background = None  # unchanged: the host keeps the one it has
+        elif background is not None:
+            self._last_background = background
+        out = [Outgoing(w, exempt=True) for w in encode_annotations(index, frame.truth_mm, background)]
+        n_ch = frame.samples.shape[0]
+        rows = np.ascontiguousarray(frame.samples, dtype="<u2")
+        stamp = int(time_s * 1e6)
+        for c in range(n_ch):
+            msg = StreamData(index, c, n_ch, SampleFormat.U16_ENVELOPE, self.scene.sample_rate_hz, stamp, rows[c].tobytes())
+            out.append(Outgoing(encode_message(msg, aux=self._counter), acquisition=index))
+            self._counter = (self._counter + 1) & _MASK
+        self._acquisition = (index + 1) & _MASK
+        self.stats.acquisitions_sent += 1
+        self.stats.frames_sent += n_ch
+        return out
+
+    # --- configuration -------------------------------------------------------------------
+
+    def _config_read(self, req: m.ConfigRead, now: float) -> m.Message:
+        if req.source == m.ConfigSource.STAGING:
+            data: bytes | None = bytes(self._staging)
+        else:
+            data = self.flash.read_active()
+        if data is None:
+            return ErrorResponse(ErrorCode.NOT_FOUND, req.MSG_TYPE, "no valid config slot")
+        if req.offset > len(data) or req.length > MAX_PAYLOAD - 6:
+            return ErrorResponse(ErrorCode.INVALID, req.MSG_TYPE, "offset or length out of range")
+        return m.ConfigReadResponse(req.offset, data[req.offset : req.offset + req.length])
+
+    def _config_write(self, req: m.ConfigWrite, now: float) -> m.Message:
+        if req.offset == 0:
+            self._staging = bytearray()
+        if req.offset > len(self._staging):
+            return ErrorResponse(ErrorCode.INVALID, req.MSG_TYPE, "offset beyond the staged data")
+        end = req.offset + len(req.data)
+        if end > self.flash.capacity:
+            return ErrorResponse(ErrorCode.TOO_LARGE, req.MSG_TYPE, f"config exceeds {self.flash.capacity} bytes")
+        self._staging[req.offset : end] = req.data
+        return m.ConfigWriteResponse(len(self._staging))
+
+    def _config_commit(self, req: m.ConfigCommit, now: float) -> m.Message:
+        if self.streaming:
+            return ErrorResponse(ErrorCode.BAD_STATE, req.MSG_TYPE, "stop the stream before a commit")
+        if not 0 < req.total_length <= len(self._staging):
+            return ErrorResponse(ErrorCode.INVALID, req.MSG_TYPE, "total_length exceeds the staged data")
+        data = bytes(self._staging[: req.total_length])
+        if crc32c(data) != req.expected_crc:
+            return ErrorResponse(ErrorCode.CORRUPT, req.MSG_TYPE, "staged data CRC mismatch")
+        try:
+            info = self.flash.commit(data)  # PowerCut propagates: the board loses power
+        except FlashError as exc:
+            code = ErrorCode.FLASH_VERIFY_FAILED if exc.verify else ErrorCode.FLASH_WRITE_FAILED
+            return ErrorResponse(code, req.MSG_TYPE, str(exc))
+        return m.ConfigCommitResponse(info.slot, info.generation, info.length, info.crc)
+
+    def _config_status(self, req: m.Message, now: float) -> m.Message:
+        active = self.flash.active()
+        s0, s1 = self.flash.slot_info(0), self.flash.slot_info(1)
+        return m.ConfigStatus(
+            0xFF if active is None else active.slot, len(self._staging), self.flash.capacity,
+            s0.generation, s0.length, s0.crc, int(s0.valid),
+            s1.generation, s1.length, s1.crc, int(s1.valid),
+        )  # fmt: skip

@@ -1,0 +1,178 @@
+"""The virtual board on its cable: plug state, line faults and the transmit FIFO.
+
+One SimDevice outlives its links, like a board outlives the file descriptors opened on it:
+``unplug_after`` makes it vanish (reads and writes of the links opened on it fail, new opens
+fail) and come back ``unplug_ms`` later rebooted, with the same serial number. Time comes
+from the caller (``now``), so the in-process pyserial handler, the pty server and the fake
+USB backend all drive the same object.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import time
+from collections.abc import Callable
+
+from spiel_edge.sim.board import VirtualBoard
+from spiel_edge.sim.faults import LineFaults
+from spiel_edge.sim.flash import Flash, PowerCut
+from spiel_edge.sim.options import SimOptions
+from spiel_edge.sim.scenes import build_scene
+
+log = logging.getLogger(__name__)
+
+REBOOT_S = 0.3  # how long a rebooting board is gone from the bus
+UNPLUG_GRACE_S = 0.2  # how long an unplug waits for the host to read what was already sent
+
+
+class DeviceGone(OSError):
+    """The virtual board is unplugged, or the link was opened before it last went away."""
+
+    def __init__(self, what: str = "device disconnected"):
+        super().__init__(errno.ENODEV, what)
+
+
+class SimDevice:
+    def __init__(self, options: SimOptions, *, clock: Callable[[], float] = time.monotonic):
+        now = clock()
+        self.options = options
+        self.clock = clock
+        self.board = VirtualBoard(
+            build_scene(options), serial=options.serial, vid=options.vid, pid=options.pid,
+            flash=Flash(cut_at=options.power_cut), seed=options.seed, now=now,
+        )  # fmt: skip
+        self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
+        self.generation = 1  # +1 each time it comes back
+        self.plugged = True
+        self.unplugs = 0
+        self.power_cuts = 0
+        self.plug_times: list[float] = []  # when it came back, on the caller's clock
+        self.holder: object | None = None  # the link holding it open (exclusive access)
+        self.drained: Callable[[], bool] = lambda: True  # pty server: has the host read it all?
+        self._replug_at = 0.0
+        self._tx = bytearray()
+        self._since_plug = 0
+        self._sent = 0
+        self._vanish_since: float | None = None
+        self._stalled_until: float | None = None
+        self._stalled = False
+
+    # --- the host's side -----------------------------------------------------------------
+
+    def write(self, data: bytes, generation: int | None = None) -> None:
+        now = self.clock()
+        self.update(now)
+        self._check(generation)
+        if self._stalled_until is not None:
+            return  # frozen firmware: the bytes are lost
+        try:
+            replies = self.board.receive(self.faults.incoming(bytes(data)), now)
+        except PowerCut as exc:
+            log.info("%s: %s", self.options.serial, exc)
+            self.power_cuts += 1
+            self.unplug(now, self.options.unplug_ms / 1000.0)
+            return
+        self._tx += self.faults.outgoing(replies)
+
+    def peek(self, max_bytes: int, generation: int | None = None) -> bytes:
+        self.update(self.clock())
+        self._check(generation)
+        return bytes(self._tx[:max_bytes])
+
+    def pending(self, generation: int | None = None) -> int:
+        self.update(self.clock())
+        self._check(generation)
+        return len(self._tx)
+
+    def consume(self, n: int) -> None:
+        del self._tx[:n]
+
+    def read(self, max_bytes: int, generation: int | None = None) -> bytes:
+        data = self.peek(max_bytes, generation)
+        self.consume(len(data))
+        return data
+
+    def discard_output(self) -> None:
+        self._tx.clear()
+
+    def _check(self, generation: int | None) -> None:
+        if not self.plugged or (generation is not None and generation != self.generation):
+            raise DeviceGone()
+
+    # --- time ----------------------------------------------------------------------------
+
+    def update(self, now: float) -> None:
+        """Advance the board to ``now``: replug, reboot, stall, vanish, stream."""
+        if not self.plugged:
+            if now < self._replug_at:
+                return
+            self._plug(now)
+        board = self.board
+        if board.reboot_at is not None and now >= board.reboot_at:
+            self.unplug(now, REBOOT_S)
+            return
+        if self._stalled_until is not None:
+            if now < self._stalled_until:
+                return
+            self._stalled_until = None
+            board.skip_to(now)
+        if self._vanish_since is not None:
+            if (not self._tx and self.drained()) or now - self._vanish_since > UNPLUG_GRACE_S:
+                self.unplug(now, self.options.unplug_ms / 1000.0)
+            return
+        self._stream(now)
+
+    def _stream(self, now: float) -> None:
+        opts = self.options
+        limits = []  # stop exactly at the acquisition that triggers a fault
+        if opts.unplug_after and self._unplugs_left():
+            limits.append(max(opts.unplug_after - self._since_plug, 0))
+        if opts.stall_after and not self._stalled:
+            limits.append(max(opts.stall_after - self._sent, 0))
+        limit = min(limits) if limits else None
+        frames = self.board.due(now, self.options.fifo - len(self._tx), limit)
+        if frames:
+            self._tx += self.faults.outgoing(frames)
+            self.board.tx_dropped = self.faults.stats.dropped_frames
+            sent = len({f.acquisition for f in frames if f.acquisition is not None})
+            self._since_plug += sent
+            self._sent += sent
+        if opts.stall_after and not self._stalled and self._sent >= opts.stall_after:
+            self._stalled = True
+            self._stalled_until = now + opts.stall_ms / 1000.0
+        elif opts.unplug_after and self._unplugs_left() and self._since_plug >= opts.unplug_after:
+            self._vanish_since = now
+
+    def _unplugs_left(self) -> bool:
+        return not self.options.unplug_count or self.unplugs < self.options.unplug_count
+
+    def unplug(self, now: float, duration_s: float) -> None:
+        log.debug("%s: unplugged for %.3f s", self.options.serial, duration_s)
+        self.plugged = False
+        self.unplugs += 1
+        self._replug_at = now + duration_s
+        self._vanish_since = None
+        self._tx.clear()
+        self.faults.reset()
+        self.holder = None
+
+    def _plug(self, now: float) -> None:
+        self.plugged = True
+        self.plug_times.append(self._replug_at)
+        self.generation += 1
+        self._since_plug = 0
+        self.board.boot(now)
+        log.debug("%s: plugged in again (generation %d)", self.options.serial, self.generation)
+
+    def next_event(self, now: float) -> float:
+        """When something may happen next without host input (for sleeping callers)."""
+        if not self.plugged:
+            return self._replug_at
+        times = [now + 0.05]
+        for t in (self._stalled_until, self.board.reboot_at, self.board.next_due()):
+            if t is not None:
+                times.append(t)
+        if self._vanish_since is not None:
+            times.append(now + 0.005)
+        return max(min(times), now)

@@ -1,0 +1,95 @@
+"""``sim://[NAME][?key=value&...]``: the virtual board's options, parsed and validated.
+
+The NAME tells boards apart within one process (two URLs with different names are two
+boards); the query selects the scene and injects faults. Unknown keys are rejected.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from urllib.parse import parse_qsl, urlsplit
+
+from spiel_edge.errors import ConfigError
+
+SCENES = ("replay", "model")
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    name: str = ""
+    scene: str = "replay"  # replay: vendored real recordings; model: physical echo model
+    seed: int = 0
+    # faults, per direction of the byte stream (both ways) and per frame sent by the board
+    ber: float = 0.0  # probability that a byte gets one bit flipped
+    drop: float = 0.0  # probability that the board loses a frame it sends
+    dup: float = 0.0  # probability that the board sends a frame twice
+    unplug_after: int = 0  # vanish after this many acquisitions (0: never), then every as many
+    unplug_ms: float = 500.0  # how long it stays away
+    unplug_count: int = 0  # how many times (0: unlimited)
+    stall_after: int = 0  # go silent (no data, no answers) after this many acquisitions
+    stall_ms: float = 0.0
+    power_cut: int = -1  # lose power at this flash operation (0-based), once
+    # identity
+    serial: str = "SIM0001"
+    vid: int = 0x1209
+    pid: int = 0x0001
+    fifo: int = 65536  # transmit buffer (bytes); a due acquisition that does not fit overruns
+    # scene
+    profile: str = "spiel-icra23"  # geometry and timing of the model scene
+    targets: str = ""  # model: fixed targets "x,y,z;x,y,z" in mm (default: one orbiting)
+    orbit: str = "60,150,8"  # model: radius mm, height mm, period s of the default target
+    noise: float = 20.0  # model: Gaussian noise (counts, std)
+    speed: float = 0.0  # model: speed of sound in m/s (0: the profile's)
+    shuffle: bool = False  # replay: random order instead of the recorded one
+
+    @classmethod
+    def from_url(cls, url: str) -> SimOptions:
+        parts = urlsplit(url)
+        if parts.scheme.lower() != "sim":
+            raise ConfigError(f"{url!r}: not a sim:// URL")
+        values: dict[str, object] = {"name": (parts.netloc + parts.path).strip("/")}
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        for key, raw in parse_qsl(parts.query, keep_blank_values=True):
+            if key not in fields or key == "name":
+                allowed = ", ".join(sorted(k for k in fields if k != "name"))
+                raise ConfigError(f"{url!r}: unknown option {key!r}; known: {allowed}")
+            values[key] = _convert(url, key, raw, type(getattr(cls(), key)))
+        options = cls(**values)  # type: ignore[arg-type]
+        options.validate(url)
+        return options
+
+    def validate(self, origin: str = "sim") -> None:
+        def need(ok: bool, msg: str) -> None:
+            if not ok:
+                raise ConfigError(f"{origin!r}: {msg}")
+
+        need(self.scene in SCENES, f"scene must be one of {SCENES}, got {self.scene!r}")
+        for key in ("ber", "drop", "dup"):
+            value = getattr(self, key)
+            need(0.0 <= value <= 1.0, f"{key} must be a probability in [0, 1], got {value}")
+        need(min(self.unplug_after, self.unplug_count, self.stall_after) >= 0, "counts must be >= 0")
+        need(self.unplug_ms >= 0 and self.stall_ms >= 0, "durations must be >= 0")
+        need(self.fifo >= 1024, f"fifo must be >= 1024 bytes, got {self.fifo}")
+        need(self.noise >= 0 and (self.speed == 0 or 200 <= self.speed <= 2000), "noise >= 0, speed in [200, 2000]")
+        need(0 < len(self.serial.encode()) <= 16, "serial must be 1 to 16 bytes")
+        need(0 <= self.vid <= 0xFFFF and 0 <= self.pid <= 0xFFFF, "vid and pid must be 16-bit")
+
+
+def _convert(url: str, key: str, raw: str, kind: type) -> object:
+    try:
+        if kind is bool:
+            if raw.lower() not in ("1", "0", "true", "false", "yes", "no", ""):
+                raise ValueError(raw)
+            return raw.lower() in ("1", "true", "yes", "")
+        if kind is int:
+            return int(raw, 0)
+        if kind is float:
+            value = float(raw)
+            if not math.isfinite(value):
+                raise ValueError(raw)
+            return value
+        return raw
+    except ValueError:
+        raise ConfigError(f"{url!r}: option {key} must be {kind.__name__}, got {raw!r}") from None
