@@ -44,6 +44,7 @@ from firmware_protocol import (
 )  # fmt: skip
 from firmware_protocol.errors import ErrorCode
 from firmware_protocol.framing import Frame
+from spiel_edge.device.config import ConfigTransferMixin
 from spiel_edge.device.stream import LiveAcquisition, StreamTracker
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -71,7 +72,7 @@ class SessionCounters:
     restarts: int = 0  # streams the board had stopped by itself (restarted)
 
 
-class DeviceSession:
+class DeviceSession(ConfigTransferMixin):
     """``with DeviceSession("sim://") as dev: dev.start_stream(rate_hz=50); for a in dev.acquisitions(stop): ...``"""
 
     def __init__(

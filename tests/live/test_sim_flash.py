@@ -106,3 +106,33 @@ def test_power_cut_during_commit_unplugs_the_board_and_keeps_the_old_config(sim_
     time.sleep(0.06)  # the board comes back with the old config active
     with DeviceSession(url, reconnect=False) as session:
         assert session.request(ConfigRead(0, len(OLD))).data == OLD
+
+
+def test_session_config_transfer_and_a_power_cut_at_every_flash_operation(sim_url):
+    url = sim_url("unplug_ms=20")
+    device = device_for_url(url)
+    blob = bytes(range(256)) * 15  # four CONFIG_WRITE chunks
+    with DeviceSession(url, reconnect=False) as session:
+        sent = []
+        session.write_config(OLD)
+        session.commit_config(crc32c(OLD))
+        session.write_config(blob, progress=sent.append)
+        assert sent == [1024, 1024, 1024, 768] and session.read_config(ConfigSource.STAGING) == blob
+        ops_before = device.board.flash.ops
+    n_ops = 2 + len(blob) // 256  # erase, pages, header
+    for k in range(n_ops):
+        device.board.flash.cut_at = device.board.flash.ops + k
+        time.sleep(0.025)  # any earlier cut has healed
+        with DeviceSession(url, reconnect=False) as session:
+            session.write_config(blob)
+            with pytest.raises(DeviceDisconnectedError):
+                session.commit_config(crc32c(blob))
+        time.sleep(0.025)
+        with DeviceSession(url, reconnect=False) as session:
+            assert session.read_config() == OLD
+            assert session.config_status().staged_length == 0  # RAM lost with the power
+    assert device.power_cuts == n_ops and device.board.flash.ops - ops_before == n_ops * (n_ops - 1) // 2
+    with DeviceSession(url, reconnect=False) as session:
+        session.write_config(blob)
+        done = session.commit_config(crc32c(blob))
+        assert session.read_config() == blob and done.generation == 2

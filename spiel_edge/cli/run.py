@@ -1,0 +1,111 @@
+"""``spiel-edge run``: the pipeline on a board's live stream, records to every output asked."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import threading
+
+import click
+
+from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
+from spiel_edge.cli._options import (
+    association_option,
+    calibration_option,
+    profile_option,
+    resolve_profile,
+)
+from spiel_edge.cli._signals import stop_on_signals
+from spiel_edge.device import DeviceSession
+from spiel_edge.errors import DeviceError
+from spiel_edge.link.discover import default_port
+from spiel_edge.live import LiveRunner, check_stream_shape, load_background, warm_up
+from spiel_edge.outputs import open_outputs
+from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.service import Notifier
+
+
+@click.command("run")
+@click.option("--port", envvar="SPIEL_PORT", default=None,
+              help="Board URL: /dev/ttyACM0, serial://PATH, usb://VID:PID[/SERIAL] or sim://[?options] "
+                   "(env SPIEL_PORT). Default: the one board found by USB id.")
+@click.option("--frames", type=click.IntRange(min=1), default=None, help="Stop after N records.")
+@click.option("--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout.")
+@click.option("--udp", multiple=True, metavar="HOST:PORT", help="Also send each record as a UDP datagram (repeatable).")
+@click.option("--record", type=click.Path(dir_okay=False), default=None,
+              help="Also record raw acquisitions and records to FILE.mcap (strftime fields allowed).")
+@click.option("--foxglove", default=None, metavar="[HOST:]PORT", help="Live view for Foxglove (extra 'foxglove').")
+@click.option("--zenoh", default=None, metavar="KEY", help="Publish records on a Zenoh key (extra 'zenoh').")
+@profile_option
+@calibration_option
+@association_option
+@click.option("--rate", type=click.FloatRange(0, 10000), default=50.0, show_default=True,
+              help="Acquisitions per second asked of the board (0: as fast as the link allows).")
+@click.option("--background", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Target-free capture (.npy or spiel-csv frames file) to subtract; default: the one "
+                   "the virtual board sends, else none.")
+@click.option("--reconnect-timeout", type=click.FloatRange(min=0), default=None,
+              help="Give up when the board stays away this many seconds (default: wait for it).")
+@click.option("--status/--no-status", "show_status", default=None,
+              help="Status line on stderr every few seconds (default: when stderr is a terminal).")
+def command(port, frames, output, udp, record, foxglove, zenoh, profile_name, calibration, association,
+            rate, background, reconnect_timeout, show_status) -> int:
+    """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
+
+    Unplugging the board does not stop the command: it waits for the same board to come back
+    and streams again. SIGINT or SIGTERM stops the stream and exits cleanly.
+    """
+    profile = resolve_profile(profile_name, calibration)
+    pipeline = build_pipeline(profile, association)
+    warm_up(pipeline)
+    fixed_background = load_background(background) if background else None
+    port = port or default_port()
+    if show_status is None:
+        show_status = sys.stderr.isatty()
+    session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)
+    sink = open_outputs(output, record, udp, foxglove, zenoh, metadata={"port": port, "profile": profile.name},
+                        receivers_mm=profile.geometry.channels_mm)  # fmt: skip
+    runner = LiveRunner(session, pipeline, sink, background=fixed_background)
+    notifier = Notifier()
+    runner.on_record = notifier.ping
+    stop = threading.Event()
+    with stop_on_signals(stop):
+        try:
+            session.open()
+            session.start_stream(rate_hz=rate, n_samples=profile.acquisition.n_samples)
+            check_stream_shape(session, pipeline)
+            notifier.ready(f"streaming from {port}")
+            report = _reporter(show_status, notifier)
+            runner.run(stop, frames=frames, status=report)
+        except BrokenPipeError:  # the reader of stdout went away (| head): a normal end
+            sys.stdout = None  # type: ignore[assignment]  # nothing more can be flushed there
+        finally:
+            notifier.stopping()
+            _close(runner, session, sink, show_status)
+    return EXIT_PARTIAL if runner.stats.errors else EXIT_OK
+
+
+def _reporter(show_status: bool, notifier: Notifier):
+    if not show_status and not notifier.enabled:
+        return None
+
+    def report(runner: LiveRunner) -> None:
+        line = runner.status_line()
+        notifier.status(line)
+        if show_status:
+            click.echo("\r" + line + "\x1b[K", err=True, nl=False)
+
+    return report
+
+
+def _close(runner: LiveRunner, session: DeviceSession, sink, show_status: bool) -> None:
+    if session.stream is not None:
+        runner.refresh_device_counters()
+    with contextlib.suppress(DeviceError):
+        session.close()
+    with contextlib.suppress(BrokenPipeError, ValueError):
+        sink.close()
+    if show_status:
+        click.echo("", err=True)
+    if runner.stats.records or session.hello is not None:
+        click.echo(runner.summary(), err=True)

@@ -1,0 +1,73 @@
+"""Config transfer over a device session: chunked reads and writes of the board's config
+blob, the commit into its two-slot flash, and its status. The blob's content is the board
+config schema's business (:mod:`spiel_edge.board_config`); here it is bytes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from firmware_protocol import (
+    ConfigCommit,
+    ConfigCommitResponse,
+    ConfigRead,
+    ConfigReadResponse,
+    ConfigSource,
+    ConfigStatus,
+    ConfigStatusRequest,
+    ConfigWrite,
+    ConfigWriteResponse,
+    Message,
+)
+from spiel_edge.errors import DeviceError
+
+CHUNK = 1024  # bytes per CONFIG_READ/WRITE: a few round trips for a config of a few KB
+
+
+class ConfigTransferMixin:
+    """Mixed into DeviceSession; needs ``request(msg) -> Message``."""
+
+    _staged_length: int | None = None
+
+    def request(self, msg: Message, **kwargs) -> Message:  # pragma: no cover - provided by the session
+        raise NotImplementedError
+
+    def read_config(self, source: int = ConfigSource.ACTIVE) -> bytes:
+        """The active config (DeviceRequestError NOT_FOUND when there is none) or the staging."""
+        data = bytearray()
+        while True:
+            answer = self.request(ConfigRead(len(data), CHUNK, source))
+            assert isinstance(answer, ConfigReadResponse)
+            if answer.offset != len(data):
+                raise DeviceError(f"CONFIG_READ answered offset {answer.offset}, asked {len(data)}")
+            data += answer.data
+            if len(answer.data) < CHUNK:
+                return bytes(data)
+
+    def write_config(self, blob: bytes, progress: Callable[[int], None] | None = None) -> None:
+        """Replace the board's staging with ``blob`` (not persistent until commit_config)."""
+        offset = 0
+        while True:
+            chunk = blob[offset : offset + CHUNK]
+            answer = self.request(ConfigWrite(offset, chunk))
+            assert isinstance(answer, ConfigWriteResponse)
+            offset += len(chunk)
+            if answer.staged_length != offset:
+                raise DeviceError(f"the board staged {answer.staged_length} bytes, {offset} were sent")
+            if progress is not None and chunk:
+                progress(len(chunk))
+            if offset >= len(blob):
+                break
+        self._staged_length = len(blob)
+
+    def commit_config(self, expected_crc: int, length: int | None = None) -> ConfigCommitResponse:
+        """Make the staging persistent; the board checks ``expected_crc`` (CRC-32C) first."""
+        if length is None:
+            length = self._staged_length if self._staged_length is not None else self.config_status().staged_length
+        answer = self.request(ConfigCommit(length, expected_crc))
+        assert isinstance(answer, ConfigCommitResponse)
+        return answer
+
+    def config_status(self) -> ConfigStatus:
+        answer = self.request(ConfigStatusRequest())
+        assert isinstance(answer, ConfigStatus)
+        return answer

@@ -1,0 +1,201 @@
+"""The live loop: acquisitions from a device session through the pipeline into a sink.
+
+One record per acquisition, the replay record plus ``seq`` (record counter), ``acquisition``
+(the board's index), ``device_time_us``, ``host_time`` (Unix seconds when its last byte was
+read) and ``truth_mm`` when the board knows the ground truth (the virtual board).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from spiel_edge.device import DeviceSession, LiveAcquisition
+from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
+from spiel_edge.outputs import Sink
+from spiel_edge.pipeline.run import Pipeline
+
+log = logging.getLogger(__name__)
+
+LATENCY_WINDOW = 4096  # recent latencies kept for the status line
+
+
+@dataclass
+class LiveStats:
+    records: int = 0
+    fixes: int = 0
+    errors: int = 0  # acquisitions the pipeline rejected
+    started: float = field(default_factory=time.monotonic)
+    latencies_us: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    all_latencies_us: list[float] = field(default_factory=list)  # kept when asked (benchmarks)
+
+    def median_latency_ms(self) -> float | None:
+        return float(np.median(self.latencies_us)) / 1e3 if self.latencies_us else None
+
+
+def load_background(path: str | Path) -> np.ndarray:
+    """A target-free capture (channels, samples) from a .npy file or a spiel-csv frames file."""
+    path = Path(path)
+    if path.suffix == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{path}: cannot read background: {exc}") from exc
+    else:
+        from spiel_edge.io.spiel_csv import read_frames
+
+        arr = read_frames(path)
+    if arr.ndim != 2 or not np.all(np.isfinite(arr)):
+        raise InputError(f"{path}: a background must be a finite (channels, samples) array, got shape {arr.shape}")
+    return arr.astype(np.float64)
+
+
+def warm_up(pipeline: Pipeline) -> None:
+    """Run the pipeline once on a synthetic acquisition of the profile's shape, so numba's
+    compilation (or cache load) happens before the stream starts, not on its first records."""
+    from spiel_edge.sim.scenes import EchoModelScene
+
+    p = pipeline.profile
+    scene = EchoModelScene(p.geometry, sample_rate_hz=p.acquisition.sample_rate_hz,
+                           n_samples=p.acquisition.n_samples, targets_mm=np.array([0.0, 0.0, 150.0]))  # fmt: skip
+    frame = scene.frame(0, p.acquisition.n_samples, 0.0)
+    try:
+        pipeline.process(frame.samples.astype(np.float64), frame.background.astype(np.float64))
+    except SpielError as exc:  # an unusual profile: the live stream will tell
+        log.debug("warm-up: %s", exc)
+
+
+def check_stream_shape(session: DeviceSession, pipeline: Pipeline) -> None:
+    """The board's stream must match the profile the pipeline was built for."""
+    stream = session.stream
+    p = pipeline.profile
+    want = (p.geometry.n_channels, p.acquisition.n_samples)
+    if stream is not None and (stream.n_channels, stream.n_samples) != want:
+        raise ConfigError(
+            f"the board streams {stream.n_channels} x {stream.n_samples} samples but profile "
+            f"{p.name!r} expects {want[0]} x {want[1]}; use a matching --profile"
+        )
+    if stream is not None and abs(stream.sample_rate_hz - p.acquisition.sample_rate_hz) > 0.5:
+        log.warning("board samples at %d Hz, profile %r assumes %g Hz", stream.sample_rate_hz, p.name,
+                    p.acquisition.sample_rate_hz)  # fmt: skip
+
+
+class LiveRunner:
+    def __init__(self, session: DeviceSession, pipeline: Pipeline, sink: Sink, *,
+                 background: np.ndarray | None = None, keep_latencies: bool = False):  # fmt: skip
+        self.session = session
+        self.pipeline = pipeline
+        self.sink = sink
+        self.background = background  # fixed background; else the one the link sends, if any
+        self.keep_latencies = keep_latencies
+        self.on_record: Callable[[], None] | None = None  # e.g. the systemd watchdog ping
+        self.stats = LiveStats()
+        self._link_background: tuple[np.ndarray, np.ndarray] | None = None
+        self._warned_no_background = False
+
+    def run(self, stop: threading.Event, *, frames: int | None = None,
+            status: Callable[[LiveRunner], None] | None = None, status_every_s: float = 2.0) -> LiveStats:  # fmt: skip
+        """Process acquisitions until ``stop`` is set or ``frames`` records were written."""
+        next_status = time.monotonic() + status_every_s
+        for acq in self.session.acquisitions(stop):
+            self.handle(acq)
+            if frames is not None and self.stats.records >= frames:
+                break
+            if getattr(self.sink, "sinks", None) == []:  # a MultiSink whose outputs all failed
+                log.error("every output failed; stopping")
+                break
+            if status is not None and time.monotonic() >= next_status:
+                self.refresh_device_counters()
+                status(self)
+                next_status = time.monotonic() + status_every_s
+        return self.stats
+
+    def handle(self, acq: LiveAcquisition) -> dict:
+        record = self.record(acq)
+        raw = getattr(self.sink, "write_acquisition", None)
+        if raw is not None:  # recordings keep the raw samples and the background used
+            raw(self._acquisition_meta(acq, record), acq.samples)
+        self.sink.write(record)
+        if self.on_record is not None:
+            self.on_record()
+        latency_us = (time.perf_counter_ns() - acq.received_ns) / 1e3
+        self.stats.latencies_us.append(latency_us)
+        if self.keep_latencies:
+            self.stats.all_latencies_us.append(latency_us)
+        return record
+
+    def _acquisition_meta(self, acq: LiveAcquisition, record: dict) -> dict:
+        background = self.background if self.background is not None else acq.background
+        return {"seq": record["seq"], "acquisition": acq.index, "device_time_us": acq.timestamp_us,
+                "timestamp_ns": int(acq.host_time * 1e9), "background": background}  # fmt: skip
+
+    def record(self, acq: LiveAcquisition) -> dict:
+        stats = self.stats
+        head = {
+            "seq": stats.records, "acquisition": acq.index, "device_time_us": acq.timestamp_us,
+            "host_time": round(acq.host_time, 6), "source": self.session.url,
+        }  # fmt: skip
+        stats.records += 1
+        try:
+            result = self.pipeline.process(acq.samples.astype(np.float64), self._background_for(acq))
+        except SpielError as exc:
+            stats.errors += 1
+            log.error("acquisition %d: %s", acq.index, exc)
+            record = {**head, "position_mm": None, "reason": "input error", "residual_mm": None,
+                      "echoes": [], "matched": [], "error": str(exc)}  # fmt: skip
+        else:
+            stats.fixes += result.position_mm is not None
+            record = {**head, **result.record()}
+        if acq.truth_mm is not None:
+            record["truth_mm"] = [round(float(v), 2) for v in acq.truth_mm]
+        return record
+
+    def _background_for(self, acq: LiveAcquisition) -> np.ndarray | None:
+        if self.background is not None:
+            return self.background
+        if acq.background is None:
+            if not self._warned_no_background and self.pipeline.profile.preprocess.background_subtraction:
+                log.warning("no background capture: positions will be poor; give --background FILE")
+                self._warned_no_background = True
+            return None
+        cached = self._link_background
+        if cached is None or cached[0] is not acq.background:  # convert each new one once
+            cached = self._link_background = (acq.background, acq.background.astype(np.float64))
+        return cached[1]
+
+    def refresh_device_counters(self) -> None:
+        """Ask the board for its counters (overruns); a failure is left to the stream loop."""
+        try:
+            self.session.stream_status()
+        except DeviceError as exc:
+            log.debug("stream status: %s", exc)
+
+    # --- text for people -----------------------------------------------------------------
+
+    def status_line(self) -> str:
+        s, c = self.stats, self.session.counts()
+        elapsed = max(time.monotonic() - s.started, 1e-9)
+        fixes = 100.0 * s.fixes / s.records if s.records else 0.0
+        latency = s.median_latency_ms()
+        lat = "-" if latency is None else f"{latency:.2f} ms"
+        return (f"{s.records} records {s.records / elapsed:.1f}/s  fixes {fixes:.0f}%  "
+                f"lost {c['lost']} (damaged {c['damaged']}, overruns {c['overruns']})  "
+                f"reconnects {c['reconnects']}  latency {lat}")  # fmt: skip
+
+    def summary(self) -> str:
+        s = self.stats
+        elapsed = time.monotonic() - s.started
+        c = self.session.counts()
+        lat = np.array(s.latencies_us) / 1e3
+        latency = f"latency median {np.median(lat):.2f} ms, p95 {np.percentile(lat, 95):.2f} ms" if lat.size else "no latency"
+        errors = f", {s.errors} rejected" if s.errors else ""
+        counters = ", ".join(f"{k} {v}" for k, v in c.items() if v and k != "acquisitions")
+        return (f"{s.records} records in {elapsed:.1f} s, {s.fixes} fixes{errors}; {latency}"
+                + (f"; {counters}" if counters else ""))  # fmt: skip
