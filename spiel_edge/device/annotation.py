@@ -1,7 +1,7 @@
 """ANNOTATION: a vendor extension that simulators and test rigs send beside the stream.
 
-Not part of firmware_protocol (a real board never sends it): msg_type 0x7E01 in the range
-this host treats as vendor extensions (0x7E00-0x7EFF), flags 0, ``aux`` = acquisition index.
+Not part of firmware_protocol (a real board never sends it): msg_type 0x8A01, in the range
+PROTOCOL.md reserves for vendor experiments (0x8000-0xFFFF), flags 0, ``aux`` = acquisition index.
 It carries the ground truth of an acquisition and, when it changed, the target-free
 background of the scene, one channel per frame (the host subtracts it). Senders put a 0x00
 before it so it always starts on a frame boundary. A host that does not know it ignores it.
@@ -18,8 +18,7 @@ import numpy as np
 
 from firmware_protocol import MAX_PAYLOAD, Message, encode_frame
 
-ANNOTATION_TYPE = 0x7E01
-VENDOR_TYPES = range(0x7E00, 0x7F00)
+ANNOTATION_TYPE = 0x8A01
 NO_TRUTH = math.nan
 
 

@@ -25,6 +25,7 @@ from typing import Any
 from firmware_protocol import (
     MAX_PAYLOAD,
     MAX_RETRIES,
+    MAX_WIRE_SIZE,
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     ErrorResponse,
@@ -59,6 +60,8 @@ log = logging.getLogger(__name__)
 
 POLL_S = 0.05  # the longest any single read blocks
 RECONNECT_POLL_S = 0.05  # how often to look for a board that went away
+BUSY_DELAY_S = 0.05  # before asking a BUSY board again
+LINK_BYTES_PER_S = 1e6  # the slowest link (full-speed USB) for size-dependent timeouts
 
 
 @dataclass
@@ -168,29 +171,38 @@ class DeviceSession(ConfigTransferMixin):
 
     def request(self, msg: Message, *, timeout_s: float | None = None, retries: int = MAX_RETRIES) -> Message:
         """Send a request and return its answer; DeviceRequestError on an error answer,
-        DeviceTimeoutError when ``1 + retries`` tries got none."""
+        DeviceTimeoutError when ``1 + retries`` tries got none. BUSY is retried after a short
+        delay with a new sequence number (PROTOCOL.md section 10)."""
+        for attempt in range(1 + retries):
+            answer = self._exchange(msg, timeout_s, retries)
+            if not (isinstance(answer, ErrorResponse) and answer.code == ErrorCode.BUSY and attempt < retries):
+                break
+            time.sleep(BUSY_DELAY_S)
+        if isinstance(answer, ErrorResponse):
+            raise DeviceRequestError(f"{self.url}: {type(msg).__name__}: {answer.to_exception()}",
+                                     answer.code, answer.request_type)  # fmt: skip
+        return answer
+
+    def _exchange(self, msg: Message, timeout_s: float | None, retries: int) -> Message:
+        """One request number: send, and re-send on silence, until an answer comes."""
         link = self._require_link()
         self._seq = (self._seq + 1) & 0xFFFF
         seq = self._seq
         wire = encode_message(msg, seq=seq)
-        timeout = timeout_s if timeout_s is not None else type(msg).TIMEOUT_S
+        if timeout_s is None:  # the type's timeout plus both frames' time on a 1 MB/s link
+            timeout_s = type(msg).TIMEOUT_S + (len(wire) + MAX_WIRE_SIZE) / LINK_BYTES_PER_S
         for attempt in range(1 + retries):
             if attempt:
                 self.counters.retries += 1
                 log.debug("%s: retry %d of %s (seq %d)", self.url, attempt, type(msg).__name__, seq)
             link.write(wire)
-            answer = self._await(seq, msg.MSG_TYPE, time.monotonic() + timeout)
+            answer = self._await(seq, msg.MSG_TYPE, time.monotonic() + timeout_s)
             if answer is not None:
-                break
-        else:
-            self.counters.timeouts += 1
-            raise DeviceTimeoutError(
-                f"{self.url}: no answer to {type(msg).__name__} after {1 + retries} tries of {timeout:g} s"
-            )
-        if isinstance(answer, ErrorResponse):
-            raise DeviceRequestError(f"{self.url}: {type(msg).__name__}: {answer.to_exception()}",
-                                     answer.code, answer.request_type)  # fmt: skip
-        return answer
+                return answer
+        self.counters.timeouts += 1
+        raise DeviceTimeoutError(
+            f"{self.url}: no answer to {type(msg).__name__} after {1 + retries} tries of {timeout_s:.3g} s"
+        )
 
     def _await(self, seq: int, msg_type: int, deadline: float) -> Message | None:
         while True:

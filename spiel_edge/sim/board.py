@@ -20,6 +20,7 @@ from crc32c import crc32c
 
 from firmware_protocol import (
     MAX_PAYLOAD,
+    MAX_SAMPLES_PER_FRAME,
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     Capability,
@@ -52,6 +53,7 @@ log = logging.getLogger(__name__)
 
 FIRMWARE_VERSION = "sim-0.1.0"
 MAX_RATE_HZ = 10000.0
+MAX_SAMPLES = 4096
 RESPONSE_CACHE = 16
 _MASK = 0xFFFFFFFF
 
@@ -63,6 +65,7 @@ class _Stream:
     remaining: int | None  # None: endless
     next_time: float
     sent: int = 0
+    seq: int = 0  # the STREAM_START's seq, echoed by its STREAM_DATA frames
 
     @property
     def period(self) -> float:
@@ -117,6 +120,7 @@ class VirtualBoard:
         self._acquisition = 0
         self._counter = 0
         self._last_background: np.ndarray | None = None
+        self._request_seq = 0
         self.reboot_at = None
 
     @property
@@ -153,6 +157,7 @@ class VirtualBoard:
             response: m.Message = ErrorResponse(code, frame.msg_type, str(exc)[:200])
         else:
             self.stats.count(frame.msg_type)
+            self._request_seq = frame.seq
             response = self._execute(request, now)
         wire = encode_message(response, seq=frame.seq)
         if frame.msg_type == m.MsgType.HELLO:
@@ -184,7 +189,7 @@ class VirtualBoard:
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
         return m.HelloResponse(
             PROTOCOL_VERSION, PROTOCOL_VERSION, PROTOCOL_VERSION, self.scene.n_channels, MAX_PAYLOAD,
-            4096, int(caps), SCHEMA_HASH, self.boot_id, FIRMWARE_VERSION, self.vid, self.pid, self.serial,
+            MAX_SAMPLES, int(caps), SCHEMA_HASH, self.boot_id, FIRMWARE_VERSION, self.vid, self.pid, self.serial,
         )  # fmt: skip
 
     def _device_info(self, req: m.Message, now: float) -> m.Message:
@@ -208,18 +213,22 @@ class VirtualBoard:
         n_ch = self.scene.n_channels
         n_samples = req.n_samples or self.scene.n_samples
         error = None
-        if req.sample_format != SampleFormat.U16_ENVELOPE:
+        if self.streaming:
+            error = (ErrorCode.BAD_STATE, "a stream is already running; stop it first")
+        elif req.sample_format != SampleFormat.U16_ENVELOPE:
             error = (ErrorCode.UNSUPPORTED, "this board sends U16_ENVELOPE samples only")
         elif req.channel_mask not in (0, (1 << n_ch) - 1):
             error = (ErrorCode.UNSUPPORTED, "channel subsets are not supported; use all channels")
+        elif n_samples > min(MAX_SAMPLES, MAX_SAMPLES_PER_FRAME[SampleFormat.U16_ENVELOPE]):
+            error = (ErrorCode.TOO_LARGE, f"at most {MAX_SAMPLES} samples per channel")
         elif not self.scene.supports(n_samples):
-            error = (ErrorCode.INVALID, f"this scene cannot make {n_samples} samples per channel")
+            error = (ErrorCode.UNSUPPORTED, f"this scene cannot make {n_samples} samples per channel")
         elif not (math.isfinite(req.rate_hz) and 0.0 <= req.rate_hz <= MAX_RATE_HZ):
             error = (ErrorCode.INVALID, f"rate_hz must be in [0, {MAX_RATE_HZ:g}]")
         if error:
             return ErrorResponse(error[0], req.MSG_TYPE, error[1])
         remaining = req.n_acquisitions or None
-        self._stream = _Stream(req.rate_hz, n_samples, remaining, now)
+        self._stream = _Stream(req.rate_hz, n_samples, remaining, now, seq=self._request_seq)
         return StreamStartResponse(
             self._acquisition, self._counter, self.scene.sample_rate_hz, n_samples, n_ch,
             SampleFormat.U16_ENVELOPE,
@@ -290,7 +299,8 @@ class VirtualBoard:
         stamp = int(time_s * 1e6)
         for c in range(n_ch):
             msg = StreamData(index, c, n_ch, SampleFormat.U16_ENVELOPE, self.scene.sample_rate_hz, stamp, rows[c].tobytes())
-            out.append(Outgoing(encode_message(msg, aux=self._counter), acquisition=index))
+            more = Flags.MORE if c < n_ch - 1 else 0
+            out.append(Outgoing(encode_message(msg, seq=s.seq, flags=more, aux=self._counter), acquisition=index))
             self._counter = (self._counter + 1) & _MASK
         self._acquisition = (index + 1) & _MASK
         self.stats.acquisitions_sent += 1
@@ -306,18 +316,18 @@ class VirtualBoard:
             data = self.flash.read_active()
         if data is None:
             return ErrorResponse(ErrorCode.NOT_FOUND, req.MSG_TYPE, "no valid config slot")
-        if req.offset > len(data) or req.length > MAX_PAYLOAD - 6:
-            return ErrorResponse(ErrorCode.INVALID, req.MSG_TYPE, "offset or length out of range")
-        return m.ConfigReadResponse(req.offset, data[req.offset : req.offset + req.length])
+        if req.length > MAX_PAYLOAD - 6:
+            return ErrorResponse(ErrorCode.TOO_LARGE, req.MSG_TYPE, f"at most {MAX_PAYLOAD - 6} bytes per read")
+        return m.ConfigReadResponse(req.offset, data[req.offset : req.offset + req.length])  # empty past the end
 
     def _config_write(self, req: m.ConfigWrite, now: float) -> m.Message:
-        if req.offset == 0:
-            self._staging = bytearray()
-        if req.offset > len(self._staging):
-            return ErrorResponse(ErrorCode.INVALID, req.MSG_TYPE, "offset beyond the staged data")
         end = req.offset + len(req.data)
         if end > self.flash.capacity:
             return ErrorResponse(ErrorCode.TOO_LARGE, req.MSG_TYPE, f"config exceeds {self.flash.capacity} bytes")
+        if req.offset == 0:
+            self._staging = bytearray()  # a new staging (zeroed: holes read as 0)
+        if end > len(self._staging):
+            self._staging.extend(bytes(end - len(self._staging)))
         self._staging[req.offset : end] = req.data
         return m.ConfigWriteResponse(len(self._staging))
 
@@ -334,6 +344,7 @@ class VirtualBoard:
         except FlashError as exc:
             code = ErrorCode.FLASH_VERIFY_FAILED if exc.verify else ErrorCode.FLASH_WRITE_FAILED
             return ErrorResponse(code, req.MSG_TYPE, str(exc))
+        self._staging = bytearray()
         return m.ConfigCommitResponse(info.slot, info.generation, info.length, info.crc)
 
     def _config_status(self, req: m.Message, now: float) -> m.Message:

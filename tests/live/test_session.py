@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from firmware_protocol import MsgType, Ping, Pong, StreamStart
+from firmware_protocol import ErrorCode, ErrorResponse, MsgType, Ping, Pong, StreamStart
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -94,9 +94,26 @@ def test_request_gives_up_after_three_retries(sim_url):
 def test_error_answers_raise_with_the_device_code(sim_url):
     with DeviceSession(sim_url()) as session:
         assert isinstance(session.request(Ping(b"abc")), Pong)
-        with pytest.raises(DeviceRequestError, match="INVALID") as info:
-            session.request(StreamStart(n_samples=100))
-        assert info.value.code == 3
+        with pytest.raises(DeviceRequestError, match="UNSUPPORTED") as info:
+            session.request(StreamStart(n_samples=100))  # the replay scene has 64 samples
+        assert info.value.code == 8
+
+
+def test_busy_is_asked_again_with_a_new_sequence_number(sim_url, monkeypatch):
+    url = sim_url()
+    board = device_for_url(url).board
+    execute, seqs = board._execute, []
+
+    def busy_twice(req, now):
+        seqs.append(board._request_seq)
+        if isinstance(req, Ping) and len(seqs) <= 3:  # seqs[0] is the HELLO
+            return ErrorResponse(ErrorCode.BUSY, req.MSG_TYPE)
+        return execute(req, now)
+
+    with DeviceSession(url) as session:
+        monkeypatch.setattr(board, "_execute", busy_twice)
+        assert session.request(Ping(b"ok")).data == b"ok"
+    assert len(set(seqs[1:4])) == 3 and session.counters.retries == 0
 
 
 def test_twenty_unplug_cycles_reconnect_quickly(sim_url):

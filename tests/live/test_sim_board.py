@@ -8,6 +8,7 @@ import pytest
 from firmware_protocol import (
     ErrorCode,
     ErrorResponse,
+    Flags,
     FrameDecoder,
     Hello,
     HelloResponse,
@@ -16,6 +17,7 @@ from firmware_protocol import (
     StreamData,
     StreamStart,
     StreamStartResponse,
+    StreamStop,
     decode_message,
     encode_frame,
     encode_message,
@@ -109,6 +111,19 @@ def test_annotations_carry_truth_and_background_of_the_recording(replay_scene):
     channel0 = next(StreamData.unpack(f.payload) for f in frames
                     if f.msg_type == MsgType.STREAM_DATA and StreamData.unpack(f.payload).acquisition == k)
     np.testing.assert_array_equal(channel0.samples_array(), replay_scene._frames[k][0])
+
+
+def test_stream_frames_follow_the_spec(replay_scene):
+    board = VirtualBoard(replay_scene)
+    answers(board, StreamStart(rate_hz=100), seq=77)
+    [(_, busy)] = answers(board, StreamStart(rate_hz=100), seq=78)
+    assert busy.code == ErrorCode.BAD_STATE  # already streaming
+    frames = [f for f in stream_frames(board, 0.0) if f.msg_type == MsgType.STREAM_DATA]
+    assert {f.seq for f in frames} == {77}  # the STREAM_START's seq
+    assert [bool(f.flags & Flags.MORE) for f in frames] == [True, True, True, False]
+    answers(board, StreamStop(), seq=79)
+    [(_, big)] = answers(board, StreamStart(n_samples=5000), seq=80)
+    assert big.code == ErrorCode.TOO_LARGE
 
 
 def test_finite_stream_stops_by_itself(replay_scene):

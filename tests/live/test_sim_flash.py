@@ -80,14 +80,16 @@ def test_config_messages_stage_verify_and_commit():
     assert ask(board, ConfigRead(0, 10), 1).code == ErrorCode.NOT_FOUND
     assert ask(board, ConfigWrite(0, NEW[:300]), 2).staged_length == 300
     assert ask(board, ConfigWrite(300, NEW[300:]), 3).staged_length == len(NEW)
-    assert ask(board, ConfigWrite(5000, b"x"), 4).code == ErrorCode.INVALID
+    assert ask(board, ConfigWrite(5000, b"x"), 4).code == ErrorCode.TOO_LARGE
     assert ask(board, ConfigRead(0, 50, ConfigSource.STAGING), 5).data == NEW[:50]
     assert ask(board, ConfigCommit(len(NEW), crc32c(NEW) ^ 1), 6).code == ErrorCode.CORRUPT
     done = ask(board, ConfigCommit(len(NEW), crc32c(NEW)), 7)
     assert isinstance(done, ConfigCommitResponse) and (done.slot, done.generation) == (0, 1)
     assert ask(board, ConfigRead(10, 20), 8).data == NEW[10:30]
+    assert ask(board, ConfigRead(len(NEW) + 5, 20), 12).data == b""  # empty past the end
     status = ask(board, ConfigStatusRequest(), 9)
     assert isinstance(status, ConfigStatus) and status.active_slot == 0 and status.slot0_valid == 1
+    assert status.staged_length == 0  # a commit clears the staging
     ask(board, StreamStart(rate_hz=10), 10)
     busy = ask(board, ConfigCommit(len(NEW), crc32c(NEW)), 11)
     assert isinstance(busy, ErrorResponse) and busy.code == ErrorCode.BAD_STATE
