@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator, Mapping
 
 log = logging.getLogger(__name__)
 
-_SEND_TIMEOUT_S = 1.0
+_WARN_EVERY_S = 60.0
 # syslog priorities for journald's "<N>" line prefix (sd-daemon(3)).
 _PRIORITIES = ((logging.CRITICAL, 2), (logging.ERROR, 3), (logging.WARNING, 4), (logging.INFO, 6))
 
@@ -35,13 +35,26 @@ def notify(state: str, env: Mapping[str, str] | None = None) -> bool:
         return False
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
-            sock.settimeout(_SEND_TIMEOUT_S)
+            # Never block the run loop: a full queue (the manager is busy) drops this message.
+            sock.setblocking(False)
             sock.connect(address)
             sock.sendall(state.encode("utf-8"))
     except OSError as exc:
-        log.warning("sd_notify %r failed: %s", state.split("\n", 1)[0], exc)
+        _warn_rate_limited("sd_notify %r failed: %s", state.split("\n", 1)[0], exc)
         return False
     return True
+
+
+_last_warning = [-float("inf")]
+
+
+def _warn_rate_limited(fmt: str, *args: object) -> None:
+    now = time.monotonic()
+    if now - _last_warning[0] >= _WARN_EVERY_S:
+        _last_warning[0] = now
+        log.warning(fmt, *args)
+    else:
+        log.debug(fmt, *args)
 
 
 def watchdog_interval_s(env: Mapping[str, str] | None = None, pid: int | None = None) -> float | None:

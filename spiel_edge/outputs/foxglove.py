@@ -51,7 +51,7 @@ class FoxgloveSink:
         self.port = self._server.port
         self._scene = foxglove.channels.SceneUpdateChannel(SCENE_TOPIC, context=self._context)
         self._records = foxglove.Channel(POSITION_TOPIC, schema=POSITION_SCHEMA, context=self._context)
-        self._receivers = [self._cube(p) for p in receivers_mm or []]
+        self._receivers = [self._cube(p) for p in ([] if receivers_mm is None else receivers_mm)]
         log.info("Foxglove live view on ws://%s:%d", host, self.port)
 
     def write(self, record: dict) -> None:

@@ -6,6 +6,7 @@ import logging
 import os
 import signal
 import socket
+import time
 
 import pytest
 
@@ -52,6 +53,14 @@ def test_notify_outside_systemd_or_broken_socket_is_quiet(tmp_path):
     assert not notify("READY=1", {})
     assert not notify("READY=1", {"NOTIFY_SOCKET": str(tmp_path / "nobody-listens")})
     assert not notify("READY=1", {"NOTIFY_SOCKET": "relative/path"})
+
+
+def test_notify_never_blocks_on_a_full_queue(notify_socket):
+    _, path = notify_socket  # nobody reads: the kernel queue fills after a few datagrams
+    start = time.monotonic()
+    results = [notify("WATCHDOG=1", {"NOTIFY_SOCKET": path}) for _ in range(200)]
+    assert time.monotonic() - start < 1.0
+    assert results[0] and not all(results)  # the first went out; later ones were dropped, not waited on
 
 
 def test_watchdog_interval_is_half_of_watchdog_sec():
