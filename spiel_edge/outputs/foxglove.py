@@ -28,7 +28,11 @@ RECEIVER_SIZE_M = 0.01
 def _import_foxglove():
     try:
         import foxglove
-        from foxglove import messages
+
+        try:
+            from foxglove import messages
+        except ImportError:  # foxglove-sdk before messages was split from schemas
+            from foxglove import schemas as messages
     except ImportError as exc:
         raise ConfigError(
             f"--foxglove needs the Foxglove SDK: pip install 'spiel-edge[foxglove]' ({exc})"
