@@ -64,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     env = {**os.environ, "NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "10000000"}
     cmd = [sys.executable, "-c", "import sys; from spiel_edge.cli import main; sys.exit(main())", "run", "--port", args.port, "--rate", str(args.rate),
            "--output", os.devnull, "--record", str(recording), "--no-status"]
-    proc = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE, text=True)
+    log_path = work / "run.log"  # a file, not a pipe: a long run's logs must never block it
+    log_file = open(log_path, "w")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(cmd, env=env, stderr=log_file, text=True)
     counts: dict[str, int] = {}
     start = time.monotonic()
     samples: list[tuple[float, float]] = []
@@ -72,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         while time.monotonic() - start < args.warmup + args.duration:
             time.sleep(args.sample_every)
             if proc.poll() is not None:
-                raise RuntimeError(f"run exited early ({proc.returncode}): {proc.stderr.read()[-2000:]}")
+                raise RuntimeError(f"run exited early ({proc.returncode}): {log_path.read_text()[-2000:]}")
             drain(notify, counts)
             samples.append((time.monotonic() - start, rss_mb(proc.pid)))
         t0 = time.monotonic()
@@ -82,8 +84,9 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if proc.poll() is None:
             proc.kill()
+        log_file.close()
     drain(notify, counts)
-    stderr_tail = proc.stderr.read().strip().splitlines()[-1:] if proc.stderr else []
+    stderr_tail = log_path.read_text().strip().splitlines()[-1:]
 
     after = np.array([(t, m) for t, m in samples if t >= args.warmup])
     slope_per_s = float(np.polyfit(after[:, 0], after[:, 1], 1)[0]) if len(after) >= 3 else float("nan")
