@@ -19,7 +19,7 @@ from crc32c import crc32c
 from firmware_protocol import ConfigSource
 from firmware_protocol.errors import ErrorCode
 from spiel_edge.board_config import decode, encode
-from spiel_edge.errors import DeviceError
+from spiel_edge.errors import DeviceDisconnectedError, DeviceError
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,12 @@ def commit(session: Any, expected_crc: int | None = None) -> int:
         staged = session.read_config(source=ConfigSource.STAGING)
         decode(staged, origin="board staging")
         expected_crc = crc32c(staged)
-    session.commit_config(expected_crc)
+    try:
+        session.commit_config(expected_crc)
+    except DeviceDisconnectedError as exc:
+        raise DeviceDisconnectedError(
+            f"the board went away during the commit ({exc}); its flash keeps the previous config "
+            "active and the staged one is lost: push and commit again") from exc
     active = session.read_config(source=ConfigSource.ACTIVE)
     if crc32c(active) != expected_crc:
         raise DeviceError(f"after the commit the active config has CRC {crc32c(active):08x}, expected {expected_crc:08x}")

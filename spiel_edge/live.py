@@ -17,9 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from spiel_edge.board_config import run_profile
 from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
 from spiel_edge.outputs import Sink
+from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.run import Pipeline
 
 log = logging.getLogger(__name__)
@@ -70,6 +72,18 @@ def warm_up(pipeline: Pipeline) -> None:
         pipeline.process(frame.samples.astype(np.float64), frame.background.astype(np.float64))
     except SpielError as exc:  # an unusual profile: the live stream will tell
         log.debug("warm-up: %s", exc)
+
+
+def open_pipeline(session: DeviceSession, profile_name: str, calibration: str | Path | None = None,
+                  association: str | None = None, *, use_board: bool = True) -> tuple[Pipeline, str]:
+    """Open ``session``, choose the profile (``calibration`` > the board's stored config, unless
+    ``use_board`` is false > ``profile_name``), build the pipeline and warm it up. Returns the
+    pipeline and where its geometry came from; closing the session is the caller's."""
+    session.open()
+    profile, source = run_profile(session, profile_name, calibration, use_board=use_board)
+    pipeline = build_pipeline(profile, association)
+    warm_up(pipeline)
+    return pipeline, source
 
 
 def check_stream_shape(session: DeviceSession, pipeline: Pipeline) -> None:

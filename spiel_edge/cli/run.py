@@ -9,19 +9,13 @@ import threading
 import click
 
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
-from spiel_edge.cli._options import (
-    association_option,
-    calibration_option,
-    profile_option,
-    resolve_profile,
-)
+from spiel_edge.cli._options import association_option, calibration_option, profile_option
 from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
 from spiel_edge.link.discover import default_port
-from spiel_edge.live import LiveRunner, check_stream_shape, load_background, warm_up
+from spiel_edge.live import LiveRunner, check_stream_shape, load_background, open_pipeline
 from spiel_edge.outputs import open_outputs
-from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.service import Notifier
 
 
@@ -38,6 +32,9 @@ from spiel_edge.service import Notifier
 @click.option("--zenoh", default=None, metavar="KEY", help="Publish records on a Zenoh key (extra 'zenoh').")
 @profile_option
 @calibration_option
+@click.option("--board-config/--no-board-config", "use_board", default=True, show_default=True,
+              help="Use the geometry and acquisition settings stored on the board (`spiel-edge config`) "
+                   "over --profile; --calibration still overrides them.")
 @association_option
 @click.option("--rate", type=click.FloatRange(0, 10000), default=50.0, show_default=True,
               help="Acquisitions per second asked of the board (0: as fast as the link allows).")
@@ -48,41 +45,42 @@ from spiel_edge.service import Notifier
               help="Give up when the board stays away this many seconds (default: wait for it).")
 @click.option("--status/--no-status", "show_status", default=None,
               help="Status line on stderr every few seconds (default: when stderr is a terminal).")
-def command(port, frames, output, udp, record, foxglove, zenoh, profile_name, calibration, association,
+def command(port, frames, output, udp, record, foxglove, zenoh, profile_name, calibration, use_board, association,
             rate, background, reconnect_timeout, show_status) -> int:
     """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
 
-    Unplugging the board does not stop the command: it waits for the same board to come back
-    and streams again. SIGINT or SIGTERM stops the stream and exits cleanly.
+    The geometry is, by precedence: --calibration, else the config stored on the board (unless
+    --no-board-config), else --profile. Unplugging the board does not stop the command: it
+    waits for the same board to come back and streams again. SIGINT or SIGTERM stops the
+    stream and exits cleanly.
     """
-    profile = resolve_profile(profile_name, calibration)
-    pipeline = build_pipeline(profile, association)
-    warm_up(pipeline)
     fixed_background = load_background(background) if background else None
     port = port or default_port()
     if show_status is None:
         show_status = sys.stderr.isatty()
     session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)
-    sink = open_outputs(output, record, udp, foxglove, zenoh, metadata={"port": port, "profile": profile.name},
-                        receivers_mm=profile.geometry.channels_mm)  # fmt: skip
-    runner = LiveRunner(session, pipeline, sink, background=fixed_background)
     notifier = Notifier()
-    runner.on_record = notifier.ping
+    runner: LiveRunner | None = None
+    sink = None
     stop = threading.Event()
     with stop_on_signals(stop):
         try:
-            session.open()
+            pipeline, source = open_pipeline(session, profile_name, calibration, association, use_board=use_board)
+            profile = pipeline.profile
+            sink = open_outputs(output, record, udp, foxglove, zenoh, receivers_mm=profile.geometry.channels_mm,
+                                metadata={"port": port, "profile": profile.name, "geometry": source})  # fmt: skip
+            runner = LiveRunner(session, pipeline, sink, background=fixed_background)
+            runner.on_record = notifier.ping
             session.start_stream(rate_hz=rate, n_samples=profile.acquisition.n_samples)
             check_stream_shape(session, pipeline)
             notifier.ready(f"streaming from {port}")
-            report = _reporter(show_status, notifier)
-            runner.run(stop, frames=frames, status=report)
+            runner.run(stop, frames=frames, status=_reporter(show_status, notifier))
         except BrokenPipeError:  # the reader of stdout went away (| head): a normal end
             sys.stdout = None  # type: ignore[assignment]  # nothing more can be flushed there
         finally:
             notifier.stopping()
             _close(runner, session, sink, show_status)
-    return EXIT_PARTIAL if runner.stats.errors else EXIT_OK
+    return EXIT_PARTIAL if runner is not None and runner.stats.errors else EXIT_OK
 
 
 def _reporter(show_status: bool, notifier: Notifier):
@@ -98,14 +96,15 @@ def _reporter(show_status: bool, notifier: Notifier):
     return report
 
 
-def _close(runner: LiveRunner, session: DeviceSession, sink, show_status: bool) -> None:
-    if session.stream is not None:
+def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status: bool) -> None:
+    if runner is not None and session.stream is not None:
         runner.refresh_device_counters()
     with contextlib.suppress(DeviceError):
         session.close()
-    with contextlib.suppress(BrokenPipeError, ValueError):
-        sink.close()
+    if sink is not None:
+        with contextlib.suppress(BrokenPipeError, ValueError):
+            sink.close()
     if show_status:
         click.echo("", err=True)
-    if runner.stats.records or session.hello is not None:
+    if runner is not None and (runner.stats.records or session.hello is not None):
         click.echo(runner.summary(), err=True)

@@ -3,6 +3,8 @@
 Reach it as ``sim://[NAME][?query]`` (see :mod:`spiel_edge.sim.options` for the keys), on a
 pseudo-terminal (``spiel-edge simulate --pty``), or through the fake pyusb backend
 (:mod:`spiel_edge.sim.usb_backend`) as ``usb://VID:PID``.
+Tests that play a robot move the model scene's target with
+:func:`spiel_edge.sim.protocol_sim.place_target` (guided calibration).
 """
 
 from spiel_edge.sim.board import VirtualBoard

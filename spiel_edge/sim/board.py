@@ -228,6 +228,7 @@ class VirtualBoard:
         if error:
             return ErrorResponse(error[0], req.MSG_TYPE, error[1])
         remaining = req.n_acquisitions or None
+        self._last_background = None  # every stream starts with the background (a new host may be listening)
         self._stream = _Stream(req.rate_hz, n_samples, remaining, now, seq=self._request_seq)
         return StreamStartResponse(
             self._acquisition, self._counter, self.scene.sample_rate_hz, n_samples, n_ch,

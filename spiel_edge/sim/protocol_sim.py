@@ -14,11 +14,13 @@ import errno
 import threading
 import time
 
+from numpy.typing import ArrayLike
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.sim.device import DeviceGone, SimDevice
 from spiel_edge.sim.options import SimOptions
+from spiel_edge.sim.scenes import EchoModelScene
 
 _DEVICES: dict[str, SimDevice] = {}
 _LOCK = threading.Lock()
@@ -41,6 +43,15 @@ def forget(url: str | None = None) -> None:
             _DEVICES.clear()
         else:
             _DEVICES.pop(url, None)
+
+
+def place_target(url: str, position_mm: ArrayLike) -> None:
+    """Move the target of the model scene of the board behind ``url`` (``scene=model``) to
+    ``position_mm`` (x, y, z); for tests that play the robot of a guided calibration."""
+    scene = device_for_url(url).board.scene
+    if not isinstance(scene, EchoModelScene):
+        raise ConfigError(f"{url!r}: only the model scene (scene=model) has a target to move")
+    scene.place(position_mm)
 
 
 class Serial(SerialBase):

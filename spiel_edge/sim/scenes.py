@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from spiel_edge.data import load_subset
 from spiel_edge.errors import ConfigError
@@ -105,6 +106,14 @@ class EchoModelScene:
         radius, height, period = self.orbit
         angle = 2 * math.pi * time_s / period if period > 0 else 0.0
         return np.array([[radius * math.cos(angle), radius * math.sin(angle), height]])
+
+    def place(self, targets_mm: ArrayLike) -> None:
+        """Move the targets (K, 3) mm, z > 0: what a robot holding the target does between the
+        positions of a guided calibration. Acquisitions made from now on see them."""
+        arr = np.atleast_2d(np.asarray(targets_mm, dtype=np.float64))
+        if arr.ndim != 2 or arr.shape[1] != 3 or not len(arr) or not np.all(np.isfinite(arr)) or np.any(arr[:, 2] <= 0):
+            raise ConfigError(f"targets must be finite (x, y, z) rows in mm with z > 0, got {targets_mm!r}")
+        self.targets = arr
 
     def frame(self, index: int, n_samples: int, time_s: float) -> SceneFrame:
         del index

@@ -7,11 +7,17 @@ import copy
 import numpy as np
 import pytest
 
+from firmware_protocol.errors import ErrorCode
 from spiel_edge import board_config as bc
 from spiel_edge.board_flash import commit, pull, push
 from spiel_edge.errors import ConfigError, DeviceError
 from spiel_edge.profile import load_profile
-from tests.calibrate.fake_board import DeviceDisconnectedError, FakeBoardSession, TwoSlotFlash
+from tests.calibrate.fake_board import (
+    DeviceDisconnectedError,
+    DeviceRequestError,
+    FakeBoardSession,
+    TwoSlotFlash,
+)
 
 
 @pytest.fixture
@@ -80,6 +86,36 @@ def test_profile_from_board_uses_the_stored_geometry(config):
     assert np.array_equal(profile.geometry.channels_mm[2], [70, 0, 0])
     assert profile.preprocess.blind_zone_samples == 7
     assert profile.detect == base.detect
+
+
+@pytest.mark.parametrize("code, kept", [(ErrorCode.UNSUPPORTED, True), (ErrorCode.BUSY, False)])
+def test_profile_from_board_when_the_board_cannot_store_a_config(code, kept):
+    session = FakeBoardSession(TwoSlotFlash())
+
+    def refuse(source=0):
+        raise DeviceRequestError("refused", code=code)
+
+    session.read_config = refuse
+    base = load_profile()
+    if kept:  # a board without config support runs with the profile
+        assert bc.profile_from_board(session, base) is base
+    else:  # anything else is the board's trouble, not a missing config
+        with pytest.raises(DeviceError, match="refused"):
+            bc.profile_from_board(session, base)
+
+
+def test_run_profile_precedence(config, tmp_path):
+    session = FakeBoardSession(TwoSlotFlash())
+    moved = bc.overlay(config, {"geometry": {"speed_of_sound_m_s": 350.0}})
+    commit(session, push(session, moved))
+    profile, source = bc.run_profile(session, "spiel-icra23")
+    assert profile.geometry.speed_of_sound_m_s == 350.0 and source == "board 'proto-1'"
+    profile, source = bc.run_profile(session, "spiel-icra23", use_board=False)
+    assert profile.geometry.speed_of_sound_m_s == 343.0 and source == "profile 'spiel-icra23'"
+    cal = tmp_path / "cal.toml"
+    cal.write_text("[geometry]\nspeed_of_sound_m_s = 340.0\n")
+    profile, source = bc.run_profile(session, "spiel-icra23", cal)
+    assert profile.geometry.speed_of_sound_m_s == 340.0 and source.startswith("calibration") and source.endswith("over board 'proto-1'")
 
 
 def test_push_commit_pull_round_trip(config):
