@@ -250,7 +250,7 @@ def _board_profile(session: Any, base: Profile) -> tuple[Profile, str | None]:
     try:
         config = pull(session)
         if config is None:
-            log.warning("the board holds no config; using profile %r", base.name)
+            log.info("the board holds no config; using profile %r", base.name)  # normal when new
             return base, None
         return profile_with_board(base, config), config["board"]["name"]
     except ConfigError as exc:
@@ -258,7 +258,7 @@ def _board_profile(session: Any, base: Profile) -> tuple[Profile, str | None]:
     except DeviceError as exc:  # the session's DeviceRequestError carries the board's code
         if getattr(exc, "code", None) != ErrorCode.UNSUPPORTED:
             raise
-        log.warning("the board cannot store a config; using profile %r", base.name)
+        log.info("the board cannot store a config; using profile %r", base.name)
     return base, None
 
 

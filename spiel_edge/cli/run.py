@@ -71,6 +71,7 @@ def command(port, frames, output, udp, record, foxglove, zenoh, profile_name, ca
                                 metadata={"port": port, "profile": profile.name, "geometry": source})  # fmt: skip
             runner = LiveRunner(session, pipeline, sink, background=fixed_background)
             runner.on_record = notifier.ping
+            session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
             session.start_stream(rate_hz=rate, n_samples=profile.acquisition.n_samples)
             check_stream_shape(session, pipeline)
             notifier.ready(f"streaming from {port}")
@@ -81,6 +82,11 @@ def command(port, frames, output, udp, record, foxglove, zenoh, profile_name, ca
             notifier.stopping()
             _close(runner, session, sink, show_status)
     return EXIT_PARTIAL if runner is not None and runner.stats.errors else EXIT_OK
+
+
+def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
+    notifier.ping()
+    notifier.status(f"waiting {waited:.0f} s for the board at {port} to come back")
 
 
 def _reporter(show_status: bool, notifier: Notifier):

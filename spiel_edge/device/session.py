@@ -18,7 +18,7 @@ import random
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -91,6 +91,9 @@ class DeviceSession(ConfigTransferMixin):
         self.url = url
         self.reconnect = reconnect
         self.reconnect_timeout_s = reconnect_timeout_s
+        # called with the seconds waited, every poll while the board is away: a service keeps
+        # its watchdog fed (the process is healthy, it is waiting on purpose)
+        self.on_waiting: Callable[[float], None] | None = None
         self.poll_s = poll_s
         self.stall_s = stall_s  # no stream data this long: ask the board whether it is alive
         self.link_options = link_options or {}
@@ -324,6 +327,8 @@ class DeviceSession(ConfigTransferMixin):
         self._drop_link()
         lost_at = time.monotonic()
         while not stop.wait(RECONNECT_POLL_S):
+            if self.on_waiting is not None:
+                self.on_waiting(time.monotonic() - lost_at)
             if self.reconnect_timeout_s is not None and time.monotonic() - lost_at > self.reconnect_timeout_s:
                 raise DeviceDisconnectedError(f"{self.url}: the board did not come back within {self.reconnect_timeout_s:g} s")
             try:

@@ -156,7 +156,7 @@ def median_error(port: str, out, *args: str, verbose: bool = False) -> float:
 def test_run_uses_the_geometry_stored_on_the_board(sim_url, tmp_path, geometries, capsys):
     port = sim_url(f"scene=model&profile={geometries / 'truth.toml'}&targets=30,-20,150&seed=1")
     out = tmp_path / "out.ndjson"
-    without = median_error(port, out)
+    without = median_error(port, out, verbose=True)
     assert "holds no config; using profile 'spiel-icra23'" in capsys.readouterr().err
     assert main(["config", "push", "--port", port, "--commit", str(geometries / "board.toml")]) == 0
     capsys.readouterr()

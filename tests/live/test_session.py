@@ -139,6 +139,17 @@ def test_twenty_unplug_cycles_reconnect_quickly(sim_url):
     assert counts["acquisitions"] >= 20 * 15
 
 
+def test_the_wait_for_a_replug_is_reported_while_it_lasts(sim_url):
+    url = sim_url("unplug_after=5&unplug_ms=400&unplug_count=1&scene=model&seed=3")
+    waited = []
+    with DeviceSession(url) as session:
+        session.on_waiting = waited.append
+        session.start_stream(rate_hz=500)
+        take(session, 12)
+        assert session.counters.reconnects == 1
+    assert len(waited) >= 2 and waited == sorted(waited) and waited[-1] < 2.0
+
+
 def test_without_reconnect_an_unplug_ends_the_stream(sim_url):
     url = sim_url("unplug_after=5&unplug_ms=1000")
     with DeviceSession(url, reconnect=False) as session:
