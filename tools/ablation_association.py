@@ -34,6 +34,7 @@ from spiel_edge.pipeline.associate_onnx import (  # noqa: E402
     bench_scoring,
     candidate_mask,
     guarded_match,
+    score_bonus,
 )
 from spiel_edge.pipeline.echo_labels import AssociationScore, score_association  # noqa: E402
 from spiel_edge.pipeline.features import FEATURE_NAMES, TOA_COLUMN  # noqa: E402
@@ -90,7 +91,7 @@ def position_error(profile: Profile, s: ta.Sample, matched: np.ndarray) -> float
     return float(np.linalg.norm(pos - s.truth_mm)) if ok else float("nan")
 
 
-def method_matches(profile: Profile, s: ta.Sample, nets: dict, stats, guard: tuple[float, float], geometric) -> dict:
+def method_matches(profile: Profile, s: ta.Sample, nets: dict, stats, guard: tuple[float, float, float], geometric) -> dict:
     mean, std = stats
     rows, score, emb = ta.net_outputs(nets["mlp"], s)
     rows2, score2, emb2 = ta.net_outputs(nets["toa_amp"], s)
@@ -104,11 +105,13 @@ def method_matches(profile: Profile, s: ta.Sample, nets: dict, stats, guard: tup
         "toa_amp+mlp+contrastive": contrastive_match(s, rows2, score2, emb2),
         "mlp+contrastive": contrastive_match(s, rows, score, emb),
         "geometric": s.geometric,
-        "combined": guarded_match(geometric, s.features, s.counts, allowed, guard[1]),
+        "combined reference (paper's reference + guard)": guarded_match(geometric, s.features, s.counts, allowed, guard[1]),
+        "combined prior (geometric + score prior, the default)": geometric.candidates(
+            s.features, s.counts, bonus_mm=score_bonus(s.features.shape[:2], rows, score, guard[2]))[0],
     }
 
 
-def evaluate(profile: Profile, samples: list[ta.Sample], nets: dict, stats, guard: tuple[float, float]) -> dict:
+def evaluate(profile: Profile, samples: list[ta.Sample], nets: dict, stats, guard: tuple[float, float, float]) -> dict:
     """Per method: accuracy, F1, mean/median 3-D error and how many acquisitions were located."""
     geometric = GeometricAssociator(profile)
     per_method: dict[str, list[np.ndarray]] = {}
@@ -146,12 +149,13 @@ def markdown_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def run(profile: Profile, train_set, val_set, main_net: ta.EchoNet, seed: int, threshold: float, slack: float) -> dict:
+def run(profile: Profile, train_set, val_set, main_net: ta.EchoNet, seed: int, threshold: float, slack: float,
+        weight: float) -> dict:
     """Train the [ToA, alpha] net and evaluate every method on ``val_set``."""
     toa_amp_net, _ = ta.train(train_set, val_set, columns=TOA_AMP_COLUMNS, seed=seed)
     x = np.concatenate([s.rows()[0] for s in train_set]).astype(np.float64)
     stats = (x.mean(0), np.where(x.std(0) > 1e-9, x.std(0), 1.0))
-    return evaluate(profile, val_set, {"mlp": main_net, "toa_amp": toa_amp_net}, stats, (threshold, slack))
+    return evaluate(profile, val_set, {"mlp": main_net, "toa_amp": toa_amp_net}, stats, (threshold, slack, weight))
 
 
 def write_card(path: Path, profile: Profile, results: dict, info: dict) -> None:
@@ -183,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     profile = load_profile("spiel-icra23")
     train_set, val_set = ta.split_by_position(ta.load_samples(args.data, profile), salt=args.split_salt)
     net, _ = ta.train(train_set, val_set, seed=args.seed)
-    results = run(profile, train_set, val_set, net, args.seed, *ta.pick_guard(profile, net, train_set))
+    results = run(profile, train_set, val_set, net, args.seed, *ta.pick_guard(profile, net, train_set),
+                  ta.pick_score_weight(profile, net, train_set))
     print(markdown_table(results))
     print(json.dumps(results, indent=1))
     return 0

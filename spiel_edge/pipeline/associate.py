@@ -87,9 +87,11 @@ class GeometricAssociator:
     def __call__(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
         return self.candidates(features, counts)[0]
 
-    def candidates(self, features: np.ndarray, counts: np.ndarray, allowed: np.ndarray | None = None):
+    def candidates(self, features: np.ndarray, counts: np.ndarray, allowed: np.ndarray | None = None,
+                   bonus_mm: np.ndarray | None = None):
         """Best combination as ``(matched, cost)``; ``allowed`` (channels, max_echoes) bool
-        restricts the search (used by the learned associator as a feasibility guard)."""
+        restricts the search, ``bonus_mm`` (channels, max_echoes) lowers the cost of
+        combinations by the mean bonus of their echoes (both used by the learned associator)."""
         features = np.asarray(features, dtype=np.float64)
         counts = np.ascontiguousarray(counts, dtype=np.int64)
         if features.ndim != 3 or features.shape[0] != self.channels.shape[0] or counts.shape != features.shape[:1]:
@@ -101,8 +103,11 @@ class GeometricAssociator:
             allowed = np.isfinite(paths)
         allowed = np.ascontiguousarray(allowed & np.isfinite(paths), dtype=np.bool_)
         alpha = features[:, :, 0]
-        strength = np.ascontiguousarray(np.log(np.where(np.isfinite(alpha) & (alpha > 1.0), alpha, 1.0)))
-        weights = np.array([self.max_residual_mm, self.missing_penalty_mm, self.strength_weight_mm, self.range_weight])
+        strength = self.strength_weight_mm * np.log(np.where(np.isfinite(alpha) & (alpha > 1.0), alpha, 1.0))
+        if bonus_mm is not None:
+            strength = strength + np.where(np.isfinite(bonus_mm), bonus_mm, 0.0)
+        strength = np.ascontiguousarray(strength, dtype=np.float64)
+        weights = np.array([self.max_residual_mm, self.missing_penalty_mm, 1.0, self.range_weight])
         matched = np.full(self.channels.shape[0], -1, dtype=np.int64)
         args = (paths, strength, counts, allowed, self.listening, self.channels, self.emitter, self.facing,
                 self.max_path_diff, weights, self.min_channels, matched)

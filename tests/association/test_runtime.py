@@ -10,12 +10,14 @@ import textwrap
 import numpy as np
 import pytest
 
+from spiel_edge.errors import InputError
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.associate_onnx import (
     OnnxAssociator,
     bench_scoring,
     candidate_mask,
     guarded_match,
+    score_bonus,
 )
 from spiel_edge.pipeline.echo_labels import AssociationScore, score_association
 from spiel_edge.pipeline.features import FEATURE_NAMES
@@ -101,3 +103,42 @@ def test_bench_scoring_reports_timings(profile):
     out = bench_scoring(n=50, profile=profile)
     assert out["n"] == 50 and out["scoring_us"]["median"] > 0
     assert out["associate_us"]["median"] >= out["scoring_us"]["median"] * 0.5
+
+
+def test_prior_weight_zero_is_the_geometric_associator(profile, subset_features):
+    zero = OnnxAssociator(profile, score_weight_mm=0.0)
+    for features, counts, _, geometric in subset_features:
+        assert zero(features, counts).tolist() == geometric.tolist()
+
+
+def test_score_bonus_is_the_weighted_logit():
+    rows = (np.array([0, 2]), np.array([1, 0]))
+    bonus = score_bonus((3, 2), rows, np.array([0.5, 0.9], dtype=np.float32), 2.0)
+    assert bonus[0, 1] == pytest.approx(0.0) and bonus[2, 0] == pytest.approx(2.0 * math.log(9.0))
+    assert np.count_nonzero(bonus) == 1
+
+
+def test_the_prior_decides_between_consistent_combinations(profile):
+    """Two targets, both seen on every channel: the echoes the net scores high win."""
+    geo = GeometricAssociator(profile)
+    g = profile.geometry
+    near, far = np.array([10.0, 20.0, 120.0]), np.array([-30.0, 10.0, 170.0])
+    features = np.full((4, 2, len(FEATURE_NAMES)), np.nan)
+    for k, target in enumerate((near, far)):
+        path = np.linalg.norm(target - g.emitter_mm) + np.linalg.norm(target - g.channels_mm, axis=1)
+        features[:, k, FEATURE_NAMES.index("toa")] = path / profile.mm_per_sample + g.delays()
+        features[:, k, FEATURE_NAMES.index("alpha")] = 300.0
+    counts = np.full(4, 2)
+    assert geo(features, counts).tolist() == [0, 0, 0, 0]  # geometry alone: the near one
+    rows = (np.repeat(np.arange(4), 2), np.tile([0, 1], 4))
+    favour_far = score_bonus((4, 2), rows, np.tile([0.05, 0.95], 4).astype(np.float32), 4.0)
+    assert geo.candidates(features, counts, bonus_mm=favour_far)[0].tolist() == [1, 1, 1, 1]
+
+
+def test_reference_mode_and_bad_mode(profile, subset_features):
+    reference = OnnxAssociator(profile, mode="reference")
+    features, counts, _, _ = subset_features[0]
+    matched = reference(features, counts)
+    assert np.all((matched >= -1) & (matched < np.maximum(counts, 0)))
+    with pytest.raises(InputError, match="mode"):
+        OnnxAssociator(profile, mode="best")
