@@ -90,6 +90,16 @@ class AssociateSpec:
 
 
 @dataclass(frozen=True)
+class LocateSpec:
+    """Expected ToA error of an echo (samples), whose inverse weighs its channel in the solve:
+    base + per_background * (background / frame peak near the echo) + alpha_counts / alpha."""
+
+    toa_sigma_samples: float = 1.0
+    toa_sigma_per_background: float = 0.0
+    toa_sigma_alpha_counts: float = 0.0
+
+
+@dataclass(frozen=True)
 class Profile:
     name: str
     geometry: Geometry
@@ -98,6 +108,7 @@ class Profile:
     detect: DetectSpec = DetectSpec()
     memg: MemgSpec = MemgSpec()
     associate: AssociateSpec = AssociateSpec()
+    locate: LocateSpec = LocateSpec()
     description: str = ""
 
     @property
@@ -115,6 +126,7 @@ _SECTIONS = {
     "detect": DetectSpec,
     "memg": MemgSpec,
     "associate": AssociateSpec,
+    "locate": LocateSpec,
 }
 _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
@@ -282,6 +294,10 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     need(s.method in ASSOCIATION_METHODS, f"associate.method must be one of {ASSOCIATION_METHODS}, got {s.method!r}")
     need(3 <= s.min_channels <= n_listen, f"associate.min_channels must be in [3, {n_listen}], got {s.min_channels}")
     need(s.tolerance_mm >= 0 and s.max_residual_mm > 0, "associate.tolerance_mm must be >= 0 and max_residual_mm > 0")
+    loc = p.locate
+    need(0 < loc.toa_sigma_samples <= 100, f"locate.toa_sigma_samples must be in (0, 100], got {loc.toa_sigma_samples}")
+    need(loc.toa_sigma_per_background >= 0 and loc.toa_sigma_alpha_counts >= 0,
+         "locate.toa_sigma_per_background and locate.toa_sigma_alpha_counts must be >= 0")
 
 
 def profile_to_dict(p: Profile) -> dict[str, Any]:

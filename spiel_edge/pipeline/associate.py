@@ -119,7 +119,7 @@ class GeometricAssociator:
 
 
 @njit(cache=True, nogil=True)
-def _score(choice, paths, strength, use, d, e, ch, facing, weights, pos):
+def _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos):
     """Locate the chosen echoes; cost as in the module docstring, inf when infeasible."""
     max_res, penalty, strength_weight, range_weight = weights[0], weights[1], weights[2], weights[3]
     n_ch = paths.shape[0]
@@ -131,7 +131,7 @@ def _score(choice, paths, strength, use, d, e, ch, facing, weights, pos):
         if use[j]:
             n_used += 1
             mean_strength += strength[j, choice[j]]
-    ok, rms = _locate_kernel(d, use, e, ch, facing, 20, pos)
+    ok, rms = _locate_kernel(d, use, unit, e, ch, facing, 20, pos)
     if not ok or rms > max_res:
         return math.inf
     distance = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2)
@@ -152,6 +152,7 @@ def _exhaustive_kernel(paths, strength, counts, allowed, listening, ch, e, facin
     choice = np.full(n_ch, -1, dtype=np.int64)
     d = np.empty(n_ch)
     use = np.zeros(n_ch, dtype=np.bool_)
+    unit = np.ones(n_ch)  # the search weighs every channel alike
     pos = np.empty(3)
     best_cost = math.inf
     solves = 0
@@ -178,7 +179,7 @@ def _exhaustive_kernel(paths, strength, counts, allowed, listening, ch, e, facin
             choice[c] = -2
             continue
         solves += 1
-        cost = _score(choice, paths, strength, use, d, e, ch, facing, weights, pos)
+        cost = _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos)
         if cost < best_cost:
             best_cost = cost
             best[:] = choice
@@ -211,6 +212,7 @@ def _hypothesis_kernel(paths, strength, counts, allowed, listening, ch, e, facin
                        best, anchors):
     n_ch = paths.shape[0]
     gate = max_diff[0, 0]  # the tolerance: the diagonal holds |r_i - r_i| + tolerance
+    unit = np.ones(n_ch)
     choice = np.full(n_ch, -1, dtype=np.int64)
     d = np.zeros(n_ch)
     use = np.zeros(n_ch, dtype=np.bool_)
@@ -233,12 +235,12 @@ def _hypothesis_kernel(paths, strength, counts, allowed, listening, ch, e, facin
                     use[:] = False
                     use[a] = use[b] = use[c] = True
                     d[a], d[b], d[c] = paths[a, ka], paths[b, kb], paths[c, kc]
-                    ok, rms = _locate_kernel(d, use, e, ch, facing, 20, pos)
+                    ok, rms = _locate_kernel(d, use, unit, e, ch, facing, 20, pos)
                     if not ok:
                         continue
                     if _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice) < min_ch:
                         continue
-                    cost = _score(choice, paths, strength, use, d, e, ch, facing, weights, pos)
+                    cost = _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos)
                     if cost < best_cost:
                         best_cost = cost
                         best[:] = choice

@@ -20,6 +20,28 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.memg import solve_spd
 
 MONOSTATIC_MM = 1.0  # a channel this close to the emitter is treated as the emitter itself
+BACKGROUND_WINDOW = 3  # samples either side of an echo where background peaks distort it
+
+
+def toa_weights(
+    frames: np.ndarray, background: np.ndarray | None, toa: np.ndarray, alpha: np.ndarray,
+    sigma_samples: float, per_background: float, alpha_counts: float,
+) -> np.ndarray:
+    """1 / expected ToA error per channel for the matched echoes (``toa``, ``alpha`` per
+    channel, NaN where none): base + per_background * background/frame peak ratio near the
+    echo + alpha_counts / alpha. Without a background the ratio term is 0."""
+    n_ch, n_t = frames.shape
+    sigma = np.full(n_ch, float(sigma_samples))
+    for c in range(n_ch):
+        if not np.isfinite(toa[c]):
+            continue
+        centre = int(round(min(max(toa[c], 0.0), n_t - 1)))
+        lo, hi = max(centre - BACKGROUND_WINDOW, 0), min(centre + BACKGROUND_WINDOW, n_t)
+        if background is not None and per_background:
+            sigma[c] += per_background * background[c, lo:hi].max() / max(frames[c, lo:hi].max(), 1.0)
+        if alpha_counts and np.isfinite(alpha[c]):
+            sigma[c] += alpha_counts / max(alpha[c], 1.0)
+    return 1.0 / sigma
 
 
 def locate(
@@ -29,22 +51,27 @@ def locate(
     facing: np.ndarray,
     use: np.ndarray | None = None,
     *,
+    weights: np.ndarray | None = None,
     max_iterations: int = 30,
 ) -> tuple[np.ndarray, float, bool]:
     """Return ``(position_mm, rms_residual_mm, ok)`` from per-channel echo path lengths.
 
-    ``use`` masks channels (NaN paths are never used); at least 3 are needed. The position
-    is finite in every case; ``ok`` is False when the solve did not give a valid target in
-    front of the array.
+    ``use`` masks channels (NaN paths are never used); at least 3 are needed. ``weights``
+    (channels,), e.g. 1 / expected ToA error, weight the residuals (the reported rms is
+    unweighted). The position is finite in every case; ``ok`` is False when the solve did
+    not give a valid target in front of the array.
     """
     d = np.ascontiguousarray(paths_mm, dtype=np.float64)
     ch = np.ascontiguousarray(channels_mm, dtype=np.float64)
     if ch.ndim != 2 or ch.shape[1] != 3 or d.shape != (ch.shape[0],):
         raise InputError("paths_mm must be (channels,) and channels_mm (channels, 3)")
     mask = np.isfinite(d) if use is None else (np.asarray(use, dtype=np.bool_) & np.isfinite(d))
+    w = np.ones(d.shape) if weights is None else np.ascontiguousarray(weights, dtype=np.float64)
+    if w.shape != d.shape or not np.all(np.isfinite(w[mask]) & (w[mask] > 0)):
+        raise InputError("weights must be (channels,) positive finite numbers")
     pos = np.zeros(3)
     ok, rms = _locate_kernel(
-        d, mask, np.ascontiguousarray(emitter_mm, dtype=np.float64), ch,
+        d, mask, w, np.ascontiguousarray(emitter_mm, dtype=np.float64), ch,
         np.ascontiguousarray(facing, dtype=np.float64), int(max_iterations), pos,
     )
     return pos, float(rms), bool(ok)
@@ -96,8 +123,10 @@ def _initial_guess(d, use, e, ch, facing, q):
 
 
 @njit(cache=True, nogil=True)
-def _cost(d, use, e, ch, p):
-    total = 0.0
+def _cost(d, use, w, e, ch, p):
+    """Weighted and plain sums of squared path residuals, and the channels used."""
+    weighted = 0.0
+    plain = 0.0
     n_use = 0
     for n in range(d.shape[0]):
         if use[n]:
@@ -106,19 +135,20 @@ def _cost(d, use, e, ch, p):
                 + math.sqrt((p[0] - ch[n, 0]) ** 2 + (p[1] - ch[n, 1]) ** 2 + (p[2] - ch[n, 2]) ** 2)
                 - d[n]
             )
-            total += r * r
+            weighted += (w[n] * r) ** 2
+            plain += r * r
             n_use += 1
-    return total, n_use
+    return weighted, plain, n_use
 
 
 @njit(cache=True, nogil=True)
-def _gauss_newton(d, use, e, ch, p, max_iter):
+def _gauss_newton(d, use, w, e, ch, p, max_iter):
     a = np.empty((3, 3))
     b = np.empty(3)
     step = np.empty(3)
     trial = np.empty(3)
     lam = 1e-3
-    cost, n_use = _cost(d, use, e, ch, p)
+    cost, plain, n_use = _cost(d, use, w, e, ch, p)
     for _ in range(max_iter):
         a[:, :] = 0.0
         b[:] = 0.0
@@ -129,10 +159,10 @@ def _gauss_newton(d, use, e, ch, p, max_iter):
             ur = p - ch[n]
             le = max(math.sqrt(ue[0] ** 2 + ue[1] ** 2 + ue[2] ** 2), 1e-9)
             lr = max(math.sqrt(ur[0] ** 2 + ur[1] ** 2 + ur[2] ** 2), 1e-9)
-            r = le + lr - d[n]
-            g0 = ue[0] / le + ur[0] / lr
-            g1 = ue[1] / le + ur[1] / lr
-            g2 = ue[2] / le + ur[2] / lr
+            r = w[n] * (le + lr - d[n])
+            g0 = w[n] * (ue[0] / le + ur[0] / lr)
+            g1 = w[n] * (ue[1] / le + ur[1] / lr)
+            g2 = w[n] * (ue[2] / le + ur[2] / lr)
             b[0] -= g0 * r
             b[1] -= g1 * r
             b[2] -= g2 * r
@@ -155,22 +185,22 @@ def _gauss_newton(d, use, e, ch, p, max_iter):
                 continue
             for i in range(3):
                 trial[i] = p[i] + step[i]
-            new_cost, _ = _cost(d, use, e, ch, trial)
+            new_cost, new_plain, _ = _cost(d, use, w, e, ch, trial)
             if new_cost <= cost:
                 small = abs(step[0]) + abs(step[1]) + abs(step[2]) < 1e-4
                 p[:] = trial
-                cost = new_cost
+                cost, plain = new_cost, new_plain
                 lam = max(lam * 0.3, 1e-9)
                 accepted = not small
                 break
             lam *= 10.0
         if not accepted:
             break
-    return math.sqrt(cost / max(n_use, 1))
+    return math.sqrt(plain / max(n_use, 1))
 
 
 @njit(cache=True, nogil=True)
-def _locate_kernel(d, use, e, ch, facing, max_iter, out):
+def _locate_kernel(d, use, w, e, ch, facing, max_iter, out):
     n_use = 0
     for n in range(d.shape[0]):
         if use[n]:
@@ -181,13 +211,13 @@ def _locate_kernel(d, use, e, ch, facing, max_iter, out):
     q = np.empty(3)
     _initial_guess(d, use, e, ch, facing, q)
     p = q + e
-    rms = _gauss_newton(d, use, e, ch, p, max_iter)
+    rms = _gauss_newton(d, use, w, e, ch, p, max_iter)
     ahead = (p[0] - e[0]) * facing[0] + (p[1] - e[1]) * facing[1] + (p[2] - e[2]) * facing[2]
     if ahead < 0.0:
         # the mirror image behind a (near-)planar array fits as well: take the front one
         for i in range(3):
             p[i] -= 2.0 * ahead * facing[i]
-        rms = _gauss_newton(d, use, e, ch, p, max_iter)
+        rms = _gauss_newton(d, use, w, e, ch, p, max_iter)
         ahead = (p[0] - e[0]) * facing[0] + (p[1] - e[1]) * facing[1] + (p[2] - e[2]) * facing[2]
     finite = math.isfinite(rms) and math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])
     if not finite:

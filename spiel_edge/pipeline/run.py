@@ -13,7 +13,7 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.detect import detect
 from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
-from spiel_edge.pipeline.locate import locate
+from spiel_edge.pipeline.locate import locate, toa_weights
 from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.profile import Profile
@@ -82,9 +82,11 @@ class Pipeline:
         clock = time.perf_counter_ns if timed else _no_clock
         t0 = clock()
         acq = p.acquisition
+        if not p.preprocess.background_subtraction:
+            background = None
         y = preprocess(
             frames,
-            background if p.preprocess.background_subtraction else None,
+            background,
             blind_zone=p.preprocess.blind_zone_samples,
             rf=acq.signal == "rf",
             carrier_cycles_per_sample=acq.carrier_hz / acq.sample_rate_hz,
@@ -102,7 +104,7 @@ class Pipeline:
         t4 = clock()
         matched = self.associator(feats, counts)
         t5 = clock()
-        result = self._locate(feats, counts, matched, np.asarray(frames))
+        result = self._locate(feats, counts, matched, np.asarray(frames), background)
         t6 = clock()
         if timed:
             stamps = (t0, t1, t2, t3, t4, t5, t6)
@@ -110,7 +112,8 @@ class Pipeline:
             result.timings_us["end_to_end"] = (t6 - t0) / 1e3
         return result
 
-    def _locate(self, feats: np.ndarray, counts: np.ndarray, matched: np.ndarray, raw: np.ndarray) -> Result:
+    def _locate(self, feats: np.ndarray, counts: np.ndarray, matched: np.ndarray, raw: np.ndarray,
+                background: np.ndarray | None) -> Result:
         toa = feats[:, :, TOA_COLUMN]
         echoes = [[float(v) for v in toa[c, : counts[c]]] for c in range(len(counts))]
         match_list = [int(m) if m >= 0 else None for m in matched]
@@ -118,9 +121,13 @@ class Pipeline:
         use = matched >= 0
         if use.sum() < 3:
             return Result(None, self._why_empty(raw, counts), None, **base)
-        picked = toa[np.arange(len(matched)), np.maximum(matched, 0)]
+        rows = np.arange(len(matched)), np.maximum(matched, 0)
+        picked = np.where(use, toa[rows], np.nan)
         paths = (picked - self._delays) * self.profile.mm_per_sample
-        pos, rms, ok = locate(paths, self._channels, self._emitter, self._facing, use)
+        loc = self.profile.locate
+        weights = toa_weights(raw, background, picked, feats[rows][:, 0], loc.toa_sigma_samples,
+                              loc.toa_sigma_per_background, loc.toa_sigma_alpha_counts)
+        pos, rms, ok = locate(paths, self._channels, self._emitter, self._facing, use, weights=weights)
         if not ok:
             return Result(None, REASON_SOLVE_FAILED, None, **base)
         return Result(pos, None, rms, **base)

@@ -65,11 +65,14 @@ def paths(position, channels, emitter):
     return np.linalg.norm(position - emitter) + np.linalg.norm(position - channels, axis=1)
 
 
-def locate(d, channels, emitter, use, start):
+def locate(d, channels, emitter, use, start, weights=None):
+    w = np.ones(len(d)) if weights is None else np.asarray(weights)
+
     def resid(p):
-        return paths(p, channels[use], emitter) - d[use]
+        return w[use] * (paths(p, channels[use], emitter) - d[use])
     sol = least_squares(resid, start, method="lm", xtol=1e-12, ftol=1e-12)
-    return sol.x, float(np.sqrt(np.mean(sol.fun**2)))
+    plain = paths(sol.x, channels[use], emitter) - d[use]
+    return sol.x, float(np.sqrt(np.mean(plain**2)))
 
 
 def brute_force_association(paths_mm, counts, channels, emitter, facing, weights, strength, min_ch, max_diff, locate_fn):

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
+from spiel_edge.errors import InputError
 from spiel_edge.pipeline.associate import GeometricAssociator, anchor_triples
 from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
-from spiel_edge.pipeline.locate import locate
+from spiel_edge.pipeline.locate import locate, toa_weights
 from spiel_edge.synthetic import ring_profile
 from tests.core import naive
 
@@ -35,6 +36,37 @@ def test_locate_matches_scipy_least_squares_with_noise(profile, rng):
         assert ok
         np.testing.assert_allclose(pos, ref, atol=1e-3)
         assert rms == pytest.approx(ref_rms, abs=1e-6)
+
+
+def test_weighted_locate_matches_scipy_and_trusts_the_heavier_channels(profile, rng):
+    ch, e, f = geometry(profile)
+    target = np.array([30.0, -40.0, 160.0])
+    d = naive.paths(target, ch, e)
+    d[1] += 25.0  # one corrupted channel
+    weights = np.array([1.0, 0.05, 1.0, 1.0])
+    use = np.ones(4, bool)
+    pos, rms, ok = locate(d, ch, e, f, use, weights=weights)
+    ref, ref_rms = naive.locate(d, ch, e, use, pos + 1.0, weights)
+    assert ok
+    np.testing.assert_allclose(pos, ref, atol=1e-3)
+    assert rms == pytest.approx(ref_rms, abs=1e-5)  # the reported rms is the plain one
+    plain, _, _ = locate(d, ch, e, f, use)
+    assert np.linalg.norm(pos - target) < 0.5 * np.linalg.norm(plain - target)
+    with pytest.raises(InputError, match="weights"):
+        locate(d, ch, e, f, use, weights=np.array([1.0, 0.0, 1.0, 1.0]))
+
+
+def test_toa_weights_follow_background_and_strength():
+    frames = np.full((3, 64), 100.0)
+    background = np.zeros((3, 64))
+    background[1, 20] = 100.0  # channel 1's echo sits on a background echo as strong as itself
+    toa = np.array([20.0, 20.0, np.nan])
+    alpha = np.array([400.0, 400.0, np.nan])
+    w = toa_weights(frames, background, toa, alpha, 0.3, 0.5, 8.0)
+    assert w[0] == pytest.approx(1 / (0.3 + 8.0 / 400))
+    assert w[1] == pytest.approx(1 / (0.3 + 0.5 * 1.0 + 8.0 / 400))
+    assert w[2] == pytest.approx(1 / 0.3)  # no echo: untouched (and unused)
+    assert toa_weights(frames, None, toa, alpha, 1.0, 0.5, 0.0).tolist() == [1.0, 1.0, 1.0]
 
 
 def test_locate_never_nan_and_keeps_target_in_front(profile, rng):
