@@ -58,10 +58,10 @@ class Result:
 class Pipeline:
     """preprocess -> detect -> memg -> features -> associate -> locate for one profile."""
 
-    def __init__(self, profile: Profile, associator: Associator | None = None, *, saturation: float | None = None):
+    def __init__(self, profile: Profile, associator: Associator | None = None, *, saturation: float = 65535.0):
         self.profile = profile
         self.associator = associator or GeometricAssociator(profile)
-        self.saturation = saturation
+        self.saturation = saturation  # full scale of the board's samples (u16 envelopes)
         g = profile.geometry
         self._channels = np.ascontiguousarray(g.channels_mm, dtype=np.float64)
         self._emitter = np.ascontiguousarray(g.emitter_mm, dtype=np.float64)
@@ -133,10 +133,10 @@ class Pipeline:
         return Result(pos, None, rms, **base)
 
     def _why_empty(self, raw: np.ndarray, counts: np.ndarray) -> str:
+        if raw.size and np.mean(raw >= self.saturation) > 0.5:
+            return REASON_SATURATED
         if raw.size and np.ptp(raw) == 0:
             return REASON_FLAT_FRAME
-        if self.saturation is not None and np.mean(raw >= self.saturation) > 0.5:
-            return REASON_SATURATED
         if int((counts > 0).sum()) < 3:
             return REASON_TOO_FEW_CHANNELS
         return REASON_NO_CONSISTENT_ECHOES

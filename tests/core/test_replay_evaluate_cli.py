@@ -72,9 +72,9 @@ def test_replay_survives_bad_files(folders, tmp_path, subset):
     for name in ("a_malformed", "b_ragged", "c_nan", "d_three_channels", "e_short", "f_nobackground", "i_empty"):
         r = records[f"{name}_frames.csv"]
         assert r["position_mm"] is None and r["error"] and f"{name}_frames.csv" in r["error"]
-    for name in ("g_flat", "h_saturated"):
+    for name, reason in (("g_flat", "flat"), ("h_saturated", "saturated")):
         r = records[f"{name}_frames.csv"]
-        assert r["position_mm"] is None and r["reason"] and "error" not in r
+        assert r["position_mm"] is None and reason in r["reason"] and "error" not in r
 
 
 def test_replay_missing_folder_is_a_clean_error(tmp_path, capsys):
