@@ -15,6 +15,6 @@ def as_frames(frames: np.ndarray, name: str = "frames") -> np.ndarray:
     if not np.issubdtype(arr.dtype, np.number):
         raise InputError(f"{name} must be numeric, got dtype {arr.dtype}")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise InputError(f"{name} contains NaN or infinite samples")
     return arr

@@ -42,17 +42,29 @@ def fit_memg(
     counts = np.ascontiguousarray(counts, dtype=np.int64)
     if peaks.ndim != 2 or peaks.shape[0] != y.shape[0] or counts.shape != (y.shape[0],):
         raise InputError("peaks must be (channels, max_echoes) and counts (channels,)")
-    if np.any(counts > peaks.shape[1]) or np.any(counts < 0):
+    problem = _check_peaks(peaks, counts, y.shape[1])
+    if problem == 1:
         raise InputError("counts must be in [0, max_echoes]")
-    for c in range(y.shape[0]):
-        p = peaks[c, : counts[c]]
-        if np.any(p < 0) or np.any(p >= y.shape[1]) or np.any(np.diff(p) <= 0):
-            raise InputError("peaks must be ascending sample indices inside the frame")
+    if problem == 2:
+        raise InputError("peaks must be ascending sample indices inside the frame")
     if mu_window <= 0 or max_iterations < 1:
         raise InputError("mu_window must be > 0 and max_iterations >= 1")
     params = np.full((y.shape[0], peaks.shape[1], 4), np.nan)
     _memg_kernel(y, peaks, counts, float(mu_window), int(max_iterations), params)
     return params
+
+
+@njit(cache=True, nogil=True)
+def _check_peaks(peaks, counts, n_t):
+    """0 when valid; 1 for a count out of range; 2 for peaks not ascending inside the frame
+    (a compiled check: numpy's per-call overhead would cost more than the fit itself)."""
+    for c in range(peaks.shape[0]):
+        if counts[c] < 0 or counts[c] > peaks.shape[1]:
+            return 1
+        for k in range(counts[c]):
+            if peaks[c, k] < 0 or peaks[c, k] >= n_t or (k > 0 and peaks[c, k] <= peaks[c, k - 1]):
+                return 2
+    return 0
 
 
 @njit(cache=True, nogil=True, inline="always")
