@@ -67,8 +67,13 @@ def test_memg_respects_bounds_and_validates():
     params, _, _ = _fit(y)
     alpha, mu, sigma, _ = params[0, 0]
     assert alpha > 0 and 0.4 <= sigma <= 6.0 and abs(mu - 30) <= 3.0
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match="ascending"):
         fit_memg(y, np.array([[5, 3]]), np.array([2]))  # not ascending
+    with pytest.raises(InputError, match="ascending"):
+        fit_memg(y, np.array([[5, 64]]), np.array([2]))  # outside the frame
+    with pytest.raises(InputError, match="counts"):
+        fit_memg(y, np.array([[5, 9]]), np.array([3]))
+    fit_memg(y, np.array([[5, -1]]), np.array([1]))  # padding after the count is ignored
 
 
 def test_features_match_numpy_reference():
