@@ -140,6 +140,26 @@ def solve_spd(a, b, n, x):
 
 
 @njit(cache=True, nogil=True)
+def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
+    """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations)."""
+    n_par = 4 * n_comp
+    a[:, :] = 0.0
+    b[:] = 0.0
+    for t in range(lo, hi):
+        m = 0.0
+        for k in range(n_comp):
+            m += _emg_jacobian_row(float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3], jac_row, 4 * k)
+        r = y[t] - m
+        for i in range(n_par):
+            b[i] += jac_row[i] * r
+            for j in range(i + 1):
+                a[i, j] += jac_row[i] * jac_row[j]
+    for i in range(n_par):
+        for j in range(i + 1, n_par):
+            a[i, j] = a[j, i]
+
+
+@njit(cache=True, nogil=True)
 def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     """LM on components fitted jointly over y[lo:hi]; p holds 4 * n_comp parameters.
 
@@ -172,20 +192,7 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     lam = 1e-2
     cost = _cluster_cost(y, lo, hi, p, n_comp)
     for _ in range(max_iter):
-        a[:, :] = 0.0
-        b[:] = 0.0
-        for t in range(lo, hi):
-            m = 0.0
-            for k in range(n_comp):
-                m += _emg_jacobian_row(float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3], jac_row, 4 * k)
-            r = y[t] - m
-            for i in range(n_par):
-                b[i] += jac_row[i] * r
-                for j in range(i + 1):
-                    a[i, j] += jac_row[i] * jac_row[j]
-        for i in range(n_par):
-            for j in range(i + 1, n_par):
-                a[i, j] = a[j, i]
+        _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b)
         improved = False
         for _try in range(8):
             for i in range(n_par):
