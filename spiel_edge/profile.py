@@ -91,12 +91,14 @@ class AssociateSpec:
 
 @dataclass(frozen=True)
 class LocateSpec:
-    """Expected ToA error of an echo (samples), whose inverse weighs its channel in the solve:
-    base + per_background * (background / frame peak near the echo) + alpha_counts / alpha."""
+    """Per matched echo, its expected ToA error (whose inverse weighs its channel in the solve)
+    and a ToA correction for background interference; see pipeline/echo_quality.py."""
 
     toa_sigma_samples: float = 1.0
     toa_sigma_per_background: float = 0.0
     toa_sigma_alpha_counts: float = 0.0
+    toa_shift_background_after: float = 0.0
+    toa_shift_background_before: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -298,6 +300,8 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     need(0 < loc.toa_sigma_samples <= 100, f"locate.toa_sigma_samples must be in (0, 100], got {loc.toa_sigma_samples}")
     need(loc.toa_sigma_per_background >= 0 and loc.toa_sigma_alpha_counts >= 0,
          "locate.toa_sigma_per_background and locate.toa_sigma_alpha_counts must be >= 0")
+    need(abs(loc.toa_shift_background_after) <= 5 and abs(loc.toa_shift_background_before) <= 5,
+         "locate.toa_shift_background_after/before must be in [-5, 5] samples")
 
 
 def profile_to_dict(p: Profile) -> dict[str, Any]:

@@ -41,7 +41,7 @@ OUTPUTS = ("score", "embedding")
 # used when the model's metadata lacks "spiel.distance_threshold" / "spiel.cost_slack_mm"
 DEFAULT_DISTANCE_THRESHOLD = 1.0
 DEFAULT_COST_SLACK_MM = math.inf
-DEFAULT_SCORE_WEIGHT_MM = 2.0  # the best mean error on the training split among 0, 1, 2, 4, 8, 16
+DEFAULT_SCORE_WEIGHT_MM = 1.0  # the shipped model carries its own (spiel.score_weight_mm)
 MODES = ("prior", "reference")
 
 

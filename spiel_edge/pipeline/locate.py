@@ -20,45 +20,6 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.memg import solve_spd
 
 MONOSTATIC_MM = 1.0  # a channel this close to the emitter is treated as the emitter itself
-BACKGROUND_WINDOW = 3  # samples either side of an echo where background peaks distort it
-
-
-def toa_weights(
-    frames: np.ndarray, background: np.ndarray | None, toa: np.ndarray, alpha: np.ndarray,
-    sigma_samples: float, per_background: float, alpha_counts: float,
-) -> np.ndarray:
-    """1 / expected ToA error per channel for the matched echoes (``toa``, ``alpha`` per
-    channel, NaN where none): base + per_background * background/frame peak ratio near the
-    echo + alpha_counts / alpha. Without a background the ratio term is 0."""
-    y = np.ascontiguousarray(frames, dtype=np.float64)
-    bg = np.zeros((0, 0)) if background is None else np.ascontiguousarray(background, dtype=np.float64)
-    if bg.size and bg.shape != y.shape:
-        raise InputError(f"background shape {bg.shape} does not match frames shape {y.shape}")
-    out = np.empty(y.shape[0])
-    _toa_weights_kernel(y, bg, np.ascontiguousarray(toa, dtype=np.float64), np.ascontiguousarray(alpha, dtype=np.float64),
-                        float(sigma_samples), float(per_background), float(alpha_counts), out)  # fmt: skip
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _toa_weights_kernel(y, bg, toa, alpha, base, per_background, alpha_counts, out):
-    n_ch, n_t = y.shape
-    for c in range(n_ch):
-        sigma = base
-        if not math.isnan(toa[c]):
-            centre = int(round(min(max(toa[c], 0.0), n_t - 1.0)))
-            lo = max(centre - BACKGROUND_WINDOW, 0)
-            hi = min(centre + BACKGROUND_WINDOW, n_t)
-            if bg.shape[0] == n_ch and per_background > 0.0:
-                bg_peak = 0.0
-                y_peak = 1.0
-                for t in range(lo, hi):
-                    bg_peak = max(bg_peak, bg[c, t])
-                    y_peak = max(y_peak, y[c, t])
-                sigma += per_background * bg_peak / y_peak
-            if alpha_counts > 0.0 and not math.isnan(alpha[c]):
-                sigma += alpha_counts / max(alpha[c], 1.0)
-        out[c] = 1.0 / sigma
 
 
 def locate(

@@ -12,8 +12,9 @@ import numpy as np
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.detect import detect
+from spiel_edge.pipeline.echo_quality import echo_quality
 from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
-from spiel_edge.pipeline.locate import locate, toa_weights
+from spiel_edge.pipeline.locate import locate
 from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.profile import Profile
@@ -123,10 +124,8 @@ class Pipeline:
             return Result(None, self._why_empty(raw, counts), None, **base)
         rows = np.arange(len(matched)), np.maximum(matched, 0)
         picked = np.where(use, toa[rows], np.nan)
-        paths = (picked - self._delays) * self.profile.mm_per_sample
-        loc = self.profile.locate
-        weights = toa_weights(raw, background, picked, feats[rows][:, 0], loc.toa_sigma_samples,
-                              loc.toa_sigma_per_background, loc.toa_sigma_alpha_counts)
+        weights, shift = echo_quality(raw, background, picked, feats[rows][:, 0], self.profile.locate)
+        paths = (picked + shift - self._delays) * self.profile.mm_per_sample
         pos, rms, ok = locate(paths, self._channels, self._emitter, self._facing, use, weights=weights)
         if not ok:
             return Result(None, REASON_SOLVE_FAILED, None, **base)

@@ -11,14 +11,14 @@ import time
 
 from numba.core.registry import CPUDispatcher
 
-from spiel_edge.pipeline import associate, detect, features, locate, memg, preprocess
+from spiel_edge.pipeline import associate, detect, echo_quality, features, locate, memg, preprocess
 
 
 def pipeline_kernels() -> dict[str, CPUDispatcher]:
     """The entry kernels (``_*_kernel``) of the pipeline modules, by qualified name; the
     helpers they call are compiled into them and cached with them."""
     out = {}
-    for module in (preprocess, detect, memg, features, associate, locate):
+    for module in (preprocess, detect, memg, features, associate, echo_quality, locate):
         for name, obj in vars(module).items():
             if isinstance(obj, CPUDispatcher) and name.endswith("_kernel"):
                 out[f"{module.__name__}.{name}"] = obj

@@ -1,10 +1,13 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.associate import GeometricAssociator, anchor_triples
+from spiel_edge.pipeline.echo_quality import echo_quality
 from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
-from spiel_edge.pipeline.locate import locate, toa_weights
+from spiel_edge.pipeline.locate import locate
 from spiel_edge.synthetic import ring_profile
 from tests.core import naive
 
@@ -56,17 +59,26 @@ def test_weighted_locate_matches_scipy_and_trusts_the_heavier_channels(profile, 
         locate(d, ch, e, f, use, weights=np.array([1.0, 0.0, 1.0, 1.0]))
 
 
-def test_toa_weights_follow_background_and_strength():
-    frames = np.full((3, 64), 100.0)
-    background = np.zeros((3, 64))
-    background[1, 20] = 100.0  # channel 1's echo sits on a background echo as strong as itself
-    toa = np.array([20.0, 20.0, np.nan])
-    alpha = np.array([400.0, 400.0, np.nan])
-    w = toa_weights(frames, background, toa, alpha, 0.3, 0.5, 8.0)
-    assert w[0] == pytest.approx(1 / (0.3 + 8.0 / 400))
-    assert w[1] == pytest.approx(1 / (0.3 + 0.5 * 1.0 + 8.0 / 400))
-    assert w[2] == pytest.approx(1 / 0.3)  # no echo: untouched (and unused)
-    assert toa_weights(frames, None, toa, alpha, 1.0, 0.5, 0.0).tolist() == [1.0, 1.0, 1.0]
+def test_echo_quality_weights_and_shifts(profile):
+    spec = dataclasses.replace(profile.locate, toa_sigma_samples=0.3, toa_sigma_per_background=0.5,
+                               toa_sigma_alpha_counts=8.0, toa_shift_background_after=-0.8,
+                               toa_shift_background_before=0.2)  # fmt: skip
+    frames = np.full((4, 64), 100.0)
+    background = np.zeros((4, 64))
+    background[1, 22] = 100.0  # after channel 1's echo, as strong as the frame: ratio 1
+    background[2, 18] = 50.0  # before channel 2's echo: ratio 0.5
+    toa = np.array([20.0, 20.0, 20.0, np.nan])
+    alpha = np.array([400.0, 400.0, 400.0, np.nan])
+    weights, shift = echo_quality(frames, background, toa, alpha, spec)
+    strength = 8.0 / 400
+    np.testing.assert_allclose(weights[:3], 1 / (0.3 + np.array([0.0, 0.5, 0.25]) + strength))
+    np.testing.assert_allclose(shift, [0.0, 0.8, -0.1, 0.0])  # early echoes move later, late ones earlier
+    assert weights[3] == pytest.approx(1 / 0.3)  # no echo: untouched (and unused)
+    weights, shift = echo_quality(frames, None, toa, alpha, spec)
+    np.testing.assert_allclose(weights[:3], 1 / (0.3 + strength))
+    assert not shift.any()
+    with pytest.raises(InputError, match="background shape"):
+        echo_quality(frames, background[:, :32], toa, alpha, spec)
 
 
 def test_locate_never_nan_and_keeps_target_in_front(profile, rng):
