@@ -56,6 +56,11 @@ class Geometry:
             return np.zeros(self.n_channels)
         return self.delay_samples
 
+    def echo_paths_mm(self, position_mm: np.ndarray) -> np.ndarray:
+        """Per channel the echo path emitter -> target -> channel (mm) of a point target."""
+        p = np.asarray(position_mm, dtype=np.float64)
+        return np.linalg.norm(p - self.emitter_mm) + np.linalg.norm(p - self.channels_mm, axis=1)
+
 
 @dataclass(frozen=True)
 class PreprocessSpec:

@@ -29,9 +29,7 @@ __all__ = ["DEFAULT_TOLERANCE", "AssociationScore", "expected_toa", "label_echoe
 def expected_toa(profile: Profile, position_mm: np.ndarray) -> np.ndarray:
     """Per-channel echo time (samples) of a point target at ``position_mm``."""
     g = profile.geometry
-    p = np.asarray(position_mm, dtype=np.float64)
-    path = np.linalg.norm(p - g.emitter_mm) + np.linalg.norm(p - g.channels_mm, axis=1)
-    return path / profile.mm_per_sample + g.delays()
+    return g.echo_paths_mm(position_mm) / profile.mm_per_sample + g.delays()
 
 
 def label_echoes(

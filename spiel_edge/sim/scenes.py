@@ -145,8 +145,7 @@ class EchoModelScene:
     def arrival_samples(self, p: np.ndarray) -> np.ndarray:
         """Echo time of arrival per channel (samples), delays included."""
         g = self.geometry
-        path = np.linalg.norm(p - g.emitter_mm) + np.linalg.norm(p - g.channels_mm, axis=1)
-        return path / self.mm_per_sample + g.delays()
+        return g.echo_paths_mm(p) / self.mm_per_sample + g.delays()
 
     def _echoes(self, p: np.ndarray, n_samples: int) -> np.ndarray:
         g, m = self.geometry, self.model
