@@ -139,9 +139,12 @@ class AcquisitionAssembler:
         self._last_done, self._first, self._channels = first.acquisition, None, {}
         self.stats.acquisitions += 1
         return Acquisition(
-            first.acquisition, first.timestamp_us, first.sample_rate_hz, first.sample_format,
+            first.acquisition,
+            first.timestamp_us,
+            first.sample_rate_hz,
+            first.sample_format,
             samples,
-        )  # fmt: skip
+        )
 
 
 def _consistent(first: StreamData, msg: StreamData) -> bool:

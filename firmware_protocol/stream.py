@@ -84,10 +84,16 @@ class StreamData(Message):
             raise MessageError(f"{len(self.samples)} sample bytes is not a multiple of {size}")
         try:
             header = STREAM_HEADER.pack(
-                self.acquisition, self.channel, self.n_channels, self.sample_format,
-                STREAM_HEADER.size, self.sample_rate_hz, self.timestamp_us,
-                len(self.samples) // size, 0,
-            )  # fmt: skip
+                self.acquisition,
+                self.channel,
+                self.n_channels,
+                self.sample_format,
+                STREAM_HEADER.size,
+                self.sample_rate_hz,
+                self.timestamp_us,
+                len(self.samples) // size,
+                0,
+            )
         except struct.error as exc:
             raise MessageError(f"StreamData: {exc}") from exc
         return header + bytes(self.samples)

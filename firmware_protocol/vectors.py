@@ -69,12 +69,21 @@ def _frames() -> list[dict[str, Any]]:
     out = []
     for name, msg_type, payload, seq, flags, aux in _frame_cases():
         header = HEADER.pack(PROTOCOL_VERSION, flags, msg_type, seq, len(payload), aux)
-        out.append({
-            "name": name, "version": PROTOCOL_VERSION, "flags": flags, "msg_type": msg_type,
-            "seq": seq, "aux": aux, "payload_len": len(payload), "payload_hex": payload.hex(),
-            "header_hex": header.hex(), "crc": crc32c(header + payload),
-            "wire_hex": encode_frame(msg_type, payload, seq=seq, flags=flags, aux=aux).hex(),
-        })  # fmt: skip
+        out.append(
+            {
+                "name": name,
+                "version": PROTOCOL_VERSION,
+                "flags": flags,
+                "msg_type": msg_type,
+                "seq": seq,
+                "aux": aux,
+                "payload_len": len(payload),
+                "payload_hex": payload.hex(),
+                "header_hex": header.hex(),
+                "crc": crc32c(header + payload),
+                "wire_hex": encode_frame(msg_type, payload, seq=seq, flags=flags, aux=aux).hex(),
+            }
+        )
     return out
 
 
@@ -83,9 +92,20 @@ def _sample_messages() -> list[m.Message]:
     return [
         m.Hello(1, 1, 8256, 0),
         m.HelloResponse(
-            1, 1, 1, 4, 8256, 4096, int(m.Capability.STREAM | m.Capability.CONFIG),
-            m.SCHEMA_HASH, 0x5EED1234, "1.0.0", 0x1209, 0x5E1E, "SPL-000123",
-        ),  # fmt: skip
+            1,
+            1,
+            1,
+            4,
+            8256,
+            4096,
+            int(m.Capability.STREAM | m.Capability.CONFIG),
+            m.SCHEMA_HASH,
+            0x5EED1234,
+            "1.0.0",
+            0x1209,
+            0x5E1E,
+            "SPL-000123",
+        ),
         m.DeviceInfoRequest(),
         m.DeviceInfo(2, 4, 12, 40000, 1_000_000, 123456, 2350, "spiel-tx4"),
         m.ErrorResponse(int(ErrorCode.CORRUPT), int(m.MsgType.CONFIG_COMMIT), "crc mismatch"),
@@ -118,11 +138,18 @@ def _messages() -> list[dict[str, Any]]:
     for i, msg in enumerate(_sample_messages()):
         seq, aux = (i * 257) & 0xFFFF, (0x100 + i if isinstance(msg, StreamData) else 0)
         wire = m.encode_message(msg, seq=seq, aux=aux)
-        out.append({
-            "class": type(msg).__name__, "msg_type": int(msg.MSG_TYPE), "response": msg.RESPONSE,
-            "seq": seq, "aux": aux, "fields": field_values(msg), "payload_hex": msg.pack().hex(),
-            "wire_hex": wire.hex(),
-        })  # fmt: skip
+        out.append(
+            {
+                "class": type(msg).__name__,
+                "msg_type": int(msg.MSG_TYPE),
+                "response": msg.RESPONSE,
+                "seq": seq,
+                "aux": aux,
+                "fields": field_values(msg),
+                "payload_hex": msg.pack().hex(),
+                "wire_hex": wire.hex(),
+            }
+        )
     return out
 
 
@@ -161,7 +188,9 @@ def _stream() -> dict[str, Any]:
     frames = decoder.feed(wire)
     return {
         "wire_hex": wire.hex(),
-        "frames": [{"seq": f.seq, "flags": f.flags, "payload_hex": f.payload.hex()} for f in frames],
+        "frames": [
+            {"seq": f.seq, "flags": f.flags, "payload_hex": f.payload.hex()} for f in frames
+        ],
         "stats": decoder.stats.as_dict(),
     }
 

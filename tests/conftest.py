@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 
 
 @pytest.fixture(scope="session")

@@ -39,13 +39,15 @@ from spiel_edge.pipeline.associate_onnx import (  # noqa: E402
 from spiel_edge.pipeline.echo_labels import AssociationScore, score_association  # noqa: E402
 from spiel_edge.pipeline.features import FEATURE_NAMES, TOA_COLUMN  # noqa: E402
 from spiel_edge.pipeline.locate import locate  # noqa: E402
-from spiel_edge.profile import Profile, load_profile  # noqa: E402
+from spiel_edge.profile.schema import Profile, load_profile  # noqa: E402
 
 ALPHA_COLUMN = FEATURE_NAMES.index("alpha")
 TOA_AMP_COLUMNS = (TOA_COLUMN, ALPHA_COLUMN)
 
 
-def munkres_match(s: ta.Sample, ref: tuple[int, int], mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+def munkres_match(
+    s: ta.Sample, ref: tuple[int, int], mean: np.ndarray, std: np.ndarray
+) -> np.ndarray:
     z = (s.features - mean) / std
     rc, rk = ref
     matched = np.full(len(s.counts), -1, dtype=np.int64)
@@ -91,11 +93,15 @@ def position_error(profile: Profile, s: ta.Sample, matched: np.ndarray) -> float
     return float(np.linalg.norm(pos - s.truth_mm)) if ok else float("nan")
 
 
-def method_matches(profile: Profile, s: ta.Sample, nets: dict, stats, guard: tuple[float, float, float], geometric) -> dict:
+def method_matches(
+    profile: Profile, s: ta.Sample, nets: dict, stats, guard: tuple[float, float, float], geometric
+) -> dict:
     mean, std = stats
     rows, score, emb = ta.net_outputs(nets["mlp"], s)
     rows2, score2, emb2 = ta.net_outputs(nets["toa_amp"], s)
-    mlp_ref = (int(rows[0][np.argmax(score)]), int(rows[1][np.argmax(score)])) if score.size else (0, 0)
+    mlp_ref = (
+        (int(rows[0][np.argmax(score)]), int(rows[1][np.argmax(score)])) if score.size else (0, 0)
+    )
     allowed = candidate_mask(s.features.shape[:2], rows, score, emb, guard[0])
     empty = np.full(len(s.counts), -1, dtype=np.int64)
     has_echo = score.size > 0
@@ -105,13 +111,18 @@ def method_matches(profile: Profile, s: ta.Sample, nets: dict, stats, guard: tup
         "toa_amp+mlp+contrastive": contrastive_match(s, rows2, score2, emb2),
         "mlp+contrastive": contrastive_match(s, rows, score, emb),
         "geometric": s.geometric,
-        "combined reference (paper's reference + guard)": guarded_match(geometric, s.features, s.counts, allowed, guard[1]),
+        "combined reference (paper's reference + guard)": guarded_match(
+            geometric, s.features, s.counts, allowed, guard[1]
+        ),
         "combined prior (geometric + score prior, the default)": geometric.candidates(
-            s.features, s.counts, bonus_mm=score_bonus(s.features.shape[:2], rows, score, guard[2]))[0],
+            s.features, s.counts, bonus_mm=score_bonus(s.features.shape[:2], rows, score, guard[2])
+        )[0],
     }
 
 
-def evaluate(profile: Profile, samples: list[ta.Sample], nets: dict, stats, guard: tuple[float, float, float]) -> dict:
+def evaluate(
+    profile: Profile, samples: list[ta.Sample], nets: dict, stats, guard: tuple[float, float, float]
+) -> dict:
     """Per method: accuracy, F1, mean/median 3-D error and how many acquisitions were located."""
     geometric = GeometricAssociator(profile)
     per_method: dict[str, list[np.ndarray]] = {}
@@ -128,10 +139,15 @@ def summarise(profile: Profile, samples: list[ta.Sample], matches: list[np.ndarr
         sc = sc + score_association(m, s.labels, listening)
     e = np.array([position_error(profile, s, m) for s, m in zip(samples, matches, strict=True)])
     ok = np.isfinite(e)
-    return {"accuracy": sc.accuracy, "f1": sc.f1, "channels": sc.channels,
-            "mean_error_mm": float(e[ok].mean()) if ok.any() else float("nan"),
-            "median_error_mm": float(np.median(e[ok])) if ok.any() else float("nan"),
-            "located": int(ok.sum()), "acquisitions": len(e)}
+    return {
+        "accuracy": sc.accuracy,
+        "f1": sc.f1,
+        "channels": sc.channels,
+        "mean_error_mm": float(e[ok].mean()) if ok.any() else float("nan"),
+        "median_error_mm": float(np.median(e[ok])) if ok.any() else float("nan"),
+        "located": int(ok.sum()),
+        "acquisitions": len(e),
+    }
 
 
 def evaluate_runtime(profile: Profile, samples: list[ta.Sample], model_path: Path) -> dict:
@@ -141,21 +157,39 @@ def evaluate_runtime(profile: Profile, samples: list[ta.Sample], model_path: Pat
 
 
 def markdown_table(results: dict) -> str:
-    lines = ["| method | accuracy | F1 | mean 3-D error (mm) | median (mm) | located |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "| method | accuracy | F1 | mean 3-D error (mm) | median (mm) | located |",
+        "|---|---|---|---|---|---|",
+    ]
     for name, r in results.items():
-        lines.append(f"| {name} | {r['accuracy']:.4f} | {r['f1']:.4f} | {r['mean_error_mm']:.1f} | "
-                     f"{r['median_error_mm']:.1f} | {r['located']}/{r['acquisitions']} |")
+        lines.append(
+            f"| {name} | {r['accuracy']:.4f} | {r['f1']:.4f} | {r['mean_error_mm']:.1f} | "
+            f"{r['median_error_mm']:.1f} | {r['located']}/{r['acquisitions']} |"
+        )
     return "\n".join(lines)
 
 
-def run(profile: Profile, train_set, val_set, main_net: ta.EchoNet, seed: int, threshold: float, slack: float,
-        weight: float) -> dict:
+def run(
+    profile: Profile,
+    train_set,
+    val_set,
+    main_net: ta.EchoNet,
+    seed: int,
+    threshold: float,
+    slack: float,
+    weight: float,
+) -> dict:
     """Train the [ToA, alpha] net and evaluate every method on ``val_set``."""
     toa_amp_net, _ = ta.train(train_set, val_set, columns=TOA_AMP_COLUMNS, seed=seed)
     x = np.concatenate([s.rows()[0] for s in train_set]).astype(np.float64)
     stats = (x.mean(0), np.where(x.std(0) > 1e-9, x.std(0), 1.0))
-    return evaluate(profile, val_set, {"mlp": main_net, "toa_amp": toa_amp_net}, stats, (threshold, slack, weight))
+    return evaluate(
+        profile,
+        val_set,
+        {"mlp": main_net, "toa_amp": toa_amp_net},
+        stats,
+        (threshold, slack, weight),
+    )
 
 
 def write_card(path: Path, profile: Profile, results: dict, info: dict) -> None:
@@ -163,11 +197,17 @@ def write_card(path: Path, profile: Profile, results: dict, info: dict) -> None:
     bench = bench_scoring(n=3000, profile=profile, model_path=path.with_suffix(".onnx"))
     best = min(v for _, v in info["history"])
     text = CARD_TEMPLATE.format(
-        profile=profile.name, toa_estimator=profile.memg.toa, delays=", ".join(f"{d:g}" for d in profile.geometry.delays()),
-        val_xy=", ".join(f"({x:g}, {y:g})" for x, y in info["val_xy"]), best_loss=best,
-        table=markdown_table(results), scoring=bench["scoring_us"]["median"],
-        scoring_p99=bench["scoring_us"]["p99"], associate=bench["associate_us"]["median"],
-        echoes=bench["echoes_per_acquisition"], **{k: v for k, v in info.items() if k not in ("val_xy", "history")},
+        profile=profile.name,
+        toa_estimator=profile.memg.toa,
+        delays=", ".join(f"{d:g}" for d in profile.geometry.delays()),
+        val_xy=", ".join(f"({x:g}, {y:g})" for x, y in info["val_xy"]),
+        best_loss=best,
+        table=markdown_table(results),
+        scoring=bench["scoring_us"]["median"],
+        scoring_p99=bench["scoring_us"]["p99"],
+        associate=bench["associate_us"]["median"],
+        echoes=bench["echoes_per_acquisition"],
+        **{k: v for k, v in info.items() if k not in ("val_xy", "history")},
     )
     path.write_text(text)
 
@@ -185,10 +225,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split-salt", default=ta.SPLIT_SALT)
     args = ap.parse_args(argv)
     profile = load_profile("spiel-icra23")
-    train_set, val_set = ta.split_by_position(ta.load_samples(args.data, profile), salt=args.split_salt)
+    train_set, val_set = ta.split_by_position(
+        ta.load_samples(args.data, profile), salt=args.split_salt
+    )
     net, _ = ta.train(train_set, val_set, seed=args.seed)
-    results = run(profile, train_set, val_set, net, args.seed, *ta.pick_guard(profile, net, train_set),
-                  ta.pick_score_weight(profile, net, train_set))
+    results = run(
+        profile,
+        train_set,
+        val_set,
+        net,
+        args.seed,
+        *ta.pick_guard(profile, net, train_set),
+        ta.pick_score_weight(profile, net, train_set),
+    )
     print(markdown_table(results))
     print(json.dumps(results, indent=1))
     return 0

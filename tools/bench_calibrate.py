@@ -14,7 +14,7 @@ import numpy as np
 
 from spiel_edge.calibrate import calibrate_echoes, extract_echoes
 from spiel_edge.data import load_subset
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 
 
 def main() -> None:
@@ -31,8 +31,10 @@ def main() -> None:
     t1 = time.perf_counter()
     cal = calibrate_echoes(cand, data.truth_mm[idx], profile)
     t2 = time.perf_counter()
-    print(f"{args.n} acquisitions: echo extraction {t1 - t0:.2f} s, solve {t2 - t1:.2f} s, total {t2 - t0:.2f} s "
-          f"({len(cal.observations)} echoes, {cal.rounds} rounds)")
+    print(
+        f"{args.n} acquisitions: echo extraction {t1 - t0:.2f} s, solve {t2 - t1:.2f} s, total {t2 - t0:.2f} s "
+        f"({len(cal.observations)} echoes, {cal.rounds} rounds)"
+    )
 
 
 if __name__ == "__main__":

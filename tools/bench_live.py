@@ -25,12 +25,16 @@ import time
 import numpy as np
 
 from spiel_edge.device import DeviceSession
-from spiel_edge.live import LiveRunner, warm_up
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.runtime.loop import LiveRunner, warm_up
 from spiel_edge.sim.protocol_sim import device_for_url
 
-CLI = [sys.executable, "-c", "import sys; from spiel_edge.cli import main; sys.exit(main(sys.argv[1:]))"]
+CLI = [
+    sys.executable,
+    "-c",
+    "import sys; from spiel_edge.cli import main; sys.exit(main(sys.argv[1:]))",
+]
 
 
 class NullSink:
@@ -42,7 +46,9 @@ class NullSink:
 
 
 def pty_run(pipeline, n: int, rate: float) -> dict:
-    server = subprocess.Popen([*CLI, "simulate", "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    server = subprocess.Popen(
+        [*CLI, "simulate", "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         select.select([server.stdout], [], [], 30)
         path = server.stdout.readline().strip()
@@ -60,11 +66,19 @@ def pty_run(pipeline, n: int, rate: float) -> dict:
         server.wait(5)
     lat = np.array(runner.stats.all_latencies_us) / 1e3
     return {
-        "port": path, "rate_hz": rate, "acquisitions": n, "seconds": round(seconds, 3),
-        "achieved_per_s": round(n / seconds, 1), "lost": counts["lost"], "overruns": counts["overruns"],
-        "latency_ms": {"median": round(float(np.median(lat)), 3), "p95": round(float(np.percentile(lat, 95)), 3),
-                       "max": round(float(lat.max()), 3)},
-    }  # fmt: skip
+        "port": path,
+        "rate_hz": rate,
+        "acquisitions": n,
+        "seconds": round(seconds, 3),
+        "achieved_per_s": round(n / seconds, 1),
+        "lost": counts["lost"],
+        "overruns": counts["overruns"],
+        "latency_ms": {
+            "median": round(float(np.median(lat)), 3),
+            "p95": round(float(np.percentile(lat, 95)), 3),
+            "max": round(float(lat.max()), 3),
+        },
+    }
 
 
 def ber_run(n: int) -> dict:
@@ -80,9 +94,14 @@ def ber_run(n: int) -> dict:
         counts = session.counts()
     last = max(delivered)
     damaged = {k for k in device_for_url(url).faults.stats.damaged if k <= last}
-    return {"acquisitions_sent": last + 1, "damaged_by_board": len(damaged), "counted_lost_by_host": counts["lost"],
-            "undamaged_not_processed": len(set(range(last + 1)) - delivered - damaged),
-            "damaged_processed": len(delivered & damaged), "crc_errors": counts["crc_errors"]}  # fmt: skip
+    return {
+        "acquisitions_sent": last + 1,
+        "damaged_by_board": len(damaged),
+        "counted_lost_by_host": counts["lost"],
+        "undamaged_not_processed": len(set(range(last + 1)) - delivered - damaged),
+        "damaged_processed": len(delivered & damaged),
+        "crc_errors": counts["crc_errors"],
+    }
 
 
 def unplug_run(cycles: int = 20) -> dict:
@@ -97,12 +116,19 @@ def unplug_run(cycles: int = 20) -> dict:
             previous = acq.index
             if session.counters.reconnects == cycles and acq.index >= 5:
                 break
-    return {"cycles": cycles, "reconnect_s": {"median": round(float(np.median(delays)), 3),
-                                               "max": round(float(np.max(delays)), 3)}}  # fmt: skip
+    return {
+        "cycles": cycles,
+        "reconnect_s": {
+            "median": round(float(np.median(delays)), 3),
+            "max": round(float(np.max(delays)), 3),
+        },
+    }
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--acquisitions", type=int, default=3000)
     ap.add_argument("--rate", type=float, default=500.0)
     args = ap.parse_args()

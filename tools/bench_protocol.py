@@ -66,7 +66,9 @@ def main(argv: list[str] | None = None) -> dict:
         "wire_bytes": len(stream),
         "decode_MBps": round(len(stream) / decode_s / 1e6, 1),
         "decode_frames_per_s": round(args.frames / decode_s),
-        "encode_MBps": round(len(stream) / args.frames * 64 * (args.frames // 64) / encode_s / 1e6, 1),
+        "encode_MBps": round(
+            len(stream) / args.frames * 64 * (args.frames // 64) / encode_s / 1e6, 1
+        ),
         "stream_data_decode_msgs_per_s": round(n_msg / msg_s),
         "cobs_c_extension": bool(getattr(cobs_mod, "_using_extension", False)),
         "python": platform.python_version(),

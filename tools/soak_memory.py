@@ -47,7 +47,9 @@ def drain(sock: socket.socket, counts: dict[str, int]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--duration", type=float, default=600.0, help="seconds of streaming after warm-up")
+    ap.add_argument(
+        "--duration", type=float, default=600.0, help="seconds of streaming after warm-up"
+    )
     ap.add_argument("--rate", type=float, default=100.0, help="acquisitions per second")
     ap.add_argument("--warmup", type=float, default=20.0, help="seconds before the baseline RSS")
     ap.add_argument("--sample-every", type=float, default=2.0, help="seconds between RSS samples")
@@ -62,8 +64,21 @@ def main(argv: list[str] | None = None) -> int:
     notify.bind(str(notify_path))
     notify.setblocking(False)
     env = {**os.environ, "NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "10000000"}
-    cmd = [sys.executable, "-c", "import sys; from spiel_edge.cli import main; sys.exit(main())", "run", "--port", args.port, "--rate", str(args.rate),
-           "--output", os.devnull, "--record", str(recording), "--no-status"]
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from spiel_edge.cli import main; sys.exit(main())",
+        "run",
+        "--port",
+        args.port,
+        "--rate",
+        str(args.rate),
+        "--output",
+        os.devnull,
+        "--record",
+        str(recording),
+        "--no-status",
+    ]
     log_path = work / "run.log"  # a file, not a pipe: a long run's logs must never block it
     log_file = open(log_path, "w")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(cmd, env=env, stderr=log_file, text=True)
@@ -74,7 +89,9 @@ def main(argv: list[str] | None = None) -> int:
         while time.monotonic() - start < args.warmup + args.duration:
             time.sleep(args.sample_every)
             if proc.poll() is not None:
-                raise RuntimeError(f"run exited early ({proc.returncode}): {log_path.read_text()[-2000:]}")
+                raise RuntimeError(
+                    f"run exited early ({proc.returncode}): {log_path.read_text()[-2000:]}"
+                )
             drain(notify, counts)
             samples.append((time.monotonic() - start, rss_mb(proc.pid)))
         t0 = time.monotonic()
@@ -89,18 +106,27 @@ def main(argv: list[str] | None = None) -> int:
     stderr_tail = log_path.read_text().strip().splitlines()[-1:]
 
     after = np.array([(t, m) for t, m in samples if t >= args.warmup])
-    slope_per_s = float(np.polyfit(after[:, 0], after[:, 1], 1)[0]) if len(after) >= 3 else float("nan")
+    slope_per_s = (
+        float(np.polyfit(after[:, 0], after[:, 1], 1)[0]) if len(after) >= 3 else float("nan")
+    )
     report = {
-        "rate_hz": args.rate, "duration_s": args.duration, "warmup_s": args.warmup,
-        "rss_baseline_mb": round(float(after[0, 1]), 2), "rss_end_mb": round(float(after[-1, 1]), 2),
+        "rate_hz": args.rate,
+        "duration_s": args.duration,
+        "warmup_s": args.warmup,
+        "rss_baseline_mb": round(float(after[0, 1]), 2),
+        "rss_end_mb": round(float(after[-1, 1]), 2),
         "rss_max_mb": round(float(after[:, 1].max()), 2),
         "growth_mb": round(float(after[-1, 1] - after[0, 1]), 2),
         "slope_mb_per_10min": round(slope_per_s * 600, 2),
-        "sigterm_to_exit_s": round(stop_s, 3), "exit_status": proc.returncode,
-        "sd_notify": counts, "summary": stderr_tail,
-    }  # fmt: skip
+        "sigterm_to_exit_s": round(stop_s, 3),
+        "exit_status": proc.returncode,
+        "sd_notify": counts,
+        "summary": stderr_tail,
+    }
     report["recording"] = inspect_recording(recording)
-    report["target_met"] = report["growth_mb"] < 5.0 and stop_s < 1.0 and report["recording"]["finalized"]
+    report["target_met"] = (
+        report["growth_mb"] < 5.0 and stop_s < 1.0 and report["recording"]["finalized"]
+    )
     print(json.dumps(report, indent=2))
     if args.keep:
         print(f"recording kept: {recording}", file=sys.stderr)
@@ -121,7 +147,10 @@ def inspect_recording(path: Path) -> dict:
         return info
     if summary is not None and summary.statistics is not None:
         info["finalized"] = True
-        info["messages"] = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+        info["messages"] = {
+            summary.channels[c].topic: n
+            for c, n in summary.statistics.channel_message_counts.items()
+        }
     return info
 
 

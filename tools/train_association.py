@@ -11,7 +11,7 @@ training and runtime features are identical; rerun after any change to the profi
 
 Data: ``<data>/train_val`` + ``<data>/train_val_bg`` (spiel-csv with labels). The z = 90 mm
 frames are excluded (mislabelled: their echoes fit z ~ 140-150 mm). Split by position: the
-distinct (x, y) positions are hashed with ``--split-salt`` (``spiel_edge.evaluate``'s split, so
+distinct (x, y) positions are hashed with ``--split-salt`` (``spiel_edge.measure.evaluate``'s split, so
 ``spiel-edge evaluate`` validates on the same positions) and ~``val_fraction`` of them held out at
 every height, so validation positions are unseen xy. Labels: ``spiel_edge.pipeline.echo_labels``
 (the echo nearest the ground-truth echo time within 1.5 samples is the target's).
@@ -42,8 +42,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from spiel_edge import evaluate
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
+from spiel_edge.measure import evaluate
 from spiel_edge.pipeline import Pipeline
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.associate_onnx import candidate_mask, guarded_match, score_bonus
@@ -55,7 +55,7 @@ from spiel_edge.pipeline.echo_labels import (
     score_association,
 )
 from spiel_edge.pipeline.features import FEATURE_NAMES, N_FEATURES
-from spiel_edge.profile import Profile, load_profile
+from spiel_edge.profile.schema import Profile, load_profile
 
 log = logging.getLogger("train_association")
 
@@ -66,7 +66,7 @@ OPSET = 17
 EXCLUDED_Z_MM = (90.0,)
 MARGIN = 1.0
 LAMBDA_BCE, LAMBDA_CONTRASTIVE = 10.0, 1.0
-SPLIT_SALT = "spiel-edge"  # spiel_edge.evaluate.split_by_position's default
+SPLIT_SALT = "spiel-edge"  # spiel_edge.measure.evaluate.split_by_position's default
 SLACKS_MM = (0.0, 2.0, 4.0, 8.0, math.inf)
 THRESHOLDS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0)  # embedding distance (margin = 1)
 
@@ -94,7 +94,9 @@ class Sample:
         return self.features[ch, k].astype(np.float32), y, ch, k
 
 
-def load_samples(data: Path, profile: Profile, tolerance: float = DEFAULT_TOLERANCE) -> list[Sample]:
+def load_samples(
+    data: Path, profile: Profile, tolerance: float = DEFAULT_TOLERANCE
+) -> list[Sample]:
     """Every labelled acquisition of ``data/train_val`` (z = 90 mm excluded) through the stages."""
     pipe = Pipeline(profile)
     out = []
@@ -119,17 +121,25 @@ def split_by_position(samples: list[Sample], val_fraction: float = 0.3, salt: st
 class EchoNet(nn.Module):
     """The paper's Siamese MLP; ``columns`` picks the features it sees (ablation)."""
 
-    def __init__(self, mean: np.ndarray, std: np.ndarray, columns: tuple[int, ...] = tuple(range(N_FEATURES))):
+    def __init__(
+        self, mean: np.ndarray, std: np.ndarray, columns: tuple[int, ...] = tuple(range(N_FEATURES))
+    ):
         super().__init__()
         self.register_buffer("columns", torch.tensor(columns, dtype=torch.long))
         self.register_buffer("mean", torch.tensor(mean[list(columns)], dtype=torch.float32))
         self.register_buffer("std", torch.tensor(std[list(columns)], dtype=torch.float32))
         n = len(columns)
-        self.embed = nn.Sequential(nn.Linear(n, 32), nn.ReLU(), nn.Linear(32, 32), nn.ReLU(), nn.Linear(32, 4), nn.ReLU())
+        self.embed = nn.Sequential(
+            nn.Linear(n, 32), nn.ReLU(), nn.Linear(32, 32), nn.ReLU(), nn.Linear(32, 4), nn.ReLU()
+        )
         self.head = nn.Linear(4, 1)
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        x = features if self.columns.numel() == N_FEATURES else features.index_select(1, self.columns)
+        x = (
+            features
+            if self.columns.numel() == N_FEATURES
+            else features.index_select(1, self.columns)
+        )
         e = self.embed((x - self.mean) / self.std)
         return torch.sigmoid(self.head(e)), e
 
@@ -165,8 +175,14 @@ def seed_everything(seed: int) -> None:
 
 
 def train(
-    train_set: list[Sample], val_set: list[Sample], *, columns: tuple[int, ...] = tuple(range(N_FEATURES)),
-    seed: int = 0, max_epochs: int = 300, patience: int = 5, lr: float = 5e-4,
+    train_set: list[Sample],
+    val_set: list[Sample],
+    *,
+    columns: tuple[int, ...] = tuple(range(N_FEATURES)),
+    seed: int = 0,
+    max_epochs: int = 300,
+    patience: int = 5,
+    lr: float = 5e-4,
 ) -> tuple[EchoNet, list[tuple[float, float]]]:
     """Train with early stopping on the validation loss; returns the best net and the history."""
     seed_everything(seed)
@@ -212,14 +228,28 @@ def export_onnx(net: EchoNet, metadata: dict[str, str]) -> bytes:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notice
         torch.onnx.export(
-            net, torch.zeros(2, N_FEATURES), buf, dynamo=False, opset_version=OPSET,
-            input_names=["features"], output_names=["score", "embedding"],
-            dynamic_axes={"features": {0: "batch"}, "score": {0: "batch"}, "embedding": {0: "batch"}},
+            net,
+            torch.zeros(2, N_FEATURES),
+            buf,
+            dynamo=False,
+            opset_version=OPSET,
+            input_names=["features"],
+            output_names=["score", "embedding"],
+            dynamic_axes={
+                "features": {0: "batch"},
+                "score": {0: "batch"},
+                "embedding": {0: "batch"},
+            },
         )
     model = onnx.load_from_string(buf.getvalue())
-    model.producer_name, model.producer_version = "spiel-edge tools/train_association.py", torch.__version__
+    model.producer_name, model.producer_version = (
+        "spiel-edge tools/train_association.py",
+        torch.__version__,
+    )
     for key, value in sorted(metadata.items()):
-        onnx.helper.set_model_props(model, {**{p.key: p.value for p in model.metadata_props}, key: value})
+        onnx.helper.set_model_props(
+            model, {**{p.key: p.value for p in model.metadata_props}, key: value}
+        )
     onnx.checker.check_model(model)
     return model.SerializeToString()
 
@@ -245,7 +275,12 @@ def pick_guard(profile: Profile, net: EchoNet, samples: list[Sample]) -> tuple[f
                 allowed = candidate_mask(s.features.shape[:2], rows, score, emb, threshold)
                 matched = guarded_match(geometric, s.features, s.counts, allowed, slack)
                 total = total + score_association(matched, s.labels)
-            log.info("threshold %.2f slack %.1f mm: training accuracy %.4f", threshold, slack, total.accuracy)
+            log.info(
+                "threshold %.2f slack %.1f mm: training accuracy %.4f",
+                threshold,
+                slack,
+                total.accuracy,
+            )
             best = max(best, (total.accuracy, threshold, slack))
     return best[1], best[2]
 
@@ -265,7 +300,11 @@ def pick_score_weight(profile: Profile, net: EchoNet, samples: list[Sample]) -> 
         errors = []
         for s, (rows, score, _) in zip(samples, outputs, strict=True):
             bonus = score_bonus(s.features.shape[:2], rows, score, weight)
-            errors.append(ablation.position_error(profile, s, geometric.candidates(s.features, s.counts, bonus_mm=bonus)[0]))
+            errors.append(
+                ablation.position_error(
+                    profile, s, geometric.candidates(s.features, s.counts, bonus_mm=bonus)[0]
+                )
+            )
         mean = float(np.nanmean(errors))
         log.info("score weight %.1f mm: training mean 3-D error %.2f mm", weight, mean)
         best = min(best, (mean, weight))
@@ -284,7 +323,11 @@ def reference_inputs(samples: list[Sample], n_real: int = 12, seed: int = 0) -> 
 def reference_outputs(net: EchoNet, x: np.ndarray) -> dict:
     with torch.no_grad():
         score, emb = net(torch.from_numpy(x))
-    return {"features": x.tolist(), "score": score.numpy().tolist(), "embedding": emb.numpy().tolist()}
+    return {
+        "features": x.tolist(),
+        "score": score.numpy().tolist(),
+        "embedding": emb.numpy().tolist(),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -292,7 +335,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--profile", default="spiel-icra23")
     ap.add_argument("--seed", type=int, default=0, help="torch initialisation and shuffling")
-    ap.add_argument("--split-salt", default=SPLIT_SALT, help="which (x, y) positions go to validation")
+    ap.add_argument(
+        "--split-salt", default=SPLIT_SALT, help="which (x, y) positions go to validation"
+    )
     ap.add_argument("--val-fraction", type=float, default=0.3)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
@@ -324,14 +369,36 @@ def main(argv: list[str] | None = None) -> int:
     import ablation_association as ablation  # tools/ sibling; imports this module
 
     results = ablation.run(profile, train_set, val_set, net, args.seed, threshold, slack, weight)
-    results["onnx prior (onnxruntime, shipped)"] = ablation.evaluate_runtime(profile, val_set, args.out / "association.onnx")
-    ablation.write_card(args.out / "association.md", profile, results, {
-        "train": len(train_set), "val": len(val_set), "val_xy": sorted({s.xy for s in val_set}),
-        "epochs": len(history), "threshold": threshold, "slack": slack, "weight": weight, "seed": args.seed,
-        "salt": args.split_salt, "sha256": ref["onnx_sha256"], "history": history,
-    })
-    summary = {"epochs": len(history), "best_val_loss": min(v for _, v in history),
-               "distance_threshold": threshold, "cost_slack_mm": slack, "score_weight_mm": weight, "sha256": ref["onnx_sha256"], "seconds": round(time.time() - t0, 1)}
+    results["onnx prior (onnxruntime, shipped)"] = ablation.evaluate_runtime(
+        profile, val_set, args.out / "association.onnx"
+    )
+    ablation.write_card(
+        args.out / "association.md",
+        profile,
+        results,
+        {
+            "train": len(train_set),
+            "val": len(val_set),
+            "val_xy": sorted({s.xy for s in val_set}),
+            "epochs": len(history),
+            "threshold": threshold,
+            "slack": slack,
+            "weight": weight,
+            "seed": args.seed,
+            "salt": args.split_salt,
+            "sha256": ref["onnx_sha256"],
+            "history": history,
+        },
+    )
+    summary = {
+        "epochs": len(history),
+        "best_val_loss": min(v for _, v in history),
+        "distance_threshold": threshold,
+        "cost_slack_mm": slack,
+        "score_weight_mm": weight,
+        "sha256": ref["onnx_sha256"],
+        "seconds": round(time.time() - t0, 1),
+    }
     print(json.dumps(summary, indent=1))
     return 0
 

@@ -7,7 +7,18 @@ from spiel_edge.calibrate.solve import FIXABLE, CalibrationResult, Observations,
 from spiel_edge.calibrate.sources import LabelledSet, load_recordings, read_positions
 
 __all__ = [
-    "FIXABLE", "Calibration", "CalibrationResult", "LabelledSet", "Observations", "calibrate_echoes",
-    "calibrate_frames", "channel_offsets", "extract_echoes", "load_recordings", "pick_echoes",
-    "predict_toa", "read_positions", "solve",
+    "FIXABLE",
+    "Calibration",
+    "CalibrationResult",
+    "LabelledSet",
+    "Observations",
+    "calibrate_echoes",
+    "calibrate_frames",
+    "channel_offsets",
+    "extract_echoes",
+    "load_recordings",
+    "pick_echoes",
+    "predict_toa",
+    "read_positions",
+    "solve",
 ]

@@ -15,7 +15,7 @@ from spiel_edge.calibrate.solve import Observations
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.run import Pipeline
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)
 
@@ -24,7 +24,9 @@ def _no_association(features: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return np.full(len(counts), -1, dtype=np.int64)  # stop after features: locate is not needed
 
 
-def extract_echoes(profile: Profile, frames: np.ndarray, backgrounds: np.ndarray | None = None) -> np.ndarray:
+def extract_echoes(
+    profile: Profile, frames: np.ndarray, backgrounds: np.ndarray | None = None
+) -> np.ndarray:
     """Candidate echo times (M, channels, max_echoes) in samples, NaN where there is none."""
     frames = np.asarray(frames, dtype=np.float64)
     if frames.ndim == 2:
@@ -34,7 +36,9 @@ def extract_echoes(profile: Profile, frames: np.ndarray, backgrounds: np.ndarray
         if backgrounds.ndim == 2:
             backgrounds = np.broadcast_to(backgrounds, frames.shape)
         if backgrounds.shape != frames.shape:
-            raise InputError(f"backgrounds shape {backgrounds.shape} differs from frames {frames.shape}")
+            raise InputError(
+                f"backgrounds shape {backgrounds.shape} differs from frames {frames.shape}"
+            )
     pipeline = Pipeline(profile, _no_association)
     out = np.full((frames.shape[0], profile.geometry.n_channels, profile.detect.max_echoes), np.nan)
     for i, frame in enumerate(frames):
@@ -43,7 +47,9 @@ def extract_echoes(profile: Profile, frames: np.ndarray, backgrounds: np.ndarray
     return out
 
 
-def channel_offsets(candidates: np.ndarray, predicted: np.ndarray, window: float = 8.0, width: float = 1.0) -> np.ndarray:
+def channel_offsets(
+    candidates: np.ndarray, predicted: np.ndarray, window: float = 8.0, width: float = 1.0
+) -> np.ndarray:
     """Per channel the most common (echo - predicted) time within +-window samples.
 
     A start for the delays when they are unknown: the target's echo sits at a constant offset
@@ -57,7 +63,7 @@ def channel_offsets(candidates: np.ndarray, predicted: np.ndarray, window: float
             continue
         ends = np.searchsorted(d, d + width, side="right")
         best = int(np.argmax(ends - np.arange(d.size)))
-        out[n] = float(np.median(d[best:ends[best]]))
+        out[n] = float(np.median(d[best : ends[best]]))
     return out
 
 
@@ -71,7 +77,9 @@ def pick_echoes(candidates: np.ndarray, predicted: np.ndarray, gate: float) -> n
     return np.where(near, picked, np.nan)
 
 
-def to_observations(picked: np.ndarray, targets_mm: np.ndarray, listening: np.ndarray) -> tuple[Observations, np.ndarray]:
+def to_observations(
+    picked: np.ndarray, targets_mm: np.ndarray, listening: np.ndarray
+) -> tuple[Observations, np.ndarray]:
     """Flatten picked times (M, channels) into Observations; also the acquisition index of each."""
     ok = np.isfinite(picked) & listening[None, :]
     acq, ch = np.nonzero(ok)

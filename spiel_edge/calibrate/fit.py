@@ -28,7 +28,7 @@ from spiel_edge.calibrate.solve import (
     solve,
 )
 from spiel_edge.errors import InputError
-from spiel_edge.profile import Geometry, Profile
+from spiel_edge.profile.schema import Geometry, Profile
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +70,9 @@ def calibrate_echoes(
     targets_mm = np.asarray(targets_mm, dtype=np.float64)
     m, n_ch = candidates.shape[:2]
     if targets_mm.shape != (m, 3) or n_ch != profile.geometry.n_channels:
-        raise InputError(f"need one target position per acquisition ({m}, 3) and {profile.geometry.n_channels} channels")
+        raise InputError(
+            f"need one target position per acquisition ({m}, 3) and {profile.geometry.n_channels} channels"
+        )
     fs = profile.acquisition.sample_rate_hz
     start = profile.geometry
     listening = start.listening_mask()
@@ -82,18 +84,29 @@ def calibrate_echoes(
 
     geometry = start
     if "delays" not in fix:
-        geometry = dataclasses.replace(start, delay_samples=start.delays() + channel_offsets(candidates, predicted(start)))
+        geometry = dataclasses.replace(
+            start, delay_samples=start.delays() + channel_offsets(candidates, predicted(start))
+        )
     gate, previous, result = FIRST_GATE, None, None
     for rounds in range(1, MAX_ROUNDS + 1):
         picked = pick_echoes(candidates, predicted(geometry), gate)
         obs, acq = to_observations(picked, targets_mm, listening)
-        if previous is not None and np.array_equal(np.isnan(picked), np.isnan(previous)) and np.allclose(
-                picked, previous, equal_nan=True):
+        if (
+            previous is not None
+            and np.array_equal(np.isnan(picked), np.isnan(previous))
+            and np.allclose(picked, previous, equal_nan=True)
+        ):
             break
         result = solve(obs, geometry, fs, fix=fix, reject_sigma=reject_sigma)
         geometry, previous = result.geometry, picked
         gate = max(MIN_GATE, min(FIRST_GATE, (reject_sigma + 1.0) * result.scale))
-        log.info("round %d: %d echoes, scale %.3f samples, next gate %.2f", rounds, len(obs), result.scale, gate)
+        log.info(
+            "round %d: %d echoes, scale %.3f samples, next gate %.2f",
+            rounds,
+            len(obs),
+            result.scale,
+            gate,
+        )
     assert result is not None
     return Calibration(start, result, obs, acq, m, m * int(listening.sum()), fs, rounds)
 
@@ -106,4 +119,6 @@ def calibrate_frames(
     **kwargs,
 ) -> Calibration:
     """Extract echoes from acquisitions (M, channels, samples), then :func:`calibrate_echoes`."""
-    return calibrate_echoes(extract_echoes(profile, frames, backgrounds), targets_mm, profile, **kwargs)
+    return calibrate_echoes(
+        extract_echoes(profile, frames, backgrounds), targets_mm, profile, **kwargs
+    )

@@ -13,7 +13,7 @@ import numpy as np
 
 from spiel_edge.calibrate.fit import Calibration
 from spiel_edge.errors import SpielError
-from spiel_edge.profile import Geometry, dump_toml
+from spiel_edge.profile.schema import Geometry, dump_toml
 
 
 def geometry_table(g: Geometry) -> dict:
@@ -45,7 +45,9 @@ def summary_lines(cal: Calibration) -> list[str]:
         lines.append("fixed: " + ", ".join(fixed))
     lines.append("residuals per channel (samples): channel used rejected rms median")
     for row in cal.per_channel():
-        lines.append(f"  {row['channel']:>2} {row['used']:>6} {row['rejected']:>5} {row['rms']:>8.3f} {row['median']:>8.3f}")
+        lines.append(
+            f"  {row['channel']:>2} {row['used']:>6} {row['rejected']:>5} {row['rms']:>8.3f} {row['median']:>8.3f}"
+        )
     return lines
 
 
@@ -67,12 +69,20 @@ def plot_calibration(cal: Calibration, path: str | Path) -> None:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError as exc:
-        raise SpielError("the calibration plot needs matplotlib: pip install 'spiel-edge[plot]'") from exc
+        raise SpielError(
+            "the calibration plot needs matplotlib: pip install 'spiel-edge[plot]'"
+        ) from exc
     fig, (ax_geo, ax_res) = plt.subplots(1, 2, figsize=(11, 5))
     targets = np.unique(cal.observations.targets_mm, axis=0)
     ax_geo.scatter(targets[:, 0], targets[:, 1], s=8, c="0.7", label="targets")
     for g, style, label in ((cal.start, "o", "start"), (cal.geometry, "x", "calibrated")):
-        ax_geo.scatter(g.channels_mm[:, 0], g.channels_mm[:, 1], marker=style, s=60, label=f"receivers ({label})")
+        ax_geo.scatter(
+            g.channels_mm[:, 0],
+            g.channels_mm[:, 1],
+            marker=style,
+            s=60,
+            label=f"receivers ({label})",
+        )
         ax_geo.scatter([g.emitter_mm[0]], [g.emitter_mm[1]], marker=style, s=90, c="k")
     for n, (x, y, _z) in enumerate(cal.geometry.channels_mm):
         ax_geo.annotate(str(n), (x, y), textcoords="offset points", xytext=(6, 6))
@@ -80,7 +90,9 @@ def plot_calibration(cal: Calibration, path: str | Path) -> None:
     ax_geo.legend(fontsize=8)
     ch, res, rej = cal.observations.channels, cal.result.residuals, cal.result.rejected
     n_ch = cal.start.n_channels
-    ax_res.boxplot([res[(ch == n) & ~rej] for n in range(n_ch)], tick_labels=[str(n) for n in range(n_ch)])
+    ax_res.boxplot(
+        [res[(ch == n) & ~rej] for n in range(n_ch)], tick_labels=[str(n) for n in range(n_ch)]
+    )
     for n in range(n_ch):
         out = res[(ch == n) & rej]
         ax_res.scatter(np.full(out.size, n + 1), out, marker="x", c="r", s=12)
@@ -92,7 +104,11 @@ def plot_calibration(cal: Calibration, path: str | Path) -> None:
 
 
 def _values(g: Geometry) -> dict[str, float]:
-    out = {f"r{n}.{a}": float(g.channels_mm[n, i]) for n in range(g.n_channels) for i, a in enumerate("xyz")}
+    out = {
+        f"r{n}.{a}": float(g.channels_mm[n, i])
+        for n in range(g.n_channels)
+        for i, a in enumerate("xyz")
+    }
     out.update({f"e.{a}": float(g.emitter_mm[i]) for i, a in enumerate("xyz")})
     out.update({f"d{n}": float(v) for n, v in enumerate(g.delays())})
     out["c"] = float(g.speed_of_sound_m_s)
@@ -101,5 +117,7 @@ def _values(g: Geometry) -> dict[str, float]:
 
 def _all_names(cal: Calibration) -> list[str]:
     tied = np.linalg.norm(cal.start.channels_mm - cal.start.emitter_mm, axis=1) < 1.0
-    names = [k for k in _values(cal.start) if not (k.startswith("r") and tied[int(k[1:].split(".")[0])])]
+    names = [
+        k for k in _values(cal.start) if not (k.startswith("r") and tied[int(k[1:].split(".")[0])])
+    ]
     return names

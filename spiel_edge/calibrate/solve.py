@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.profile import Geometry
+from spiel_edge.profile.schema import Geometry
 
 log = logging.getLogger(__name__)
 
@@ -78,11 +78,15 @@ class CalibrationResult:
             sel = channels == n
             used = sel & ~self.rejected
             r = self.residuals[used]
-            out.append({
-                "channel": n, "used": int(used.sum()), "rejected": int((sel & self.rejected).sum()),
-                "rms": float(np.sqrt(np.mean(r**2))) if r.size else float("nan"),
-                "median": float(np.median(r)) if r.size else float("nan"),
-            })
+            out.append(
+                {
+                    "channel": n,
+                    "used": int(used.sum()),
+                    "rejected": int((sel & self.rejected).sum()),
+                    "rms": float(np.sqrt(np.mean(r**2))) if r.size else float("nan"),
+                    "median": float(np.median(r)) if r.size else float("nan"),
+                }
+            )
         return out
 
 
@@ -97,11 +101,20 @@ class _Layout:
 
     @property
     def size(self) -> int:
-        return len(self.receiver_idx) + len(self.emitter_axes) + len(self.delay_channels) + int(self.speed)
+        return (
+            len(self.receiver_idx)
+            + len(self.emitter_axes)
+            + len(self.delay_channels)
+            + int(self.speed)
+        )
 
     def names(self) -> list[str]:
-        return ([f"r{n}.{_AXES[a]}" for n, a in self.receiver_idx] + [f"e.{_AXES[a]}" for a in self.emitter_axes]
-                + [f"d{n}" for n in self.delay_channels] + (["c"] if self.speed else []))
+        return (
+            [f"r{n}.{_AXES[a]}" for n, a in self.receiver_idx]
+            + [f"e.{_AXES[a]}" for a in self.emitter_axes]
+            + [f"d{n}" for n in self.delay_channels]
+            + (["c"] if self.speed else [])
+        )
 
 
 def solve(
@@ -123,12 +136,16 @@ def solve(
     if layout.size == 0:
         raise InputError("everything is fixed: nothing to calibrate")
     if len(obs) <= layout.size:
-        raise InputError(f"{len(obs)} echo times cannot determine {layout.size} parameters; capture more positions")
+        raise InputError(
+            f"{len(obs)} echo times cannot determine {layout.size} parameters; capture more positions"
+        )
     theta = _pack(start, layout)
     weights = np.ones(len(obs))
     scale, iterations, converged = 1.0, 0, False
     for _round in range(8):
-        theta, its, converged = _lm(obs, start, tied, layout, sample_rate_hz, theta, weights, max_iterations)
+        theta, its, converged = _lm(
+            obs, start, tied, layout, sample_rate_hz, theta, weights, max_iterations
+        )
         iterations += its
         r = _residuals(obs, _unpack(start, tied, layout, theta), sample_rate_hz)
         scale = _robust_scale(r, weights > 0)
@@ -139,12 +156,21 @@ def solve(
     geometry = _unpack(start, tied, layout, theta)
     r = _residuals(obs, geometry, sample_rate_hz)
     std = _uncertainty(obs, geometry, tied, layout, sample_rate_hz, r, weights)
-    log.info("calibration: %d echoes, %d rejected, scale %.3f samples, %d LM iterations",
-             len(obs), int((weights == 0).sum()), scale, iterations)
-    return CalibrationResult(geometry, layout.names(), theta, std, r, weights, scale, iterations, converged)
+    log.info(
+        "calibration: %d echoes, %d rejected, scale %.3f samples, %d LM iterations",
+        len(obs),
+        int((weights == 0).sum()),
+        scale,
+        iterations,
+    )
+    return CalibrationResult(
+        geometry, layout.names(), theta, std, r, weights, scale, iterations, converged
+    )
 
 
-def predict_toa(geometry: Geometry, targets_mm: np.ndarray, channels: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+def predict_toa(
+    geometry: Geometry, targets_mm: np.ndarray, channels: np.ndarray, sample_rate_hz: float
+) -> np.ndarray:
     """Echo time (samples) of each (target, channel) pair under ``geometry``."""
     k = sample_rate_hz / (1000.0 * geometry.speed_of_sound_m_s)
     le = np.linalg.norm(targets_mm - geometry.emitter_mm, axis=1)
@@ -166,9 +192,13 @@ def _check_observations(obs: Observations, n_channels: int) -> None:
         raise InputError(f"observation channels must be in [0, {n_channels})")
 
 
-def _layout(start: Geometry, tied: np.ndarray, observed: np.ndarray, fix: frozenset[str]) -> _Layout:
+def _layout(
+    start: Geometry, tied: np.ndarray, observed: np.ndarray, fix: frozenset[str]
+) -> _Layout:
     axes = [0, 1] if "receivers_z" in fix else [0, 1, 2]
-    receivers = [] if "receivers" in fix else [(int(n), a) for n in observed if not tied[n] for a in axes]
+    receivers = (
+        [] if "receivers" in fix else [(int(n), a) for n in observed if not tied[n] for a in axes]
+    )
     emitter = [] if "emitter" in fix else [0, 1, 2]
     delays = [] if "delays" in fix else [int(n) for n in observed]
     return _Layout(receivers, emitter, delays, "speed" not in fix)
@@ -197,11 +227,18 @@ def _unpack(start: Geometry, tied: np.ndarray, layout: _Layout, theta: np.ndarra
         delays[n] = theta[i]
         i += 1
     speed = float(theta[i]) if layout.speed else start.speed_of_sound_m_s
-    return dataclasses.replace(start, channels_mm=channels, emitter_mm=emitter, delay_samples=delays,
-                               speed_of_sound_m_s=speed)
+    return dataclasses.replace(
+        start,
+        channels_mm=channels,
+        emitter_mm=emitter,
+        delay_samples=delays,
+        speed_of_sound_m_s=speed,
+    )
 
 
-def _jacobian(obs: Observations, g: Geometry, tied: np.ndarray, layout: _Layout, fs: float) -> np.ndarray:
+def _jacobian(
+    obs: Observations, g: Geometry, tied: np.ndarray, layout: _Layout, fs: float
+) -> np.ndarray:
     p, ch = obs.targets_mm, obs.channels
     k = fs / (1000.0 * g.speed_of_sound_m_s)
     ue = p - g.emitter_mm
@@ -257,7 +294,9 @@ def _lm(obs, start, tied, layout, fs, theta, weights, max_iter) -> tuple[np.ndar
             r_trial = _residuals(obs, g_trial, fs)
             new_cost = float(np.sum(weights * r_trial * r_trial))
             if new_cost <= cost:
-                small = cost - new_cost <= 1e-12 * max(cost, 1e-30) or np.all(np.abs(step) <= 1e-9 * (1 + np.abs(theta)))
+                small = cost - new_cost <= 1e-12 * max(cost, 1e-30) or np.all(
+                    np.abs(step) <= 1e-9 * (1 + np.abs(theta))
+                )
                 theta, g, r, cost = trial, g_trial, r_trial, new_cost
                 lam = max(lam * 0.3, 1e-12)
                 improved = not small
@@ -299,7 +338,8 @@ def _raise_degenerate(scaled: np.ndarray, layout: _Layout) -> None:
     v = vecs[:, 0]
     names = [layout.names()[i] for i in np.argsort(-np.abs(v))[:3] if abs(v[i]) > 0.2]
     raise InputError(
-        "these target positions cannot separate " + ", ".join(names)
+        "these target positions cannot separate "
+        + ", ".join(names)
         + "; spread the targets over more directions and ranges, or fix some of them "
         + f"(fixable: {', '.join(FIXABLE)})"
     )

@@ -83,7 +83,9 @@ def read_positions(path: str | Path) -> np.ndarray:
             raise InputError(f"{path}:{lineno}: expected x, y, z numbers, got {row}") from None
         header_allowed = False
         if len(values) != 3 or not np.all(np.isfinite(values)):
-            raise InputError(f"{path}:{lineno}: expected 3 finite numbers (x, y, z in mm), got {row}")
+            raise InputError(
+                f"{path}:{lineno}: expected 3 finite numbers (x, y, z in mm), got {row}"
+            )
         rows.append(values)
     if not rows:
         raise InputError(f"{path}: no positions")

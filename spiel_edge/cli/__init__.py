@@ -24,11 +24,15 @@ EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
 def setup_logging(verbosity: int) -> None:
     """Logs go to stderr, one line each, no timestamps when journald adds its own; straight
     into the journal, lines carry a ``<priority>`` prefix so ``journalctl -p`` filters them."""
-    from spiel_edge.service import JournalFormatter, stderr_is_journal
+    from spiel_edge.service.systemd import JournalFormatter, stderr_is_journal
 
     level = logging.WARNING - 10 * verbosity
     under_journald = "JOURNAL_STREAM" in os.environ or "INVOCATION_ID" in os.environ
-    fmt = "%(levelname)s %(name)s: %(message)s" if under_journald else "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    fmt = (
+        "%(levelname)s %(name)s: %(message)s"
+        if under_journald
+        else "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
     logging.basicConfig(level=max(level, logging.DEBUG), format=fmt, stream=sys.stderr, force=True)
     if stderr_is_journal():
         logging.getLogger().handlers[0].setFormatter(JournalFormatter())

@@ -4,18 +4,25 @@ from __future__ import annotations
 
 import click
 
-from spiel_edge.profile import Profile, apply_calibration, load_profile
+from spiel_edge.profile.schema import Profile, apply_calibration, load_profile
 
 profile_option = click.option(
-    "--profile", "profile_name", default="spiel-icra23", show_default=True,
+    "--profile",
+    "profile_name",
+    default="spiel-icra23",
+    show_default=True,
     help="Built-in device profile name or a profile .toml path.",
 )
 calibration_option = click.option(
-    "--calibration", type=click.Path(dir_okay=False), default=None,
+    "--calibration",
+    type=click.Path(dir_okay=False),
+    default=None,
     help="Calibration .toml (from `spiel-edge calibrate`) applied over the profile.",
 )
 association_option = click.option(
-    "--association", type=click.Choice(["auto", "onnx", "geometric"]), default=None,
+    "--association",
+    type=click.Choice(["auto", "onnx", "geometric"]),
+    default=None,
     help="Echo association (default: the profile's; auto = onnx when the model loads).",
 )
 

@@ -7,21 +7,39 @@ import threading
 
 import click
 
-from spiel_edge.background import median_background, save_background
 from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.link.discover import default_port
+from spiel_edge.runtime.background import median_background, save_background
 
 
 @click.command("background")
-@click.option("--port", envvar="SPIEL_PORT", default=None, help="Board URL (as for `run`; env SPIEL_PORT).")
-@click.option("--frames", "count", type=click.IntRange(min=1), default=32, show_default=True,
-              help="Acquisitions to take; the per-sample median is kept.")
+@click.option(
+    "--port", envvar="SPIEL_PORT", default=None, help="Board URL (as for `run`; env SPIEL_PORT)."
+)
+@click.option(
+    "--frames",
+    "count",
+    type=click.IntRange(min=1),
+    default=32,
+    show_default=True,
+    help="Acquisitions to take; the per-sample median is kept.",
+)
 @click.option("--rate", type=click.FloatRange(0, 10000), default=50.0, show_default=True)
-@click.option("--samples", "n_samples", type=click.IntRange(min=0), default=0,
-              help="Samples per channel to ask for (0: the board's default).")
-@click.option("--output", "-o", required=True, type=click.Path(dir_okay=False),
-              help="Where to save it: FILE.npy, or a spiel-csv frames file for any other suffix.")
+@click.option(
+    "--samples",
+    "n_samples",
+    type=click.IntRange(min=0),
+    default=0,
+    help="Samples per channel to ask for (0: the board's default).",
+)
+@click.option(
+    "--output",
+    "-o",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="Where to save it: FILE.npy, or a spiel-csv frames file for any other suffix.",
+)
 def command(port, count, rate, n_samples, output) -> int:
     """Capture the scene without the target; use it with `run --background FILE`."""
     port = port or default_port()
@@ -29,10 +47,12 @@ def command(port, count, rate, n_samples, output) -> int:
     with stop_on_signals(stop), DeviceSession(port) as session:
         session.start_stream(rate_hz=rate, n_samples=n_samples)
         with click.progressbar(length=count, label="capturing background", file=sys.stderr) as bar:
+
             def counted():
                 for acq in session.acquisitions(stop):
                     bar.update(1)
                     yield acq
+
             background = median_background(counted(), count, stop)
         session.stop_stream()
     path = save_background(output, background)

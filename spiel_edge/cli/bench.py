@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from spiel_edge.bench import run_bench, to_json
+from spiel_edge.measure.bench import run_bench, to_json
 
 
 @click.command("bench")
@@ -17,12 +17,22 @@ def command(as_json: bool, repeat: int, association: str | None, no_startup: boo
     result = run_bench(repeat=repeat, association=association, startup=not no_startup)
     for name in ("real_4x64", "synthetic_8x256", "synthetic_16x1024"):
         e2e = result[name]["end_to_end"]
-        stages = ", ".join(f"{s} {v['median_us']:.0f}" for s, v in result[name].items() if isinstance(v, dict) and s != "end_to_end")
-        click.echo(f"{name}: end to end median {e2e['median_us']:.0f} us, p95 {e2e['p95_us']:.0f} us ({stages})")
+        stages = ", ".join(
+            f"{s} {v['median_us']:.0f}"
+            for s, v in result[name].items()
+            if isinstance(v, dict) and s != "end_to_end"
+        )
+        click.echo(
+            f"{name}: end to end median {e2e['median_us']:.0f} us, p95 {e2e['p95_us']:.0f} us ({stages})"
+        )
     if result.get("onnx_scoring"):
-        click.echo(f"onnx scoring: median {result['onnx_scoring']['scoring_us']['median']:.1f} us per acquisition")
+        click.echo(
+            f"onnx scoring: median {result['onnx_scoring']['scoring_us']['median']:.1f} us per acquisition"
+        )
     if "startup_s" in result:
-        click.echo(f"start-up (fresh interpreter, import + first acquisition): {result['startup_s']} s")
+        click.echo(
+            f"start-up (fresh interpreter, import + first acquisition): {result['startup_s']} s"
+        )
     if as_json:
         click.echo(to_json(result))
     return 0

@@ -14,45 +14,114 @@ from spiel_edge.errors import ConfigError
 
 
 @click.command("calibrate")
-@click.option("--recordings", type=click.Path(exists=True, file_okay=False), default=None,
-              help="Offline: a folder of labelled recordings (target positions from the label files).")
-@click.option("--format", "fmt", type=click.Choice(["spiel-csv"]), default="spiel-csv", show_default=True)
-@click.option("--background", type=click.Path(exists=True, file_okay=False), default=None,
-              help="Folder of same-named target-free frames.")
-@click.option("--exclude-z", type=float, multiple=True,
-              help="Skip recordings whose target is at this height (mm); repeatable.")
+@click.option(
+    "--recordings",
+    type=click.Path(exists=True, file_okay=False),
+    default=None,
+    help="Offline: a folder of labelled recordings (target positions from the label files).",
+)
+@click.option(
+    "--format", "fmt", type=click.Choice(["spiel-csv"]), default="spiel-csv", show_default=True
+)
+@click.option(
+    "--background",
+    type=click.Path(exists=True, file_okay=False),
+    default=None,
+    help="Folder of same-named target-free frames.",
+)
+@click.option(
+    "--exclude-z",
+    type=float,
+    multiple=True,
+    help="Skip recordings whose target is at this height (mm); repeatable.",
+)
 @click.option("--port", default=None, help="Live: the board's URL (serial://, usb://, sim://...).")
-@click.option("--positions", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="Live: CSV of target positions x, y, z in mm, one per row.")
-@click.option("--captures", type=click.IntRange(1, 10000), default=10, show_default=True,
-              help="Live: acquisitions per position.")
-@click.option("--no-prompt", is_flag=True, help="Live: do not wait for Enter (a robot moves the target).")
+@click.option(
+    "--positions",
+    type=click.Path(exists=True, dir_okay=False),
+    default=None,
+    help="Live: CSV of target positions x, y, z in mm, one per row.",
+)
+@click.option(
+    "--captures",
+    type=click.IntRange(1, 10000),
+    default=10,
+    show_default=True,
+    help="Live: acquisitions per position.",
+)
+@click.option(
+    "--no-prompt", is_flag=True, help="Live: do not wait for Enter (a robot moves the target)."
+)
 @profile_option
 @calibration_option
-@click.option("--fix", "fix", type=click.Choice(FIXABLE), multiple=True,
-              help="Keep these at the profile's values (repeatable); by default all are estimated.")
-@click.option("--reject-sigma", type=click.FloatRange(2.0, 20.0), default=4.0, show_default=True,
-              help="Echo times further than this many robust scales from the fit are rejected.")
-@click.option("--output", "-o", type=click.Path(dir_okay=False), default=None,
-              help="Write the calibration TOML here (accepted by --calibration and `config push`).")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None,
-              help="Write a PNG of the geometry and the residuals (needs the 'plot' extra).")
-def command(recordings, fmt, background, exclude_z, port, positions, captures, no_prompt,
-            profile_name, calibration, fix, reject_sigma, output, plot) -> int:
+@click.option(
+    "--fix",
+    "fix",
+    type=click.Choice(FIXABLE),
+    multiple=True,
+    help="Keep these at the profile's values (repeatable); by default all are estimated.",
+)
+@click.option(
+    "--reject-sigma",
+    type=click.FloatRange(2.0, 20.0),
+    default=4.0,
+    show_default=True,
+    help="Echo times further than this many robust scales from the fit are rejected.",
+)
+@click.option(
+    "--output",
+    "-o",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Write the calibration TOML here (accepted by --calibration and `config push`).",
+)
+@click.option(
+    "--plot",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Write a PNG of the geometry and the residuals (needs the 'plot' extra).",
+)
+def command(
+    recordings,
+    fmt,
+    background,
+    exclude_z,
+    port,
+    positions,
+    captures,
+    no_prompt,
+    profile_name,
+    calibration,
+    fix,
+    reject_sigma,
+    output,
+    plot,
+) -> int:
     """Estimate receiver positions (and the emitter's), per-channel delays and the speed of sound
     from a target at known positions: offline from labelled recordings, or live, guided."""
     profile = resolve_profile(profile_name, calibration)
     if (recordings is None) == (port is None):
-        raise ConfigError("give either --recordings DIR (offline) or --port URL --positions FILE (live)")
+        raise ConfigError(
+            "give either --recordings DIR (offline) or --port URL --positions FILE (live)"
+        )
     if recordings is not None:
         data = load_recordings(recordings, background, exclude_z=exclude_z)
-        frames, backgrounds, truth, source = data.frames, data.backgrounds, data.truth_mm, recordings
+        frames, backgrounds, truth, source = (
+            data.frames,
+            data.backgrounds,
+            data.truth_mm,
+            recordings,
+        )
     else:
         if positions is None:
             raise ConfigError("live calibration needs --positions FILE.csv (x, y, z in mm per row)")
-        frames, backgrounds, truth = _capture_live(port, profile, read_positions(positions), captures, not no_prompt)
+        frames, backgrounds, truth = _capture_live(
+            port, profile, read_positions(positions), captures, not no_prompt
+        )
         source = port
-    cal = calibrate_frames(profile, frames, backgrounds, truth, fix=set(fix), reject_sigma=reject_sigma)
+    cal = calibrate_frames(
+        profile, frames, backgrounds, truth, fix=set(fix), reject_sigma=reject_sigma
+    )
     for line in summary_lines(cal):
         click.echo(line, err=True)
     if output:
@@ -74,7 +143,7 @@ def open_session(port: str):
 
 
 def _capture_live(port: str, profile, positions, captures: int, prompt: bool):
-    from spiel_edge.calibrate.live import capture_positions
+    from spiel_edge.calibrate.capture import capture_positions
 
     def before_position(i: int, p) -> None:
         if i < 0:
@@ -88,8 +157,16 @@ def _capture_live(port: str, profile, positions, captures: int, prompt: bool):
 
     session = open_session(port)
     try:
-        with click.progressbar(length=len(positions) * captures, label="capturing", file=sys.stderr) as bar:
-            return capture_positions(session, profile, positions, captures=captures,
-                                     before_position=before_position, progress=bar.update)
+        with click.progressbar(
+            length=len(positions) * captures, label="capturing", file=sys.stderr
+        ) as bar:
+            return capture_positions(
+                session,
+                profile,
+                positions,
+                captures=captures,
+                before_position=before_position,
+                progress=bar.update,
+            )
     finally:
         session.close()

@@ -8,15 +8,19 @@ from pathlib import Path
 
 import click
 
-from spiel_edge import board_config as bc
-from spiel_edge.board_flash import commit, pull, push
+from spiel_edge.board import schema as bc
+from spiel_edge.board.flash import commit, pull, push
 from spiel_edge.cli import EXIT_OK
 from spiel_edge.cli._options import profile_option
 from spiel_edge.errors import ConfigError, DeviceError
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 
-port_option = click.option("--port", envvar="SPIEL_PORT", required=True,
-                           help="Board URL: /dev/ttyACM0, serial://PATH, usb://VID:PID or sim://[?options] (env SPIEL_PORT).")
+port_option = click.option(
+    "--port",
+    envvar="SPIEL_PORT",
+    required=True,
+    help="Board URL: /dev/ttyACM0, serial://PATH, usb://VID:PID or sim://[?options] (env SPIEL_PORT).",
+)
 
 
 def open_session(port: str):
@@ -24,9 +28,15 @@ def open_session(port: str):
     from spiel_edge.device import DeviceSession
 
     session = DeviceSession(port, reconnect=False)
-    missing = [m for m in ("read_config", "write_config", "commit_config", "config_status") if not hasattr(session, m)]
+    missing = [
+        m
+        for m in ("read_config", "write_config", "commit_config", "config_status")
+        if not hasattr(session, m)
+    ]
     if missing:
-        raise DeviceError(f"this build's device session lacks {', '.join(missing)}: config transfer unavailable")
+        raise DeviceError(
+            f"this build's device session lacks {', '.join(missing)}: config transfer unavailable"
+        )
     session.open()
     return session
 
@@ -74,11 +84,22 @@ def show_cmd(port: str) -> int:
         status = session.config_status()
         config = pull(session)
     active = "none (factory defaults)" if status.active_slot == 0xFF else str(status.active_slot)
-    click.echo(f"# active slot: {active}; staged: {status.staged_length} of {status.max_length} bytes")
+    click.echo(
+        f"# active slot: {active}; staged: {status.staged_length} of {status.max_length} bytes"
+    )
     for n in (0, 1):
         valid = getattr(status, f"slot{n}_valid")
-        gen, length, crc = (getattr(status, f"slot{n}_{k}") for k in ("generation", "length", "crc"))
-        click.echo(f"# slot {n}: " + (f"generation {gen}, {length} bytes, CRC-32C {crc:08x}" if valid else "empty or invalid"))
+        gen, length, crc = (
+            getattr(status, f"slot{n}_{k}") for k in ("generation", "length", "crc")
+        )
+        click.echo(
+            f"# slot {n}: "
+            + (
+                f"generation {gen}, {length} bytes, CRC-32C {crc:08x}"
+                if valid
+                else "empty or invalid"
+            )
+        )
     click.echo(bc.to_toml(config) if config else "# no config stored", nl=False)
     return EXIT_OK
 
@@ -86,7 +107,11 @@ def show_cmd(port: str) -> int:
 def _target(session, file: str, profile_name: str, name: str | None) -> tuple[dict | None, dict]:
     """The board's current config and what it becomes with FILE (full or partial) over it."""
     current = pull(session)
-    base = current if current is not None else bc.from_profile(load_profile(profile_name), name or "spiel-board")
+    base = (
+        current
+        if current is not None
+        else bc.from_profile(load_profile(profile_name), name or "spiel-board")
+    )
     partial = bc.read_file(file)
     if name:
         partial.setdefault("board", {})["name"] = name
@@ -111,8 +136,12 @@ def diff_cmd(port: str, profile_name: str, name: str | None, file: str) -> int:
 @port_option
 @profile_option
 @click.option("--name", default=None, help="Board name to set.")
-@click.option("--commit/--no-commit", "do_commit", default=False,
-              help="Also make it persistent (same as `config commit` afterwards).")
+@click.option(
+    "--commit/--no-commit",
+    "do_commit",
+    default=False,
+    help="Also make it persistent (same as `config commit` afterwards).",
+)
 @click.argument("file", type=click.Path(exists=True, dir_okay=False))
 def push_cmd(port: str, profile_name: str, name: str | None, do_commit: bool, file: str) -> int:
     """Write FILE over the board's config into its staging area, read back and compare.
@@ -137,7 +166,9 @@ def push_cmd(port: str, profile_name: str, name: str | None, do_commit: bool, fi
 
 @command.command("commit")
 @port_option
-@click.option("--crc", default=None, help="Expected CRC-32C (hex) of the staged config, as `push` printed it.")
+@click.option(
+    "--crc", default=None, help="Expected CRC-32C (hex) of the staged config, as `push` printed it."
+)
 def commit_cmd(port: str, crc: str | None) -> int:
     """Make the staged config persistent (two flash slots: a power cut keeps the old one)."""
     try:

@@ -6,16 +6,33 @@ import json
 
 import click
 
-from spiel_edge.doctor import CONFIG_DIR, run_checks
+from spiel_edge.service.doctor import CONFIG_DIR, run_checks
 
 
 @click.command("doctor")
-@click.option("--profile", "profile_name", default=None,
-              help="Profile to check (default: the one in the config dir's spiel-edge.env, else the built-in).")
-@click.option("--calibration", type=click.Path(dir_okay=False), default=None, help="Calibration file to check.")
-@click.option("--config", "config_dir", default=CONFIG_DIR, show_default=True, type=click.Path(file_okay=False),
-              help="Service config folder.")
-@click.option("--skip-numba", is_flag=True, help="Skip the numba checks (they run the pipeline once).")
+@click.option(
+    "--profile",
+    "profile_name",
+    default=None,
+    help="Profile to check (default: the one in the config dir's spiel-edge.env, else the built-in).",
+)
+@click.option(
+    "--calibration",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Calibration file to check.",
+)
+@click.option(
+    "--config",
+    "config_dir",
+    default=CONFIG_DIR,
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Service config folder.",
+)
+@click.option(
+    "--skip-numba", is_flag=True, help="Skip the numba checks (they run the pipeline once)."
+)
 @click.option("--json", "as_json", is_flag=True, help="One JSON document instead of text.")
 def command(profile_name, calibration, config_dir, skip_numba, as_json) -> int:
     """Check what the service needs; print a fix for each problem. Exit status 1 on any problem."""

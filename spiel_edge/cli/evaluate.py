@@ -13,25 +13,56 @@ from spiel_edge.cli._options import (
     profile_option,
     resolve_profile,
 )
-from spiel_edge.evaluate import evaluate_folder, split_by_position
 from spiel_edge.io.spiel_csv import frame_files
+from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.pipeline.factory import build_pipeline
 
 
 @click.command("evaluate")
 @click.argument("folder", type=click.Path(exists=True, file_okay=False))
-@click.option("--background", type=click.Path(exists=True, file_okay=False), default=None,
-              help="Folder of same-named target-free frames.")
+@click.option(
+    "--background",
+    type=click.Path(exists=True, file_okay=False),
+    default=None,
+    help="Folder of same-named target-free frames.",
+)
 @profile_option
 @calibration_option
 @association_option
-@click.option("--split", type=click.Choice(["all", "train", "val"]), default="all", show_default=True,
-              help="Evaluate on every position, or one side of the split by (x, y) position.")
-@click.option("--val-fraction", default=0.3, show_default=True, help="Share of (x, y) positions in the validation split.")
+@click.option(
+    "--split",
+    type=click.Choice(["all", "train", "val"]),
+    default="all",
+    show_default=True,
+    help="Evaluate on every position, or one side of the split by (x, y) position.",
+)
+@click.option(
+    "--val-fraction",
+    default=0.3,
+    show_default=True,
+    help="Share of (x, y) positions in the validation split.",
+)
 @click.option("--exclude-z", multiple=True, type=float, help="Leave out a height (mm); repeatable.")
-@click.option("--max-z", type=float, default=180.0, show_default=True, help="Headline metrics over heights <= this.")
+@click.option(
+    "--max-z",
+    type=float,
+    default=180.0,
+    show_default=True,
+    help="Headline metrics over heights <= this.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as one JSON object.")
-def command(folder, background, profile_name, calibration, association, split, val_fraction, exclude_z, max_z, as_json) -> int:
+def command(
+    folder,
+    background,
+    profile_name,
+    calibration,
+    association,
+    split,
+    val_fraction,
+    exclude_z,
+    max_z,
+    as_json,
+) -> int:
     """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings."""
     pipeline = build_pipeline(resolve_profile(profile_name, calibration), association)
     positions = None
@@ -39,7 +70,12 @@ def command(folder, background, profile_name, calibration, association, split, v
         train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
         positions = train if split == "train" else val
     ev = evaluate_folder(pipeline, folder, background, positions=positions, exclude_z=exclude_z)
-    summary = {"split": split, "max_z": max_z, "association": pipeline.associator.name, **ev.summary(max_z=max_z)}
+    summary = {
+        "split": split,
+        "max_z": max_z,
+        "association": pipeline.associator.name,
+        **ev.summary(max_z=max_z),
+    }
     if as_json:
         click.echo(json.dumps(summary))
     else:
@@ -51,10 +87,18 @@ def command(folder, background, profile_name, calibration, association, split, v
 
 def _print_table(summary: dict) -> None:
     click.echo(f"{'z (mm)':>8} {'frames':>7} {'fix':>6} {'mean':>7} {'median':>7} {'p95':>7}")
-    rows = [(z, s) for z, s in summary["by_height"].items()] + [(f"<={summary['max_z']:g}", summary)]
+    rows = [(z, s) for z, s in summary["by_height"].items()] + [
+        (f"<={summary['max_z']:g}", summary)
+    ]
     for name, s in rows:
+
         def fmt(v, spec=".1f"):
             return "-" if v is None else format(v, spec)
-        click.echo(f"{name:>8} {s['frames']:>7} {fmt(s['fix_rate'], '.0%'):>6} {fmt(s['mean_mm']):>7} "
-                   f"{fmt(s['median_mm']):>7} {fmt(s['p95_mm']):>7}")
-    click.echo(f"association accuracy {summary['association_accuracy']:.1%}, F1 {summary['association_f1']:.3f} ({summary['association']})")
+
+        click.echo(
+            f"{name:>8} {s['frames']:>7} {fmt(s['fix_rate'], '.0%'):>6} {fmt(s['mean_mm']):>7} "
+            f"{fmt(s['median_mm']):>7} {fmt(s['p95_mm']):>7}"
+        )
+    click.echo(
+        f"association accuracy {summary['association_accuracy']:.1%}, F1 {summary['association_f1']:.3f} ({summary['association']})"
+    )

@@ -6,7 +6,7 @@ from importlib import resources
 
 import click
 
-from spiel_edge.profile import builtin_profiles, load_profile
+from spiel_edge.profile.schema import builtin_profiles, load_profile
 
 
 @click.group("profile")
@@ -27,5 +27,8 @@ def list_profiles() -> int:
 def show(name: str) -> int:
     """Print a built-in profile (with its comments): `spiel-edge profile show > my-board.toml`."""
     load_profile(name)  # validates the name; raises ConfigError listing the known ones
-    click.echo((resources.files("spiel_edge") / "profiles" / f"{name}.toml").read_text(), nl=False)
+    click.echo(
+        (resources.files("spiel_edge") / "profile" / "builtin" / f"{name}.toml").read_text(),
+        nl=False,
+    )
     return 0

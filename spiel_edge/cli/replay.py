@@ -13,19 +13,30 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.outputs.ndjson import NdjsonSink
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.replay import FORMATS, iter_sources, replay
+from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
 
 
 @click.command("replay")
 @click.argument("path", type=click.Path(exists=True))
-@click.option("--format", "fmt", type=click.Choice(FORMATS), default=None,
-              help="Recording format (default: mcap for *.mcap, else spiel-csv).")
-@click.option("--background", type=click.Path(exists=True, file_okay=False), default=None,
-              help="Folder of same-named target-free frames (spiel-csv).")
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(FORMATS),
+    default=None,
+    help="Recording format (default: mcap for *.mcap, else spiel-csv).",
+)
+@click.option(
+    "--background",
+    type=click.Path(exists=True, file_okay=False),
+    default=None,
+    help="Folder of same-named target-free frames (spiel-csv).",
+)
 @profile_option
 @calibration_option
 @association_option
-@click.option("--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout.")
+@click.option(
+    "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
+)
 def command(path, fmt, background, profile_name, calibration, association, output) -> int:
     """Run the pipeline over recorded frames; one NDJSON record per acquisition.
 

@@ -14,39 +14,98 @@ from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
 from spiel_edge.link.discover import default_port
-from spiel_edge.live import LiveRunner, check_stream_shape, load_background, open_pipeline
 from spiel_edge.outputs import open_outputs
-from spiel_edge.service import Notifier
+from spiel_edge.runtime.loop import LiveRunner, check_stream_shape, load_background, open_pipeline
+from spiel_edge.service.systemd import Notifier
 
 
 @click.command("run")
-@click.option("--port", envvar="SPIEL_PORT", default=None,
-              help="Board URL: /dev/ttyACM0, serial://PATH, usb://VID:PID[/SERIAL] or sim://[?options] "
-                   "(env SPIEL_PORT). Default: the one board found by USB id.")
+@click.option(
+    "--port",
+    envvar="SPIEL_PORT",
+    default=None,
+    help="Board URL: /dev/ttyACM0, serial://PATH, usb://VID:PID[/SERIAL] or sim://[?options] "
+    "(env SPIEL_PORT). Default: the one board found by USB id.",
+)
 @click.option("--frames", type=click.IntRange(min=1), default=None, help="Stop after N records.")
-@click.option("--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout.")
-@click.option("--udp", multiple=True, metavar="HOST:PORT", help="Also send each record as a UDP datagram (repeatable).")
-@click.option("--record", type=click.Path(dir_okay=False), default=None,
-              help="Also record raw acquisitions and records to FILE.mcap (strftime fields allowed).")
-@click.option("--foxglove", default=None, metavar="[HOST:]PORT", help="Live view for Foxglove (extra 'foxglove').")
-@click.option("--zenoh", default=None, metavar="KEY", help="Publish records on a Zenoh key (extra 'zenoh').")
+@click.option(
+    "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
+)
+@click.option(
+    "--udp",
+    multiple=True,
+    metavar="HOST:PORT",
+    help="Also send each record as a UDP datagram (repeatable).",
+)
+@click.option(
+    "--record",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Also record raw acquisitions and records to FILE.mcap (strftime fields allowed).",
+)
+@click.option(
+    "--foxglove",
+    default=None,
+    metavar="[HOST:]PORT",
+    help="Live view for Foxglove (extra 'foxglove').",
+)
+@click.option(
+    "--zenoh", default=None, metavar="KEY", help="Publish records on a Zenoh key (extra 'zenoh')."
+)
 @profile_option
 @calibration_option
-@click.option("--board-config/--no-board-config", "use_board", default=True, show_default=True,
-              help="Use the geometry and acquisition settings stored on the board (`spiel-edge config`) "
-                   "over --profile; --calibration still overrides them.")
+@click.option(
+    "--board-config/--no-board-config",
+    "use_board",
+    default=True,
+    show_default=True,
+    help="Use the geometry and acquisition settings stored on the board (`spiel-edge config`) "
+    "over --profile; --calibration still overrides them.",
+)
 @association_option
-@click.option("--rate", type=click.FloatRange(0, 10000), default=50.0, show_default=True,
-              help="Acquisitions per second asked of the board (0: as fast as the link allows).")
-@click.option("--background", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="Target-free capture (.npy or spiel-csv frames file) to subtract; default: the one "
-                   "the virtual board sends, else none.")
-@click.option("--reconnect-timeout", type=click.FloatRange(min=0), default=None,
-              help="Give up when the board stays away this many seconds (default: wait for it).")
-@click.option("--status/--no-status", "show_status", default=None,
-              help="Status line on stderr every few seconds (default: when stderr is a terminal).")
-def command(port, frames, output, udp, record, foxglove, zenoh, profile_name, calibration, use_board, association,
-            rate, background, reconnect_timeout, show_status) -> int:
+@click.option(
+    "--rate",
+    type=click.FloatRange(0, 10000),
+    default=50.0,
+    show_default=True,
+    help="Acquisitions per second asked of the board (0: as fast as the link allows).",
+)
+@click.option(
+    "--background",
+    type=click.Path(exists=True, dir_okay=False),
+    default=None,
+    help="Target-free capture (.npy or spiel-csv frames file) to subtract; default: the one "
+    "the virtual board sends, else none.",
+)
+@click.option(
+    "--reconnect-timeout",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="Give up when the board stays away this many seconds (default: wait for it).",
+)
+@click.option(
+    "--status/--no-status",
+    "show_status",
+    default=None,
+    help="Status line on stderr every few seconds (default: when stderr is a terminal).",
+)
+def command(
+    port,
+    frames,
+    output,
+    udp,
+    record,
+    foxglove,
+    zenoh,
+    profile_name,
+    calibration,
+    use_board,
+    association,
+    rate,
+    background,
+    reconnect_timeout,
+    show_status,
+) -> int:
     """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
 
     The geometry is, by precedence: --calibration, else the config stored on the board (unless
@@ -65,10 +124,19 @@ def command(port, frames, output, udp, record, foxglove, zenoh, profile_name, ca
     stop = threading.Event()
     with stop_on_signals(stop):
         try:
-            pipeline, source = open_pipeline(session, profile_name, calibration, association, use_board=use_board)
+            pipeline, source = open_pipeline(
+                session, profile_name, calibration, association, use_board=use_board
+            )
             profile = pipeline.profile
-            sink = open_outputs(output, record, udp, foxglove, zenoh, receivers_mm=profile.geometry.channels_mm,
-                                metadata={"port": port, "profile": profile.name, "geometry": source})  # fmt: skip
+            sink = open_outputs(
+                output,
+                record,
+                udp,
+                foxglove,
+                zenoh,
+                receivers_mm=profile.geometry.channels_mm,
+                metadata={"port": port, "profile": profile.name, "geometry": source},
+            )
             runner = LiveRunner(session, pipeline, sink, background=fixed_background)
             runner.on_record = notifier.ping
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)

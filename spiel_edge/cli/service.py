@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from spiel_edge import service_kit
+from spiel_edge.service import kit as service_kit
 
 
 @click.group("service")
@@ -13,10 +13,19 @@ def command() -> None:
 
 
 @command.command("install")
-@click.option("--prefix", default="/", show_default=True, type=click.Path(file_okay=False),
-              help="Root to write under (e.g. a staging folder or an image being built).")
-@click.option("--exec", "exec_path", default=None,
-              help="spiel-edge executable for ExecStart (default: the one beside this Python).")
+@click.option(
+    "--prefix",
+    default="/",
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Root to write under (e.g. a staging folder or an image being built).",
+)
+@click.option(
+    "--exec",
+    "exec_path",
+    default=None,
+    help="spiel-edge executable for ExecStart (default: the one beside this Python).",
+)
 @click.option("--dry-run", is_flag=True, help="Print the files and commands; write nothing.")
 def install(prefix: str, exec_path: str | None, dry_run: bool) -> int:
     """Write the kit under PREFIX; an existing spiel-edge.env is kept. Prints what to run next."""
@@ -30,7 +39,9 @@ def install(prefix: str, exec_path: str | None, dry_run: bool) -> int:
         try:
             results = service_kit.install(files, prefix)
         except PermissionError as exc:
-            raise click.ClickException(f"{exc}; run with sudo, or --prefix a folder you can write") from exc
+            raise click.ClickException(
+                f"{exc}; run with sudo, or --prefix a folder you can write"
+            ) from exc
         for path, what in results:
             click.echo(f"{what:9} {path}")
     click.echo("\nthen, as root:" if not dry_run else "--- then, as root:")
@@ -43,7 +54,11 @@ def install(prefix: str, exec_path: str | None, dry_run: bool) -> int:
 @click.argument("what", type=click.Choice(["unit", "udev", "sysusers", "env"]))
 def show(what: str) -> int:
     """Print one kit file (e.g. to review it, or pipe it where you want)."""
-    render = {"unit": lambda: service_kit.render_unit(service_kit.default_exec()), "udev": service_kit.render_udev,
-              "sysusers": service_kit.render_sysusers, "env": service_kit.render_env}[what]
+    render = {
+        "unit": lambda: service_kit.render_unit(service_kit.default_exec()),
+        "udev": service_kit.render_udev,
+        "sysusers": service_kit.render_sysusers,
+        "env": service_kit.render_env,
+    }[what]
     click.echo(render(), nl=False)
     return 0

@@ -13,18 +13,28 @@ from spiel_edge.sim.pty import serve_pty
 
 @click.command("simulate")
 @click.argument("url", default="sim://", required=False)
-@click.option("--pty", "use_pty", is_flag=True,
-              help="Serve the board on a pseudo-terminal; its /dev/pts/N path is the first output line "
-                   "(and again on each replug).")
-@click.option("--link", type=click.Path(dir_okay=False), default=None,
-              help="Keep this symlink pointing at the current pty, like a udev rule does.")
+@click.option(
+    "--pty",
+    "use_pty",
+    is_flag=True,
+    help="Serve the board on a pseudo-terminal; its /dev/pts/N path is the first output line "
+    "(and again on each replug).",
+)
+@click.option(
+    "--link",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Keep this symlink pointing at the current pty, like a udev rule does.",
+)
 def command(url: str, use_pty: bool, link: str | None) -> int:
     """Run the virtual board described by URL (sim://[?scene=...&ber=...&unplug_after=...]).
 
     Connect with: spiel-edge run --port /dev/pts/N. Stops on SIGINT or SIGTERM.
     """
     if not use_pty:
-        raise click.UsageError("say how to serve the board: --pty (in-process use needs no server: --port sim://)")
+        raise click.UsageError(
+            "say how to serve the board: --pty (in-process use needs no server: --port sim://)"
+        )
     if not url.lower().startswith("sim://"):
         raise click.UsageError(f"URL must start with sim://, got {url!r}")
     stop = threading.Event()

@@ -51,7 +51,9 @@ class Annotation(Message):
         return np.frombuffer(self.background, "<u2").reshape(-1, self.n_samples)
 
 
-def encode_annotations(acquisition: int, truth_mm: np.ndarray | None, background: np.ndarray | None) -> list[bytes]:
+def encode_annotations(
+    acquisition: int, truth_mm: np.ndarray | None, background: np.ndarray | None
+) -> list[bytes]:
     """Wire bytes (each with a leading 0x00) of the annotations of one acquisition: one
     frame with the truth, plus the background rows when given (as few frames as fit)."""
     truth = (NO_TRUTH,) * 3 if truth_mm is None else tuple(float(v) for v in truth_mm)
@@ -62,7 +64,17 @@ def encode_annotations(acquisition: int, truth_mm: np.ndarray | None, background
         n_rows, n_samples = rows.shape
         per_frame = max(1, (MAX_PAYLOAD - Annotation._STRUCT.size) // (2 * n_samples))
         msgs = [
-            Annotation(acquisition, *truth, n_rows, first, n_samples, rows[first : first + per_frame].tobytes())
+            Annotation(
+                acquisition,
+                *truth,
+                n_rows,
+                first,
+                n_samples,
+                rows[first : first + per_frame].tobytes(),
+            )
             for first in range(0, n_rows, per_frame)
         ]
-    return [b"\x00" + encode_frame(ANNOTATION_TYPE, m.pack(), aux=acquisition & 0xFFFFFFFF) for m in msgs]
+    return [
+        b"\x00" + encode_frame(ANNOTATION_TYPE, m.pack(), aux=acquisition & 0xFFFFFFFF)
+        for m in msgs
+    ]

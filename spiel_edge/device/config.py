@@ -1,6 +1,6 @@
 """Config transfer over a device session: chunked reads and writes of the board's config
 blob, the commit into its two-slot flash, and its status. The blob's content is the board
-config schema's business (:mod:`spiel_edge.board_config`); here it is bytes."""
+config schema's business (:mod:`spiel_edge.board.schema`); here it is bytes."""
 
 from __future__ import annotations
 
@@ -28,7 +28,9 @@ class ConfigTransferMixin:
 
     _staged_length: int | None = None
 
-    def request(self, msg: Message, **kwargs) -> Message:  # pragma: no cover - provided by the session
+    def request(
+        self, msg: Message, **kwargs
+    ) -> Message:  # pragma: no cover - provided by the session
         raise NotImplementedError
 
     def read_config(self, source: int = ConfigSource.ACTIVE) -> bytes:
@@ -52,7 +54,9 @@ class ConfigTransferMixin:
             assert isinstance(answer, ConfigWriteResponse)
             offset += len(chunk)
             if answer.staged_length != offset:
-                raise DeviceError(f"the board staged {answer.staged_length} bytes, {offset} were sent")
+                raise DeviceError(
+                    f"the board staged {answer.staged_length} bytes, {offset} were sent"
+                )
             if progress is not None and chunk:
                 progress(len(chunk))
             if offset >= len(blob):
@@ -62,7 +66,11 @@ class ConfigTransferMixin:
     def commit_config(self, expected_crc: int, length: int | None = None) -> ConfigCommitResponse:
         """Make the staging persistent; the board checks ``expected_crc`` (CRC-32C) first."""
         if length is None:
-            length = self._staged_length if self._staged_length is not None else self.config_status().staged_length
+            length = (
+                self._staged_length
+                if self._staged_length is not None
+                else self.config_status().staged_length
+            )
         answer = self.request(ConfigCommit(length, expected_crc))
         assert isinstance(answer, ConfigCommitResponse)
         return answer

@@ -42,7 +42,7 @@ from firmware_protocol import (
     StreamStop,
     decode_message,
     encode_message,
-)  # fmt: skip
+)
 from firmware_protocol.errors import ErrorCode
 from firmware_protocol.framing import Frame
 from spiel_edge.device.config import ConfigTransferMixin
@@ -150,20 +150,41 @@ class DeviceSession(ConfigTransferMixin):
         assert isinstance(hello, HelloResponse)
         previous = self.hello
         if previous is not None and previous.serial and hello.serial != previous.serial:
-            raise DeviceError(f"{self.url}: a different board answered (serial {hello.serial!r}, expected {previous.serial!r})")
+            raise DeviceError(
+                f"{self.url}: a different board answered (serial {hello.serial!r}, expected {previous.serial!r})"
+            )
         if hello.schema_hash != SCHEMA_HASH:
-            log.warning("%s: firmware %s was built against another protocol schema (0x%08x, host 0x%08x)",
-                        self.url, hello.firmware_version, hello.schema_hash, SCHEMA_HASH)  # fmt: skip
-        if previous is not None and hello.boot_id != previous.boot_id and self.device_status is not None:
+            log.warning(
+                "%s: firmware %s was built against another protocol schema (0x%08x, host 0x%08x)",
+                self.url,
+                hello.firmware_version,
+                hello.schema_hash,
+                SCHEMA_HASH,
+            )
+        if (
+            previous is not None
+            and hello.boot_id != previous.boot_id
+            and self.device_status is not None
+        ):
             self._overruns_before += self.device_status.overruns
             self.device_status = None
         self.hello = hello
         assert self._link is not None
         known = self._link.identity()
-        self.identity = LinkIdentity(self.url, known.vid or hello.usb_vid or None,
-                                     known.pid or hello.usb_pid or None, known.serial or hello.serial or None)  # fmt: skip
-        log.info("%s: board %s firmware %s, %d channels, protocol %d", self.url, hello.serial,
-                 hello.firmware_version, hello.n_channels, hello.protocol_version)  # fmt: skip
+        self.identity = LinkIdentity(
+            self.url,
+            known.vid or hello.usb_vid or None,
+            known.pid or hello.usb_pid or None,
+            known.serial or hello.serial or None,
+        )
+        log.info(
+            "%s: board %s firmware %s, %d channels, protocol %d",
+            self.url,
+            hello.serial,
+            hello.firmware_version,
+            hello.n_channels,
+            hello.protocol_version,
+        )
 
     def _drop_link(self) -> None:
         if self._link is not None:
@@ -172,18 +193,27 @@ class DeviceSession(ConfigTransferMixin):
 
     # --- requests ------------------------------------------------------------------------
 
-    def request(self, msg: Message, *, timeout_s: float | None = None, retries: int = MAX_RETRIES) -> Message:
+    def request(
+        self, msg: Message, *, timeout_s: float | None = None, retries: int = MAX_RETRIES
+    ) -> Message:
         """Send a request and return its answer; DeviceRequestError on an error answer,
         DeviceTimeoutError when ``1 + retries`` tries got none. BUSY is retried after a short
         delay with a new sequence number (PROTOCOL.md section 10)."""
         for attempt in range(1 + retries):
             answer = self._exchange(msg, timeout_s, retries)
-            if not (isinstance(answer, ErrorResponse) and answer.code == ErrorCode.BUSY and attempt < retries):
+            if not (
+                isinstance(answer, ErrorResponse)
+                and answer.code == ErrorCode.BUSY
+                and attempt < retries
+            ):
                 break
             time.sleep(BUSY_DELAY_S)
         if isinstance(answer, ErrorResponse):
-            raise DeviceRequestError(f"{self.url}: {type(msg).__name__}: {answer.to_exception()}",
-                                     answer.code, answer.request_type)  # fmt: skip
+            raise DeviceRequestError(
+                f"{self.url}: {type(msg).__name__}: {answer.to_exception()}",
+                answer.code,
+                answer.request_type,
+            )
         return answer
 
     def _exchange(self, msg: Message, timeout_s: float | None, retries: int) -> Message:
@@ -211,7 +241,11 @@ class DeviceSession(ConfigTransferMixin):
         while True:
             while self._inbox:
                 frame, ns = self._inbox.popleft()
-                if frame.is_response and frame.seq == seq and frame.msg_type in (msg_type, ErrorResponse.MSG_TYPE):
+                if (
+                    frame.is_response
+                    and frame.seq == seq
+                    and frame.msg_type in (msg_type, ErrorResponse.MSG_TYPE)
+                ):
                     try:
                         return decode_message(frame)
                     except MessageError as exc:  # valid CRC but a payload we cannot read
@@ -244,9 +278,13 @@ class DeviceSession(ConfigTransferMixin):
 
     # --- streaming -----------------------------------------------------------------------
 
-    def start_stream(self, *, rate_hz: float = 50.0, n_samples: int = 0, n_acquisitions: int = 0) -> StreamStartResponse:
+    def start_stream(
+        self, *, rate_hz: float = 50.0, n_samples: int = 0, n_acquisitions: int = 0
+    ) -> StreamStartResponse:
         """Start streaming (stopping any stream the board still runs)."""
-        request = StreamStart(n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, 0)
+        request = StreamStart(
+            n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, 0
+        )
         self._stop_quietly()
         self.tracker.begin()
         answer = self.request(request)
@@ -316,7 +354,11 @@ class DeviceSession(ConfigTransferMixin):
     def _resume_stream(self) -> None:
         request = self._stream_request
         if request is not None:
-            self.start_stream(rate_hz=request.rate_hz, n_samples=request.n_samples, n_acquisitions=request.n_acquisitions)
+            self.start_stream(
+                rate_hz=request.rate_hz,
+                n_samples=request.n_samples,
+                n_acquisitions=request.n_acquisitions,
+            )
 
     # --- reconnection --------------------------------------------------------------------
 
@@ -329,8 +371,13 @@ class DeviceSession(ConfigTransferMixin):
         while not stop.wait(RECONNECT_POLL_S):
             if self.on_waiting is not None:
                 self.on_waiting(time.monotonic() - lost_at)
-            if self.reconnect_timeout_s is not None and time.monotonic() - lost_at > self.reconnect_timeout_s:
-                raise DeviceDisconnectedError(f"{self.url}: the board did not come back within {self.reconnect_timeout_s:g} s")
+            if (
+                self.reconnect_timeout_s is not None
+                and time.monotonic() - lost_at > self.reconnect_timeout_s
+            ):
+                raise DeviceDisconnectedError(
+                    f"{self.url}: the board did not come back within {self.reconnect_timeout_s:g} s"
+                )
             try:
                 self._reopen()
             except DeviceError as exc:
@@ -338,7 +385,9 @@ class DeviceSession(ConfigTransferMixin):
                 self._drop_link()
                 continue
             self.counters.reconnects += 1
-            log.warning("%s: board back after %.2f s; streaming again", self.url, time.monotonic() - lost_at)
+            log.warning(
+                "%s: board back after %.2f s; streaming again", self.url, time.monotonic() - lost_at
+            )
             return
 
     def _reopen(self) -> None:

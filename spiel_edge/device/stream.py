@@ -106,9 +106,15 @@ class StreamTracker:
         self.acquisitions += 1
         self.ready.append(
             LiveAcquisition(
-                acq.index, acq.timestamp_us, acq.sample_rate_hz, acq.samples, received_ns,
-                time.time(), self._truth_for(acq.index), self.background,
-            )  # fmt: skip
+                acq.index,
+                acq.timestamp_us,
+                acq.sample_rate_hz,
+                acq.samples,
+                received_ns,
+                time.time(),
+                self._truth_for(acq.index),
+                self.background,
+            )
         )
 
     def _truth_for(self, index: int) -> np.ndarray | None:

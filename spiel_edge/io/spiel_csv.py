@@ -53,7 +53,9 @@ def read_frames(path: str | Path) -> np.ndarray:
     if not rows:
         raise InputError(f"{path.name}: empty file")
     if len({len(r) for r in rows}) != 1:
-        raise InputError(f"{path.name}: channels have different sample counts {[len(r) for r in rows]}")
+        raise InputError(
+            f"{path.name}: channels have different sample counts {[len(r) for r in rows]}"
+        )
     try:
         arr = np.array(rows, dtype=np.float64)
     except ValueError as exc:
@@ -63,7 +65,9 @@ def read_frames(path: str | Path) -> np.ndarray:
     return arr
 
 
-def iter_recordings(folder: str | Path, background: str | Path | None = None) -> Iterator[Recording]:
+def iter_recordings(
+    folder: str | Path, background: str | Path | None = None
+) -> Iterator[Recording]:
     """Each frames file with its background; read errors become Recording.error, never raise."""
     bg_folder = Path(background) if background is not None else None
     for path in frame_files(folder):
@@ -76,7 +80,9 @@ def iter_recordings(folder: str | Path, background: str | Path | None = None) ->
                     raise InputError(f"{path.name}: no background file {bg_path}")
                 bg = read_frames(bg_path)
                 if bg.shape != frames.shape:
-                    raise InputError(f"{path.name}: background shape {bg.shape} differs from frames {frames.shape}")
+                    raise InputError(
+                        f"{path.name}: background shape {bg.shape} differs from frames {frames.shape}"
+                    )
             yield Recording(path.name, frames, bg)
         except InputError as exc:
             yield Recording(path.name, None, None, str(exc))

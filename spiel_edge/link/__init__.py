@@ -62,7 +62,9 @@ def open_link(url: str, **options: Any) -> Link:
     entry = LINK_SCHEMES.get(scheme)
     if entry is None:
         known = ", ".join(f"{s}://" for s in sorted(LINK_SCHEMES))
-        raise DeviceError(f"unknown port URL scheme {scheme!r} in {url!r}; known: {known} or a device path")
+        raise DeviceError(
+            f"unknown port URL scheme {scheme!r} in {url!r}; known: {known} or a device path"
+        )
     module_name, factory_name = entry
     factory = getattr(importlib.import_module(module_name), factory_name)
     return factory(url, **options)

@@ -28,7 +28,9 @@ def find_serial_boards(ids: tuple[tuple[int, int], ...] = BOARD_USB_IDS) -> list
     ]
 
 
-def find_usb_boards(ids: tuple[tuple[int, int], ...] = BOARD_USB_IDS, backend: Any = None) -> list[LinkIdentity]:
+def find_usb_boards(
+    ids: tuple[tuple[int, int], ...] = BOARD_USB_IDS, backend: Any = None
+) -> list[LinkIdentity]:
     """Boards reachable over bulk endpoints; empty when no libusb is available."""
     from spiel_edge.link.usb_link import _serial_of, find_usb_devices
 
@@ -42,15 +44,21 @@ def find_usb_boards(ids: tuple[tuple[int, int], ...] = BOARD_USB_IDS, backend: A
         for dev in devices:
             serial_number = _serial_of(dev)
             suffix = f"/{serial_number}" if serial_number else ""
-            found.append(LinkIdentity(f"usb://{vid:04x}:{pid:04x}{suffix}", vid, pid, serial_number))
+            found.append(
+                LinkIdentity(f"usb://{vid:04x}:{pid:04x}{suffix}", vid, pid, serial_number)
+            )
     return found
 
 
-def find_boards(ids: tuple[tuple[int, int], ...] = BOARD_USB_IDS, usb_backend: Any = None) -> list[LinkIdentity]:
+def find_boards(
+    ids: tuple[tuple[int, int], ...] = BOARD_USB_IDS, usb_backend: Any = None
+) -> list[LinkIdentity]:
     """Every attached board: serial ports first, then bulk-only boards not already listed."""
     boards = find_serial_boards(ids)
     serials = {b.serial for b in boards if b.serial}
-    boards += [b for b in find_usb_boards(ids, usb_backend) if not b.serial or b.serial not in serials]
+    boards += [
+        b for b in find_usb_boards(ids, usb_backend) if not b.serial or b.serial not in serials
+    ]
     return boards
 
 

@@ -31,7 +31,9 @@ _GONE = {errno.ENODEV, errno.EIO, errno.ENOENT, errno.EPIPE, errno.ESHUTDOWN}
 def parse_usb_url(url: str) -> tuple[int, int, str | None]:
     match = _URL.match(url)
     if not match:
-        raise DeviceError(f"{url!r}: expected usb://VID:PID or usb://VID:PID/SERIAL (hexadecimal ids)")
+        raise DeviceError(
+            f"{url!r}: expected usb://VID:PID or usb://VID:PID/SERIAL (hexadecimal ids)"
+        )
     vid, pid, serial = match.groups()
     return int(vid, 16), int(pid, 16), serial
 
@@ -57,7 +59,9 @@ def _serial_of(dev: Any) -> str | None:
         return None
 
 
-def find_usb_devices(vid: int, pid: int, serial: str | None = None, backend: Any = None) -> list[Any]:
+def find_usb_devices(
+    vid: int, pid: int, serial: str | None = None, backend: Any = None
+) -> list[Any]:
     backend = backend if backend is not None else default_backend()
     found = usb.core.find(find_all=True, idVendor=vid, idProduct=pid, backend=backend)
     return [d for d in found if serial is None or _serial_of(d) == serial]
@@ -75,7 +79,9 @@ class UsbLink:
 
     def read(self, timeout_s: float) -> bytes:
         try:
-            data = self._dev.read(self._ep_in.bEndpointAddress, self._read_size, max(1, round(timeout_s * 1000)))
+            data = self._dev.read(
+                self._ep_in.bEndpointAddress, self._read_size, max(1, round(timeout_s * 1000))
+            )
         except usb.core.USBTimeoutError:
             return b""
         except usb.core.USBError as exc:
@@ -117,8 +123,12 @@ def _vendor_interface(dev: Any) -> tuple[Any, Any, Any]:
     for intf in cfg:
         if intf.bInterfaceClass != VENDOR_CLASS:
             continue
-        ep_in = usb.util.find_descriptor(intf, custom_match=lambda e: _bulk(e, usb.util.ENDPOINT_IN))
-        ep_out = usb.util.find_descriptor(intf, custom_match=lambda e: _bulk(e, usb.util.ENDPOINT_OUT))
+        ep_in = usb.util.find_descriptor(
+            intf, custom_match=lambda e: _bulk(e, usb.util.ENDPOINT_IN)
+        )
+        ep_out = usb.util.find_descriptor(
+            intf, custom_match=lambda e: _bulk(e, usb.util.ENDPOINT_OUT)
+        )
         if ep_in is not None and ep_out is not None:
             return intf, ep_in, ep_out
     raise DeviceError("the USB device has no vendor interface with bulk IN and OUT endpoints")

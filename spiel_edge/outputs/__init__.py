@@ -88,9 +88,16 @@ def recording_path(template: str | Path, now: float | None = None) -> Path:
     return path
 
 
-def open_outputs(output: str | None = "-", record: str | Path | None = None, udp: Sequence[str] | str | None = None,
-                 foxglove: str | None = None, zenoh: str | None = None, *,
-                 metadata: dict[str, Any] | None = None, receivers_mm: Any = None) -> MultiSink:
+def open_outputs(
+    output: str | None = "-",
+    record: str | Path | None = None,
+    udp: Sequence[str] | str | None = None,
+    foxglove: str | None = None,
+    zenoh: str | None = None,
+    *,
+    metadata: dict[str, Any] | None = None,
+    receivers_mm: Any = None,
+) -> MultiSink:
     """The sinks the options ask for, all at once: NDJSON (``output``; None for none), an MCAP
     recording, UDP targets, a Foxglove live view, Zenoh. Closes what it opened on failure."""
     from spiel_edge.outputs.ndjson import NdjsonSink

@@ -43,18 +43,28 @@ def _import_foxglove():
 class FoxgloveSink:
     """Serve records on a Foxglove WebSocket at ``[HOST:]PORT`` (port 0 picks a free one)."""
 
-    def __init__(self, bind: str = f"{DEFAULT_HOST}:{DEFAULT_PORT}", *,
-                 receivers_mm: Sequence[Sequence[float]] | None = None):
+    def __init__(
+        self,
+        bind: str = f"{DEFAULT_HOST}:{DEFAULT_PORT}",
+        *,
+        receivers_mm: Sequence[Sequence[float]] | None = None,
+    ):
         foxglove, self._m = _import_foxglove()
         host, port = parse_host_port(bind, default_host=DEFAULT_HOST, what="--foxglove")
         self._context = foxglove.Context()  # our own: no clash with other SDK users in-process
         try:
-            self._server = foxglove.start_server(name="spiel-edge", host=host, port=port, context=self._context)
+            self._server = foxglove.start_server(
+                name="spiel-edge", host=host, port=port, context=self._context
+            )
         except Exception as exc:  # the SDK raises its own error types (address in use, ...)
-            raise ConfigError(f"--foxglove {bind!r}: cannot start the WebSocket server: {exc}") from exc
+            raise ConfigError(
+                f"--foxglove {bind!r}: cannot start the WebSocket server: {exc}"
+            ) from exc
         self.port = self._server.port
         self._scene = foxglove.channels.SceneUpdateChannel(SCENE_TOPIC, context=self._context)
-        self._records = foxglove.Channel(POSITION_TOPIC, schema=POSITION_SCHEMA, context=self._context)
+        self._records = foxglove.Channel(
+            POSITION_TOPIC, schema=POSITION_SCHEMA, context=self._context
+        )
         self._receivers = [self._cube(p) for p in ([] if receivers_mm is None else receivers_mm)]
         log.info("Foxglove live view on ws://%s:%d", host, self.port)
 
@@ -62,11 +72,15 @@ class FoxgloveSink:
         m = self._m
         position = record.get("position_mm")
         if position is None:
-            update = m.SceneUpdate(deletions=[m.SceneEntityDeletion(id="target")],
-                                   entities=self._receiver_entities())
+            update = m.SceneUpdate(
+                deletions=[m.SceneEntityDeletion(id="target")], entities=self._receiver_entities()
+            )
         else:
-            sphere = m.SpherePrimitive(pose=self._pose(position), color=m.Color(r=1.0, g=0.4, b=0.1, a=1.0),
-                                       size=m.Vector3(x=TARGET_SIZE_M, y=TARGET_SIZE_M, z=TARGET_SIZE_M))
+            sphere = m.SpherePrimitive(
+                pose=self._pose(position),
+                color=m.Color(r=1.0, g=0.4, b=0.1, a=1.0),
+                size=m.Vector3(x=TARGET_SIZE_M, y=TARGET_SIZE_M, z=TARGET_SIZE_M),
+            )
             target = m.SceneEntity(frame_id=FRAME_ID, id="target", spheres=[sphere])
             update = m.SceneUpdate(entities=[target, *self._receiver_entities()])
         self._scene.log(update)
@@ -84,8 +98,11 @@ class FoxgloveSink:
 
     def _cube(self, position_mm: Sequence[float]):
         m = self._m
-        return m.CubePrimitive(pose=self._pose(position_mm), color=m.Color(r=0.2, g=0.6, b=1.0, a=1.0),
-                               size=m.Vector3(x=RECEIVER_SIZE_M, y=RECEIVER_SIZE_M, z=RECEIVER_SIZE_M))
+        return m.CubePrimitive(
+            pose=self._pose(position_mm),
+            color=m.Color(r=0.2, g=0.6, b=1.0, a=1.0),
+            size=m.Vector3(x=RECEIVER_SIZE_M, y=RECEIVER_SIZE_M, z=RECEIVER_SIZE_M),
+        )
 
     def close(self) -> None:
         self._server.stop()

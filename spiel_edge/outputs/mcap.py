@@ -37,7 +37,7 @@ from mcap.writer import CompressionType, Writer
 from spiel_edge import __version__
 from spiel_edge.errors import InputError
 from spiel_edge.io.spiel_csv import Recording
-from spiel_edge.service import Terminated, signals_deferred
+from spiel_edge.service.systemd import Terminated, signals_deferred
 
 log = logging.getLogger(__name__)
 
@@ -47,19 +47,37 @@ POSITION_TOPIC = "/spiel/position"
 MCAP_PROFILE = ""  # no ROS message definitions: plain JSON with JSON schemas
 CHUNK_SIZE = 256 * 1024  # about 2 s at 100 Hz: the most a hard kill can lose
 
-_FRAMES = {"type": "array", "items": {"type": "array", "items": {"type": ["number", "null"]}},
-           "description": "channels x samples, raw counts"}
+_FRAMES = {
+    "type": "array",
+    "items": {"type": "array", "items": {"type": ["number", "null"]}},
+    "description": "channels x samples, raw counts",
+}
 ACQUISITION_SCHEMA = {
-    "title": "spiel_edge.Acquisition", "type": "object",
-    "properties": {"seq": {"type": "integer"}, "timestamp_ns": {"type": "integer"}, "frames": _FRAMES},
+    "title": "spiel_edge.Acquisition",
+    "type": "object",
+    "properties": {
+        "seq": {"type": "integer"},
+        "timestamp_ns": {"type": "integer"},
+        "frames": _FRAMES,
+    },
     "required": ["frames"],
 }
-BACKGROUND_SCHEMA = {"title": "spiel_edge.Background", "type": "object", "properties": {"frames": _FRAMES},
-                     "required": ["frames"]}
+BACKGROUND_SCHEMA = {
+    "title": "spiel_edge.Background",
+    "type": "object",
+    "properties": {"frames": _FRAMES},
+    "required": ["frames"],
+}
 POSITION_SCHEMA = {
-    "title": "spiel_edge.Position", "type": "object",
+    "title": "spiel_edge.Position",
+    "type": "object",
     "properties": {
-        "position_mm": {"type": ["array", "null"], "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+        "position_mm": {
+            "type": ["array", "null"],
+            "items": {"type": "number"},
+            "minItems": 3,
+            "maxItems": 3,
+        },
         "reason": {"type": ["string", "null"]},
         "residual_mm": {"type": ["number", "null"]},
         "echoes": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
@@ -71,17 +89,32 @@ POSITION_SCHEMA = {
 class McapSink:
     """Record acquisitions and records to ``path`` (overwritten); always call close()."""
 
-    def __init__(self, path: str | Path, *, metadata: dict[str, Any] | None = None,
-                 chunk_size: int = CHUNK_SIZE, compression: str = "zstd"):
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        metadata: dict[str, Any] | None = None,
+        chunk_size: int = CHUNK_SIZE,
+        compression: str = "zstd",
+    ):
         self.path = Path(path)
         self._fh: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=CompressionType[compression.upper()])
+        self._writer = Writer(
+            self._fh, chunk_size=chunk_size, compression=CompressionType[compression.upper()]
+        )
         self._writer.start(profile=MCAP_PROFILE, library=f"spiel-edge {__version__}")
-        self._channels = {topic: self._channel(topic, schema) for topic, schema in (
-            (ACQUISITION_TOPIC, ACQUISITION_SCHEMA), (BACKGROUND_TOPIC, BACKGROUND_SCHEMA),
-            (POSITION_TOPIC, POSITION_SCHEMA))}
-        self._writer.add_metadata("spiel-edge", {"version": __version__,
-                                                 **{k: str(v) for k, v in (metadata or {}).items()}})
+        self._channels = {
+            topic: self._channel(topic, schema)
+            for topic, schema in (
+                (ACQUISITION_TOPIC, ACQUISITION_SCHEMA),
+                (BACKGROUND_TOPIC, BACKGROUND_SCHEMA),
+                (POSITION_TOPIC, POSITION_SCHEMA),
+            )
+        }
+        self._writer.add_metadata(
+            "spiel-edge",
+            {"version": __version__, **{k: str(v) for k, v in (metadata or {}).items()}},
+        )
         self._sequence = 0
         self._background: np.ndarray | None = None
         self.closed = False
@@ -90,7 +123,9 @@ class McapSink:
         self._sigterm = _own_sigterm(self)
 
     def _channel(self, topic: str, schema: dict) -> int:
-        schema_id = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+        schema_id = self._writer.register_schema(
+            schema["title"], "jsonschema", json.dumps(schema).encode()
+        )
         return self._writer.register_channel(topic, "json", schema_id)
 
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
@@ -98,7 +133,9 @@ class McapSink:
         meta = {k: v for k, v in acquisition.items() if k not in ("frames", "background")}
         stamp = _stamp(meta)
         background = acquisition.get("background")
-        if background is not None and (self._background is None or not np.array_equal(background, self._background)):
+        if background is not None and (
+            self._background is None or not np.array_equal(background, self._background)
+        ):
             self._background = np.array(background, copy=True)
             self._add(BACKGROUND_TOPIC, {"frames": _samples(self._background)}, stamp)
         self._add(ACQUISITION_TOPIC, {**meta, "frames": _samples(np.asarray(frames))}, stamp)
@@ -114,8 +151,13 @@ class McapSink:
         data = _dumps(payload)
         now = time.time_ns()
         with signals_deferred():  # a raising SIGTERM handler must not tear a chunk in half
-            self._writer.add_message(self._channels[topic], log_time=now, data=data,
-                                     publish_time=stamp or now, sequence=self._sequence)
+            self._writer.add_message(
+                self._channels[topic],
+                log_time=now,
+                data=data,
+                publish_time=stamp or now,
+                sequence=self._sequence,
+            )
         self._sequence += 1
 
     def close(self) -> None:
@@ -131,8 +173,12 @@ class McapSink:
             self._fh.close()
             if self._sigterm is not None and signal.getsignal(signal.SIGTERM) is self._sigterm:
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
-        log.info("recording %s finalized: %d acquisitions, %d records", self.path,
-                 self.counts["acquisitions"], self.counts["records"])
+        log.info(
+            "recording %s finalized: %d acquisitions, %d records",
+            self.path,
+            self.counts["acquisitions"],
+            self.counts["records"],
+        )
 
     def __enter__(self) -> McapSink:
         return self
@@ -172,7 +218,11 @@ def _samples(frames: np.ndarray) -> list:
         return frames.tolist()
     finite = np.isfinite(frames)
     if finite.all():
-        return frames.astype(np.int64).tolist() if np.array_equal(frames, np.round(frames)) else frames.tolist()
+        return (
+            frames.astype(np.int64).tolist()
+            if np.array_equal(frames, np.round(frames))
+            else frames.tolist()
+        )
     return np.where(finite, frames, None).tolist()
 
 
@@ -191,6 +241,7 @@ def _dumps(payload: dict) -> bytes:
 
 
 # -- reading ---------------------------------------------------------------------------------
+
 
 def iter_mcap_recordings(path: str | Path) -> Iterator[Recording]:
     """Each recorded acquisition with the background in force; bad messages become errors.
@@ -220,7 +271,13 @@ def _recordings(fh: IO[bytes], path: str | Path) -> Iterator[Recording]:
                 continue
             count += 1
             yield _recording(path.name, data, sequence, background)
-    except (McapError, ValueError, EOFError, OSError, struct.error) as exc:  # truncated or corrupt tail
+    except (
+        McapError,
+        ValueError,
+        EOFError,
+        OSError,
+        struct.error,
+    ) as exc:  # truncated or corrupt tail
         message = f"{path.name}: recording ends early after {count} acquisitions ({type(exc).__name__}: {exc})"
         log.warning("%s", message)
         yield Recording(f"{path.name}#end", None, None, message)
@@ -246,7 +303,9 @@ def _background_of(data: bytes, sequence: int) -> np.ndarray | str:
         return f"background message {sequence} is unreadable: {exc!r}"
 
 
-def _recording(name: str, data: bytes, sequence: int, background: np.ndarray | str | None) -> Recording:
+def _recording(
+    name: str, data: bytes, sequence: int, background: np.ndarray | str | None
+) -> Recording:
     source = f"{name}#{sequence}"
     try:
         payload = json.loads(data)
@@ -257,10 +316,16 @@ def _recording(name: str, data: bytes, sequence: int, background: np.ndarray | s
     if isinstance(background, str):
         return Recording(source, None, None, f"{source}: {background}")
     if not np.all(np.isfinite(frames)):
-        return Recording(source, None, None, f"{source}: frames contain missing or non-finite samples")
+        return Recording(
+            source, None, None, f"{source}: frames contain missing or non-finite samples"
+        )
     if background is not None and background.shape != frames.shape:
-        return Recording(source, None, None,
-                         f"{source}: background shape {background.shape} differs from frames {frames.shape}")
+        return Recording(
+            source,
+            None,
+            None,
+            f"{source}: background shape {background.shape} differs from frames {frames.shape}",
+        )
     return Recording(source, frames, background)
 
 

@@ -19,7 +19,9 @@ MAX_DATAGRAM = 65507  # largest UDP payload over IPv4
 _LOG_EVERY_S = 10.0
 
 
-def parse_host_port(text: str, *, default_host: str | None = None, what: str = "address") -> tuple[str, int]:
+def parse_host_port(
+    text: str, *, default_host: str | None = None, what: str = "address"
+) -> tuple[str, int]:
     """``HOST:PORT``, ``[v6]:PORT`` or (with a default host) ``PORT``; ConfigError otherwise."""
     text = text.strip()
     host, sep, port_text = text.rpartition(":")
@@ -43,7 +45,9 @@ class UdpSink:
     def __init__(self, target: str, *, timeout_s: float = 0.05):
         host, port = parse_host_port(target, what="--udp")
         try:
-            family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+            family, kind, proto, _, address = socket.getaddrinfo(
+                host, port, type=socket.SOCK_DGRAM
+            )[0]
         except socket.gaierror as exc:
             raise ConfigError(f"--udp {target!r}: cannot resolve {host!r}: {exc}") from exc
         self.address = address
@@ -71,7 +75,9 @@ class UdpSink:
         now = time.monotonic()
         if now - self._last_log >= _LOG_EVERY_S:
             self._last_log = now
-            log.warning("UDP output to %s: %s (%d records dropped so far)", self.address, why, self.failed)
+            log.warning(
+                "UDP output to %s: %s (%d records dropped so far)", self.address, why, self.failed
+            )
 
     def close(self) -> None:
         self._sock.close()

@@ -56,7 +56,10 @@ class ZenohSink:
         except Exception as exc:
             raise ConfigError(f"--zenoh: cannot open a Zenoh session: {exc}") from exc
         self._publisher = self._session.declare_publisher(
-            key, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=zenoh.CongestionControl.DROP)
+            key,
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
         self.key_expr = str(key)
         self.failed = 0
         log.info("publishing records on Zenoh key %s", self.key_expr)
@@ -67,7 +70,9 @@ class ZenohSink:
         except Exception as exc:  # zenoh.ZError: keep the run going, like UDP
             self.failed += 1
             if self.failed == 1 or self.failed % 1000 == 0:
-                log.warning("Zenoh put on %s failed (%d so far): %s", self.key_expr, self.failed, exc)
+                log.warning(
+                    "Zenoh put on %s failed (%d so far): %s", self.key_expr, self.failed, exc
+                )
 
     def close(self) -> None:
         try:

@@ -30,7 +30,7 @@ from numba import njit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.locate import _locate_kernel
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 EXHAUSTIVE_MAX_CHANNELS = 6
 MAX_SOLVES = 4096  # bound on located combinations per acquisition: time stays bounded in clutter
@@ -46,8 +46,10 @@ def anchor_triples(channels: np.ndarray, emitter: np.ndarray, listening: np.ndar
         first = min(free, key=lambda c: np.linalg.norm(channels[c] - emitter))
         rest = [c for c in free if c != first]
         best = max(
-            ((b, c) for i, b in enumerate(rest) for c in rest[i + 1:]),
-            key=lambda bc: np.linalg.norm(np.cross(channels[bc[0]] - channels[first], channels[bc[1]] - channels[first])),
+            ((b, c) for i, b in enumerate(rest) for c in rest[i + 1 :]),
+            key=lambda bc: np.linalg.norm(
+                np.cross(channels[bc[0]] - channels[first], channels[bc[1]] - channels[first])
+            ),
         )
         triples.append((first, *best))
         free = [c for c in free if c not in (first, *best)]
@@ -77,8 +79,11 @@ class GeometricAssociator:
         diff = self.channels[:, None, :] - self.channels[None, :, :]
         self.max_path_diff = np.ascontiguousarray(np.sqrt((diff**2).sum(-1)) + self.tolerance_mm)
         listening = np.flatnonzero(self.listening)
-        self.anchors = None if len(listening) <= EXHAUSTIVE_MAX_CHANNELS else anchor_triples(
-            self.channels, self.emitter, listening)
+        self.anchors = (
+            None
+            if len(listening) <= EXHAUSTIVE_MAX_CHANNELS
+            else anchor_triples(self.channels, self.emitter, listening)
+        )
 
     def paths_mm(self, features: np.ndarray) -> np.ndarray:
         """Echo path length (mm) of every echo, after the per-channel delay."""
@@ -87,14 +92,23 @@ class GeometricAssociator:
     def __call__(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
         return self.candidates(features, counts)[0]
 
-    def candidates(self, features: np.ndarray, counts: np.ndarray, allowed: np.ndarray | None = None,
-                   bonus_mm: np.ndarray | None = None):
+    def candidates(
+        self,
+        features: np.ndarray,
+        counts: np.ndarray,
+        allowed: np.ndarray | None = None,
+        bonus_mm: np.ndarray | None = None,
+    ):
         """Best combination as ``(matched, cost)``; ``allowed`` (channels, max_echoes) bool
         restricts the search, ``bonus_mm`` (channels, max_echoes) lowers the cost of
         combinations by the mean bonus of their echoes (both used by the learned associator)."""
         features = np.asarray(features, dtype=np.float64)
         counts = np.ascontiguousarray(counts, dtype=np.int64)
-        if features.ndim != 3 or features.shape[0] != self.channels.shape[0] or counts.shape != features.shape[:1]:
+        if (
+            features.ndim != 3
+            or features.shape[0] != self.channels.shape[0]
+            or counts.shape != features.shape[:1]
+        ):
             raise InputError(
                 f"features must be ({self.channels.shape[0]}, max_echoes, 8) and counts ({self.channels.shape[0]},)"
             )
@@ -103,14 +117,28 @@ class GeometricAssociator:
             allowed = np.isfinite(paths)
         allowed = np.ascontiguousarray(allowed & np.isfinite(paths), dtype=np.bool_)
         alpha = features[:, :, 0]
-        strength = self.strength_weight_mm * np.log(np.where(np.isfinite(alpha) & (alpha > 1.0), alpha, 1.0))
+        strength = self.strength_weight_mm * np.log(
+            np.where(np.isfinite(alpha) & (alpha > 1.0), alpha, 1.0)
+        )
         if bonus_mm is not None:
             strength = strength + np.where(np.isfinite(bonus_mm), bonus_mm, 0.0)
         strength = np.ascontiguousarray(strength, dtype=np.float64)
         weights = np.array([self.max_residual_mm, self.missing_penalty_mm, 1.0, self.range_weight])
         matched = np.full(self.channels.shape[0], -1, dtype=np.int64)
-        args = (paths, strength, counts, allowed, self.listening, self.channels, self.emitter, self.facing,
-                self.max_path_diff, weights, self.min_channels, matched)
+        args = (
+            paths,
+            strength,
+            counts,
+            allowed,
+            self.listening,
+            self.channels,
+            self.emitter,
+            self.facing,
+            self.max_path_diff,
+            weights,
+            self.min_channels,
+            matched,
+        )
         if self.anchors is None:
             cost = _exhaustive_kernel(*args)
         else:
@@ -135,7 +163,12 @@ def _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos):
     if not ok or rms > max_res:
         return math.inf
     distance = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2)
-    return rms + penalty * (n_ch - n_used) - strength_weight * mean_strength / n_used + range_weight * distance
+    return (
+        rms
+        + penalty * (n_ch - n_used)
+        - strength_weight * mean_strength / n_used
+        + range_weight * distance
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -147,7 +180,9 @@ def _feasible(paths, choice, c, k, max_diff):
 
 
 @njit(cache=True, nogil=True)
-def _exhaustive_kernel(paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best):
+def _exhaustive_kernel(
+    paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best
+):
     n_ch = paths.shape[0]
     choice = np.full(n_ch, -1, dtype=np.int64)
     d = np.empty(n_ch)
@@ -194,8 +229,11 @@ def _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice)
         choice[j] = -1
         if not listening[j]:
             continue
-        pred = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2) + math.sqrt(
-            (pos[0] - ch[j, 0]) ** 2 + (pos[1] - ch[j, 1]) ** 2 + (pos[2] - ch[j, 2]) ** 2)
+        pred = math.sqrt(
+            (pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2
+        ) + math.sqrt(
+            (pos[0] - ch[j, 0]) ** 2 + (pos[1] - ch[j, 1]) ** 2 + (pos[2] - ch[j, 2]) ** 2
+        )
         best_err = gate
         for k in range(counts[j]):
             err = abs(paths[j, k] - pred)
@@ -208,8 +246,21 @@ def _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice)
 
 
 @njit(cache=True, nogil=True)
-def _hypothesis_kernel(paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch,
-                       best, anchors):
+def _hypothesis_kernel(
+    paths,
+    strength,
+    counts,
+    allowed,
+    listening,
+    ch,
+    e,
+    facing,
+    max_diff,
+    weights,
+    min_ch,
+    best,
+    anchors,
+):
     n_ch = paths.shape[0]
     gate = max_diff[0, 0]  # the tolerance: the diagonal holds |r_i - r_i| + tolerance
     unit = np.ones(n_ch)
@@ -223,11 +274,17 @@ def _hypothesis_kernel(paths, strength, counts, allowed, listening, ch, e, facin
         a, b, c = anchors[t, 0], anchors[t, 1], anchors[t, 2]
         for ka in range(counts[a]):
             for kb in range(counts[b]):
-                if not (allowed[a, ka] and allowed[b, kb]) or abs(paths[a, ka] - paths[b, kb]) > max_diff[a, b]:
+                if (
+                    not (allowed[a, ka] and allowed[b, kb])
+                    or abs(paths[a, ka] - paths[b, kb]) > max_diff[a, b]
+                ):
                     continue
                 for kc in range(counts[c]):
-                    if not allowed[c, kc] or abs(paths[c, kc] - paths[a, ka]) > max_diff[c, a] or abs(
-                            paths[c, kc] - paths[b, kb]) > max_diff[c, b]:
+                    if (
+                        not allowed[c, kc]
+                        or abs(paths[c, kc] - paths[a, ka]) > max_diff[c, a]
+                        or abs(paths[c, kc] - paths[b, kb]) > max_diff[c, b]
+                    ):
                         continue
                     if solves >= MAX_SOLVES:
                         return best_cost
@@ -238,9 +295,14 @@ def _hypothesis_kernel(paths, strength, counts, allowed, listening, ch, e, facin
                     ok, rms = _locate_kernel(d, use, unit, e, ch, facing, 20, pos)
                     if not ok:
                         continue
-                    if _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice) < min_ch:
+                    if (
+                        _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice)
+                        < min_ch
+                    ):
                         continue
-                    cost = _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos)
+                    cost = _score(
+                        choice, paths, strength, use, d, unit, e, ch, facing, weights, pos
+                    )
                     if cost < best_cost:
                         best_cost = cost
                         best[:] = choice

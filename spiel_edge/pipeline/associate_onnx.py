@@ -32,7 +32,7 @@ import numpy as np
 from spiel_edge.errors import InputError, ModelError
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +63,9 @@ def load_session(path: str | Path):
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     opts.log_severity_level = 3  # errors only: a bad file is reported through ModelError
     try:
-        session = ort.InferenceSession(path.read_bytes(), sess_options=opts, providers=["CPUExecutionProvider"])
+        session = ort.InferenceSession(
+            path.read_bytes(), sess_options=opts, providers=["CPUExecutionProvider"]
+        )
     except Exception as exc:  # onnxruntime raises its own untyped errors for corrupt files
         raise ModelError(f"association model {path} cannot be loaded: {exc}") from exc
     _check_interface(session, path)
@@ -73,7 +75,9 @@ def load_session(path: str | Path):
 def _check_interface(session, path: Path) -> None:
     inputs = session.get_inputs()
     if len(inputs) != 1 or inputs[0].name != INPUT_NAME:
-        raise ModelError(f"association model {path}: expected one input {INPUT_NAME!r}, got {[i.name for i in inputs]}")
+        raise ModelError(
+            f"association model {path}: expected one input {INPUT_NAME!r}, got {[i.name for i in inputs]}"
+        )
     shape = inputs[0].shape
     if len(shape) != 2 or shape[1] != N_FEATURES or isinstance(shape[0], int) and shape[0] != -1:
         raise ModelError(
@@ -84,10 +88,14 @@ def _check_interface(session, path: Path) -> None:
         raise ModelError(f"association model {path}: input must be float32, got {inputs[0].type}")
     names = {o.name for o in session.get_outputs()}
     if not set(OUTPUTS) <= names:
-        raise ModelError(f"association model {path}: outputs {sorted(names)} lack {sorted(set(OUTPUTS) - names)}")
+        raise ModelError(
+            f"association model {path}: outputs {sorted(names)} lack {sorted(set(OUTPUTS) - names)}"
+        )
 
 
-def echo_rows(features: np.ndarray, counts: np.ndarray, listening: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def echo_rows(
+    features: np.ndarray, counts: np.ndarray, listening: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(channel, echo) indices of the echoes to score: present, listening, finite ToA."""
     k_max = features.shape[1]
     valid = (np.arange(k_max)[None, :] < counts[:, None]) & listening[:, None]
@@ -96,8 +104,11 @@ def echo_rows(features: np.ndarray, counts: np.ndarray, listening: np.ndarray) -
 
 
 def candidate_mask(
-    shape: tuple[int, int], rows: tuple[np.ndarray, np.ndarray], score: np.ndarray,
-    embedding: np.ndarray, threshold: float,
+    shape: tuple[int, int],
+    rows: tuple[np.ndarray, np.ndarray],
+    score: np.ndarray,
+    embedding: np.ndarray,
+    threshold: float,
 ) -> np.ndarray:
     """(channels, max_echoes) bool: echoes within ``threshold`` embedding distance of the
     reference (the highest-scoring echo), which is always a candidate."""
@@ -110,8 +121,9 @@ def candidate_mask(
     return allowed
 
 
-def score_bonus(shape: tuple[int, int], rows: tuple[np.ndarray, np.ndarray], score: np.ndarray,
-                weight_mm: float) -> np.ndarray:
+def score_bonus(
+    shape: tuple[int, int], rows: tuple[np.ndarray, np.ndarray], score: np.ndarray, weight_mm: float
+) -> np.ndarray:
     """(channels, max_echoes) cost bonus in mm: ``weight_mm`` times each echo's score logit."""
     bonus = np.zeros(shape)
     p = np.clip(score.astype(np.float64), 1e-4, 1.0 - 1e-4)
@@ -120,7 +132,10 @@ def score_bonus(shape: tuple[int, int], rows: tuple[np.ndarray, np.ndarray], sco
 
 
 def guarded_match(
-    geometric: GeometricAssociator, features: np.ndarray, counts: np.ndarray, allowed: np.ndarray,
+    geometric: GeometricAssociator,
+    features: np.ndarray,
+    counts: np.ndarray,
+    allowed: np.ndarray,
     slack_mm: float = math.inf,
 ) -> np.ndarray:
     """The best geometrically consistent combination among the candidates, unless the
@@ -139,9 +154,14 @@ class OnnxAssociator:
     name = "onnx"
 
     def __init__(
-        self, profile: Profile, model_path: str | Path | None = None, *,
-        distance_threshold: float | None = None, cost_slack_mm: float | None = None,
-        score_weight_mm: float | None = None, mode: str = "prior",
+        self,
+        profile: Profile,
+        model_path: str | Path | None = None,
+        *,
+        distance_threshold: float | None = None,
+        cost_slack_mm: float | None = None,
+        score_weight_mm: float | None = None,
+        mode: str = "prior",
     ):
         if mode not in MODES:
             raise InputError(f"mode must be one of {MODES}, got {mode!r}")
@@ -153,22 +173,34 @@ class OnnxAssociator:
         self.n_channels = profile.geometry.n_channels
         meta = self.session.get_modelmeta().custom_metadata_map
         if distance_threshold is None:
-            distance_threshold = float(meta.get("spiel.distance_threshold", DEFAULT_DISTANCE_THRESHOLD))
+            distance_threshold = float(
+                meta.get("spiel.distance_threshold", DEFAULT_DISTANCE_THRESHOLD)
+            )
         if cost_slack_mm is None:
             cost_slack_mm = float(meta.get("spiel.cost_slack_mm", DEFAULT_COST_SLACK_MM))
         if score_weight_mm is None:
             score_weight_mm = float(meta.get("spiel.score_weight_mm", DEFAULT_SCORE_WEIGHT_MM))
         self.distance_threshold, self.cost_slack_mm = distance_threshold, cost_slack_mm
         self.score_weight_mm = score_weight_mm
-        log.debug("association model %s loaded (threshold %.3g, slack %.3g mm)", self.model_path,
-                  distance_threshold, cost_slack_mm)
+        log.debug(
+            "association model %s loaded (threshold %.3g, slack %.3g mm)",
+            self.model_path,
+            distance_threshold,
+            cost_slack_mm,
+        )
 
     def score(self, features: np.ndarray, counts: np.ndarray):
         """One ``run`` over every echo: (rows, score (n,), embedding (n, 4))."""
         features = np.asarray(features)
         counts = np.asarray(counts, dtype=np.int64)
-        if features.ndim != 3 or features.shape[0] != self.n_channels or features.shape[2] != N_FEATURES:
-            raise InputError(f"features must be ({self.n_channels}, max_echoes, {N_FEATURES}), got {features.shape}")
+        if (
+            features.ndim != 3
+            or features.shape[0] != self.n_channels
+            or features.shape[2] != N_FEATURES
+        ):
+            raise InputError(
+                f"features must be ({self.n_channels}, max_echoes, {N_FEATURES}), got {features.shape}"
+            )
         rows = echo_rows(features, counts, self.listening)
         x = np.ascontiguousarray(features[rows], dtype=np.float32)
         if x.shape[0] == 0:
@@ -179,18 +211,25 @@ class OnnxAssociator:
     def __call__(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
         rows, score, embedding = self.score(features, counts)
         if self.mode == "prior":
-            return self.geometric.candidates(features, counts, bonus_mm=score_bonus(np.shape(features)[:2], rows, score,
-                                                                                    self.score_weight_mm))[0]
-        allowed = candidate_mask(np.shape(features)[:2], rows, score, embedding, self.distance_threshold)
+            return self.geometric.candidates(
+                features,
+                counts,
+                bonus_mm=score_bonus(np.shape(features)[:2], rows, score, self.score_weight_mm),
+            )[0]
+        allowed = candidate_mask(
+            np.shape(features)[:2], rows, score, embedding, self.distance_threshold
+        )
         return guarded_match(self.geometric, features, counts, allowed, self.cost_slack_mm)
 
 
-def bench_scoring(n: int = 2000, profile: Profile | None = None, model_path: str | Path | None = None) -> dict:
+def bench_scoring(
+    n: int = 2000, profile: Profile | None = None, model_path: str | Path | None = None
+) -> dict:
     """Median and p99 wall time (us) of scoring one acquisition (the ``run`` call with its
     input packing) and of the whole association, over the vendored recordings."""
     from spiel_edge.data import load_subset
     from spiel_edge.pipeline.run import Pipeline
-    from spiel_edge.profile import load_profile
+    from spiel_edge.profile.schema import load_profile
 
     profile = profile or load_profile("spiel-icra23")
     assoc = OnnxAssociator(profile, model_path)

@@ -34,7 +34,13 @@ def detect(
     peaks = np.full((y.shape[0], max_echoes), -1, dtype=np.int64)
     counts = np.zeros(y.shape[0], dtype=np.int64)
     _detect_kernel(
-        y, float(threshold), float(threshold * hysteresis), float(min_amplitude), int(first_sample), peaks, counts
+        y,
+        float(threshold),
+        float(threshold * hysteresis),
+        float(min_amplitude),
+        int(first_sample),
+        peaks,
+        counts,
     )
     return peaks, counts
 

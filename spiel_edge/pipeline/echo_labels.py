@@ -19,11 +19,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 # the ground truth of `spiel-edge evaluate` and of training (1.5 samples = 23 mm of path)
 DEFAULT_TOLERANCE = 1.5
-__all__ = ["DEFAULT_TOLERANCE", "AssociationScore", "expected_toa", "label_echoes", "score_association"]
+__all__ = [
+    "DEFAULT_TOLERANCE",
+    "AssociationScore",
+    "expected_toa",
+    "label_echoes",
+    "score_association",
+]
 
 
 def expected_toa(profile: Profile, position_mm: np.ndarray) -> np.ndarray:
@@ -33,7 +39,10 @@ def expected_toa(profile: Profile, position_mm: np.ndarray) -> np.ndarray:
 
 
 def label_echoes(
-    features: np.ndarray, counts: np.ndarray, expected: np.ndarray, tolerance: float = DEFAULT_TOLERANCE
+    features: np.ndarray,
+    counts: np.ndarray,
+    expected: np.ndarray,
+    tolerance: float = DEFAULT_TOLERANCE,
 ) -> np.ndarray:
     """Index of the target echo per channel (nearest ``expected`` within ``tolerance``), or -1."""
     toa = np.asarray(features)[:, :, TOA_COLUMN]
@@ -60,7 +69,9 @@ class AssociationScore:
     fn: int = 0
 
     def __add__(self, other: AssociationScore) -> AssociationScore:
-        return AssociationScore(*(a + b for a, b in zip(self.astuple(), other.astuple(), strict=True)))
+        return AssociationScore(
+            *(a + b for a, b in zip(self.astuple(), other.astuple(), strict=True))
+        )
 
     def astuple(self) -> tuple[int, int, int, int, int]:
         return (self.correct, self.channels, self.tp, self.fp, self.fn)
@@ -75,7 +86,9 @@ class AssociationScore:
         return 2 * self.tp / den if den else float("nan")
 
 
-def score_association(matched: np.ndarray, labels: np.ndarray, listening: np.ndarray | None = None) -> AssociationScore:
+def score_association(
+    matched: np.ndarray, labels: np.ndarray, listening: np.ndarray | None = None
+) -> AssociationScore:
     """Compare one acquisition's ``matched`` (channels,) with its ``labels`` (channels,)."""
     m = np.asarray(matched, dtype=np.int64)
     y = np.asarray(labels, dtype=np.int64)

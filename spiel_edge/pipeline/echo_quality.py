@@ -21,34 +21,62 @@ import numpy as np
 from numba import njit
 
 from spiel_edge.errors import InputError
-from spiel_edge.profile import LocateSpec
+from spiel_edge.profile.schema import LocateSpec
 
 BACKGROUND_WINDOW = 3  # samples either side of an echo where background peaks distort it
 SIDE_SAMPLES = 0.5  # a background peak closer than this to the echo is "at" it: no shift
 
 
 def echo_quality(
-    frames: np.ndarray, background: np.ndarray | None, toa: np.ndarray, alpha: np.ndarray, spec: LocateSpec
+    frames: np.ndarray,
+    background: np.ndarray | None,
+    toa: np.ndarray,
+    alpha: np.ndarray,
+    spec: LocateSpec,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(weights, shift)`` per channel for the matched echoes (``toa``, ``alpha`` per channel,
     NaN where none): weights = 1 / expected ToA error (samples), shift = the correction to add
     to the ToA (samples). Without a background only the strength term applies."""
     y = np.ascontiguousarray(frames, dtype=np.float64)
-    bg = np.zeros((0, 0)) if background is None else np.ascontiguousarray(background, dtype=np.float64)
+    bg = (
+        np.zeros((0, 0))
+        if background is None
+        else np.ascontiguousarray(background, dtype=np.float64)
+    )
     if bg.size and bg.shape != y.shape:
         raise InputError(f"background shape {bg.shape} does not match frames shape {y.shape}")
-    params = np.array([spec.toa_sigma_samples, spec.toa_sigma_per_background, spec.toa_sigma_alpha_counts,
-                       spec.toa_shift_background_after, spec.toa_shift_background_before])  # fmt: skip
+    params = np.array(
+        [
+            spec.toa_sigma_samples,
+            spec.toa_sigma_per_background,
+            spec.toa_sigma_alpha_counts,
+            spec.toa_shift_background_after,
+            spec.toa_shift_background_before,
+        ]
+    )
     weights = np.empty(y.shape[0])
     shift = np.empty(y.shape[0])
-    _echo_quality_kernel(y, bg, np.ascontiguousarray(toa, dtype=np.float64),
-                         np.ascontiguousarray(alpha, dtype=np.float64), params, weights, shift)  # fmt: skip
+    _echo_quality_kernel(
+        y,
+        bg,
+        np.ascontiguousarray(toa, dtype=np.float64),
+        np.ascontiguousarray(alpha, dtype=np.float64),
+        params,
+        weights,
+        shift,
+    )
     return weights, shift
 
 
 @njit(cache=True, nogil=True)
 def _echo_quality_kernel(y, bg, toa, alpha, params, weights, shift):
-    base, per_background, alpha_counts, shift_after, shift_before = params[0], params[1], params[2], params[3], params[4]
+    base, per_background, alpha_counts, shift_after, shift_before = (
+        params[0],
+        params[1],
+        params[2],
+        params[3],
+        params[4],
+    )
     n_ch, n_t = y.shape
     for c in range(n_ch):
         sigma = base

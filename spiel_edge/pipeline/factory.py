@@ -7,7 +7,7 @@ import logging
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.run import Pipeline
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)
 

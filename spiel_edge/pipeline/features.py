@@ -17,25 +17,47 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline._validate import as_frames
 from spiel_edge.pipeline.memg import emg_value
 
-FEATURE_NAMES = ("alpha", "mu", "sigma", "eta", "echo_confidence", "power", "toa", "frame_confidence")
+FEATURE_NAMES = (
+    "alpha",
+    "mu",
+    "sigma",
+    "eta",
+    "echo_confidence",
+    "power",
+    "toa",
+    "frame_confidence",
+)
 N_FEATURES = len(FEATURE_NAMES)
 TOA_CODES = {"mode": 0, "mu": 1, "half": 2, "peak": 3}
 TOA_COLUMN = FEATURE_NAMES.index("toa")
 
 
-def echo_features(envelope: np.ndarray, params: np.ndarray, peaks: np.ndarray, toa: str = "mode") -> np.ndarray:
+def echo_features(
+    envelope: np.ndarray, params: np.ndarray, peaks: np.ndarray, toa: str = "mode"
+) -> np.ndarray:
     """Return features (channels, max_echoes, 8), NaN where there is no echo; each channel's
     echoes ordered by ToA (fitted modes of overlapping echoes can swap their detection order)."""
     y = as_frames(envelope, "envelope")
     params = np.ascontiguousarray(params, dtype=np.float64)
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
-    if params.ndim != 3 or params.shape[:1] != y.shape[:1] or params.shape[2] != 4 or peaks.shape != params.shape[:2]:
-        raise InputError("params must be (channels, max_echoes, 4) and peaks (channels, max_echoes)")
+    if (
+        params.ndim != 3
+        or params.shape[:1] != y.shape[:1]
+        or params.shape[2] != 4
+        or peaks.shape != params.shape[:2]
+    ):
+        raise InputError(
+            "params must be (channels, max_echoes, 4) and peaks (channels, max_echoes)"
+        )
     if toa not in TOA_CODES:
         raise InputError(f"toa must be one of {sorted(TOA_CODES)}, got {toa!r}")
     out = np.full(params.shape[:2] + (N_FEATURES,), np.nan)
     _features_kernel(y, params, peaks, TOA_CODES[toa], out)
-    order = np.argsort(np.where(np.isnan(out[:, :, TOA_COLUMN]), np.inf, out[:, :, TOA_COLUMN]), axis=1, kind="stable")
+    order = np.argsort(
+        np.where(np.isnan(out[:, :, TOA_COLUMN]), np.inf, out[:, :, TOA_COLUMN]),
+        axis=1,
+        kind="stable",
+    )
     return np.take_along_axis(out, order[:, :, None], axis=1)
 
 
@@ -115,14 +137,21 @@ def _features_kernel(y, params, peaks, toa_code, out):
                 continue
             lo, hi = _support(params[c, k, 1], params[c, k, 2], n_t)
             for t in range(lo, hi):
-                model[t] += emg_value(float(t), params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3])
+                model[t] += emg_value(
+                    float(t), params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3]
+                )
         resid = 0.0
         for t in range(n_t):
             resid += (y[c, t] - model[t]) ** 2
         frame_conf = 1.0 - resid / energy if energy > 0.0 else 0.0
         frame_conf = min(max(frame_conf, 0.0), 1.0)
         for k in range(k_max):
-            alpha, mu, sigma, eta = params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3]
+            alpha, mu, sigma, eta = (
+                params[c, k, 0],
+                params[c, k, 1],
+                params[c, k, 2],
+                params[c, k, 3],
+            )
             if math.isnan(alpha):
                 continue
             mode = _mode(alpha, mu, sigma, eta)

@@ -49,8 +49,14 @@ def locate(
         raise InputError("weights must be (channels,) positive finite numbers")
     pos = np.zeros(3)
     ok, rms = _locate_kernel(
-        d, mask, w, np.ascontiguousarray(emitter_mm, dtype=np.float64), ch,
-        np.ascontiguousarray(facing, dtype=np.float64), int(max_iterations), pos,
+        d,
+        mask,
+        w,
+        np.ascontiguousarray(emitter_mm, dtype=np.float64),
+        ch,
+        np.ascontiguousarray(facing, dtype=np.float64),
+        int(max_iterations),
+        pos,
     )
     return pos, float(rms), bool(ok)
 
@@ -110,7 +116,9 @@ def _cost(d, use, w, e, ch, p):
         if use[n]:
             r = (
                 math.sqrt((p[0] - e[0]) ** 2 + (p[1] - e[1]) ** 2 + (p[2] - e[2]) ** 2)
-                + math.sqrt((p[0] - ch[n, 0]) ** 2 + (p[1] - ch[n, 1]) ** 2 + (p[2] - ch[n, 2]) ** 2)
+                + math.sqrt(
+                    (p[0] - ch[n, 0]) ** 2 + (p[1] - ch[n, 1]) ** 2 + (p[2] - ch[n, 2]) ** 2
+                )
                 - d[n]
             )
             weighted += (w[n] * r) ** 2
@@ -197,7 +205,9 @@ def _locate_kernel(d, use, w, e, ch, facing, max_iter, out):
             p[i] -= 2.0 * ahead * facing[i]
         rms = _gauss_newton(d, use, w, e, ch, p, max_iter)
         ahead = (p[0] - e[0]) * facing[0] + (p[1] - e[1]) * facing[1] + (p[2] - e[2]) * facing[2]
-    finite = math.isfinite(rms) and math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])
+    finite = (
+        math.isfinite(rms) and math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])
+    )
     if not finite:
         out[:] = 0.0
         return False, math.inf

@@ -148,7 +148,9 @@ def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     for t in range(lo, hi):
         m = 0.0
         for k in range(n_comp):
-            m += _emg_jacobian_row(float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3], jac_row, 4 * k)
+            m += _emg_jacobian_row(
+                float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3], jac_row, 4 * k
+            )
         r = y[t] - m
         for i in range(n_par):
             b[i] += jac_row[i] * r
@@ -167,7 +169,7 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     hot loop allocates nothing."""
     n_par = 4 * n_comp
     lower_mu = work[0:n_comp]
-    upper_mu = work[n_comp:2 * n_comp]
+    upper_mu = work[n_comp : 2 * n_comp]
     y_max = 0.0
     for t in range(lo, hi):
         y_max = max(y_max, y[t])
@@ -182,13 +184,13 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
         upper_mu[k] = pk + mu_window
     alpha_max = 4.0 * y_max + 1.0
     base = 2 * n_comp
-    jac_row = work[base:base + n_par]
-    b = work[base + n_par:base + 2 * n_par]
-    step = work[base + 2 * n_par:base + 3 * n_par]
-    trial = work[base + 3 * n_par:base + 4 * n_par]
+    jac_row = work[base : base + n_par]
+    b = work[base + n_par : base + 2 * n_par]
+    step = work[base + 2 * n_par : base + 3 * n_par]
+    trial = work[base + 3 * n_par : base + 4 * n_par]
     start = base + 4 * n_par
-    a = work[start:start + n_par * n_par].reshape((n_par, n_par))
-    damped = work[start + n_par * n_par:start + 2 * n_par * n_par].reshape((n_par, n_par))
+    a = work[start : start + n_par * n_par].reshape((n_par, n_par))
+    damped = work[start + n_par * n_par : start + 2 * n_par * n_par].reshape((n_par, n_par))
     lam = 1e-2
     cost = _cluster_cost(y, lo, hi, p, n_comp)
     for _ in range(max_iter):
@@ -233,7 +235,9 @@ def _memg_kernel(y, peaks, counts, mu_window, max_iter, params):
             n_comp = last - first + 1
             lo = max(0, peaks[c, first] - WINDOW_BEFORE)
             hi = min(n_t, peaks[c, last] + WINDOW_AFTER + 1)
-            _fit_cluster(y[c], lo, hi, peaks[c, first:last + 1], n_comp, mu_window, max_iter, p, work)
+            _fit_cluster(
+                y[c], lo, hi, peaks[c, first : last + 1], n_comp, mu_window, max_iter, p, work
+            )
             for k in range(n_comp):
                 for j in range(4):
                     params[c, first + k, j] = p[4 * k + j]

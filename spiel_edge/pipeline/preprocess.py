@@ -60,7 +60,9 @@ def envelope(rf: np.ndarray, carrier_cycles_per_sample: float) -> np.ndarray:
     """
     y = as_frames(rf, "rf")
     if not 0.0 < carrier_cycles_per_sample < 0.5:
-        raise InputError(f"carrier_cycles_per_sample must be in (0, 0.5), got {carrier_cycles_per_sample}")
+        raise InputError(
+            f"carrier_cycles_per_sample must be in (0, 0.5), got {carrier_cycles_per_sample}"
+        )
     half_width = max(1, int(round(0.5 / carrier_cycles_per_sample)))
     out = np.empty_like(y)
     _envelope_kernel(y, carrier_cycles_per_sample, half_width, out)

@@ -17,7 +17,7 @@ from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.locate import locate
 from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +48,9 @@ class Result:
     def record(self) -> dict:
         """JSON-ready fields shared by replay and run records."""
         return {
-            "position_mm": None if self.position_mm is None else [round(float(v), 2) for v in self.position_mm],
+            "position_mm": None
+            if self.position_mm is None
+            else [round(float(v), 2) for v in self.position_mm],
             "reason": self.reason,
             "residual_mm": None if self.residual_mm is None else round(float(self.residual_mm), 3),
             "echoes": [[round(t, 3) for t in ch] for ch in self.echoes],
@@ -59,7 +61,9 @@ class Result:
 class Pipeline:
     """preprocess -> detect -> memg -> features -> associate -> locate for one profile."""
 
-    def __init__(self, profile: Profile, associator: Associator | None = None, *, saturation: float = 65535.0):
+    def __init__(
+        self, profile: Profile, associator: Associator | None = None, *, saturation: float = 65535.0
+    ):
         self.profile = profile
         self.associator = associator or GeometricAssociator(profile)
         self.saturation = saturation  # full scale of the board's samples (u16 envelopes)
@@ -72,9 +76,13 @@ class Pipeline:
     def check_shape(self, frames: np.ndarray, what: str = "frames") -> None:
         n_ch, n_t = self.profile.geometry.n_channels, self.profile.acquisition.n_samples
         if np.shape(frames) != (n_ch, n_t):
-            raise InputError(f"{what} has shape {np.shape(frames)}, profile {self.profile.name!r} expects ({n_ch}, {n_t})")
+            raise InputError(
+                f"{what} has shape {np.shape(frames)}, profile {self.profile.name!r} expects ({n_ch}, {n_t})"
+            )
 
-    def process(self, frames: np.ndarray, background: np.ndarray | None = None, *, timed: bool = False) -> Result:
+    def process(
+        self, frames: np.ndarray, background: np.ndarray | None = None, *, timed: bool = False
+    ) -> Result:
         """Run every stage on one acquisition (channels, samples)."""
         p = self.profile
         self.check_shape(frames)
@@ -95,11 +103,17 @@ class Pipeline:
         t1 = clock()
         d = p.detect
         peaks, counts = detect(
-            y, threshold=d.threshold, hysteresis=d.hysteresis, min_amplitude=d.min_amplitude,
-            max_echoes=d.max_echoes, first_sample=p.preprocess.blind_zone_samples,
+            y,
+            threshold=d.threshold,
+            hysteresis=d.hysteresis,
+            min_amplitude=d.min_amplitude,
+            max_echoes=d.max_echoes,
+            first_sample=p.preprocess.blind_zone_samples,
         )
         t2 = clock()
-        params = fit_memg(y, peaks, counts, mu_window=p.memg.mu_window, max_iterations=p.memg.max_iterations)
+        params = fit_memg(
+            y, peaks, counts, mu_window=p.memg.mu_window, max_iterations=p.memg.max_iterations
+        )
         t3 = clock()
         feats = echo_features(y, params, peaks, p.memg.toa)
         t4 = clock()
@@ -113,8 +127,14 @@ class Pipeline:
             result.timings_us["end_to_end"] = (t6 - t0) / 1e3
         return result
 
-    def _locate(self, feats: np.ndarray, counts: np.ndarray, matched: np.ndarray, raw: np.ndarray,
-                background: np.ndarray | None) -> Result:
+    def _locate(
+        self,
+        feats: np.ndarray,
+        counts: np.ndarray,
+        matched: np.ndarray,
+        raw: np.ndarray,
+        background: np.ndarray | None,
+    ) -> Result:
         toa = feats[:, :, TOA_COLUMN]
         echoes = [[float(v) for v in toa[c, : counts[c]]] for c in range(len(counts))]
         match_list = [int(m) if m >= 0 else None for m in matched]
@@ -124,9 +144,13 @@ class Pipeline:
             return Result(None, self._why_empty(raw, counts), None, **base)
         rows = np.arange(len(matched)), np.maximum(matched, 0)
         picked = np.where(use, toa[rows], np.nan)
-        weights, shift = echo_quality(raw, background, picked, feats[rows][:, 0], self.profile.locate)
+        weights, shift = echo_quality(
+            raw, background, picked, feats[rows][:, 0], self.profile.locate
+        )
         paths = (picked + shift - self._delays) * self.profile.mm_per_sample
-        pos, rms, ok = locate(paths, self._channels, self._emitter, self._facing, use, weights=weights)
+        pos, rms, ok = locate(
+            paths, self._channels, self._emitter, self._facing, use, weights=weights
+        )
         if not ok:
             return Result(None, REASON_SOLVE_FAILED, None, **base)
         return Result(pos, None, rms, **base)

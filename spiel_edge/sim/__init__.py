@@ -14,6 +14,12 @@ from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import EchoModelScene, ReplayScene, SceneFrame
 
 __all__ = [
-    "EchoModelScene", "Flash", "PowerCut", "ReplayScene", "SceneFrame", "SimDevice", "SimOptions",
+    "EchoModelScene",
+    "Flash",
+    "PowerCut",
+    "ReplayScene",
+    "SceneFrame",
+    "SimDevice",
+    "SimOptions",
     "VirtualBoard",
-]  # fmt: skip
+]

@@ -41,7 +41,7 @@ from firmware_protocol import (
     StreamStopResponse,
     decode_message,
     encode_message,
-)  # fmt: skip
+)
 from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import encode_annotations
@@ -169,36 +169,65 @@ class VirtualBoard:
 
     def _execute(self, req: m.Message, now: float) -> m.Message:
         handler = {
-            Hello: self._hello, m.DeviceInfoRequest: self._device_info, Ping: self._ping,
-            m.Reboot: self._reboot, StreamStart: self._stream_start, StreamStop: self._stream_stop,
-            m.StreamStatusRequest: self._stream_status, m.ConfigRead: self._config_read,
-            m.ConfigWrite: self._config_write, m.ConfigCommit: self._config_commit,
+            Hello: self._hello,
+            m.DeviceInfoRequest: self._device_info,
+            Ping: self._ping,
+            m.Reboot: self._reboot,
+            StreamStart: self._stream_start,
+            StreamStop: self._stream_stop,
+            m.StreamStatusRequest: self._stream_status,
+            m.ConfigRead: self._config_read,
+            m.ConfigWrite: self._config_write,
+            m.ConfigCommit: self._config_commit,
             m.ConfigStatusRequest: self._config_status,
-        }.get(type(req))  # fmt: skip
+        }.get(type(req))
         if handler is None:
-            return ErrorResponse(ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles")
+            return ErrorResponse(
+                ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles"
+            )
         return handler(req, now)
 
     # --- session -------------------------------------------------------------------------
 
     def _hello(self, req: Hello, now: float) -> m.Message:
         if req.max_version < PROTOCOL_VERSION:
-            return ErrorResponse(ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}")
+            return ErrorResponse(
+                ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
+            )
         if req.min_version > PROTOCOL_VERSION:
-            return ErrorResponse(ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}")
+            return ErrorResponse(
+                ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
+            )
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
         return m.HelloResponse(
-            PROTOCOL_VERSION, PROTOCOL_VERSION, PROTOCOL_VERSION, self.scene.n_channels, MAX_PAYLOAD,
-            MAX_SAMPLES, int(caps), SCHEMA_HASH, self.boot_id, FIRMWARE_VERSION, self.vid, self.pid, self.serial,
-        )  # fmt: skip
+            PROTOCOL_VERSION,
+            PROTOCOL_VERSION,
+            PROTOCOL_VERSION,
+            self.scene.n_channels,
+            MAX_PAYLOAD,
+            MAX_SAMPLES,
+            int(caps),
+            SCHEMA_HASH,
+            self.boot_id,
+            FIRMWARE_VERSION,
+            self.vid,
+            self.pid,
+            self.serial,
+        )
 
     def _device_info(self, req: m.Message, now: float) -> m.Message:
         speed = getattr(self.scene, "speed", 343.0)
         celsius = 273.15 * ((speed / 331.3) ** 2 - 1.0)
         return m.DeviceInfo(
-            1, self.scene.n_channels, 16, 175000, 100000, int((now - self._boot_time) * 1000) & _MASK,
-            max(-32768, min(32767, round(celsius * 100))), "spiel-sim",
-        )  # fmt: skip
+            1,
+            self.scene.n_channels,
+            16,
+            175000,
+            100000,
+            int((now - self._boot_time) * 1000) & _MASK,
+            max(-32768, min(32767, round(celsius * 100))),
+            "spiel-sim",
+        )
 
     def _ping(self, req: Ping, now: float) -> m.Message:
         return Pong(req.data)
@@ -222,18 +251,27 @@ class VirtualBoard:
         elif n_samples > min(MAX_SAMPLES, MAX_SAMPLES_PER_FRAME[SampleFormat.U16_ENVELOPE]):
             error = (ErrorCode.TOO_LARGE, f"at most {MAX_SAMPLES} samples per channel")
         elif not self.scene.supports(n_samples):
-            error = (ErrorCode.UNSUPPORTED, f"this scene cannot make {n_samples} samples per channel")
+            error = (
+                ErrorCode.UNSUPPORTED,
+                f"this scene cannot make {n_samples} samples per channel",
+            )
         elif not (math.isfinite(req.rate_hz) and 0.0 <= req.rate_hz <= MAX_RATE_HZ):
             error = (ErrorCode.INVALID, f"rate_hz must be in [0, {MAX_RATE_HZ:g}]")
         if error:
             return ErrorResponse(error[0], req.MSG_TYPE, error[1])
         remaining = req.n_acquisitions or None
-        self._last_background = None  # every stream starts with the background (a new host may be listening)
+        self._last_background = (
+            None  # every stream starts with the background (a new host may be listening)
+        )
         self._stream = _Stream(req.rate_hz, n_samples, remaining, now, seq=self._request_seq)
         return StreamStartResponse(
-            self._acquisition, self._counter, self.scene.sample_rate_hz, n_samples, n_ch,
+            self._acquisition,
+            self._counter,
+            self.scene.sample_rate_hz,
+            n_samples,
+            n_ch,
             SampleFormat.U16_ENVELOPE,
-        )  # fmt: skip
+        )
 
     def _stream_stop(self, req: StreamStop, now: float) -> m.Message:
         sent = self._stream.sent if self._stream else 0
@@ -243,9 +281,13 @@ class VirtualBoard:
     def _stream_status(self, req: m.Message, now: float) -> m.Message:
         s = self.stats
         return StreamStatus(
-            int(self.streaming), s.acquisitions_sent & _MASK, s.frames_sent & _MASK, s.overruns & _MASK,
-            self.rx_errors & _MASK, self.tx_dropped & _MASK,
-        )  # fmt: skip
+            int(self.streaming),
+            s.acquisitions_sent & _MASK,
+            s.frames_sent & _MASK,
+            s.overruns & _MASK,
+            self.rx_errors & _MASK,
+            self.tx_dropped & _MASK,
+        )
 
     def next_due(self) -> float | None:
         return None if self._stream is None else self._stream.next_time
@@ -290,18 +332,36 @@ class VirtualBoard:
         index, time_s = self._acquisition, s.next_time - self._boot_time
         frame = self.scene.frame(index, s.n_samples, time_s)
         background = frame.background
-        if background is not None and self._last_background is not None and np.array_equal(background, self._last_background):
+        if (
+            background is not None
+            and self._last_background is not None
+            and np.array_equal(background, self._last_background)
+        ):
             background = None  # unchanged: the host keeps the one it has
         elif background is not None:
             self._last_background = background
-        out = [Outgoing(w, exempt=True) for w in encode_annotations(index, frame.truth_mm, background)]
+        out = [
+            Outgoing(w, exempt=True) for w in encode_annotations(index, frame.truth_mm, background)
+        ]
         n_ch = frame.samples.shape[0]
         rows = np.ascontiguousarray(frame.samples, dtype="<u2")
         stamp = int(time_s * 1e6)
         for c in range(n_ch):
-            msg = StreamData(index, c, n_ch, SampleFormat.U16_ENVELOPE, self.scene.sample_rate_hz, stamp, rows[c].tobytes())
+            msg = StreamData(
+                index,
+                c,
+                n_ch,
+                SampleFormat.U16_ENVELOPE,
+                self.scene.sample_rate_hz,
+                stamp,
+                rows[c].tobytes(),
+            )
             more = Flags.MORE if c < n_ch - 1 else 0
-            out.append(Outgoing(encode_message(msg, seq=s.seq, flags=more, aux=self._counter), acquisition=index))
+            out.append(
+                Outgoing(
+                    encode_message(msg, seq=s.seq, flags=more, aux=self._counter), acquisition=index
+                )
+            )
             self._counter = (self._counter + 1) & _MASK
         self._acquisition = (index + 1) & _MASK
         self.stats.acquisitions_sent += 1
@@ -318,13 +378,19 @@ class VirtualBoard:
         if data is None:
             return ErrorResponse(ErrorCode.NOT_FOUND, req.MSG_TYPE, "no valid config slot")
         if req.length > MAX_PAYLOAD - 6:
-            return ErrorResponse(ErrorCode.TOO_LARGE, req.MSG_TYPE, f"at most {MAX_PAYLOAD - 6} bytes per read")
-        return m.ConfigReadResponse(req.offset, data[req.offset : req.offset + req.length])  # empty past the end
+            return ErrorResponse(
+                ErrorCode.TOO_LARGE, req.MSG_TYPE, f"at most {MAX_PAYLOAD - 6} bytes per read"
+            )
+        return m.ConfigReadResponse(
+            req.offset, data[req.offset : req.offset + req.length]
+        )  # empty past the end
 
     def _config_write(self, req: m.ConfigWrite, now: float) -> m.Message:
         end = req.offset + len(req.data)
         if end > self.flash.capacity:
-            return ErrorResponse(ErrorCode.TOO_LARGE, req.MSG_TYPE, f"config exceeds {self.flash.capacity} bytes")
+            return ErrorResponse(
+                ErrorCode.TOO_LARGE, req.MSG_TYPE, f"config exceeds {self.flash.capacity} bytes"
+            )
         if req.offset == 0:
             self._staging = bytearray()  # a new staging (zeroed: holes read as 0)
         if end > len(self._staging):
@@ -334,9 +400,13 @@ class VirtualBoard:
 
     def _config_commit(self, req: m.ConfigCommit, now: float) -> m.Message:
         if self.streaming:
-            return ErrorResponse(ErrorCode.BAD_STATE, req.MSG_TYPE, "stop the stream before a commit")
+            return ErrorResponse(
+                ErrorCode.BAD_STATE, req.MSG_TYPE, "stop the stream before a commit"
+            )
         if not 0 < req.total_length <= len(self._staging):
-            return ErrorResponse(ErrorCode.INVALID, req.MSG_TYPE, "total_length exceeds the staged data")
+            return ErrorResponse(
+                ErrorCode.INVALID, req.MSG_TYPE, "total_length exceeds the staged data"
+            )
         data = bytes(self._staging[: req.total_length])
         if crc32c(data) != req.expected_crc:
             return ErrorResponse(ErrorCode.CORRUPT, req.MSG_TYPE, "staged data CRC mismatch")
@@ -352,7 +422,15 @@ class VirtualBoard:
         active = self.flash.active()
         s0, s1 = self.flash.slot_info(0), self.flash.slot_info(1)
         return m.ConfigStatus(
-            0xFF if active is None else active.slot, len(self._staging), self.flash.capacity,
-            s0.generation, s0.length, s0.crc, int(s0.valid),
-            s1.generation, s1.length, s1.crc, int(s1.valid),
-        )  # fmt: skip
+            0xFF if active is None else active.slot,
+            len(self._staging),
+            self.flash.capacity,
+            s0.generation,
+            s0.length,
+            s0.crc,
+            int(s0.valid),
+            s1.generation,
+            s1.length,
+            s1.crc,
+            int(s1.valid),
+        )

@@ -39,9 +39,14 @@ class SimDevice:
         self.options = options
         self.clock = clock
         self.board = VirtualBoard(
-            build_scene(options), serial=options.serial, vid=options.vid, pid=options.pid,
-            flash=Flash(cut_at=options.power_cut), seed=options.seed, now=now,
-        )  # fmt: skip
+            build_scene(options),
+            serial=options.serial,
+            vid=options.vid,
+            pid=options.pid,
+            flash=Flash(cut_at=options.power_cut),
+            seed=options.seed,
+            now=now,
+        )
         self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
         self.generation = 1  # +1 each time it comes back
         self.plugged = True

@@ -87,7 +87,9 @@ class Flash:
         self._program(target, 0, HEADER.pack(MAGIC, generation, len(data), crc))
         info = self.slot_info(target)
         if not info.valid or info.generation != generation:
-            raise FlashError(f"slot {target} read-back does not match what was written", verify=True)
+            raise FlashError(
+                f"slot {target} read-back does not match what was written", verify=True
+            )
         return info
 
     def _operation(self) -> None:

@@ -69,10 +69,15 @@ class SimOptions:
         for key in ("ber", "drop", "dup"):
             value = getattr(self, key)
             need(0.0 <= value <= 1.0, f"{key} must be a probability in [0, 1], got {value}")
-        need(min(self.unplug_after, self.unplug_count, self.stall_after) >= 0, "counts must be >= 0")
+        need(
+            min(self.unplug_after, self.unplug_count, self.stall_after) >= 0, "counts must be >= 0"
+        )
         need(self.unplug_ms >= 0 and self.stall_ms >= 0, "durations must be >= 0")
         need(self.fifo >= 1024, f"fifo must be >= 1024 bytes, got {self.fifo}")
-        need(self.noise >= 0 and (self.speed == 0 or 200 <= self.speed <= 2000), "noise >= 0, speed in [200, 2000]")
+        need(
+            self.noise >= 0 and (self.speed == 0 or 200 <= self.speed <= 2000),
+            "noise >= 0, speed in [200, 2000]",
+        )
         need(0 < len(self.serial.encode()) <= 16, "serial must be 1 to 16 bytes")
         need(0 <= self.vid <= 0xFFFF and 0 <= self.pid <= 0xFFFF, "vid and pid must be 16-bit")
 

@@ -73,7 +73,9 @@ class Serial(SerialBase):
             raise ValueError(str(exc)) from exc  # a bad URL, not an absent board
         device.update(device.clock())
         if not device.plugged:
-            raise SerialException(errno.ENOENT, f"could not open port {self.portstr}: [Errno 2] No such device")
+            raise SerialException(
+                errno.ENOENT, f"could not open port {self.portstr}: [Errno 2] No such device"
+            )
         if self._exclusive and device.holder is not None:
             raise SerialException(errno.EBUSY, f"Could not exclusively lock port {self.portstr}")
         device.holder = self

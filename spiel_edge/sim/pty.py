@@ -64,7 +64,9 @@ def _point_link(link: str | None, target: str) -> None:
 class PtyServer:
     """``serve(stop)`` until ``stop`` is set; ``announce(path)`` is called for every pty."""
 
-    def __init__(self, device: SimDevice, *, link: str | None = None, announce: Callable[[str], None] = print):
+    def __init__(
+        self, device: SimDevice, *, link: str | None = None, announce: Callable[[str], None] = print
+    ):
         self.device = device
         self.link = link
         self.announce = announce
@@ -145,8 +147,13 @@ class PtyServer:
         self.device.consume(written)
 
 
-def serve_pty(url: str = "sim://", *, link: str | None = None, stop: threading.Event | None = None,
-              announce: Callable[[str], None] = print) -> SimDevice:
+def serve_pty(
+    url: str = "sim://",
+    *,
+    link: str | None = None,
+    stop: threading.Event | None = None,
+    announce: Callable[[str], None] = print,
+) -> SimDevice:
     """Run a virtual board from ``url``'s options on a pty until ``stop`` is set."""
     device = SimDevice(SimOptions.from_url(url))
     if link:

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike
 
 from spiel_edge.data import load_subset
 from spiel_edge.errors import ConfigError
-from spiel_edge.profile import Geometry, load_profile
+from spiel_edge.profile.schema import Geometry, load_profile
 
 U16_MAX = 65535
 
@@ -111,8 +111,16 @@ class EchoModelScene:
         """Move the targets (K, 3) mm, z > 0: what a robot holding the target does between the
         positions of a guided calibration. Acquisitions made from now on see them."""
         arr = np.atleast_2d(np.asarray(targets_mm, dtype=np.float64))
-        if arr.ndim != 2 or arr.shape[1] != 3 or not len(arr) or not np.all(np.isfinite(arr)) or np.any(arr[:, 2] <= 0):
-            raise ConfigError(f"targets must be finite (x, y, z) rows in mm with z > 0, got {targets_mm!r}")
+        if (
+            arr.ndim != 2
+            or arr.shape[1] != 3
+            or not len(arr)
+            or not np.all(np.isfinite(arr))
+            or np.any(arr[:, 2] <= 0)
+        ):
+            raise ConfigError(
+                f"targets must be finite (x, y, z) rows in mm with z > 0, got {targets_mm!r}"
+            )
         self.targets = arr
 
     def frame(self, index: int, n_samples: int, time_s: float) -> SceneFrame:
@@ -135,10 +143,14 @@ class EchoModelScene:
             direct = np.linalg.norm(g.channels_mm - g.emitter_mm, axis=1)
             for n in range(g.n_channels):
                 if direct[n] < 1e-6:  # the emitting channel hears its own ring-down
-                    out[n] += m.ring_down * np.exp(-np.maximum(t - 2.0, 0.0) / m.ring_down_tau) * (t >= 2)
+                    out[n] += (
+                        m.ring_down * np.exp(-np.maximum(t - 2.0, 0.0) / m.ring_down_tau) * (t >= 2)
+                    )
                 else:
                     out[n] += self._pulse(t, direct[n] / self.mm_per_sample + 2.0, m.crosstalk)
-                out[n] += self._pulse(t, m.clutter_mm / self.mm_per_sample + g.delays()[n], m.clutter)
+                out[n] += self._pulse(
+                    t, m.clutter_mm / self.mm_per_sample + g.delays()[n], m.clutter
+                )
             self._backgrounds[n_samples] = np.clip(np.rint(out), 0, U16_MAX).astype(np.uint16)
         return self._backgrounds[n_samples]
 
@@ -165,7 +177,6 @@ class EchoModelScene:
         u = (t - (mode - self._mode_offset)) / m.sigma
         shape = np.exp(-0.5 * u * u) * (1.0 + _erf(m.eta * u / math.sqrt(2.0)))
         return amplitude * shape / self._peak
-
 
     @property
     def _peak(self) -> float:

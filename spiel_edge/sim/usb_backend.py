@@ -66,33 +66,74 @@ class FakeUsbBackend(usb.backend.IBackend):
     def get_device_descriptor(self, dev: _DeviceId) -> Any:
         opts = dev.device.options
         return SimpleNamespace(
-            bLength=18, bDescriptorType=1, bcdUSB=0x0200, bDeviceClass=0, bDeviceSubClass=0,
-            bDeviceProtocol=0, bMaxPacketSize0=64, idVendor=opts.vid, idProduct=opts.pid,
-            bcdDevice=0x0100, iManufacturer=1, iProduct=2, iSerialNumber=3, bNumConfigurations=1,
-            address=dev.slot + 10 * dev.generation % 100 + 1, bus=1, port_number=dev.slot + 1,
-            port_numbers=(dev.slot + 1,), speed=3,
-        )  # fmt: skip
+            bLength=18,
+            bDescriptorType=1,
+            bcdUSB=0x0200,
+            bDeviceClass=0,
+            bDeviceSubClass=0,
+            bDeviceProtocol=0,
+            bMaxPacketSize0=64,
+            idVendor=opts.vid,
+            idProduct=opts.pid,
+            bcdDevice=0x0100,
+            iManufacturer=1,
+            iProduct=2,
+            iSerialNumber=3,
+            bNumConfigurations=1,
+            address=dev.slot + 10 * dev.generation % 100 + 1,
+            bus=1,
+            port_number=dev.slot + 1,
+            port_numbers=(dev.slot + 1,),
+            speed=3,
+        )
 
     def get_configuration_descriptor(self, dev: _DeviceId, config: int) -> Any:
         if config != 0:
             raise IndexError("one configuration only")
-        return SimpleNamespace(bLength=9, bDescriptorType=2, wTotalLength=32, bNumInterfaces=1,
-                               bConfigurationValue=1, iConfiguration=0, bmAttributes=0x80,
-                               bMaxPower=50, extra_descriptors=[])  # fmt: skip
+        return SimpleNamespace(
+            bLength=9,
+            bDescriptorType=2,
+            wTotalLength=32,
+            bNumInterfaces=1,
+            bConfigurationValue=1,
+            iConfiguration=0,
+            bmAttributes=0x80,
+            bMaxPower=50,
+            extra_descriptors=[],
+        )
 
     def get_interface_descriptor(self, dev: _DeviceId, intf: int, alt: int, config: int) -> Any:
         if (intf, alt, config) != (0, 0, 0):
             raise IndexError("one interface, one alternate setting")
-        return SimpleNamespace(bLength=9, bDescriptorType=4, bInterfaceNumber=0, bAlternateSetting=0,
-                               bNumEndpoints=2, bInterfaceClass=VENDOR_CLASS, bInterfaceSubClass=0,
-                               bInterfaceProtocol=0, iInterface=0, extra_descriptors=[])  # fmt: skip
+        return SimpleNamespace(
+            bLength=9,
+            bDescriptorType=4,
+            bInterfaceNumber=0,
+            bAlternateSetting=0,
+            bNumEndpoints=2,
+            bInterfaceClass=VENDOR_CLASS,
+            bInterfaceSubClass=0,
+            bInterfaceProtocol=0,
+            iInterface=0,
+            extra_descriptors=[],
+        )
 
-    def get_endpoint_descriptor(self, dev: _DeviceId, ep: int, intf: int, alt: int, config: int) -> Any:
+    def get_endpoint_descriptor(
+        self, dev: _DeviceId, ep: int, intf: int, alt: int, config: int
+    ) -> Any:
         if ep not in (0, 1) or (intf, alt, config) != (0, 0, 0):
             raise IndexError("two endpoints")
-        return SimpleNamespace(bLength=7, bDescriptorType=5, bEndpointAddress=(EP_IN, EP_OUT)[ep],
-                               bmAttributes=BULK, wMaxPacketSize=self.max_packet, bInterval=0,
-                               bRefresh=0, bSynchAddress=0, extra_descriptors=[])  # fmt: skip
+        return SimpleNamespace(
+            bLength=7,
+            bDescriptorType=5,
+            bEndpointAddress=(EP_IN, EP_OUT)[ep],
+            bmAttributes=BULK,
+            wMaxPacketSize=self.max_packet,
+            bInterval=0,
+            bRefresh=0,
+            bSynchAddress=0,
+            extra_descriptors=[],
+        )
 
     # --- handles -------------------------------------------------------------------------
 
@@ -154,8 +195,16 @@ class FakeUsbBackend(usb.backend.IBackend):
                 raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
             time.sleep(max(min(device.next_event(now), deadline) - now, MIN_SLEEP_S))
 
-    def ctrl_transfer(self, dev_handle: _Handle, bmRequestType: int, bRequest: int, wValue: int,
-                      wIndex: int, data: Any, timeout: int) -> int:  # fmt: skip
+    def ctrl_transfer(
+        self,
+        dev_handle: _Handle,
+        bmRequestType: int,
+        bRequest: int,
+        wValue: int,
+        wIndex: int,
+        data: Any,
+        timeout: int,
+    ) -> int:
         """GET_DESCRIPTOR(STRING) only: language ids and the three strings."""
         device = self._alive(dev_handle)
         if bRequest != 0x06 or wValue >> 8 != 0x03:

@@ -8,7 +8,7 @@ import pytest
 from spiel_edge.data import load_subset
 from spiel_edge.pipeline import Pipeline
 from spiel_edge.pipeline.echo_labels import expected_toa, label_echoes
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 
 
 @pytest.fixture(scope="session")

@@ -19,8 +19,13 @@ def _wrong_shape_model(path, n_features=5):
     score = helper.make_tensor_value_info("score", TensorProto.FLOAT, ["batch", n_features])
     emb = helper.make_tensor_value_info("embedding", TensorProto.FLOAT, ["batch", n_features])
     graph = helper.make_graph(
-        [helper.make_node("Sigmoid", ["features"], ["score"]), helper.make_node("Relu", ["features"], ["embedding"])],
-        "wrong", [x], [score, emb],
+        [
+            helper.make_node("Sigmoid", ["features"], ["score"]),
+            helper.make_node("Relu", ["features"], ["embedding"]),
+        ],
+        "wrong",
+        [x],
+        [score, emb],
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
     onnx.checker.check_model(model)
@@ -35,7 +40,12 @@ def _bad_files(tmp_path):
     truncated.write_bytes(blob[: len(blob) // 2])
     wrong = tmp_path / "wrong.onnx"
     _wrong_shape_model(wrong)
-    return {"missing": tmp_path / "missing.onnx", "garbage": garbage, "truncated": truncated, "wrong shape": wrong}
+    return {
+        "missing": tmp_path / "missing.onnx",
+        "garbage": garbage,
+        "truncated": truncated,
+        "wrong shape": wrong,
+    }
 
 
 @pytest.mark.parametrize("kind", ["missing", "garbage", "truncated", "wrong shape"])
@@ -60,7 +70,9 @@ def test_factory_warns_and_uses_geometric(profile, tmp_path, monkeypatch, caplog
     with caplog.at_level(logging.WARNING, logger=factory.__name__):
         assoc = factory.build_associator(profile, "onnx")
     assert isinstance(assoc, GeometricAssociator)
-    assert any("geometric" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
+    assert any(
+        "geometric" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records
+    )
 
 
 def test_factory_uses_the_shipped_model(profile):

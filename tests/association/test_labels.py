@@ -46,5 +46,7 @@ def test_score_counts_hits_misses_and_empty_channels():
 
 
 def test_listening_mask_drops_channels():
-    sc = score_association(np.array([1, 0, 0]), np.array([1, 1, 0]), listening=np.array([True, False, True]))
+    sc = score_association(
+        np.array([1, 0, 0]), np.array([1, 1, 0]), listening=np.array([True, False, True])
+    )
     assert sc.channels == 2 and sc.correct == 2

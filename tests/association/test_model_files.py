@@ -16,7 +16,9 @@ MODEL = MODELS / "association.onnx"
 
 def test_onnx_reproduces_torch_reference_outputs():
     ref = json.loads((MODELS / "association_reference.json").read_text())
-    assert ref["onnx_sha256"] == hashlib.sha256(MODEL.read_bytes()).hexdigest(), "reference is from another model"
+    assert ref["onnx_sha256"] == hashlib.sha256(MODEL.read_bytes()).hexdigest(), (
+        "reference is from another model"
+    )
     session = ort.InferenceSession(str(MODEL), providers=["CPUExecutionProvider"])
     x = np.array(ref["features"], dtype=np.float32)
     score, embedding = session.run(["score", "embedding"], {"features": x})
@@ -28,7 +30,10 @@ def test_onnx_reproduces_torch_reference_outputs():
 
 def test_batch_axis_is_dynamic():
     session = ort.InferenceSession(str(MODEL), providers=["CPUExecutionProvider"])
-    x = np.array(json.loads((MODELS / "association_reference.json").read_text())["features"], dtype=np.float32)
+    x = np.array(
+        json.loads((MODELS / "association_reference.json").read_text())["features"],
+        dtype=np.float32,
+    )
     one = session.run(["score"], {"features": x[:1]})[0]
     many = session.run(["score"], {"features": x})[0]
     np.testing.assert_allclose(one[0], many[0], atol=1e-6)

@@ -54,8 +54,10 @@ def test_accuracy_beats_the_strongest_echo_baseline(assoc, subset_features):
     alpha = FEATURE_NAMES.index("alpha")
     learned = _accuracy([assoc(f, c) for f, c, _, _ in subset_features], subset_features)
     strongest = _accuracy(
-        [np.where(c > 0, np.nanargmax(np.nan_to_num(f[:, :, alpha], nan=-1.0), axis=1), -1)
-         for f, c, _, _ in subset_features],
+        [
+            np.where(c > 0, np.nanargmax(np.nan_to_num(f[:, :, alpha], nan=-1.0), axis=1), -1)
+            for f, c, _, _ in subset_features
+        ],
         subset_features,
     )
     geometric = _accuracy([g for _, _, _, g in subset_features], subset_features)
@@ -78,7 +80,10 @@ def test_guard_falls_back_to_the_unrestricted_search(profile, subset_features):
     assert guarded_match(geo, features, counts, nothing).tolist() == expected.tolist()
     assert guarded_match(geo, features, counts, nothing, slack_mm=0.0).tolist() == expected.tolist()
     everything = np.ones(features.shape[:2], dtype=bool)
-    assert guarded_match(geo, features, counts, everything, slack_mm=math.inf).tolist() == expected.tolist()
+    assert (
+        guarded_match(geo, features, counts, everything, slack_mm=math.inf).tolist()
+        == expected.tolist()
+    )
 
 
 def test_runtime_never_imports_torch():
@@ -86,7 +91,7 @@ def test_runtime_never_imports_torch():
         import sys
         from spiel_edge.data import load_subset
         from spiel_edge.pipeline.factory import build_pipeline
-        from spiel_edge.profile import load_profile
+        from spiel_edge.profile.schema import load_profile
         pipe = build_pipeline(load_profile("spiel-icra23"), "onnx")
         assert type(pipe.associator).__name__ == "OnnxAssociator", pipe.associator
         d = load_subset()
@@ -125,7 +130,9 @@ def test_the_prior_decides_between_consistent_combinations(profile):
     near, far = np.array([10.0, 20.0, 120.0]), np.array([-30.0, 10.0, 170.0])
     features = np.full((4, 2, len(FEATURE_NAMES)), np.nan)
     for k, target in enumerate((near, far)):
-        path = np.linalg.norm(target - g.emitter_mm) + np.linalg.norm(target - g.channels_mm, axis=1)
+        path = np.linalg.norm(target - g.emitter_mm) + np.linalg.norm(
+            target - g.channels_mm, axis=1
+        )
         features[:, k, FEATURE_NAMES.index("toa")] = path / profile.mm_per_sample + g.delays()
         features[:, k, FEATURE_NAMES.index("alpha")] = 300.0
     counts = np.full(4, 2)

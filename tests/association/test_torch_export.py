@@ -20,7 +20,9 @@ def samples(profile, subset_features):
     out = []
     for i, (f, c, labels, geo) in enumerate(subset_features[:60]):
         x = float(i % 5)  # five fake (x, y) positions so the split has both sides
-        out.append(ta.Sample(f"{x}mm_0.0mm_100.0mm_0_{i}_frames.csv", f, c, labels, np.zeros(3), geo))
+        out.append(
+            ta.Sample(f"{x}mm_0.0mm_100.0mm_0_{i}_frames.csv", f, c, labels, np.zeros(3), geo)
+        )
     return out
 
 
@@ -44,6 +46,8 @@ def test_onnx_export_matches_torch(samples):
 
 def test_training_is_deterministic_for_a_seed(samples):
     def digest(net):
-        return hashlib.sha256(b"".join(v.numpy().tobytes() for v in net.state_dict().values())).hexdigest()
+        return hashlib.sha256(
+            b"".join(v.numpy().tobytes() for v in net.state_dict().values())
+        ).hexdigest()
 
     assert digest(_train(samples)) == digest(_train(samples))

@@ -40,7 +40,11 @@ class TwoSlotFlash:
         self.ops += 1
 
     def active(self):
-        valid = [(s[0], i) for i, s in enumerate(self.slots) if s is not None and crc32c(self.data[i]) == s[2]]
+        valid = [
+            (s[0], i)
+            for i, s in enumerate(self.slots)
+            if s is not None and crc32c(self.data[i]) == s[2]
+        ]
         return max(valid)[1] if valid else None
 
     def commit(self, data: bytes):
@@ -83,10 +87,23 @@ class FakeBoardSession:
 
     def config_status(self):
         a = self.flash.active()
-        s = [(x[0], len(self.flash.data[i]), x[2], 1) if x else (0, 0, 0, 0) for i, x in enumerate(self.flash.slots)]
-        return SimpleNamespace(active_slot=0xFF if a is None else a, staged_length=len(self.staging), max_length=4080,
-                               slot0_generation=s[0][0], slot0_length=s[0][1], slot0_crc=s[0][2], slot0_valid=s[0][3],
-                               slot1_generation=s[1][0], slot1_length=s[1][1], slot1_crc=s[1][2], slot1_valid=s[1][3])
+        s = [
+            (x[0], len(self.flash.data[i]), x[2], 1) if x else (0, 0, 0, 0)
+            for i, x in enumerate(self.flash.slots)
+        ]
+        return SimpleNamespace(
+            active_slot=0xFF if a is None else a,
+            staged_length=len(self.staging),
+            max_length=4080,
+            slot0_generation=s[0][0],
+            slot0_length=s[0][1],
+            slot0_crc=s[0][2],
+            slot0_valid=s[0][3],
+            slot1_generation=s[1][0],
+            slot1_length=s[1][1],
+            slot1_crc=s[1][2],
+            slot1_valid=s[1][3],
+        )
 
     @property
     def staging(self):

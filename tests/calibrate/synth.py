@@ -8,7 +8,7 @@ import numpy as np
 from scipy.special import erf
 
 from spiel_edge.calibrate import predict_toa
-from spiel_edge.profile import Geometry, Profile, load_profile
+from spiel_edge.profile.schema import Geometry, Profile, load_profile
 
 
 def nominal() -> Profile:
@@ -20,7 +20,9 @@ def perturbed_truth(g: Geometry, rng: np.random.Generator) -> Geometry:
     moved = g.channels_mm.copy()
     moved[1:] += rng.uniform(-3.0, 3.0, (g.n_channels - 1, 3))
     return dataclasses.replace(
-        g, channels_mm=moved, delay_samples=rng.uniform(1.5, 2.5, g.n_channels),
+        g,
+        channels_mm=moved,
+        delay_samples=rng.uniform(1.5, 2.5, g.n_channels),
         speed_of_sound_m_s=g.speed_of_sound_m_s * rng.uniform(0.99, 1.01),
     )
 
@@ -49,7 +51,17 @@ def _emg(t, mu, sigma, eta):
     return np.exp(-0.5 * u * u) * (1.0 + erf(eta * u / np.sqrt(2.0)))
 
 
-def render(truth: Geometry, targets: np.ndarray, fs: float, n_samples: int, rng, *, sigma=1.3, eta=1.5, noise=1.5):
+def render(
+    truth: Geometry,
+    targets: np.ndarray,
+    fs: float,
+    n_samples: int,
+    rng,
+    *,
+    sigma=1.3,
+    eta=1.5,
+    noise=1.5,
+):
     """Envelopes (M, channels, samples) with the target's echo whose maximum is at its echo time,
     a clutter echo, ring-down and noise; and the matching target-free backgrounds."""
     t = np.arange(n_samples, dtype=np.float64)
@@ -63,7 +75,11 @@ def render(truth: Geometry, targets: np.ndarray, fs: float, n_samples: int, rng,
     for i, p in enumerate(targets):
         toa = predict_toa(truth, np.repeat(p[None], n_ch, axis=0), np.arange(n_ch), fs)
         for n in range(n_ch):
-            amp = 4.0e7 / (np.linalg.norm(p - truth.emitter_mm) * np.linalg.norm(p - truth.channels_mm[n]))
+            amp = 4.0e7 / (
+                np.linalg.norm(p - truth.emitter_mm) * np.linalg.norm(p - truth.channels_mm[n])
+            )
             frames[i, n] += amp * _emg(t, toa[n] - mode_offset, sigma, eta)
-            frames[i, n] += 0.5 * amp * _emg(t, toa[n] + rng.uniform(8, 14) - mode_offset, sigma, eta)
+            frames[i, n] += (
+                0.5 * amp * _emg(t, toa[n] + rng.uniform(8, 14) - mode_offset, sigma, eta)
+            )
     return np.round(frames), np.round(bg)

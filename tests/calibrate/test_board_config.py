@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from firmware_protocol.errors import ErrorCode
-from spiel_edge import board_config as bc
-from spiel_edge.board_flash import commit, pull, push
+from spiel_edge.board import schema as bc
+from spiel_edge.board.flash import commit, pull, push
 from spiel_edge.errors import ConfigError, DeviceError
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 from tests.calibrate.fake_board import (
     DeviceDisconnectedError,
     DeviceRequestError,
@@ -30,23 +30,43 @@ def test_blob_round_trip_and_header(config):
     assert blob[:4] == bc.MAGIC
     assert bc.decode(blob) == config
     fields = bc.HEADER.unpack_from(blob)
-    assert fields[3] == config["acquisition"]["n_samples"] and fields[-1] == len(blob) - bc.HEADER.size
+    assert (
+        fields[3] == config["acquisition"]["n_samples"] and fields[-1] == len(blob) - bc.HEADER.size
+    )
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"acquisition": {"gain_db": 75.0}}, r"acquisition.gain_db must be float in \[0, 60\]"),
-    ({"acquisition": {"n_samples": "64"}}, r"acquisition.n_samples must be int in \[8, 4096\]"),
-    ({"acquisition": {"n_samples": 8}}, r"blind_zone_samples must be in \[0, n_samples - 1 = 7\]"),
-    ({"acquisition": {"decimation": 255, "sample_rate_hz": 50000.0}}, r"decimation must be in \[1, 200\]"),
-    ({"acquisition": {"pulse_cycles": 200}}, r"pulse_cycles must be in \[1, 71\]"),
-    ({"acquisition": {"acquisition_rate_hz": 400.0}}, r"acquisition_rate_hz must be in \[0.1, 343.8\]"),
-    ({"acquisition": {"volume": 3}}, r"unknown key\(s\) \['volume'\] in \[acquisition\]"),
-    ({"board": {"name": "x" * 40}}, r"board.name must be 1-32"),
-    ({"geometry": {"speed_of_sound_m_s": 5000.0}}, r"speed_of_sound_m_s must be a number in \[200, 2000\]"),
-    ({"geometry": {"listening": [True, False, False, True]}}, "at least 3 listening"),
-    ({"calibration": {"residual_samples": -1.0}}, r"calibration.residual_samples must be in \[0, 100\]"),
-    ({"wifi": {}}, r"unknown table\(s\) \['wifi'\]"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"acquisition": {"gain_db": 75.0}}, r"acquisition.gain_db must be float in \[0, 60\]"),
+        ({"acquisition": {"n_samples": "64"}}, r"acquisition.n_samples must be int in \[8, 4096\]"),
+        (
+            {"acquisition": {"n_samples": 8}},
+            r"blind_zone_samples must be in \[0, n_samples - 1 = 7\]",
+        ),
+        (
+            {"acquisition": {"decimation": 255, "sample_rate_hz": 50000.0}},
+            r"decimation must be in \[1, 200\]",
+        ),
+        ({"acquisition": {"pulse_cycles": 200}}, r"pulse_cycles must be in \[1, 71\]"),
+        (
+            {"acquisition": {"acquisition_rate_hz": 400.0}},
+            r"acquisition_rate_hz must be in \[0.1, 343.8\]",
+        ),
+        ({"acquisition": {"volume": 3}}, r"unknown key\(s\) \['volume'\] in \[acquisition\]"),
+        ({"board": {"name": "x" * 40}}, r"board.name must be 1-32"),
+        (
+            {"geometry": {"speed_of_sound_m_s": 5000.0}},
+            r"speed_of_sound_m_s must be a number in \[200, 2000\]",
+        ),
+        ({"geometry": {"listening": [True, False, False, True]}}, "at least 3 listening"),
+        (
+            {"calibration": {"residual_samples": -1.0}},
+            r"calibration.residual_samples must be in \[0, 100\]",
+        ),
+        ({"wifi": {}}, r"unknown table\(s\) \['wifi'\]"),
+    ],
+)
 def test_validation_names_key_and_range(config, change, message):
     with pytest.raises(ConfigError, match=message):
         bc.overlay(config, change)
@@ -55,7 +75,9 @@ def test_validation_names_key_and_range(config, change, message):
 def test_missing_key_and_corrupt_blob(config):
     broken = copy.deepcopy(config)
     del broken["acquisition"]["gain_db"]
-    with pytest.raises(ConfigError, match=r"acquisition.gain_db is required \(float in \[0, 60\]\)"):
+    with pytest.raises(
+        ConfigError, match=r"acquisition.gain_db is required \(float in \[0, 60\]\)"
+    ):
         bc.validate(broken)
     blob = bytearray(bc.encode(config))
     blob[10] ^= 0x01  # the header's n_samples no longer matches the TOML
@@ -79,8 +101,13 @@ def test_profile_from_board_uses_the_stored_geometry(config):
     session = FakeBoardSession(TwoSlotFlash())
     base = load_profile()
     assert bc.profile_from_board(session, base) is base  # nothing stored yet
-    moved = bc.overlay(config, {"geometry": {"channels_mm": [[0, 0, 0], [-40, -60, 0], [70, 0, 0], [-40, 60, 0]]},
-                                "acquisition": {"blind_zone_samples": 7}})
+    moved = bc.overlay(
+        config,
+        {
+            "geometry": {"channels_mm": [[0, 0, 0], [-40, -60, 0], [70, 0, 0], [-40, 60, 0]]},
+            "acquisition": {"blind_zone_samples": 7},
+        },
+    )
     commit(session, push(session, moved))
     profile = bc.profile_from_board(session, base)
     assert np.array_equal(profile.geometry.channels_mm[2], [70, 0, 0])
@@ -115,7 +142,11 @@ def test_run_profile_precedence(config, tmp_path):
     cal = tmp_path / "cal.toml"
     cal.write_text("[geometry]\nspeed_of_sound_m_s = 340.0\n")
     profile, source = bc.run_profile(session, "spiel-icra23", cal)
-    assert profile.geometry.speed_of_sound_m_s == 340.0 and source.startswith("calibration") and source.endswith("over board 'proto-1'")
+    assert (
+        profile.geometry.speed_of_sound_m_s == 340.0
+        and source.startswith("calibration")
+        and source.endswith("over board 'proto-1'")
+    )
 
 
 def test_push_commit_pull_round_trip(config):

@@ -12,7 +12,7 @@ from spiel_edge.calibrate import read_positions
 from spiel_edge.cli import main
 from spiel_edge.data import load_subset
 from spiel_edge.errors import InputError
-from spiel_edge.profile import apply_calibration, load_profile
+from spiel_edge.profile.schema import apply_calibration, load_profile
 
 
 @pytest.fixture(scope="module")
@@ -25,15 +25,30 @@ def folder(tmp_path_factory):
         name = data.names[i]
         np.savetxt(root / "fr" / name, data.frames[i], fmt="%d")
         np.savetxt(root / "bg" / name, data.backgrounds[i], fmt="%d")
-        labels = np.column_stack([np.arange(4), -np.ones(4), -np.ones(4), np.tile(data.truth_mm[i], (4, 1))])
+        labels = np.column_stack(
+            [np.arange(4), -np.ones(4), -np.ones(4), np.tile(data.truth_mm[i], (4, 1))]
+        )
         np.savetxt(root / "fr" / name.replace("_frames.csv", "_labels.csv"), labels)
     return root
 
 
 def test_offline_writes_a_calibration_that_replay_accepts(folder, tmp_path, capsys):
     out = tmp_path / "cal.toml"
-    rc = main(["calibrate", "--recordings", str(folder / "fr"), "--background", str(folder / "bg"),
-               "--exclude-z", "90", "--fix", "speed", "-o", str(out)])
+    rc = main(
+        [
+            "calibrate",
+            "--recordings",
+            str(folder / "fr"),
+            "--background",
+            str(folder / "bg"),
+            "--exclude-z",
+            "90",
+            "--fix",
+            "speed",
+            "-o",
+            str(out),
+        ]
+    )
     assert rc == 0
     text = out.read_text()
     data = tomllib.loads(text)
@@ -43,8 +58,18 @@ def test_offline_writes_a_calibration_that_replay_accepts(folder, tmp_path, caps
     profile = apply_calibration(load_profile(), out)
     assert np.allclose(profile.geometry.channels_mm, data["geometry"]["channels_mm"])
     capsys.readouterr()
-    rc = main(["replay", str(folder / "fr"), "--background", str(folder / "bg"), "--calibration", str(out),
-               "--association", "geometric"])
+    rc = main(
+        [
+            "replay",
+            str(folder / "fr"),
+            "--background",
+            str(folder / "bg"),
+            "--calibration",
+            str(out),
+            "--association",
+            "geometric",
+        ]
+    )
     assert rc == 0
     records = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert sum(r["position_mm"] is not None for r in records) > 0.9 * len(records)
@@ -53,8 +78,22 @@ def test_offline_writes_a_calibration_that_replay_accepts(folder, tmp_path, caps
 def test_plot_is_written(folder, tmp_path):
     pytest.importorskip("matplotlib")
     png = tmp_path / "cal.png"
-    assert main(["calibrate", "--recordings", str(folder / "fr"), "--background", str(folder / "bg"),
-                 "--exclude-z", "90", "--plot", str(png)]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "--recordings",
+                str(folder / "fr"),
+                "--background",
+                str(folder / "bg"),
+                "--exclude-z",
+                "90",
+                "--plot",
+                str(png),
+            ]
+        )
+        == 0
+    )
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -6,7 +6,7 @@ import tomllib
 
 import pytest
 
-from spiel_edge import board_config as bc
+from spiel_edge.board import schema as bc
 from spiel_edge.cli import config as cli_config
 from spiel_edge.cli import main
 from tests.calibrate.fake_board import FakeBoardSession, TwoSlotFlash
@@ -30,7 +30,9 @@ def test_push_commit_pull_show_diff(board, tmp_path, capsys):
     assert main(["config", "pull", "--port", "sim://"]) == 2
     assert "no config" in capsys.readouterr().err
     cal = tmp_path / "cal.toml"
-    cal.write_text("[geometry]\nchannels_mm = [[0,0,0],[-37,-65,0],[75,0,0],[-37,65,0]]\ndelay_samples = [2.0, 1.5, 1.9, 1.7]\n")
+    cal.write_text(
+        "[geometry]\nchannels_mm = [[0,0,0],[-37,-65,0],[75,0,0],[-37,65,0]]\ndelay_samples = [2.0, 1.5, 1.9, 1.7]\n"
+    )
     assert main(["config", "push", "--port", "sim://", "--name", "proto-7", str(cal)]) == 0
     err = capsys.readouterr().err
     assert "staged" in err and "+ board.name = 'proto-7'" in err
@@ -39,7 +41,12 @@ def test_push_commit_pull_show_diff(board, tmp_path, capsys):
     out = tmp_path / "board.toml"
     assert main(["config", "pull", "--port", "sim://", str(out)]) == 0
     pulled = tomllib.loads(out.read_text())
-    assert pulled["board"]["name"] == "proto-7" and pulled["geometry"]["delay_samples"] == [2.0, 1.5, 1.9, 1.7]
+    assert pulled["board"]["name"] == "proto-7" and pulled["geometry"]["delay_samples"] == [
+        2.0,
+        1.5,
+        1.9,
+        1.7,
+    ]
     capsys.readouterr()
     assert main(["config", "diff", "--port", "sim://", str(out)]) == 0
     assert capsys.readouterr().out.strip() == "no changes"
@@ -49,7 +56,11 @@ def test_push_commit_pull_show_diff(board, tmp_path, capsys):
     assert main(["config", "push", "--port", "sim://", "--commit", str(out)]) == 0
     assert main(["config", "show", "--port", "sim://"]) == 0
     shown = capsys.readouterr().out
-    assert "slot 0: generation 1" in shown and "slot 1: generation 2" in shown and "gain_db = 26.0" in shown
+    assert (
+        "slot 0: generation 1" in shown
+        and "slot 1: generation 2" in shown
+        and "gain_db = 26.0" in shown
+    )
     assert all(s.closed for s in sessions)
 
 
@@ -65,7 +76,9 @@ def test_invalid_file_is_rejected_before_writing(board, tmp_path, capsys):
 def test_commit_with_a_wrong_crc_fails(board, tmp_path, capsys):
     flash, _ = board
     good = tmp_path / "good.toml"
-    good.write_text(bc.to_toml(bc.from_profile(__import__("spiel_edge.profile").profile.load_profile())))
+    good.write_text(
+        bc.to_toml(bc.from_profile(__import__("spiel_edge.profile.schema").profile.load_profile()))
+    )
     assert main(["config", "push", "--port", "sim://", str(good)]) == 0
     assert main(["config", "commit", "--port", "sim://", "--crc", "zz"]) == 2
     assert main(["config", "commit", "--port", "sim://", "--crc", "deadbeef"]) == 2

@@ -10,19 +10,23 @@ import pytest
 from spiel_edge.calibrate import calibrate_frames
 from spiel_edge.data import load_subset
 from spiel_edge.errors import InputError
-from spiel_edge.evaluate import split_by_position
+from spiel_edge.measure.evaluate import split_by_position
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 from tests.calibrate.synth import nominal, perturbed_truth, render, target_grid
 
 
 def test_synthetic_envelopes_through_the_pipeline():
     rng = np.random.default_rng(3)
     profile = nominal()
-    start = profile.replace(geometry=dataclasses.replace(profile.geometry, delay_samples=np.zeros(4)))
+    start = profile.replace(
+        geometry=dataclasses.replace(profile.geometry, delay_samples=np.zeros(4))
+    )
     truth = perturbed_truth(profile.geometry, rng)
     targets = target_grid(rng, 300)
-    frames, backgrounds = render(truth, targets, profile.acquisition.sample_rate_hz, 64, rng, noise=5.0)
+    frames, backgrounds = render(
+        truth, targets, profile.acquisition.sample_rate_hz, 64, rng, noise=5.0
+    )
     cal = calibrate_frames(start, frames, backgrounds, targets)
     g = cal.geometry
     assert len(cal.observations) > 0.95 * cal.expected  # the clutter echo was never picked instead
@@ -43,7 +47,9 @@ def _moved(profile: Profile, seed: int) -> Profile:
     d = np.random.default_rng(seed).normal(size=(4, 3))
     d[0] = 0.0  # channel 0 is the emitter
     d[1:] *= 5.0 / np.linalg.norm(d[1:], axis=1, keepdims=True)
-    return profile.replace(geometry=dataclasses.replace(g, channels_mm=g.channels_mm + d, delay_samples=np.zeros(4)))
+    return profile.replace(
+        geometry=dataclasses.replace(g, channels_mm=g.channels_mm + d, delay_samples=np.zeros(4))
+    )
 
 
 def _errors(profile: Profile, frames, backgrounds, truth) -> np.ndarray:
@@ -63,13 +69,23 @@ def test_real_recordings_calibrated_from_a_moved_geometry_match_the_hand_tuned_p
     cal_sel = keep & np.array([k in train for k in xy])
     val_sel = keep & np.array([k in val for k in xy])
     hand = nominal()
-    hand_err = _errors(hand, data.frames[val_sel], data.backgrounds[val_sel], data.truth_mm[val_sel])
+    hand_err = _errors(
+        hand, data.frames[val_sel], data.backgrounds[val_sel], data.truth_mm[val_sel]
+    )
     for seed in (0, 1):
         start = _moved(hand, seed)
-        cal = calibrate_frames(start, data.frames[cal_sel], data.backgrounds[cal_sel], data.truth_mm[cal_sel])
-        moved_err = _errors(start, data.frames[val_sel], data.backgrounds[val_sel], data.truth_mm[val_sel])
-        err = _errors(hand.replace(geometry=cal.geometry), data.frames[val_sel], data.backgrounds[val_sel],
-                      data.truth_mm[val_sel])
+        cal = calibrate_frames(
+            start, data.frames[cal_sel], data.backgrounds[cal_sel], data.truth_mm[cal_sel]
+        )
+        moved_err = _errors(
+            start, data.frames[val_sel], data.backgrounds[val_sel], data.truth_mm[val_sel]
+        )
+        err = _errors(
+            hand.replace(geometry=cal.geometry),
+            data.frames[val_sel],
+            data.backgrounds[val_sel],
+            data.truth_mm[val_sel],
+        )
         assert np.isfinite(err).sum() >= np.isfinite(hand_err).sum()
         mean, hand_mean = err[np.isfinite(err)].mean(), hand_err[np.isfinite(hand_err)].mean()
         assert mean <= 1.05 * hand_mean, (mean, hand_mean)

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from spiel_edge.calibrate.live import capture_positions
+from spiel_edge.calibrate.capture import capture_positions
 from spiel_edge.cli import calibrate as cli_calibrate
 from spiel_edge.cli import main
 from spiel_edge.errors import DeviceError
@@ -43,7 +43,9 @@ class FakeSession:
             far = np.array([[0.0, 0.0, 5000.0]])  # beyond the frame: an empty scene
             p = far if self.target is None else np.asarray(self.target)[None]
             frames, bg = render(self.truth, p, FS, self.n_samples, self.rng, noise=4.0)
-            yield SimpleNamespace(samples=frames[0], background=bg[0] if self.send_background else None)
+            yield SimpleNamespace(
+                samples=frames[0], background=bg[0] if self.send_background else None
+            )
 
 
 @pytest.mark.parametrize("send_background", [True, False])
@@ -58,8 +60,9 @@ def test_capture_positions_follows_the_robot(send_background):
         session.target = p
 
     progressed = []
-    frames, bgs, where = capture_positions(session, nominal(), positions, captures=3, before_position=robot,
-                                           progress=progressed.append)
+    frames, bgs, where = capture_positions(
+        session, nominal(), positions, captures=3, before_position=robot, progress=progressed.append
+    )
     assert frames.shape == bgs.shape == (6, 4, 64)
     assert np.array_equal(where, np.repeat(positions, 3, axis=0))
     assert calls == ([0, 1] if send_background else [-1, 0, 1])
@@ -73,9 +76,13 @@ def test_wrong_sample_count_is_a_device_error():
     profile = nominal()
     short = profile.replace(acquisition=dataclasses.replace(profile.acquisition, n_samples=32))
     session.n_samples = 32
-    session.acquisitions = lambda stop: iter([SimpleNamespace(samples=np.zeros((4, 64)), background=None)] * 5)
+    session.acquisitions = lambda stop: iter(
+        [SimpleNamespace(samples=np.zeros((4, 64)), background=None)] * 5
+    )
     with pytest.raises(DeviceError, match="shape"):
-        capture_positions(session, short, np.zeros((1, 3)), captures=2, before_position=lambda i, p: None)
+        capture_positions(
+            session, short, np.zeros((1, 3)), captures=2, before_position=lambda i, p: None
+        )
 
 
 def test_cli_live_no_prompt_calibrates(tmp_path, monkeypatch):
@@ -88,15 +95,29 @@ def test_cli_live_no_prompt_calibrates(tmp_path, monkeypatch):
     session = FakeSession(truth, send_background=True, seed=1)
     original_start = session.start_stream
 
-    def robot_start(**kw):  # the robot is synchronised with the procedure: probe, then each position
+    def robot_start(
+        **kw,
+    ):  # the robot is synchronised with the procedure: probe, then each position
         original_start(**kw)
         session.target = positions[session.streams - 2] if session.streams >= 2 else None
 
     session.start_stream = robot_start
     monkeypatch.setattr(cli_calibrate, "open_session", lambda port: session)
     out = tmp_path / "cal.toml"
-    rc = main(["calibrate", "--port", "sim://", "--positions", str(csv), "--captures", "4", "--no-prompt",
-               "-o", str(out)])
+    rc = main(
+        [
+            "calibrate",
+            "--port",
+            "sim://",
+            "--positions",
+            str(csv),
+            "--captures",
+            "4",
+            "--no-prompt",
+            "-o",
+            str(out),
+        ]
+    )
     assert rc == 0 and session.closed
     geometry = tomllib.loads(out.read_text())["geometry"]
     assert np.max(np.abs(np.array(geometry["channels_mm"]) - truth.channels_mm)) < 1.5

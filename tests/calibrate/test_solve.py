@@ -42,8 +42,13 @@ def test_reported_uncertainty_matches_the_scatter():
         start, truth, obs, _ = _scene(100 + seed, m=300, outliers=0.0)
         res = solve(obs, start, FS)
         values = dict(zip(res.names, res.values, strict=True))
-        errors.append([values["r2.x"] - truth.channels_mm[2, 0], values["c"] - truth.speed_of_sound_m_s,
-                       values["d1"] - truth.delays()[1]])
+        errors.append(
+            [
+                values["r2.x"] - truth.channels_mm[2, 0],
+                values["c"] - truth.speed_of_sound_m_s,
+                values["d1"] - truth.delays()[1],
+            ]
+        )
         stds.append([res.std[res.names.index(n)] for n in ("r2.x", "c", "d1")])
     z = np.array(errors) / np.array(stds)
     ratio = np.sqrt(np.mean(z**2, axis=0))  # ~1 when the 1-sigma is right
@@ -65,7 +70,9 @@ def test_fixed_receivers_move_rigidly_with_the_emitter():
     rng = np.random.default_rng(5)
     start = nominal().geometry
     shift = np.array([2.0, -1.0, 3.0])
-    truth = dataclasses.replace(start, emitter_mm=start.emitter_mm + shift, channels_mm=start.channels_mm + shift)
+    truth = dataclasses.replace(
+        start, emitter_mm=start.emitter_mm + shift, channels_mm=start.channels_mm + shift
+    )
     targets, ch, toa, _ = echo_times(truth, target_grid(rng, 200), FS, rng, 0.05, 0.0)
     res = solve(Observations(targets, ch, toa), start, FS, fix={"receivers", "delays", "speed"})
     assert np.allclose(res.geometry.channels_mm, truth.channels_mm, atol=0.2)
@@ -75,7 +82,9 @@ def test_noise_free_residuals_vanish():
     start, truth, obs, _ = _scene(3, m=100, noise=0.0, outliers=0.0)
     res = solve(obs, start, FS)
     assert np.max(np.abs(res.residuals)) < 1e-6
-    assert np.allclose(predict_toa(res.geometry, obs.targets_mm, obs.channels, FS), obs.toa, atol=1e-6)
+    assert np.allclose(
+        predict_toa(res.geometry, obs.targets_mm, obs.channels, FS), obs.toa, atol=1e-6
+    )
 
 
 def test_one_target_position_cannot_determine_the_geometry():
@@ -87,13 +96,20 @@ def test_one_target_position_cannot_determine_the_geometry():
         solve(Observations(targets, ch, toa), start, FS)
 
 
-@pytest.mark.parametrize("bad, message", [
-    (dict(toa=np.array([np.nan, 1.0])), "finite"),
-    (dict(channels=np.array([0, 7])), "channels must be in"),
-    (dict(targets_mm=np.zeros((2, 2))), "targets_mm"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (dict(toa=np.array([np.nan, 1.0])), "finite"),
+        (dict(channels=np.array([0, 7])), "channels must be in"),
+        (dict(targets_mm=np.zeros((2, 2))), "targets_mm"),
+    ],
+)
 def test_bad_observations_are_rejected_clearly(bad, message):
-    obs = dict(targets_mm=np.array([[0.0, 0, 100], [0, 0, 150]]), channels=np.array([0, 1]), toa=np.array([10.0, 12.0]))
+    obs = dict(
+        targets_mm=np.array([[0.0, 0, 100], [0, 0, 150]]),
+        channels=np.array([0, 1]),
+        toa=np.array([10.0, 12.0]),
+    )
     obs.update(bad)
     with pytest.raises(InputError, match=message):
         solve(Observations(**obs), nominal().geometry, FS)

@@ -70,12 +70,15 @@ def locate(d, channels, emitter, use, start, weights=None):
 
     def resid(p):
         return w[use] * (paths(p, channels[use], emitter) - d[use])
+
     sol = least_squares(resid, start, method="lm", xtol=1e-12, ftol=1e-12)
     plain = paths(sol.x, channels[use], emitter) - d[use]
     return sol.x, float(np.sqrt(np.mean(plain**2)))
 
 
-def brute_force_association(paths_mm, counts, channels, emitter, facing, weights, strength, min_ch, max_diff, locate_fn):
+def brute_force_association(
+    paths_mm, counts, channels, emitter, facing, weights, strength, min_ch, max_diff, locate_fn
+):
     """Every combination of one echo (or none) per channel, the same cost as the kernel."""
     max_res, penalty, sw, rw = weights
     n_ch = len(counts)
@@ -84,15 +87,24 @@ def brute_force_association(paths_mm, counts, channels, emitter, facing, weights
         used = [c for c in range(n_ch) if choice[c] >= 0]
         if len(used) < min_ch:
             continue
-        if any(abs(paths_mm[i, choice[i]] - paths_mm[j, choice[j]]) > max_diff[i, j] for i in used for j in used if i < j):
+        if any(
+            abs(paths_mm[i, choice[i]] - paths_mm[j, choice[j]]) > max_diff[i, j]
+            for i in used
+            for j in used
+            if i < j
+        ):
             continue
         d = np.array([paths_mm[c, choice[c]] if choice[c] >= 0 else 0.0 for c in range(n_ch)])
         use = np.array([k >= 0 for k in choice])
         pos, rms, ok = locate_fn(d, channels, emitter, facing, use)
         if not ok or rms > max_res:
             continue
-        cost = rms + penalty * (n_ch - len(used)) - sw * np.mean([strength[c, choice[c]] for c in used]) \
+        cost = (
+            rms
+            + penalty * (n_ch - len(used))
+            - sw * np.mean([strength[c, choice[c]] for c in used])
             + rw * np.linalg.norm(pos - emitter)
+        )
         if cost < best_cost:
             best, best_cost = choice, cost
     return best, best_cost

@@ -3,10 +3,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from spiel_edge.background import median_background, save_background
 from spiel_edge.cli import main
 from spiel_edge.errors import InputError
-from spiel_edge.live import load_background
+from spiel_edge.runtime.background import median_background, save_background
+from spiel_edge.runtime.loop import load_background
 
 
 def test_median_ignores_a_passing_reflection(rng):
@@ -21,7 +21,13 @@ def test_capture_errors():
     with pytest.raises(InputError, match="stopped after 2 of 5"):
         median_background([SimpleNamespace(samples=np.zeros((4, 64)))] * 2, 5)
     with pytest.raises(InputError, match="shape changed"):
-        median_background([SimpleNamespace(samples=np.zeros((4, 64))), SimpleNamespace(samples=np.zeros((4, 32)))], 2)
+        median_background(
+            [
+                SimpleNamespace(samples=np.zeros((4, 64))),
+                SimpleNamespace(samples=np.zeros((4, 32))),
+            ],
+            2,
+        )
 
 
 @pytest.mark.parametrize("suffix", [".npy", "_frames.csv"])
@@ -33,6 +39,21 @@ def test_saved_background_loads_for_run(tmp_path, rng, suffix):
 
 def test_background_command_on_the_virtual_board(tmp_path):
     out = tmp_path / "bg.npy"
-    assert main(["background", "--port", "sim://bgtest?scene=model", "--frames", "5", "--rate", "500", "-o", str(out)]) == 0
+    assert (
+        main(
+            [
+                "background",
+                "--port",
+                "sim://bgtest?scene=model",
+                "--frames",
+                "5",
+                "--rate",
+                "500",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     bg = np.load(out)
     assert bg.shape == (4, 64) and np.all(np.isfinite(bg)) and bg.max() > 0

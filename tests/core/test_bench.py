@@ -4,7 +4,10 @@ from spiel_edge.cli import main
 
 
 def test_bench_json_is_the_last_line_with_stage_timings(capsys):
-    assert main(["bench", "--json", "--repeat", "1", "--no-startup", "--association", "geometric"]) == 0
+    assert (
+        main(["bench", "--json", "--repeat", "1", "--no-startup", "--association", "geometric"])
+        == 0
+    )
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     stages = ("preprocess", "detect", "memg", "features", "associate", "locate")
     for key in ("real_4x64", "synthetic_8x256", "synthetic_16x1024"):

@@ -8,7 +8,7 @@ from spiel_edge.pipeline.associate import GeometricAssociator, anchor_triples
 from spiel_edge.pipeline.echo_quality import echo_quality
 from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
 from spiel_edge.pipeline.locate import locate
-from spiel_edge.synthetic import ring_profile
+from spiel_edge.sim.synthetic import ring_profile
 from tests.core import naive
 
 
@@ -60,9 +60,14 @@ def test_weighted_locate_matches_scipy_and_trusts_the_heavier_channels(profile, 
 
 
 def test_echo_quality_weights_and_shifts(profile):
-    spec = dataclasses.replace(profile.locate, toa_sigma_samples=0.3, toa_sigma_per_background=0.5,
-                               toa_sigma_alpha_counts=8.0, toa_shift_background_after=-0.8,
-                               toa_shift_background_before=0.2)  # fmt: skip
+    spec = dataclasses.replace(
+        profile.locate,
+        toa_sigma_samples=0.3,
+        toa_sigma_per_background=0.5,
+        toa_sigma_alpha_counts=8.0,
+        toa_shift_background_after=-0.8,
+        toa_shift_background_before=0.2,
+    )
     frames = np.full((4, 64), 100.0)
     background = np.zeros((4, 64))
     background[1, 22] = 100.0  # after channel 1's echo, as strong as the frame: ratio 1
@@ -72,7 +77,9 @@ def test_echo_quality_weights_and_shifts(profile):
     weights, shift = echo_quality(frames, background, toa, alpha, spec)
     strength = 8.0 / 400
     np.testing.assert_allclose(weights[:3], 1 / (0.3 + np.array([0.0, 0.5, 0.25]) + strength))
-    np.testing.assert_allclose(shift, [0.0, 0.8, -0.1, 0.0])  # early echoes move later, late ones earlier
+    np.testing.assert_allclose(
+        shift, [0.0, 0.8, -0.1, 0.0]
+    )  # early echoes move later, late ones earlier
     assert weights[3] == pytest.approx(1 / 0.3)  # no echo: untouched (and unused)
     weights, shift = echo_quality(frames, None, toa, alpha, spec)
     np.testing.assert_allclose(weights[:3], 1 / (0.3 + strength))
@@ -83,7 +90,13 @@ def test_echo_quality_weights_and_shifts(profile):
 
 def test_locate_never_nan_and_keeps_target_in_front(profile, rng):
     ch, e, f = geometry(profile)
-    for d in (np.full(4, np.nan), np.zeros(4), np.array([1e9, 1, 1, 1]), rng.normal(0, 500, 4), np.array([10.0, 500, 3, 80])):
+    for d in (
+        np.full(4, np.nan),
+        np.zeros(4),
+        np.array([1e9, 1, 1, 1]),
+        rng.normal(0, 500, 4),
+        np.array([10.0, 500, 3, 80]),
+    ):
         pos, rms, ok = locate(d, ch, e, f)
         assert np.all(np.isfinite(pos))
         if ok:
@@ -133,18 +146,39 @@ def test_geometric_association_drops_a_blind_channel(profile):
 def test_exhaustive_search_matches_brute_force(profile, rng):
     ch, e, f = geometry(profile)
     assoc = GeometricAssociator(profile)
-    weights = (assoc.max_residual_mm, assoc.missing_penalty_mm, assoc.strength_weight_mm, assoc.range_weight)
+    weights = (
+        assoc.max_residual_mm,
+        assoc.missing_penalty_mm,
+        assoc.strength_weight_mm,
+        assoc.range_weight,
+    )
     for _ in range(25):
-        targets = [np.array([rng.uniform(-80, 80), rng.uniform(-80, 80), rng.uniform(100, 250)]) for _ in range(2)]
-        echoes = [[naive.paths(t, ch, e)[c] + rng.normal(0, 3) for t in targets if rng.random() < 0.85]
-                  + list(rng.uniform(300, 900, rng.integers(0, 2))) for c in range(4)]
+        targets = [
+            np.array([rng.uniform(-80, 80), rng.uniform(-80, 80), rng.uniform(100, 250)])
+            for _ in range(2)
+        ]
+        echoes = [
+            [naive.paths(t, ch, e)[c] + rng.normal(0, 3) for t in targets if rng.random() < 0.85]
+            + list(rng.uniform(300, 900, rng.integers(0, 2)))
+            for c in range(4)
+        ]
         feats, counts = _features_from_paths(profile, echoes)
         feats[:, :, 0] = rng.uniform(50, 1000, feats.shape[:2])
         matched, cost = assoc.candidates(feats, counts)
         paths = assoc.paths_mm(feats)
         strength = np.log(np.where(feats[:, :, 0] > 1, feats[:, :, 0], 1))
         want, want_cost = naive.brute_force_association(
-            paths, counts, ch, e, f, weights, strength, assoc.min_channels, assoc.max_path_diff, locate)
+            paths,
+            counts,
+            ch,
+            e,
+            f,
+            weights,
+            strength,
+            assoc.min_channels,
+            assoc.max_path_diff,
+            locate,
+        )
         if want is None:
             assert np.isinf(cost)
         else:
@@ -160,11 +194,16 @@ def test_hypothesis_search_on_large_arrays(n_channels, rng):
     assert assoc.anchors is not None and len(assoc.anchors) >= 2
     for _ in range(10):
         target = np.array([rng.uniform(-80, 80), rng.uniform(-80, 80), rng.uniform(100, 250)])
-        echoes = [[naive.paths(target, ch, e)[c] + rng.normal(0, 1), rng.uniform(620, 900)] for c in range(n_channels)]
+        echoes = [
+            [naive.paths(target, ch, e)[c] + rng.normal(0, 1), rng.uniform(620, 900)]
+            for c in range(n_channels)
+        ]
         echoes[0] = echoes[0][1:]  # an anchor misses the target: the other triples must find it
         feats, counts = _features_from_paths(profile, echoes)
         matched = assoc(feats, counts)
-        picked = (feats[np.arange(n_channels), matched, TOA_COLUMN] - profile.geometry.delays()) * profile.mm_per_sample
+        picked = (
+            feats[np.arange(n_channels), matched, TOA_COLUMN] - profile.geometry.delays()
+        ) * profile.mm_per_sample
         ok = matched >= 0
         assert ok.sum() >= n_channels - 1
         np.testing.assert_allclose(picked[ok], naive.paths(target, ch, e)[ok], atol=4.0)

@@ -91,7 +91,9 @@ def test_features_match_numpy_reference():
         assert f[0, 0, FEATURE_NAMES.index("toa")] == pytest.approx(want, abs=1e-4)
     f = echo_features(y, params, peaks, "mode")
     assert f[0, 0, FEATURE_NAMES.index("power")] == pytest.approx(naive.emg(T, *p).sum(), rel=1e-6)
-    assert f[0, 0, FEATURE_NAMES.index("frame_confidence")] == pytest.approx(1.0, abs=1e-9)  # perfect model
+    assert f[0, 0, FEATURE_NAMES.index("frame_confidence")] == pytest.approx(
+        1.0, abs=1e-9
+    )  # perfect model
     assert f[0, 0, FEATURE_NAMES.index("echo_confidence")] == pytest.approx(1.0, abs=1e-9)
     # the data peak estimator: parabola through the 3 samples around the detected peak
     yy = y[0]

@@ -3,12 +3,19 @@ import os
 import subprocess
 import sys
 
-SNIPPET = "import json; from spiel_edge.pipeline.warmup import warmup; print(json.dumps(warmup()))"
+SNIPPET = "import json; from spiel_edge.runtime.warmup import warmup; print(json.dumps(warmup()))"
 
 
 def run_fresh(cache_dir):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
-    out = subprocess.run([sys.executable, "-c", SNIPPET], env=env, capture_output=True, text=True, timeout=600, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", SNIPPET],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=True,
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

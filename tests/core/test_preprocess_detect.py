@@ -9,8 +9,11 @@ from spiel_edge.pipeline.detect import detect
 from spiel_edge.pipeline.preprocess import envelope, preprocess
 from tests.core import naive
 
-frames_st = arrays(np.float64, st.tuples(st.integers(1, 6), st.integers(8, 80)),
-                   elements=st.floats(0, 5000, allow_nan=False, width=32))
+frames_st = arrays(
+    np.float64,
+    st.tuples(st.integers(1, 6), st.integers(8, 80)),
+    elements=st.floats(0, 5000, allow_nan=False, width=32),
+)
 
 
 @settings(max_examples=60, deadline=None)
@@ -45,9 +48,23 @@ def test_envelope_matches_numpy_and_recovers_pulse(rng):
 
 
 @settings(max_examples=80, deadline=None)
-@given(frames_st, st.floats(5, 500), st.floats(0, 1), st.floats(0, 1000), st.integers(1, 6), st.integers(0, 10))
+@given(
+    frames_st,
+    st.floats(5, 500),
+    st.floats(0, 1),
+    st.floats(0, 1000),
+    st.integers(1, 6),
+    st.integers(0, 10),
+)
 def test_detect_matches_numpy(y, threshold, hysteresis, min_amp, k, first):
-    got = detect(y, threshold=threshold, hysteresis=hysteresis, min_amplitude=min_amp, max_echoes=k, first_sample=first)
+    got = detect(
+        y,
+        threshold=threshold,
+        hysteresis=hysteresis,
+        min_amplitude=min_amp,
+        max_echoes=k,
+        first_sample=first,
+    )
     want = naive.detect(y, threshold, hysteresis, min_amp, k, first)
     np.testing.assert_array_equal(got[1], want[1])
     np.testing.assert_array_equal(got[0], want[0])
@@ -55,10 +72,12 @@ def test_detect_matches_numpy(y, threshold, hysteresis, min_amp, k, first):
 
 def test_detect_finds_separate_echoes_and_keeps_strongest():
     t = np.arange(64.0)
-    y = np.vstack([
-        800 * np.exp(-0.5 * ((t - 20) / 1.5) ** 2) + 300 * np.exp(-0.5 * ((t - 40) / 1.5) ** 2),
-        np.zeros(64),
-    ])
+    y = np.vstack(
+        [
+            800 * np.exp(-0.5 * ((t - 20) / 1.5) ** 2) + 300 * np.exp(-0.5 * ((t - 40) / 1.5) ** 2),
+            np.zeros(64),
+        ]
+    )
     peaks, counts = detect(y, threshold=30, max_echoes=4)
     assert counts.tolist() == [2, 0]
     assert peaks[0, :2].tolist() == [20, 40]

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.profile import (
+from spiel_edge.profile.schema import (
     apply_calibration,
     builtin_profiles,
     dump_toml,
@@ -30,7 +30,14 @@ def test_round_trip_through_toml(tmp_path, profile):
 
 def test_other_hardware_any_receivers(tmp_path, profile):
     data = profile_to_dict(profile)
-    data["geometry"]["channels_mm"] = [[0, 0, 0], [50, 0, 0], [0, 50, 0], [-50, 0, 0], [0, -50, 0], [35, 35, 5]]
+    data["geometry"]["channels_mm"] = [
+        [0, 0, 0],
+        [50, 0, 0],
+        [0, 50, 0],
+        [-50, 0, 0],
+        [0, -50, 0],
+        [35, 35, 5],
+    ]
     data["geometry"]["listening"] = [False, True, True, True, True, True]
     data["geometry"]["delay_samples"] = [0.0] * 6
     data["acquisition"]["n_samples"] = 512
@@ -38,17 +45,23 @@ def test_other_hardware_any_receivers(tmp_path, profile):
     assert p.geometry.n_channels == 6 and int(p.geometry.listening_mask().sum()) == 5
 
 
-@pytest.mark.parametrize("mutate, message", [
-    (lambda d: d["detect"].update(threshold=-1.0), "detect.threshold"),
-    (lambda d: d["memg"].update(toa="median"), "memg.toa"),
-    (lambda d: d["geometry"].update(listening=[True, False, False, True]), "at least 3 listening"),
-    (lambda d: d["geometry"].update(channels_mm=[[0, 0]]), "geometry.channels_mm"),
-    (lambda d: d["geometry"].update(delay_samples=[1.0]), "geometry.delay_samples"),
-    (lambda d: d["geometry"].update(speed_of_sound_m_s=5.0), "speed_of_sound"),
-    (lambda d: d["acquisition"].update(n_samples="64"), "acquisition.n_samples must be int"),
-    (lambda d: d["detect"].update(colour="red"), "unknown key"),
-    (lambda d: d.update(extra={}), "unknown key"),
-])
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d["detect"].update(threshold=-1.0), "detect.threshold"),
+        (lambda d: d["memg"].update(toa="median"), "memg.toa"),
+        (
+            lambda d: d["geometry"].update(listening=[True, False, False, True]),
+            "at least 3 listening",
+        ),
+        (lambda d: d["geometry"].update(channels_mm=[[0, 0]]), "geometry.channels_mm"),
+        (lambda d: d["geometry"].update(delay_samples=[1.0]), "geometry.delay_samples"),
+        (lambda d: d["geometry"].update(speed_of_sound_m_s=5.0), "speed_of_sound"),
+        (lambda d: d["acquisition"].update(n_samples="64"), "acquisition.n_samples must be int"),
+        (lambda d: d["detect"].update(colour="red"), "unknown key"),
+        (lambda d: d.update(extra={}), "unknown key"),
+    ],
+)
 def test_invalid_profiles_name_the_key(profile, mutate, message):
     data = profile_to_dict(profile)
     mutate(data)

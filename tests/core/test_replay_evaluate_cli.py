@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.cli import main
-from spiel_edge.evaluate import split_by_position
+from spiel_edge.measure.evaluate import split_by_position
 from tests.core.spiel_csv_fixture import write_spiel_csv
 
 
@@ -20,7 +20,21 @@ def read_records(path):
 def test_replay_writes_one_record_per_acquisition(folders, tmp_path, subset):
     frames_dir, bg_dir = folders
     out = tmp_path / "out.ndjson"
-    assert main(["replay", str(frames_dir), "--background", str(bg_dir), "--association", "geometric", "-o", str(out)]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(frames_dir),
+                "--background",
+                str(bg_dir),
+                "--association",
+                "geometric",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     records = read_records(out)
     assert [r["source"] for r in records] == sorted(subset.names)
     fixed = [r for r in records if r["position_mm"] is not None]
@@ -34,8 +48,11 @@ def test_replay_writes_one_record_per_acquisition(folders, tmp_path, subset):
         assert (r["position_mm"] is None) == (r["reason"] is not None)
     # the positions are right: median error on the vendored frames below 25 mm, z within 15 mm
     truth = dict(zip(subset.names, subset.truth_mm, strict=True))
-    errors = [np.linalg.norm(np.array(r["position_mm"]) - truth[r["source"]]) for r in fixed
-              if truth[r["source"]][2] != 90]
+    errors = [
+        np.linalg.norm(np.array(r["position_mm"]) - truth[r["source"]])
+        for r in fixed
+        if truth[r["source"]][2] != 90
+    ]
     assert np.median(errors) < 25
 
 
@@ -62,14 +79,35 @@ def test_replay_survives_bad_files(folders, tmp_path, subset):
     for name, text in cases.items():
         (bad / name).write_text(text)
         if name != "f_nobackground_frames.csv":
-            (bad_bg / name).write_text(text if "flat" in name or "saturated" in name else (bg_dir / good).read_text())
+            (bad_bg / name).write_text(
+                text if "flat" in name or "saturated" in name else (bg_dir / good).read_text()
+            )
     out = tmp_path / "out.ndjson"
-    status = main(["replay", str(bad), "--background", str(bad_bg), "--association", "geometric", "-o", str(out)])
+    status = main(
+        [
+            "replay",
+            str(bad),
+            "--background",
+            str(bad_bg),
+            "--association",
+            "geometric",
+            "-o",
+            str(out),
+        ]
+    )
     assert status == 1
     records = {r["source"]: r for r in read_records(out)}
     assert len(records) == len(cases) + 1
     assert records[good]["position_mm"] is not None
-    for name in ("a_malformed", "b_ragged", "c_nan", "d_three_channels", "e_short", "f_nobackground", "i_empty"):
+    for name in (
+        "a_malformed",
+        "b_ragged",
+        "c_nan",
+        "d_three_channels",
+        "e_short",
+        "f_nobackground",
+        "i_empty",
+    ):
         r = records[f"{name}_frames.csv"]
         assert r["position_mm"] is None and r["error"] and f"{name}_frames.csv" in r["error"]
     for name, reason in (("g_flat", "flat"), ("h_saturated", "saturated")):
@@ -84,8 +122,22 @@ def test_replay_missing_folder_is_a_clean_error(tmp_path, capsys):
 
 def test_evaluate_reports_metrics_on_the_vendored_frames(folders, capsys):
     frames_dir, bg_dir = folders
-    assert main(["evaluate", str(frames_dir), "--background", str(bg_dir), "--association", "geometric",
-                 "--exclude-z", "90", "--json"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                str(frames_dir),
+                "--background",
+                str(bg_dir),
+                "--association",
+                "geometric",
+                "--exclude-z",
+                "90",
+                "--json",
+            ]
+        )
+        == 0
+    )
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["fix_rate"] == 1.0
     assert summary["fix_rate_seen3"] == 1.0

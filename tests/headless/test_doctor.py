@@ -9,9 +9,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from spiel_edge import doctor
 from spiel_edge.cli import main
-from spiel_edge.doctor import Check
+from spiel_edge.service import doctor
+from spiel_edge.service.doctor import Check
 
 IDS = ((0x1209, 0x0001),)
 
@@ -25,7 +25,9 @@ def test_board_found_or_not():
 
 def test_device_access_names_the_denied_node():
     allowed = {"/dev/ttyACM0"}
-    check = doctor.check_device_access(["/dev/ttyACM0", "/dev/ttyACM1"], access=lambda p, mode: p in allowed)
+    check = doctor.check_device_access(
+        ["/dev/ttyACM0", "/dev/ttyACM1"], access=lambda p, mode: p in allowed
+    )
     assert not check.ok and "/dev/ttyACM1" in check.detail and "/dev/ttyACM0" not in check.detail
     assert "dialout" in check.fix
     assert doctor.check_device_access(["/dev/ttyACM0"], access=lambda p, mode: True).ok
@@ -77,7 +79,9 @@ def test_config_from_env_file(tmp_path):
     calibration = tmp_path / "calibration.toml"
     calibration.write_text("[geometry]\ndelay_samples = [2.0, 2.0, 2.0, 2.0]\n")
     env = tmp_path / "spiel-edge.env"
-    env.write_text(f'# comment\nSPIEL_RUN_OPTIONS="--profile spiel-icra23 --calibration {calibration}"\n')
+    env.write_text(
+        f'# comment\nSPIEL_RUN_OPTIONS="--profile spiel-icra23 --calibration {calibration}"\n'
+    )
     good = doctor.check_config(config_dir=tmp_path)
     assert good.ok and str(calibration) in good.detail and str(env) in good.detail
     calibration.write_text("[geometry]\ndelay_samples = [2.0]\n")
@@ -112,7 +116,9 @@ def test_numba_cache_dir(tmp_path):
 
 def test_numba_kernel_counts():
     def kernel(hits, misses):
-        return SimpleNamespace(stats=SimpleNamespace(cache_hits={"sig": hits}, cache_misses={"sig": misses}))
+        return SimpleNamespace(
+            stats=SimpleNamespace(cache_hits={"sig": hits}, cache_misses={"sig": misses})
+        )
 
     assert doctor.kernel_cache_counts([kernel(1, 0), kernel(2, 1)]) == (3, 1)
     warm = doctor.check_numba_kernels(lambda: 0.01, lambda: (9, 0))
@@ -133,7 +139,10 @@ def test_real_pipeline_dispatchers_are_found():
 
 @pytest.mark.parametrize("all_ok", [True, False])
 def test_doctor_command_exit_status_and_json(monkeypatch, capsys, all_ok):
-    checks = [Check("board", True, "found"), Check("model", all_ok, "x", None if all_ok else "do this")]
+    checks = [
+        Check("board", True, "found"),
+        Check("model", all_ok, "x", None if all_ok else "do this"),
+    ]
     monkeypatch.setattr("spiel_edge.cli.doctor.run_checks", lambda *a, **k: checks)
     assert main(["doctor", "--json"]) == (0 if all_ok else 1)
     report = json.loads(capsys.readouterr().out)
@@ -145,5 +154,13 @@ def test_doctor_command_exit_status_and_json(monkeypatch, capsys, all_ok):
 
 def test_run_checks_on_this_machine_returns_every_check(tmp_path):
     names = [c.name for c in doctor.run_checks(config_dir=tmp_path, skip_numba=True)]
-    assert names == ["board", "device access", "stable names", "groups", "ModemManager", "config", "model"]
+    assert names == [
+        "board",
+        "device access",
+        "stable names",
+        "groups",
+        "ModemManager",
+        "config",
+        "model",
+    ]
     assert Path("/proc").is_dir()

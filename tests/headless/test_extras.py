@@ -12,8 +12,14 @@ import pytest
 
 from ._ws import MiniWebSocket
 
-RECORD = {"seq": 3, "position_mm": [10.0, -20.0, 300.0], "reason": None, "residual_mm": 0.5,
-          "echoes": [[12.0]] * 4, "matched": [0, 0, 0, 0]}
+RECORD = {
+    "seq": 3,
+    "position_mm": [10.0, -20.0, 300.0],
+    "reason": None,
+    "residual_mm": 0.5,
+    "echoes": [[12.0]] * 4,
+    "matched": [0, 0, 0, 0],
+}
 
 
 def _free_port() -> int:
@@ -23,7 +29,9 @@ def _free_port() -> int:
 
 
 def test_foxglove_serves_scene_and_records_on_localhost():
-    pytest.importorskip("foxglove", reason="extra 'foxglove' not installed (pip install 'spiel-edge[foxglove]')")
+    pytest.importorskip(
+        "foxglove", reason="extra 'foxglove' not installed (pip install 'spiel-edge[foxglove]')"
+    )
     from spiel_edge.outputs.foxglove import POSITION_TOPIC, SCENE_TOPIC, FoxgloveSink
 
     sink = FoxgloveSink("0", receivers_mm=[[0, 0, 0], [75, 0, 0]])  # port only: localhost
@@ -37,8 +45,15 @@ def test_foxglove_serves_scene_and_records_on_localhost():
                 channels.update({c["topic"]: c for c in message["channels"]})
         assert channels[SCENE_TOPIC]["schemaName"] == "foxglove.SceneUpdate"
         assert channels[POSITION_TOPIC]["encoding"] == "json"
-        ws.send_json({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels[POSITION_TOPIC]["id"]},
-                                                           {"id": 2, "channelId": channels[SCENE_TOPIC]["id"]}]})
+        ws.send_json(
+            {
+                "op": "subscribe",
+                "subscriptions": [
+                    {"id": 1, "channelId": channels[POSITION_TOPIC]["id"]},
+                    {"id": 2, "channelId": channels[SCENE_TOPIC]["id"]},
+                ],
+            }
+        )
         got: dict[int, bytes] = {}
         while len(got) < 2 and time.monotonic() < deadline:
             sink.write(RECORD)  # until the subscription is in place
@@ -57,7 +72,9 @@ def test_foxglove_serves_scene_and_records_on_localhost():
 
 
 def test_foxglove_binds_localhost_by_default():
-    pytest.importorskip("foxglove", reason="extra 'foxglove' not installed (pip install 'spiel-edge[foxglove]')")
+    pytest.importorskip(
+        "foxglove", reason="extra 'foxglove' not installed (pip install 'spiel-edge[foxglove]')"
+    )
     from spiel_edge.outputs.foxglove import FoxgloveSink
 
     sink = FoxgloveSink("0")
@@ -66,25 +83,37 @@ def test_foxglove_binds_localhost_by_default():
             probe.settimeout(2)
             probe.connect(("127.0.0.1", sink.port))  # reachable on loopback
         rows = [line.split() for line in Path("/proc/net/tcp").read_text().splitlines()[1:]]
-        hosts = {r[1].rsplit(":", 1)[0] for r in rows if r[3] == "0A" and int(r[1].rsplit(":", 1)[1], 16) == sink.port}
+        hosts = {
+            r[1].rsplit(":", 1)[0]
+            for r in rows
+            if r[3] == "0A" and int(r[1].rsplit(":", 1)[1], 16) == sink.port
+        }
         assert hosts == {"0100007F"}  # listening on 127.0.0.1 only
     finally:
         sink.close()
 
 
 def test_zenoh_publishes_records_on_the_key():
-    zenoh = pytest.importorskip("zenoh", reason="extra 'zenoh' not installed (pip install 'spiel-edge[zenoh]')")
+    zenoh = pytest.importorskip(
+        "zenoh", reason="extra 'zenoh' not installed (pip install 'spiel-edge[zenoh]')"
+    )
     from spiel_edge.outputs.zenoh import ZenohSink
 
     port = _free_port()
     quiet = {"scouting": {"multicast": {"enabled": False}}}
-    pub = zenoh.Config.from_json5(json.dumps({**quiet, "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}))
-    sub = zenoh.Config.from_json5(json.dumps({**quiet, "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}))
+    pub = zenoh.Config.from_json5(
+        json.dumps({**quiet, "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+    )
+    sub = zenoh.Config.from_json5(
+        json.dumps({**quiet, "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+    )
     sink = ZenohSink("test/robot1/spiel", pub)
     received: list[tuple[str, str]] = []
     session = zenoh.open(sub)
     try:
-        session.declare_subscriber("test/*/spiel", lambda s: received.append((str(s.key_expr), s.payload.to_string())))
+        session.declare_subscriber(
+            "test/*/spiel", lambda s: received.append((str(s.key_expr), s.payload.to_string()))
+        )
         deadline = time.monotonic() + 10
         while not received and time.monotonic() < deadline:
             sink.write(RECORD)  # until the subscriber's declaration has reached the publisher
@@ -97,7 +126,9 @@ def test_zenoh_publishes_records_on_the_key():
 
 
 def test_zenoh_rejects_a_bad_key():
-    pytest.importorskip("zenoh", reason="extra 'zenoh' not installed (pip install 'spiel-edge[zenoh]')")
+    pytest.importorskip(
+        "zenoh", reason="extra 'zenoh' not installed (pip install 'spiel-edge[zenoh]')"
+    )
     from spiel_edge.errors import ConfigError
     from spiel_edge.outputs.zenoh import ZenohSink
 

@@ -22,7 +22,7 @@ from spiel_edge.outputs.mcap import (
     iter_mcap_recordings,
 )
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 
 N = 12
 
@@ -36,7 +36,11 @@ def _record(path, subset, n=N):
     """The vendored acquisitions as a live run writes them: acquisition, then its record."""
     with McapSink(path, metadata={"profile": "spiel-icra23"}) as sink:
         for i in range(n):
-            acq = {"seq": 100 + i, "timestamp_ns": 1_000_000 + i, "background": subset.backgrounds[i]}
+            acq = {
+                "seq": 100 + i,
+                "timestamp_ns": 1_000_000 + i,
+                "background": subset.backgrounds[i],
+            }
             sink.write_acquisition(acq, subset.frames[i])
             sink.write({"seq": 100 + i, "position_mm": [float(i), 0.0, 100.0], "reason": None})
     return path
@@ -63,11 +67,19 @@ def test_channels_schemas_and_summary_for_other_tools(tmp_path, subset):
             schema = summary.schemas[channel.schema_id]
             assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
             assert json.loads(schema.data)["type"] == "object"
-        counts = {topics_id: n for topics_id, n in summary.statistics.channel_message_counts.items()}
+        counts = {
+            topics_id: n for topics_id, n in summary.statistics.channel_message_counts.items()
+        }
         by_topic = {summary.channels[cid].topic: n for cid, n in counts.items()}
         distinct_backgrounds = len({b.tobytes() for b in subset.backgrounds[:N]})
-        assert by_topic == {ACQUISITION_TOPIC: N, POSITION_TOPIC: N, BACKGROUND_TOPIC: distinct_backgrounds}
-        positions = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=[POSITION_TOPIC])]
+        assert by_topic == {
+            ACQUISITION_TOPIC: N,
+            POSITION_TOPIC: N,
+            BACKGROUND_TOPIC: distinct_backgrounds,
+        }
+        positions = [
+            json.loads(m.data) for _, _, m in reader.iter_messages(topics=[POSITION_TOPIC])
+        ]
         assert [p["position_mm"][0] for p in positions] == [float(i) for i in range(N)]
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
         assert metadata["spiel-edge"]["profile"] == "spiel-icra23"
@@ -77,7 +89,9 @@ def test_background_written_once_while_unchanged(tmp_path, subset):
     path = tmp_path / "r.mcap"
     with McapSink(path) as sink:
         for i in range(5):
-            sink.write_acquisition({"seq": i, "background": subset.backgrounds[0]}, subset.frames[i])
+            sink.write_acquisition(
+                {"seq": i, "background": subset.backgrounds[0]}, subset.frames[i]
+            )
     recs = list(iter_mcap_recordings(path))
     with open(path, "rb") as fh:
         counts = make_reader(fh).get_summary().statistics.channel_message_counts
@@ -95,7 +109,9 @@ def test_replay_command_matches_the_pipeline(tmp_path, subset):
     for i, line in enumerate(lines):
         expected = pipeline.process(subset.frames[i], subset.backgrounds[i]).record()
         assert line["source"] == f"r.mcap#{100 + i}"
-        assert line["position_mm"] == expected["position_mm"] and line["reason"] == expected["reason"]
+        assert (
+            line["position_mm"] == expected["position_mm"] and line["reason"] == expected["reason"]
+        )
     assert sum(line["position_mm"] is not None for line in lines) >= N // 2  # real data locates
 
 
@@ -185,7 +201,9 @@ _WRITER = textwrap.dedent("""
 def test_sigterm_finalizes_a_recording(tmp_path):
     """Only the library's own SIGTERM handling: no CLI in the writing process."""
     path = tmp_path / "r.mcap"
-    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(path)], stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _WRITER, str(path)], stdout=subprocess.PIPE, text=True
+    )
     try:
         assert proc.stdout.readline().strip() == "ready"
         proc.send_signal(signal.SIGTERM)

@@ -76,7 +76,9 @@ def test_open_outputs_several_at_once(tmp_path):
     outputs.write({"seq": 0, "position_mm": None})
     outputs.close()
     assert ndjson.read_text().count("\n") == 1
-    assert mcap.stat().st_size > 0 and mcap.read_bytes()[-8:] == b"\x89MCAP0\r\n"  # footer magic: finalized
+    assert (
+        mcap.stat().st_size > 0 and mcap.read_bytes()[-8:] == b"\x89MCAP0\r\n"
+    )  # footer magic: finalized
 
 
 def test_open_outputs_none_means_no_ndjson():

@@ -37,8 +37,21 @@ def test_every_output_at_once(tmp_path):
     receiver.settimeout(5)
     out, rec = tmp_path / "out.ndjson", tmp_path / "run.mcap"
     try:
-        argv = ["run", "--port", board(), "--frames", "25", "--rate", "400", "-o", str(out), "--record", str(rec),
-                "--udp", f"127.0.0.1:{receiver.getsockname()[1]}"]
+        argv = [
+            "run",
+            "--port",
+            board(),
+            "--frames",
+            "25",
+            "--rate",
+            "400",
+            "-o",
+            str(out),
+            "--record",
+            str(rec),
+            "--udp",
+            f"127.0.0.1:{receiver.getsockname()[1]}",
+        ]
         assert main(argv) == 0
         datagrams = [json.loads(receiver.recv(65535)) for _ in range(25)]
     finally:
@@ -51,7 +64,9 @@ def test_every_output_at_once(tmp_path):
         topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
         recorded = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=[POSITION_TOPIC])]
     assert {topics[c]: n for c, n in counts.items() if topics[c] != "/spiel/background"} == {
-        ACQUISITION_TOPIC: 25, POSITION_TOPIC: 25}
+        ACQUISITION_TOPIC: 25,
+        POSITION_TOPIC: 25,
+    }
     assert recorded == lines
 
 
@@ -73,7 +88,10 @@ def test_run_tells_systemd_ready_watchdog_stopping(tmp_path, monkeypatch):
     monkeypatch.setenv("WATCHDOG_USEC", "20000")  # ping at most every 10 ms
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
     try:
-        assert main(["run", "--port", board(), "--frames", "40", "--rate", "200", "-o", os.devnull]) == 0
+        assert (
+            main(["run", "--port", board(), "--frames", "40", "--rate", "200", "-o", os.devnull])
+            == 0
+        )
         time.sleep(0.3)
     finally:
         done.set()
@@ -82,7 +100,9 @@ def test_run_tells_systemd_ready_watchdog_stopping(tmp_path, monkeypatch):
     assert messages[0].startswith("READY=1")
     assert messages[-1] == "STOPPING=1"
     pings = messages.count("WATCHDOG=1")
-    assert 3 <= pings <= 40  # about one per 10 ms over a 200 ms stream, never more than one per record
+    assert (
+        3 <= pings <= 40
+    )  # about one per 10 ms over a 200 ms stream, never more than one per record
 
 
 _RUN = "import sys; from spiel_edge.cli import main; sys.exit(main())"
@@ -90,12 +110,27 @@ _RUN = "import sys; from spiel_edge.cli import main; sys.exit(main())"
 
 def test_sigterm_stops_run_with_a_finalized_recording(tmp_path):
     out, rec = tmp_path / "out.ndjson", tmp_path / "run.mcap"
-    cmd = [sys.executable, "-c", _RUN, "run", "--port", board("scene=replay"), "--rate", "100", "-o", str(out),
-           "--record", str(rec), "--no-status"]
+    cmd = [
+        sys.executable,
+        "-c",
+        _RUN,
+        "run",
+        "--port",
+        board("scene=replay"),
+        "--rate",
+        "100",
+        "-o",
+        str(out),
+        "--record",
+        str(rec),
+        "--no-status",
+    ]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60  # numba cache load or compile, then 100 Hz
-        while time.monotonic() < deadline and (not out.exists() or out.read_text().count("\n") < 30):
+        while time.monotonic() < deadline and (
+            not out.exists() or out.read_text().count("\n") < 30
+        ):
             assert proc.poll() is None, proc.stderr.read()
             time.sleep(0.05)
         proc.send_signal(signal.SIGTERM)
@@ -115,13 +150,34 @@ def test_sigterm_stops_run_with_a_finalized_recording(tmp_path):
 def test_run_with_a_missing_extra_or_bad_target_fails_before_streaming(tmp_path, capsys):
     assert main(["run", "--port", board(), "--frames", "1", "--udp", "nowhere"]) == 2
     assert "--udp 'nowhere' is not HOST:PORT" in capsys.readouterr().err
-    assert main(["run", "--port", board(), "--frames", "1", "--record", str(tmp_path / "x.txt")]) == 2
+    assert (
+        main(["run", "--port", board(), "--frames", "1", "--record", str(tmp_path / "x.txt")]) == 2
+    )
     assert "must end in .mcap" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("extra", ["foxglove"])
 def test_run_with_foxglove_on_loopback(tmp_path, extra):
-    pytest.importorskip(extra, reason=f"extra '{extra}' not installed (pip install 'spiel-edge[{extra}]')")
+    pytest.importorskip(
+        extra, reason=f"extra '{extra}' not installed (pip install 'spiel-edge[{extra}]')"
+    )
     out = tmp_path / "out.ndjson"
-    assert main(["run", "--port", board(), "--frames", "5", "--rate", "200", "-o", str(out), "--foxglove", "0"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--port",
+                board(),
+                "--frames",
+                "5",
+                "--rate",
+                "200",
+                "-o",
+                str(out),
+                "--foxglove",
+                "0",
+            ]
+        )
+        == 0
+    )
     assert len(ndjson(out)) == 5

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from spiel_edge.service import (
+from spiel_edge.service.systemd import (
     JournalFormatter,
     Notifier,
     Terminated,
@@ -60,7 +60,9 @@ def test_notify_never_blocks_on_a_full_queue(notify_socket):
     start = time.monotonic()
     results = [notify("WATCHDOG=1", {"NOTIFY_SOCKET": path}) for _ in range(200)]
     assert time.monotonic() - start < 1.0
-    assert results[0] and not all(results)  # the first went out; later ones were dropped, not waited on
+    assert results[0] and not all(
+        results
+    )  # the first went out; later ones were dropped, not waited on
 
 
 def test_watchdog_interval_is_half_of_watchdog_sec():
@@ -120,7 +122,9 @@ def test_stderr_is_journal_matches_the_stream(tmp_path):
     with open(tmp_path / "f", "w") as fh:
         st = os.fstat(fh.fileno())
         assert stderr_is_journal({"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}, fd=fh.fileno())
-        assert not stderr_is_journal({"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino + 1}"}, fd=fh.fileno())
+        assert not stderr_is_journal(
+            {"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino + 1}"}, fd=fh.fileno()
+        )
     assert not stderr_is_journal({})
 
 
@@ -128,8 +132,10 @@ def test_cli_logging_uses_priority_prefixes_when_stderr_is_the_journal(tmp_path)
     import subprocess
     import sys
 
-    script = ("import logging; from spiel_edge.cli import setup_logging; setup_logging(1); "
-              "logging.getLogger('spiel_edge.t').warning('careful'); logging.getLogger('spiel_edge.t').info('fyi')")
+    script = (
+        "import logging; from spiel_edge.cli import setup_logging; setup_logging(1); "
+        "logging.getLogger('spiel_edge.t').warning('careful'); logging.getLogger('spiel_edge.t').info('fyi')"
+    )
     log_file = tmp_path / "stderr"
     with open(log_file, "w") as err:
         st = os.fstat(err.fileno())

@@ -37,7 +37,9 @@ def test_send_failures_are_counted_not_raised(receiver, monkeypatch):
     def refuse(*args):
         raise OSError(101, "Network is unreachable")
 
-    monkeypatch.setattr(sink, "_sock", type("S", (), {"sendto": staticmethod(refuse), "close": lambda self: None})())
+    monkeypatch.setattr(
+        sink, "_sock", type("S", (), {"sendto": staticmethod(refuse), "close": lambda self: None})()
+    )
     sink.write({"seq": 0})
     sink.write({"seq": 1})
     assert sink.failed == 2 and sink.sent == 0
@@ -52,11 +54,14 @@ def test_oversized_record_is_dropped(receiver):
     sink.close()
 
 
-@pytest.mark.parametrize("text,expected", [
-    ("127.0.0.1:9870", ("127.0.0.1", 9870)),
-    ("[::1]:9870", ("::1", 9870)),
-    ("robot.local:1", ("robot.local", 1)),
-])
+@pytest.mark.parametrize(
+    "text,expected",
+    [
+        ("127.0.0.1:9870", ("127.0.0.1", 9870)),
+        ("[::1]:9870", ("::1", 9870)),
+        ("robot.local:1", ("robot.local", 1)),
+    ],
+)
 def test_parse_host_port(text, expected):
     assert parse_host_port(text) == expected
 

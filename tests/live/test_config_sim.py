@@ -13,10 +13,10 @@ import pytest
 from crc32c import crc32c
 from mcap.reader import make_reader
 
-from spiel_edge import board_config as bc
+from spiel_edge.board import schema as bc
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
-from spiel_edge.profile import dump_toml, load_profile, profile_to_dict
+from spiel_edge.profile.schema import dump_toml, load_profile, profile_to_dict
 from spiel_edge.sim.protocol_sim import device_for_url
 
 UNPLUG_MS = 10  # how long a power cut keeps the virtual board away
@@ -42,21 +42,44 @@ def test_push_commit_pull_show_round_trip(sim_url, tmp_path, capsys):
     assert main(["config", "pull", "--port", port]) == 2
     assert "holds no config" in capsys.readouterr().err
     cal = tmp_path / "cal.toml"
-    cal.write_text("[geometry]\nchannels_mm = [[0,0,0],[-37,-65,0],[75,0,0],[-37,65,0]]\n"
-                   "delay_samples = [2.0, 1.5, 1.9, 1.7]\n")  # fmt: skip
+    cal.write_text(
+        "[geometry]\nchannels_mm = [[0,0,0],[-37,-65,0],[75,0,0],[-37,65,0]]\n"
+        "delay_samples = [2.0, 1.5, 1.9, 1.7]\n"
+    )
     assert main(["config", "push", "--port", port, "--name", "proto-7", str(cal)]) == 0
     out = capsys.readouterr()
     assert out.out == "" and "+ board.name = 'proto-7'" in out.err and "staged" in out.err
     assert device_for_url(port).board.flash.active() is None  # staged only
     assert main(["config", "commit", "--port", port]) == 0
     config = pulled(port, capsys)
-    assert config["board"]["name"] == "proto-7" and config["geometry"]["delay_samples"] == [2.0, 1.5, 1.9, 1.7]
+    assert config["board"]["name"] == "proto-7" and config["geometry"]["delay_samples"] == [
+        2.0,
+        1.5,
+        1.9,
+        1.7,
+    ]
     assert bc.validate(config) == config
-    assert main(["config", "push", "--port", port, "--commit", str(board_file(tmp_path / "b.toml", "proto-8"))]) == 0
+    assert (
+        main(
+            [
+                "config",
+                "push",
+                "--port",
+                port,
+                "--commit",
+                str(board_file(tmp_path / "b.toml", "proto-8")),
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     assert main(["config", "show", "--port", port]) == 0
     shown = capsys.readouterr().out
-    assert "# active slot: 1" in shown and "slot 0: generation 1" in shown and "slot 1: generation 2" in shown
+    assert (
+        "# active slot: 1" in shown
+        and "slot 0: generation 1" in shown
+        and "slot 1: generation 2" in shown
+    )
     assert 'name = "proto-8"' in shown
 
 
@@ -69,8 +92,22 @@ def test_diff_against_the_board(sim_url, tmp_path, capsys):
     capsys.readouterr()
     assert main(["config", "diff", "--port", port, str(old)]) == 0
     assert capsys.readouterr().out == "no changes\n"
-    assert main(["config", "diff", "--port", port, str(board_file(tmp_path / "new.toml", "new", gain_db=30))]) == 0
-    assert capsys.readouterr().out.splitlines() == ["~ acquisition.gain_db: 20.0 -> 30.0", "~ board.name: 'old' -> 'new'"]
+    assert (
+        main(
+            [
+                "config",
+                "diff",
+                "--port",
+                port,
+                str(board_file(tmp_path / "new.toml", "new", gain_db=30)),
+            ]
+        )
+        == 0
+    )
+    assert capsys.readouterr().out.splitlines() == [
+        "~ acquisition.gain_db: 20.0 -> 30.0",
+        "~ board.name: 'old' -> 'new'",
+    ]
     partial = tmp_path / "cal.toml"
     partial.write_text("[geometry]\nspeed_of_sound_m_s = 340\n")
     assert main(["config", "diff", "--port", port, str(partial)]) == 0
@@ -102,7 +139,9 @@ def commit_ops(tmp_path, sim_url, old, new) -> tuple[int, int]:
     return first, flash.ops - first
 
 
-def test_power_cut_at_every_flash_operation_of_a_commit_keeps_the_old_config(sim_url, tmp_path, capsys):
+def test_power_cut_at_every_flash_operation_of_a_commit_keeps_the_old_config(
+    sim_url, tmp_path, capsys
+):
     old = board_file(tmp_path / "old.toml", "old")
     new = board_file(tmp_path / "new.toml", "new", gain_db=30, source_len=1500)
     first, n_ops = commit_ops(tmp_path, sim_url, old, new)
@@ -121,7 +160,9 @@ def test_power_cut_at_every_flash_operation_of_a_commit_keeps_the_old_config(sim
             assert session.config_status().staged_length == 0  # the staging was in RAM
             session.start_stream(rate_hz=200)  # and the board still streams
             assert next(session.acquisitions()).samples.shape == (4, 64)
-    assert main(["config", "push", "--port", port, "--commit", str(new)]) == 0  # a new attempt works
+    assert (
+        main(["config", "push", "--port", port, "--commit", str(new)]) == 0
+    )  # a new attempt works
     assert pulled(port, capsys)["board"]["name"] == "new"
 
 
@@ -137,7 +178,9 @@ def geometries(tmp_path_factory):
     g = base.geometry
     moved = g.channels_mm.copy()
     moved[1:] += [[6.0, -6.0, 0.0], [-8.0, 0.0, 0.0], [6.0, 6.0, 0.0]]
-    truth = dataclasses.replace(g, channels_mm=moved, delay_samples=g.delays() + [1.5, -1.0, 1.2, -1.3])
+    truth = dataclasses.replace(
+        g, channels_mm=moved, delay_samples=g.delays() + [1.5, -1.0, 1.2, -1.3]
+    )
     data = profile_to_dict(base.replace(geometry=truth))
     (root / "truth.toml").write_text(dump_toml({**data, "name": "truth"}))
     (root / "board.toml").write_text(dump_toml({"geometry": data["geometry"]}))
@@ -150,7 +193,15 @@ def median_error(port: str, out, *args: str, verbose: bool = False) -> float:
     assert main(["-v", *argv] if verbose else argv) == 0
     recs = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(recs) == 10
-    return float(np.median([np.linalg.norm(np.subtract(r["position_mm"], r["truth_mm"])) for r in recs if r["position_mm"]]))
+    return float(
+        np.median(
+            [
+                np.linalg.norm(np.subtract(r["position_mm"], r["truth_mm"]))
+                for r in recs
+                if r["position_mm"]
+            ]
+        )
+    )
 
 
 def test_run_uses_the_geometry_stored_on_the_board(sim_url, tmp_path, geometries, capsys):
@@ -161,13 +212,17 @@ def test_run_uses_the_geometry_stored_on_the_board(sim_url, tmp_path, geometries
     assert main(["config", "push", "--port", port, "--commit", str(geometries / "board.toml")]) == 0
     capsys.readouterr()
     rec = tmp_path / "run.mcap"
-    assert median_error(port, out, "--record", str(rec), verbose=True) < 8  # the board's geometry is the scene's
+    assert (
+        median_error(port, out, "--record", str(rec), verbose=True) < 8
+    )  # the board's geometry is the scene's
     assert "geometry from board 'spiel-board'" in capsys.readouterr().err
     with rec.open("rb") as f:
         [meta] = [m.metadata for m in make_reader(f).iter_metadata() if m.name == "spiel-edge"]
     assert meta["geometry"] == "board 'spiel-board'"
     assert without > 25 and median_error(port, out, "--no-board-config") > 25
-    calibrated = median_error(port, out, "--calibration", str(geometries / "nominal.toml"), verbose=True)
+    calibrated = median_error(
+        port, out, "--calibration", str(geometries / "nominal.toml"), verbose=True
+    )
     assert calibrated > 25  # --calibration wins over the board
     assert "geometry from calibration" in capsys.readouterr().err
 
@@ -179,4 +234,6 @@ def test_run_with_an_unusable_board_config_warns_and_uses_the_profile(sim_url, t
         session.write_config(junk)
         session.commit_config(crc32c(junk))
     assert median_error(port, tmp_path / "out.ndjson") < 8
-    assert "the board's config is not usable, using profile 'spiel-icra23'" in capsys.readouterr().err
+    assert (
+        "the board's config is not usable, using profile 'spiel-icra23'" in capsys.readouterr().err
+    )

@@ -11,10 +11,13 @@ import pytest
 
 from firmware_protocol import SCHEMA_HASH, Ping
 from spiel_edge.device import DeviceSession
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 
 PORT = os.environ.get("SPIEL_TEST_PORT")
-pytestmark = [pytest.mark.hardware, pytest.mark.skipif(not PORT, reason="set SPIEL_TEST_PORT to a board's port")]
+pytestmark = [
+    pytest.mark.hardware,
+    pytest.mark.skipif(not PORT, reason="set SPIEL_TEST_PORT to a board's port"),
+]
 
 
 def test_board_handshakes_and_streams_clean_acquisitions():
@@ -24,10 +27,15 @@ def test_board_handshakes_and_streams_clean_acquisitions():
     timer.start()
     try:
         with DeviceSession(PORT, reconnect=False) as board:
-            assert board.hello.schema_hash == SCHEMA_HASH, "firmware built against another protocol schema"
+            assert board.hello.schema_hash == SCHEMA_HASH, (
+                "firmware built against another protocol schema"
+            )
             assert board.request(Ping(b"spiel")).data == b"spiel"
             stream = board.start_stream(rate_hz=50, n_samples=profile.acquisition.n_samples)
-            assert (stream.n_channels, stream.n_samples) == (profile.geometry.n_channels, profile.acquisition.n_samples)
+            assert (stream.n_channels, stream.n_samples) == (
+                profile.geometry.n_channels,
+                profile.acquisition.n_samples,
+            )
             got = []
             for acq in board.acquisitions(stop):
                 got.append(acq)

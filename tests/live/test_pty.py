@@ -15,9 +15,15 @@ import pytest
 
 from spiel_edge.cli import main
 
-pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="pseudo-terminals as on the robot (Linux)")
+pytestmark = pytest.mark.skipif(
+    sys.platform != "linux", reason="pseudo-terminals as on the robot (Linux)"
+)
 
-CLI = [sys.executable, "-c", "import sys; from spiel_edge.cli import main; sys.exit(main(sys.argv[1:]))"]
+CLI = [
+    sys.executable,
+    "-c",
+    "import sys; from spiel_edge.cli import main; sys.exit(main(sys.argv[1:]))",
+]
 
 
 def first_line(proc: subprocess.Popen, timeout_s: float = 30.0) -> str:
@@ -32,8 +38,12 @@ def simulator(tmp_path):
 
     def start(url: str = "sim://") -> tuple[subprocess.Popen, str, str]:
         link = str(tmp_path / f"spiel-sim{len(started)}")
-        proc = subprocess.Popen([*CLI, "simulate", url, "--pty", "--link", link], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)  # fmt: skip
+        proc = subprocess.Popen(
+            [*CLI, "simulate", url, "--pty", "--link", link],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         started.append(proc)
         return proc, first_line(proc), link
 
@@ -78,8 +88,12 @@ def test_run_over_a_pty_survives_unplugs(simulator, tmp_path, capsys):
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signals_stop_run_cleanly(sig, tmp_path):
-    proc = subprocess.Popen([*CLI, "run", "--port", "sim://?scene=model", "--rate", "100"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [*CLI, "run", "--port", "sim://?scene=model", "--rate", "100"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert json.loads(first_line(proc))["seq"] == 0
         sent = time.monotonic()

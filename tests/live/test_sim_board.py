@@ -23,7 +23,7 @@ from firmware_protocol import (
     encode_message,
 )
 from spiel_edge.device.annotation import ANNOTATION_TYPE, Annotation
-from spiel_edge.profile import load_profile
+from spiel_edge.profile.schema import load_profile
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.scenes import EchoModelScene, ReplayScene
 
@@ -43,7 +43,12 @@ def test_hello_reports_identity_and_negotiates(replay_scene):
     board = VirtualBoard(replay_scene, serial="B1", vid=0x1234, pid=0x5678)
     [(seq, hello)] = answers(board, Hello(1, 3), seq=7)
     assert seq == 7 and isinstance(hello, HelloResponse)
-    assert (hello.serial, hello.usb_vid, hello.usb_pid, hello.n_channels) == ("B1", 0x1234, 0x5678, 4)
+    assert (hello.serial, hello.usb_vid, hello.usb_pid, hello.n_channels) == (
+        "B1",
+        0x1234,
+        0x5678,
+        4,
+    )
     assert hello.protocol_version == 1
     [(_, too_new)] = answers(board, Hello(2, 3), seq=8)
     assert isinstance(too_new, ErrorResponse) and too_new.code == ErrorCode.VERSION_TOO_NEW
@@ -70,13 +75,22 @@ def test_hello_starts_a_new_session_and_forgets_cached_answers(replay_scene):
 def test_bad_requests_get_error_answers(replay_scene):
     board = VirtualBoard(replay_scene)
     out = board.receive(_raw_request(0x0999, seq=2), 0.0)
-    [(seq, err)] = [(f.seq, decode_message(f)) for f in FrameDecoder().feed(b"".join(o.wire for o in out))]
+    [(seq, err)] = [
+        (f.seq, decode_message(f)) for f in FrameDecoder().feed(b"".join(o.wire for o in out))
+    ]
     assert seq == 2 and err.code == ErrorCode.UNSUPPORTED
-    bad_starts = (StreamStart(sample_format=1), StreamStart(n_samples=128), StreamStart(rate_hz=-1.0),
-                  StreamStart(channel_mask=0b0011))
+    bad_starts = (
+        StreamStart(sample_format=1),
+        StreamStart(n_samples=128),
+        StreamStart(rate_hz=-1.0),
+        StreamStart(channel_mask=0b0011),
+    )
     for seq, bad in enumerate(bad_starts, start=3):
         [(_, err)] = answers(board, bad, seq=seq)
-        assert isinstance(err, ErrorResponse) and err.code in (ErrorCode.INVALID, ErrorCode.UNSUPPORTED)
+        assert isinstance(err, ErrorResponse) and err.code in (
+            ErrorCode.INVALID,
+            ErrorCode.UNSUPPORTED,
+        )
     assert not board.streaming
 
 
@@ -108,8 +122,11 @@ def test_annotations_carry_truth_and_background_of_the_recording(replay_scene):
     k = notes[1].acquisition
     np.testing.assert_array_equal(notes[1].truth_mm, replay_scene._truth[k])
     np.testing.assert_array_equal(notes[1].background_rows(), replay_scene._backgrounds[k])
-    channel0 = next(StreamData.unpack(f.payload) for f in frames
-                    if f.msg_type == MsgType.STREAM_DATA and StreamData.unpack(f.payload).acquisition == k)
+    channel0 = next(
+        StreamData.unpack(f.payload)
+        for f in frames
+        if f.msg_type == MsgType.STREAM_DATA and StreamData.unpack(f.payload).acquisition == k
+    )
     np.testing.assert_array_equal(channel0.samples_array(), replay_scene._frames[k][0])
 
 

@@ -133,7 +133,10 @@ def test_session_config_transfer_and_a_power_cut_at_every_flash_operation(sim_ur
         with DeviceSession(url, reconnect=False) as session:
             assert session.read_config() == OLD
             assert session.config_status().staged_length == 0  # RAM lost with the power
-    assert device.power_cuts == n_ops and device.board.flash.ops - ops_before == n_ops * (n_ops - 1) // 2
+    assert (
+        device.power_cuts == n_ops
+        and device.board.flash.ops - ops_before == n_ops * (n_ops - 1) // 2
+    )
     with DeviceSession(url, reconnect=False) as session:
         session.write_config(blob)
         done = session.commit_config(crc32c(blob))

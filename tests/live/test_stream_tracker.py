@@ -52,9 +52,14 @@ def test_gaps_inside_the_stream_are_lost_acquisitions_and_truth_follows_its_acqu
 
 def test_malformed_annotations_are_counted_not_fatal():
     tracker = StreamTracker()
-    odd = Annotation(1, 0.0, 0.0, 100.0, n_channels=2, first_channel=0, n_samples=3, background=b"\x01" * 5)
+    odd = Annotation(
+        1, 0.0, 0.0, 100.0, n_channels=2, first_channel=0, n_samples=3, background=b"\x01" * 5
+    )
     truncated = odd.pack()[:-2]  # the tail is shorter than declared
-    feed(tracker, encode_frame(ANNOTATION_TYPE, odd.pack()) + encode_frame(ANNOTATION_TYPE, truncated))
+    feed(
+        tracker,
+        encode_frame(ANNOTATION_TYPE, odd.pack()) + encode_frame(ANNOTATION_TYPE, truncated),
+    )
     assert tracker.background is None and tracker.bad_messages == 2
     big = np.arange(4 * 2100, dtype=np.uint16).reshape(4, 2100)  # does not fit one frame
     feed(tracker, b"".join(encode_annotations(9, None, big)))

@@ -9,8 +9,16 @@ from hypothesis import strategies as st
 from firmware_protocol import MAX_PAYLOAD, REGISTRY, SAMPLE_SIZE, SampleFormat, StreamData
 from firmware_protocol._codec import Message
 
-_INT_BITS = {"B": (8, False), "H": (16, False), "I": (32, False), "Q": (64, False),
-             "b": (8, True), "h": (16, True), "i": (32, True), "q": (64, True)}  # fmt: skip
+_INT_BITS = {
+    "B": (8, False),
+    "H": (16, False),
+    "I": (32, False),
+    "Q": (64, False),
+    "b": (8, True),
+    "h": (16, True),
+    "i": (32, True),
+    "q": (64, True),
+}
 
 
 def _int(code: str) -> st.SearchStrategy[int]:
@@ -42,9 +50,14 @@ def stream_data(max_samples: int | None = None) -> st.SearchStrategy[StreamData]
         n = draw(st.integers(0, limit))
         n_ch = draw(st.integers(1, 255))
         return StreamData(
-            draw(_int("I")), draw(st.integers(0, n_ch - 1)), n_ch, fmt, draw(_int("I")),
-            draw(_int("Q")), draw(st.binary(min_size=n * size, max_size=n * size)),
-        )  # fmt: skip
+            draw(_int("I")),
+            draw(st.integers(0, n_ch - 1)),
+            n_ch,
+            fmt,
+            draw(_int("I")),
+            draw(_int("Q")),
+            draw(st.binary(min_size=n * size, max_size=n * size)),
+        )
 
     return build()
 

@@ -45,9 +45,13 @@ def driver(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def run(driver: Path, commands: list[str]) -> list[str]:
     out = subprocess.run(
-        [str(driver)], input="\n".join(commands) + "\n", capture_output=True, text=True,
-        timeout=60, check=True,
-    )  # fmt: skip
+        [str(driver)],
+        input="\n".join(commands) + "\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
     return out.stdout.splitlines()
 
 
@@ -61,7 +65,9 @@ def py_decode(wire: bytes) -> list[str]:
         f"frame {f.flags} {f.msg_type} {f.seq} {f.aux} {hx(f.payload)}" for f in decoder.feed(wire)
     ]
     s = decoder.stats
-    return lines + [f"stats {s.frames} {s.crc} {s.cobs} {s.length} {s.oversize} {s.version} {s.flags}"]
+    return lines + [
+        f"stats {s.frames} {s.crc} {s.cobs} {s.length} {s.oversize} {s.version} {s.flags}"
+    ]
 
 
 def test_crc32c_matches(driver: Path) -> None:
@@ -87,11 +93,15 @@ def test_header_pack_unpack(driver: Path) -> None:
 
 
 def test_encode_matches_vectors(driver: Path) -> None:
-    cases = [(v["flags"], v["msg_type"], v["seq"], v["aux"], v["payload_hex"] or "-", v["wire_hex"])
-             for v in VECTORS["frames"]]  # fmt: skip
+    cases = [
+        (v["flags"], v["msg_type"], v["seq"], v["aux"], v["payload_hex"] or "-", v["wire_hex"])
+        for v in VECTORS["frames"]
+    ]
     for v in VECTORS["messages"]:
         frame = FrameDecoder().feed(bytes.fromhex(v["wire_hex"]))[0]
-        cases.append((frame.flags, frame.msg_type, frame.seq, frame.aux, hx(frame.payload), v["wire_hex"]))
+        cases.append(
+            (frame.flags, frame.msg_type, frame.seq, frame.aux, hx(frame.payload), v["wire_hex"])
+        )
     got = run(driver, [f"enc {f} {t} {s} {a} {p}" for f, t, s, a, p, _ in cases])
     assert got == [f"enc {w}" for *_, w in cases]
 
@@ -115,9 +125,15 @@ def test_decoder_differential_on_damaged_streams(driver: Path) -> None:
     rng = np.random.default_rng(3)
     streams = []
     for i in range(1500):
-        frames = [encode_frame(int(rng.integers(0, 65536)), rng.bytes(int(rng.integers(0, 700))),
-                               seq=i & 0xFFFF, flags=int(rng.integers(0, 32)))
-                  for _ in range(int(rng.integers(1, 4)))]  # fmt: skip
+        frames = [
+            encode_frame(
+                int(rng.integers(0, 65536)),
+                rng.bytes(int(rng.integers(0, 700))),
+                seq=i & 0xFFFF,
+                flags=int(rng.integers(0, 32)),
+            )
+            for _ in range(int(rng.integers(1, 4)))
+        ]
         buf = np.frombuffer(b"".join(frames), np.uint8).copy()
         pos = rng.integers(0, buf.size, int(rng.integers(0, 4)))
         buf[pos] ^= rng.integers(1, 256, pos.size).astype(np.uint8)

@@ -45,7 +45,9 @@ def test_worked_example_bytes() -> None:
 
 
 def test_header_fields_round_trip() -> None:
-    wire = encode_frame(0xBEEF, b"xyz", seq=0xFFFF, flags=Flags.RESPONSE | Flags.MORE, aux=2**32 - 1)
+    wire = encode_frame(
+        0xBEEF, b"xyz", seq=0xFFFF, flags=Flags.RESPONSE | Flags.MORE, aux=2**32 - 1
+    )
     assert wire.count(0) == 1 and wire.endswith(b"\x00")
     assert FrameDecoder().feed(wire) == [Frame(0xBEEF, 0xFFFF, 0x11, 2**32 - 1, b"xyz")]
 
@@ -75,9 +77,11 @@ def test_worst_case_encoded_size_fits_bound() -> None:
 
 
 frame_args = st.tuples(
-    st.integers(0, 0xFFFF), st.integers(0, 0xFFFF), st.integers(0, 0x1F),
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0x1F),
     st.integers(0, 2**32 - 1),
-)  # fmt: skip
+)
 
 
 @settings(max_examples=150, deadline=None)

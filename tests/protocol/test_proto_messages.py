@@ -71,7 +71,9 @@ def test_message_stream_round_trips_under_chunking(msgs: list, cuts: list[int]) 
     stream = b"".join(encode_message(m, seq=i) for i, m in enumerate(msgs))
     points = sorted({min(c, len(stream)) for c in cuts} | {0, len(stream)})
     decoder = FrameDecoder()
-    frames = [f for a, b in zip(points, points[1:], strict=False) for f in decoder.feed(stream[a:b])]
+    frames = [
+        f for a, b in zip(points, points[1:], strict=False) for f in decoder.feed(stream[a:b])
+    ]
     assert [decode_message(f) for f in frames] == msgs
 
 
@@ -97,7 +99,9 @@ def test_stream_data_max_samples_fit_one_frame(fmt: SampleFormat) -> None:
 
 @settings(max_examples=50, deadline=None)
 @given(msg=stream_data(max_samples=64), extra=st.binary(max_size=16))
-def test_stream_data_ignores_extra_bytes_and_honours_header_size(msg: StreamData, extra: bytes) -> None:
+def test_stream_data_ignores_extra_bytes_and_honours_header_size(
+    msg: StreamData, extra: bytes
+) -> None:
     payload = msg.pack()
     assert StreamData.unpack(payload + extra) == msg
     grown = bytearray(payload[:24] + b"\xee" * 8 + payload[24:])

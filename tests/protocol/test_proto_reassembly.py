@@ -12,10 +12,9 @@ from firmware_protocol import AcquisitionAssembler, SampleFormat, StreamData
 def acquisition(index: int, n_ch: int = 3, n: int = 8, ts: int = 1000) -> list[StreamData]:
     rows = (np.arange(n_ch * n).reshape(n_ch, n) * 7 + index % 1000).astype("<i2")
     return [
-        StreamData(index, c, n_ch, SampleFormat.I16_RF, 48000, ts + index % 1000,
-                   rows[c].tobytes())
+        StreamData(index, c, n_ch, SampleFormat.I16_RF, 48000, ts + index % 1000, rows[c].tobytes())
         for c in range(n_ch)
-    ]  # fmt: skip
+    ]
 
 
 def feed_all(asm: AcquisitionAssembler, frames: list[tuple[StreamData, int]]) -> list:
@@ -92,9 +91,11 @@ def test_flush_and_reset() -> None:
 
 @settings(max_examples=150, deadline=None)
 @given(
-    n_acq=st.integers(1, 12), n_ch=st.integers(1, 4),
-    lost=st.sets(st.integers(0, 47)), data=st.data(),
-)  # fmt: skip
+    n_acq=st.integers(1, 12),
+    n_ch=st.integers(1, 4),
+    lost=st.sets(st.integers(0, 47)),
+    data=st.data(),
+)
 def test_random_loss_yields_exactly_the_intact_acquisitions(n_acq, n_ch, lost, data) -> None:
     sent = []
     for i in range(n_acq):

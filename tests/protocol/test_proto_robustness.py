@@ -13,10 +13,15 @@ N_STREAMS = 100_000
 def _pool(rng: np.random.Generator) -> list[Frame]:
     sizes = [0, 1, 2, 13, 253, 254, 255, 300, 1024, 4096, 8256]
     return [
-        Frame(int(rng.integers(0, 1 << 16)), i, int(rng.integers(0, 32)),
-              int(rng.integers(0, 1 << 32)), rng.integers(0, 256, n, dtype=np.uint8).tobytes())
+        Frame(
+            int(rng.integers(0, 1 << 16)),
+            i,
+            int(rng.integers(0, 32)),
+            int(rng.integers(0, 1 << 32)),
+            rng.integers(0, 256, n, dtype=np.uint8).tobytes(),
+        )
         for i, n in enumerate(sizes * 3)
-    ]  # fmt: skip
+    ]
 
 
 def _damage(wire: bytes, kind: int, rng: np.random.Generator) -> bytes:

@@ -35,13 +35,18 @@ def test_crc_check_value() -> None:
 @pytest.mark.parametrize("v", VECTORS["frames"], ids=lambda v: v["name"])
 def test_frame_vectors(v: dict) -> None:
     payload, wire = bytes.fromhex(v["payload_hex"]), bytes.fromhex(v["wire_hex"])
-    assert encode_frame(v["msg_type"], payload, seq=v["seq"], flags=v["flags"], aux=v["aux"]) == wire
+    assert (
+        encode_frame(v["msg_type"], payload, seq=v["seq"], flags=v["flags"], aux=v["aux"]) == wire
+    )
     header = bytes.fromhex(v["header_hex"])
     assert len(header) == HEADER_SIZE and crc32c(header + payload) == v["crc"]
     [frame] = FrameDecoder().feed(wire)
     assert (frame.msg_type, frame.seq, frame.flags, frame.aux) == (
-        v["msg_type"], v["seq"], v["flags"], v["aux"],
-    )  # fmt: skip
+        v["msg_type"],
+        v["seq"],
+        v["flags"],
+        v["aux"],
+    )
     assert frame.payload == payload
 
 

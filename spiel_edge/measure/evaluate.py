@@ -23,7 +23,7 @@ from spiel_edge.pipeline.echo_labels import (
     score_association,
 )
 from spiel_edge.pipeline.run import Pipeline, Result
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 
 @dataclass
@@ -31,7 +31,9 @@ class Evaluation:
     errors_mm: dict[float, list[float]] = field(default_factory=dict)  # by true z
     frames: dict[float, int] = field(default_factory=dict)
     fixes: dict[float, int] = field(default_factory=dict)
-    seen3: dict[float, int] = field(default_factory=dict)  # frames where >= 3 channels see the target
+    seen3: dict[float, int] = field(
+        default_factory=dict
+    )  # frames where >= 3 channels see the target
     fixes_seen3: dict[float, int] = field(default_factory=dict)
     association: AssociationScore = field(default_factory=AssociationScore)
     failed: list[str] = field(default_factory=list)
@@ -48,10 +50,13 @@ class Evaluation:
         if result.position_mm is not None:
             self.fixes[z] = self.fixes.get(z, 0) + 1
             self.fixes_seen3[z] = self.fixes_seen3.get(z, 0) + seen
-            self.errors_mm.setdefault(z, []).append(float(np.linalg.norm(result.position_mm - truth)))
+            self.errors_mm.setdefault(z, []).append(
+                float(np.linalg.norm(result.position_mm - truth))
+            )
 
     def summary(self, max_z: float | None = None) -> dict:
         """Metrics over all heights (or those <= max_z), and per height."""
+
         def stats(zs: Iterable[float]) -> dict:
             zs = list(zs)
             errs = np.array([e for z in zs for e in self.errors_mm.get(z, [])])
@@ -60,7 +65,9 @@ class Evaluation:
             return {
                 "frames": n,
                 "fix_rate": round(sum(self.fixes.get(z, 0) for z in zs) / n, 4) if n else None,
-                "fix_rate_seen3": round(sum(self.fixes_seen3.get(z, 0) for z in zs) / seen, 4) if seen else None,
+                "fix_rate_seen3": round(sum(self.fixes_seen3.get(z, 0) for z in zs) / seen, 4)
+                if seen
+                else None,
                 "mean_mm": round(float(errs.mean()), 2) if errs.size else None,
                 "median_mm": round(float(np.median(errs)), 2) if errs.size else None,
                 "p95_mm": round(float(np.percentile(errs, 95)), 2) if errs.size else None,
@@ -70,20 +77,26 @@ class Evaluation:
         chosen = [z for z in heights if max_z is None or z <= max_z]
         return {
             **stats(chosen),
-            "association_accuracy": round(self.association.accuracy, 4) if self.association.channels else None,
+            "association_accuracy": round(self.association.accuracy, 4)
+            if self.association.channels
+            else None,
             "association_f1": round(self.association.f1, 4) if self.association.channels else None,
             "failed_inputs": len(self.failed),
             "by_height": {f"{z:g}": stats([z]) for z in heights},
         }
 
 
-def split_by_position(names: Iterable[str], val_fraction: float = 0.3, salt: str = "spiel-edge") -> tuple[set, set]:
+def split_by_position(
+    names: Iterable[str], val_fraction: float = 0.3, salt: str = "spiel-edge"
+) -> tuple[set, set]:
     """Deterministic train/validation split of (x, y) positions (every height of an xy goes to
     the same side, so validation positions are unseen laterally too)."""
     xys = sorted({position_key(n)[:2] for n in names if position_key(n)})
+
     def bucket(xy: tuple) -> float:
         h = hashlib.sha256(f"{salt}:{xy[0]:g}:{xy[1]:g}".encode()).digest()
         return int.from_bytes(h[:8], "little") / 2**64
+
     val = {xy for xy in xys if bucket(xy) < val_fraction}
     return set(xys) - val, val
 

@@ -16,7 +16,7 @@ from collections.abc import Callable
 import numpy as np
 
 from spiel_edge.errors import DeviceError
-from spiel_edge.profile import Profile
+from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)
 
@@ -24,7 +24,9 @@ BeforePosition = Callable[[int, np.ndarray | None], None]  # position None: clea
 Progress = Callable[[int], None]  # acquisitions captured since the last call
 
 
-def capture(session, n: int, n_samples: int, rate_hz: float, progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def capture(
+    session, n: int, n_samples: int, rate_hz: float, progress: Progress | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """``n`` acquisitions (n, channels, samples) and the board's background, if it sends one."""
     frames, background = [], None
     session.start_stream(rate_hz=rate_hz, n_samples=n_samples)
@@ -41,7 +43,9 @@ def capture(session, n: int, n_samples: int, rate_hz: float, progress: Progress 
         session.stop_stream()
     shapes = {f.shape for f in frames}
     if len(shapes) != 1 or next(iter(shapes))[1] != n_samples:
-        raise DeviceError(f"the board sent acquisitions of shape {sorted(shapes)}, expected (channels, {n_samples})")
+        raise DeviceError(
+            f"the board sent acquisitions of shape {sorted(shapes)}, expected (channels, {n_samples})"
+        )
     return np.stack(frames), background
 
 

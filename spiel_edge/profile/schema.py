@@ -1,6 +1,6 @@
 """Device profiles: the hardware geometry and timing plus the pipeline's tuning, from TOML.
 
-A profile is one frozen dataclass tree. Built-in profiles live in ``spiel_edge/profiles/``;
+A profile is one frozen dataclass tree. Built-in profiles live in ``spiel_edge/profile/builtin/``;
 users copy one and edit it. A calibration file is a partial profile (usually ``[geometry]``
 only) applied over a base profile.
 """
@@ -139,7 +139,7 @@ _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
 
 def builtin_profiles() -> list[str]:
-    folder = resources.files("spiel_edge") / "profiles"
+    folder = resources.files("spiel_edge") / "profile" / "builtin"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
@@ -186,7 +186,9 @@ def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
             f"unknown profile {name!r}; built-in profiles: {', '.join(builtin_profiles())} "
             "(or give a path to a .toml file)"
         )
-    return (resources.files("spiel_edge") / "profiles" / f"{name}.toml").read_text(), name
+    return (
+        resources.files("spiel_edge") / "profile" / "builtin" / f"{name}.toml"
+    ).read_text(), name
 
 
 def profile_from_dict(data: dict[str, Any], *, origin: str = "profile") -> Profile:
@@ -195,7 +197,9 @@ def profile_from_dict(data: dict[str, Any], *, origin: str = "profile") -> Profi
     unknown = set(data) - allowed
     if unknown:
         raise ConfigError(f"{origin}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
-    sections = {key: _section(origin, key, cls, data.get(key, {})) for key, cls in _SECTIONS.items()}
+    sections = {
+        key: _section(origin, key, cls, data.get(key, {})) for key, cls in _SECTIONS.items()
+    }
     geometry = _geometry(origin, data.get("geometry"))
     profile = Profile(
         name=str(data.get("name", Path(origin).stem)),
@@ -213,7 +217,9 @@ def _section(origin: str, key: str, cls: type, values: Any) -> Any:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = set(values) - set(fields)
     if unknown:
-        raise ConfigError(f"{origin}: unknown key(s) {sorted(unknown)} in [{key}]; allowed: {sorted(fields)}")
+        raise ConfigError(
+            f"{origin}: unknown key(s) {sorted(unknown)} in [{key}]; allowed: {sorted(fields)}"
+        )
     defaults = cls()
     converted = {}
     for name, value in values.items():
@@ -228,15 +234,21 @@ def _section(origin: str, key: str, cls: type, values: Any) -> Any:
 
 def _geometry(origin: str, values: Any) -> Geometry:
     if not isinstance(values, dict) or "channels_mm" not in values:
-        raise ConfigError(f"{origin}: [geometry] with channels_mm (one [x, y, z] per channel) is required")
+        raise ConfigError(
+            f"{origin}: [geometry] with channels_mm (one [x, y, z] per channel) is required"
+        )
     unknown = set(values) - _GEOMETRY_KEYS
     if unknown:
-        raise ConfigError(f"{origin}: unknown key(s) {sorted(unknown)} in [geometry]; allowed: {sorted(_GEOMETRY_KEYS)}")
+        raise ConfigError(
+            f"{origin}: unknown key(s) {sorted(unknown)} in [geometry]; allowed: {sorted(_GEOMETRY_KEYS)}"
+        )
     channels = _array(origin, "geometry.channels_mm", values["channels_mm"], ndim=2)
     n = channels.shape[0]
     kwargs: dict[str, Any] = {"channels_mm": channels}
     if "emitter_mm" in values:
-        kwargs["emitter_mm"] = _array(origin, "geometry.emitter_mm", values["emitter_mm"], shape=(3,))
+        kwargs["emitter_mm"] = _array(
+            origin, "geometry.emitter_mm", values["emitter_mm"], shape=(3,)
+        )
     if "facing" in values:
         facing = _array(origin, "geometry.facing", values["facing"], shape=(3,))
         norm = float(np.linalg.norm(facing))
@@ -245,26 +257,42 @@ def _geometry(origin: str, values: Any) -> Geometry:
         kwargs["facing"] = facing / norm
     if "listening" in values:
         listening = values["listening"]
-        if not (isinstance(listening, list) and len(listening) == n and all(isinstance(v, bool) for v in listening)):
+        if not (
+            isinstance(listening, list)
+            and len(listening) == n
+            and all(isinstance(v, bool) for v in listening)
+        ):
             raise ConfigError(f"{origin}: geometry.listening must be {n} booleans, one per channel")
         kwargs["listening"] = np.array(listening, dtype=np.bool_)
     if "delay_samples" in values:
-        kwargs["delay_samples"] = _array(origin, "geometry.delay_samples", values["delay_samples"], shape=(n,))
+        kwargs["delay_samples"] = _array(
+            origin, "geometry.delay_samples", values["delay_samples"], shape=(n,)
+        )
     if "speed_of_sound_m_s" in values:
         speed = values["speed_of_sound_m_s"]
-        if not isinstance(speed, (int, float)) or isinstance(speed, bool) or not 200.0 <= speed <= 2000.0:
-            raise ConfigError(f"{origin}: geometry.speed_of_sound_m_s must be a number in [200, 2000], got {speed!r}")
+        if (
+            not isinstance(speed, (int, float))
+            or isinstance(speed, bool)
+            or not 200.0 <= speed <= 2000.0
+        ):
+            raise ConfigError(
+                f"{origin}: geometry.speed_of_sound_m_s must be a number in [200, 2000], got {speed!r}"
+            )
         kwargs["speed_of_sound_m_s"] = float(speed)
     return Geometry(**kwargs)
 
 
-def _array(origin: str, key: str, value: Any, *, ndim: int | None = None, shape: tuple | None = None) -> np.ndarray:
+def _array(
+    origin: str, key: str, value: Any, *, ndim: int | None = None, shape: tuple | None = None
+) -> np.ndarray:
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{origin}: {key} must be numbers, got {value!r}") from exc
     if ndim == 2 and (arr.ndim != 2 or arr.shape[1] != 3):
-        raise ConfigError(f"{origin}: {key} must be a list of [x, y, z] rows, got shape {arr.shape}")
+        raise ConfigError(
+            f"{origin}: {key} must be a list of [x, y, z] rows, got shape {arr.shape}"
+        )
     if shape is not None and arr.shape != shape:
         raise ConfigError(f"{origin}: {key} must have shape {list(shape)}, got {list(arr.shape)}")
     if not np.all(np.isfinite(arr)):
@@ -275,38 +303,70 @@ def _array(origin: str, key: str, value: Any, *, ndim: int | None = None, shape:
 
 def validate_profile(p: Profile, origin: str = "profile") -> None:
     """Cross-field rules; raises ConfigError naming the key and the allowed range."""
+
     def need(ok: bool, msg: str) -> None:
         if not ok:
             raise ConfigError(f"{origin}: {msg}")
 
     a, g = p.acquisition, p.geometry
-    need(1000.0 <= a.sample_rate_hz <= 10e6, f"acquisition.sample_rate_hz must be in [1e3, 1e7], got {a.sample_rate_hz}")
+    need(
+        1000.0 <= a.sample_rate_hz <= 10e6,
+        f"acquisition.sample_rate_hz must be in [1e3, 1e7], got {a.sample_rate_hz}",
+    )
     need(8 <= a.n_samples <= 4096, f"acquisition.n_samples must be in [8, 4096], got {a.n_samples}")
-    need(a.signal in ("envelope", "rf"), f"acquisition.signal must be 'envelope' or 'rf', got {a.signal!r}")
+    need(
+        a.signal in ("envelope", "rf"),
+        f"acquisition.signal must be 'envelope' or 'rf', got {a.signal!r}",
+    )
     if a.signal == "rf":
-        need(0 < a.carrier_hz < a.sample_rate_hz / 2, "acquisition.carrier_hz must be below half the sample rate for signal = 'rf'")
+        need(
+            0 < a.carrier_hz < a.sample_rate_hz / 2,
+            "acquisition.carrier_hz must be below half the sample rate for signal = 'rf'",
+        )
     n_listen = int(g.listening_mask().sum())
     need(n_listen >= 3, f"geometry needs at least 3 listening channels, has {n_listen}")
-    need(0 <= p.preprocess.blind_zone_samples < a.n_samples, f"preprocess.blind_zone_samples must be in [0, {a.n_samples})")
+    need(
+        0 <= p.preprocess.blind_zone_samples < a.n_samples,
+        f"preprocess.blind_zone_samples must be in [0, {a.n_samples})",
+    )
     d = p.detect
     need(d.threshold > 0, f"detect.threshold must be > 0, got {d.threshold}")
     need(0.0 <= d.hysteresis <= 1.0, f"detect.hysteresis must be in [0, 1], got {d.hysteresis}")
     need(d.min_amplitude >= 0, f"detect.min_amplitude must be >= 0, got {d.min_amplitude}")
     need(1 <= d.max_echoes <= 16, f"detect.max_echoes must be in [1, 16], got {d.max_echoes}")
     m = p.memg
-    need(1 <= m.max_iterations <= 200, f"memg.max_iterations must be in [1, 200], got {m.max_iterations}")
+    need(
+        1 <= m.max_iterations <= 200,
+        f"memg.max_iterations must be in [1, 200], got {m.max_iterations}",
+    )
     need(0.5 <= m.mu_window <= 20, f"memg.mu_window must be in [0.5, 20], got {m.mu_window}")
     need(m.toa in TOA_METHODS, f"memg.toa must be one of {TOA_METHODS}, got {m.toa!r}")
     s = p.associate
-    need(s.method in ASSOCIATION_METHODS, f"associate.method must be one of {ASSOCIATION_METHODS}, got {s.method!r}")
-    need(3 <= s.min_channels <= n_listen, f"associate.min_channels must be in [3, {n_listen}], got {s.min_channels}")
-    need(s.tolerance_mm >= 0 and s.max_residual_mm > 0, "associate.tolerance_mm must be >= 0 and max_residual_mm > 0")
+    need(
+        s.method in ASSOCIATION_METHODS,
+        f"associate.method must be one of {ASSOCIATION_METHODS}, got {s.method!r}",
+    )
+    need(
+        3 <= s.min_channels <= n_listen,
+        f"associate.min_channels must be in [3, {n_listen}], got {s.min_channels}",
+    )
+    need(
+        s.tolerance_mm >= 0 and s.max_residual_mm > 0,
+        "associate.tolerance_mm must be >= 0 and max_residual_mm > 0",
+    )
     loc = p.locate
-    need(0 < loc.toa_sigma_samples <= 100, f"locate.toa_sigma_samples must be in (0, 100], got {loc.toa_sigma_samples}")
-    need(loc.toa_sigma_per_background >= 0 and loc.toa_sigma_alpha_counts >= 0,
-         "locate.toa_sigma_per_background and locate.toa_sigma_alpha_counts must be >= 0")
-    need(abs(loc.toa_shift_background_after) <= 5 and abs(loc.toa_shift_background_before) <= 5,
-         "locate.toa_shift_background_after/before must be in [-5, 5] samples")
+    need(
+        0 < loc.toa_sigma_samples <= 100,
+        f"locate.toa_sigma_samples must be in (0, 100], got {loc.toa_sigma_samples}",
+    )
+    need(
+        loc.toa_sigma_per_background >= 0 and loc.toa_sigma_alpha_counts >= 0,
+        "locate.toa_sigma_per_background and locate.toa_sigma_alpha_counts must be >= 0",
+    )
+    need(
+        abs(loc.toa_shift_background_after) <= 5 and abs(loc.toa_shift_background_before) <= 5,
+        "locate.toa_shift_background_after/before must be in [-5, 5] samples",
+    )
 
 
 def profile_to_dict(p: Profile) -> dict[str, Any]:

@@ -23,7 +23,12 @@ from spiel_edge.errors import SpielError
 
 log = logging.getLogger(__name__)
 
-UDEV_RULE_DIRS = ("/etc/udev/rules.d", "/run/udev/rules.d", "/usr/lib/udev/rules.d", "/lib/udev/rules.d")
+UDEV_RULE_DIRS = (
+    "/etc/udev/rules.d",
+    "/run/udev/rules.d",
+    "/usr/lib/udev/rules.d",
+    "/lib/udev/rules.d",
+)
 GROUPS = ("dialout", "plugdev")
 CONFIG_DIR = "/etc/spiel-edge"
 
@@ -41,41 +46,60 @@ class Check:
 
 # -- device --------------------------------------------------------------------------------
 
+
 def check_board(boards: Sequence[Any], ids: Iterable[tuple[int, int]]) -> Check:
     """``boards``: LinkIdentity-like objects (url, vid, pid, serial) found by VID/PID."""
     wanted = ", ".join(f"{v:04x}:{p:04x}" for v, p in ids)
     if not boards:
-        return Check("board", False, f"no board with USB id {wanted} found",
-                     "plug the board in and check `lsusb`; a charge-only cable or an unpowered hub also hide it")
+        return Check(
+            "board",
+            False,
+            f"no board with USB id {wanted} found",
+            "plug the board in and check `lsusb`; a charge-only cable or an unpowered hub also hide it",
+        )
     listed = ", ".join(f"{b.url} (serial {b.serial or '?'})" for b in boards)
     return Check("board", True, f"found {listed}")
 
 
-def check_device_access(paths: Sequence[str], access: Callable[[str, int], bool] = os.access) -> Check:
+def check_device_access(
+    paths: Sequence[str], access: Callable[[str, int], bool] = os.access
+) -> Check:
     """Read/write permission on each device node (symlinks followed)."""
     if not paths:
-        return Check("device access", True, "no serial device node to check (no board, or USB bulk only)")
+        return Check(
+            "device access", True, "no serial device node to check (no board, or USB bulk only)"
+        )
     denied = [p for p in paths if not access(p, os.R_OK | os.W_OK)]
     if denied:
-        return Check("device access", False, f"no read/write access to {', '.join(denied)}",
-                     "install the udev rule (`spiel-edge service install`) and join the dialout group: "
-                     "sudo usermod -aG dialout,plugdev $USER, then log in again")
+        return Check(
+            "device access",
+            False,
+            f"no read/write access to {', '.join(denied)}",
+            "install the udev rule (`spiel-edge service install`) and join the dialout group: "
+            "sudo usermod -aG dialout,plugdev $USER, then log in again",
+        )
     return Check("device access", True, f"read/write on {', '.join(paths)}")
 
 
 def check_symlinks(dev_dir: str | Path = "/dev") -> Check:
     links = sorted(Path(dev_dir).glob("spiel-*"))
     if not links:
-        return Check("stable names", False, f"no {dev_dir}/spiel-* symlink",
-                     "install the udev rule: sudo spiel-edge service install, then "
-                     "sudo udevadm control --reload && sudo udevadm trigger; replug the board")
+        return Check(
+            "stable names",
+            False,
+            f"no {dev_dir}/spiel-* symlink",
+            "install the udev rule: sudo spiel-edge service install, then "
+            "sudo udevadm control --reload && sudo udevadm trigger; replug the board",
+        )
     broken = [str(p) for p in links if not p.exists()]
     if broken:
         return Check("stable names", False, f"dangling: {', '.join(broken)}", "replug the board")
     return Check("stable names", True, ", ".join(f"{p} -> {os.path.realpath(p)}" for p in links))
 
 
-def check_groups(user: str, process_groups: set[str], member_of: set[str], is_root: bool = False) -> Check:
+def check_groups(
+    user: str, process_groups: set[str], member_of: set[str], is_root: bool = False
+) -> Check:
     """``process_groups``: this session's groups; ``member_of``: the group database's view."""
     if is_root:
         return Check("groups", True, "running as root (the service runs as its own user)")
@@ -84,10 +108,18 @@ def check_groups(user: str, process_groups: set[str], member_of: set[str], is_ro
         return Check("groups", True, f"{user} is in {', '.join(GROUPS)}")
     stale = [g for g in missing if g in member_of]
     if stale and stale == missing:
-        return Check("groups", False, f"{user} was added to {', '.join(stale)} but this session predates it",
-                     "log out and in again (or reboot)")
-    return Check("groups", False, f"{user} is not in {', '.join(missing)}",
-                 f"sudo usermod -aG {','.join(missing)} {user}, then log in again")
+        return Check(
+            "groups",
+            False,
+            f"{user} was added to {', '.join(stale)} but this session predates it",
+            "log out and in again (or reboot)",
+        )
+    return Check(
+        "groups",
+        False,
+        f"{user} is not in {', '.join(missing)}",
+        f"sudo usermod -aG {','.join(missing)} {user}, then log in again",
+    )
 
 
 def user_groups() -> tuple[str, set[str], set[str], bool]:
@@ -107,6 +139,7 @@ def _group_name(gid: int) -> str:
 
 # -- ModemManager --------------------------------------------------------------------------
 
+
 def modemmanager_running(proc: str | Path = "/proc") -> bool:
     for comm in Path(proc).glob("[0-9]*/comm"):
         try:
@@ -117,7 +150,9 @@ def modemmanager_running(proc: str | Path = "/proc") -> bool:
     return False
 
 
-def installed_udev_rule(ids: Iterable[tuple[int, int]], dirs: Iterable[str | Path] = UDEV_RULE_DIRS) -> Path | None:
+def installed_udev_rule(
+    ids: Iterable[tuple[int, int]], dirs: Iterable[str | Path] = UDEV_RULE_DIRS
+) -> Path | None:
     """A rules file that names the board's vendor id and sets ID_MM_DEVICE_IGNORE."""
     vendors = {f'"{v:04x}"' for v, _ in ids}
     for folder in dirs:
@@ -136,12 +171,17 @@ def check_modemmanager(running: bool, rule: Path | None) -> Check:
         return Check("ModemManager", True, "not running")
     if rule is not None:
         return Check("ModemManager", True, f"running; told to ignore the board by {rule}")
-    return Check("ModemManager", False, "running and may probe the board's ttyACM port (garbled first seconds, "
-                 "busy port)", "install the udev rule (`sudo spiel-edge service install`), or "
-                 "sudo systemctl disable --now ModemManager if this robot has no modem")
+    return Check(
+        "ModemManager",
+        False,
+        "running and may probe the board's ttyACM port (garbled first seconds, busy port)",
+        "install the udev rule (`sudo spiel-edge service install`), or "
+        "sudo systemctl disable --now ModemManager if this robot has no modem",
+    )
 
 
 # -- configuration -------------------------------------------------------------------------
+
 
 def read_env_file(path: str | Path) -> dict[str, str]:
     """KEY=VALUE lines as systemd's EnvironmentFile= reads them (comments, optional quotes)."""
@@ -171,11 +211,12 @@ def run_options(env: dict[str, str]) -> tuple[str, str | None]:
     return found.get("--profile", "spiel-icra23"), found.get("--calibration")
 
 
-def check_config(profile: str | None = None, calibration: str | None = None,
-                 config_dir: str | Path = CONFIG_DIR) -> Check:
+def check_config(
+    profile: str | None = None, calibration: str | None = None, config_dir: str | Path = CONFIG_DIR
+) -> Check:
     """The profile and calibration the service would use (from config_dir's env file unless
     given), loaded and validated."""
-    from spiel_edge.profile import apply_calibration, load_profile
+    from spiel_edge.profile.schema import apply_calibration, load_profile
 
     env_file = Path(config_dir) / "spiel-edge.env"
     origin = "defaults"
@@ -183,7 +224,12 @@ def check_config(profile: str | None = None, calibration: str | None = None,
         try:
             profile, calibration = run_options(read_env_file(env_file))
         except (OSError, ValueError) as exc:
-            return Check("config", False, f"{env_file}: {exc}", "fix the file; compare with `spiel-edge service show env`")
+            return Check(
+                "config",
+                False,
+                f"{env_file}: {exc}",
+                "fix the file; compare with `spiel-edge service show env`",
+            )
         origin = str(env_file)
     profile = profile or "spiel-icra23"
     try:
@@ -191,13 +237,19 @@ def check_config(profile: str | None = None, calibration: str | None = None,
         if calibration:
             loaded = apply_calibration(loaded, calibration)
     except SpielError as exc:
-        return Check("config", False, str(exc), "fix the named key or file; the built-in profiles are in "
-                     "spiel_edge/profiles/ for comparison")
+        return Check(
+            "config",
+            False,
+            str(exc),
+            "fix the named key or file; the built-in profiles are in "
+            "spiel_edge/profile/builtin/ for comparison",
+        )
     extra = f" + calibration {calibration}" if calibration else ""
     return Check("config", True, f"profile {loaded.name!r}{extra} is valid ({origin})")
 
 
 # -- model ---------------------------------------------------------------------------------
+
 
 def check_model(path: str | Path | None = None, method: str = "auto") -> Check:
     if method == "geometric":
@@ -205,19 +257,28 @@ def check_model(path: str | Path | None = None, method: str = "auto") -> Check:
     try:
         from spiel_edge.pipeline.associate_onnx import default_model_path, load_session
     except ImportError as exc:
-        return Check("model", False, f"learned association is not in this install ({exc})",
-                     "reinstall spiel-edge; geometric association is used meanwhile")
+        return Check(
+            "model",
+            False,
+            f"learned association is not in this install ({exc})",
+            "reinstall spiel-edge; geometric association is used meanwhile",
+        )
     path = Path(path) if path is not None else default_model_path()
     try:
         load_session(path)
     except (SpielError, ImportError) as exc:
-        return Check("model", False, f"{exc}; geometric association is used instead",
-                     "reinstall spiel-edge (the package ships the model), or set [associate] method = "
-                     "\"geometric\" in the profile to use geometry on purpose")
+        return Check(
+            "model",
+            False,
+            f"{exc}; geometric association is used instead",
+            "reinstall spiel-edge (the package ships the model), or set [associate] method = "
+            '"geometric" in the profile to use geometry on purpose',
+        )
     return Check("model", True, f"{path} loads in onnxruntime")
 
 
 # -- numba ---------------------------------------------------------------------------------
+
 
 def numba_cache_dir() -> Path | None:
     """Where numba caches the pipeline's kernels in this environment (None: nowhere usable)."""
@@ -230,8 +291,10 @@ def numba_cache_dir() -> Path | None:
 
 
 def check_numba_cache_dir(path: Path | None) -> Check:
-    fix = ("set NUMBA_CACHE_DIR to a folder this user can write (the unit uses "
-           "/var/cache/spiel-edge/numba with CacheDirectory=spiel-edge)")
+    fix = (
+        "set NUMBA_CACHE_DIR to a folder this user can write (the unit uses "
+        "/var/cache/spiel-edge/numba with CacheDirectory=spiel-edge)"
+    )
     if path is None:
         return Check("numba cache", False, "numba finds no writable cache location", fix)
     try:
@@ -256,8 +319,13 @@ def pipeline_dispatchers() -> list[Any]:
             module = importlib.import_module(f"{package.__name__}.{info.name}")
         except ImportError:
             continue
-        found += [obj for obj in vars(module).values() if getattr(obj, "_cache", None) is not None
-                  and hasattr(obj, "stats") and getattr(obj, "__module__", "") == module.__name__]
+        found += [
+            obj
+            for obj in vars(module).values()
+            if getattr(obj, "_cache", None) is not None
+            and hasattr(obj, "stats")
+            and getattr(obj, "__module__", "") == module.__name__
+        ]
     return found
 
 
@@ -273,7 +341,7 @@ def warm_pipeline() -> float:
     from spiel_edge.data import load_subset
     from spiel_edge.pipeline.associate import GeometricAssociator
     from spiel_edge.pipeline.run import Pipeline
-    from spiel_edge.profile import load_profile
+    from spiel_edge.profile.schema import load_profile
 
     subset = load_subset()
     profile = load_profile("spiel-icra23")
@@ -286,19 +354,36 @@ def check_numba_kernels(warm: Callable[[], float], counts: Callable[[], tuple[in
     try:
         seconds = warm()
     except Exception as exc:  # a kernel that fails to compile must show up here, not crash doctor
-        return Check("numba kernels", False, f"the pipeline does not run: {type(exc).__name__}: {exc}",
-                     "reinstall spiel-edge with a numba/numpy pair it supports")
+        return Check(
+            "numba kernels",
+            False,
+            f"the pipeline does not run: {type(exc).__name__}: {exc}",
+            "reinstall spiel-edge with a numba/numpy pair it supports",
+        )
     hits, misses = counts()
     if misses == 0:
-        return Check("numba kernels", True, f"{hits} kernel(s) loaded from the cache; first acquisition took {seconds:.2f} s")
-    return Check("numba kernels", True, f"compiled {misses} kernel(s) in {seconds:.1f} s (not cached yet; the next "
-                 f"start loads them) and loaded {hits} from the cache")
+        return Check(
+            "numba kernels",
+            True,
+            f"{hits} kernel(s) loaded from the cache; first acquisition took {seconds:.2f} s",
+        )
+    return Check(
+        "numba kernels",
+        True,
+        f"compiled {misses} kernel(s) in {seconds:.1f} s (not cached yet; the next "
+        f"start loads them) and loaded {hits} from the cache",
+    )
 
 
 # -- all -----------------------------------------------------------------------------------
 
-def run_checks(profile: str | None = None, calibration: str | None = None,
-               config_dir: str | Path = CONFIG_DIR, skip_numba: bool = False) -> list[Check]:
+
+def run_checks(
+    profile: str | None = None,
+    calibration: str | None = None,
+    config_dir: str | Path = CONFIG_DIR,
+    skip_numba: bool = False,
+) -> list[Check]:
     from spiel_edge.link.discover import BOARD_USB_IDS, find_boards
 
     boards = find_boards(BOARD_USB_IDS)
@@ -316,5 +401,9 @@ def run_checks(profile: str | None = None, calibration: str | None = None,
         cache = numba_cache_dir()
         checks.append(check_numba_cache_dir(cache))
         if cache is not None:
-            checks.append(check_numba_kernels(warm_pipeline, lambda: kernel_cache_counts(pipeline_dispatchers())))
+            checks.append(
+                check_numba_kernels(
+                    warm_pipeline, lambda: kernel_cache_counts(pipeline_dispatchers())
+                )
+            )
     return checks

@@ -24,7 +24,7 @@ from typing import Any
 
 from firmware_protocol.errors import ErrorCode
 from spiel_edge.errors import ConfigError, DeviceError
-from spiel_edge.profile import (
+from spiel_edge.profile.schema import (
     Profile,
     apply_calibration,
     dump_toml,
@@ -56,8 +56,16 @@ ACQUISITION = {
 }
 CALIBRATION = {"source": str, "date": str, "residual_samples": float}
 TABLES = ("board", "acquisition", "geometry", "calibration")
-_HEADER_KEYS = ("n_samples", "decimation", "pulse_cycles", "blind_zone_samples",
-                "sample_rate_hz", "carrier_hz", "gain_db", "acquisition_rate_hz")
+_HEADER_KEYS = (
+    "n_samples",
+    "decimation",
+    "pulse_cycles",
+    "blind_zone_samples",
+    "sample_rate_hz",
+    "carrier_hz",
+    "gain_db",
+    "acquisition_rate_hz",
+)
 
 
 def validate(data: dict[str, Any], origin: str = "board config") -> dict[str, Any]:
@@ -68,7 +76,10 @@ def validate(data: dict[str, Any], origin: str = "board config") -> dict[str, An
     _need(not unknown, origin, f"unknown table(s) {sorted(unknown)}; allowed: {list(TABLES)}")
     for table in ("board", "acquisition", "geometry"):
         _need(isinstance(data.get(table), dict), origin, f"[{table}] table is required")
-    out: dict[str, Any] = {"board": _board(data["board"], origin), "acquisition": _acquisition(data["acquisition"], origin)}
+    out: dict[str, Any] = {
+        "board": _board(data["board"], origin),
+        "acquisition": _acquisition(data["acquisition"], origin),
+    }
     out["geometry"] = _geometry(data["geometry"], out["acquisition"], origin)
     if "calibration" in data:
         out["calibration"] = _calibration(data["calibration"], origin)
@@ -84,22 +95,39 @@ def _board(table: dict, origin: str) -> dict:
     unknown = set(table) - {"name"}
     _need(not unknown, origin, f"unknown key(s) {sorted(unknown)} in [board]; allowed: ['name']")
     name = table.get("name")
-    ok = isinstance(name, str) and 1 <= len(name) <= NAME_MAX and name.isascii() and name.isprintable()
+    ok = (
+        isinstance(name, str)
+        and 1 <= len(name) <= NAME_MAX
+        and name.isascii()
+        and name.isprintable()
+    )
     _need(ok, origin, f"board.name must be 1-{NAME_MAX} printable ASCII characters, got {name!r}")
     return {"name": name}
 
 
 def _acquisition(table: dict, origin: str) -> dict:
     unknown = set(table) - set(ACQUISITION)
-    _need(not unknown, origin, f"unknown key(s) {sorted(unknown)} in [acquisition]; allowed: {sorted(ACQUISITION)}")
+    _need(
+        not unknown,
+        origin,
+        f"unknown key(s) {sorted(unknown)} in [acquisition]; allowed: {sorted(ACQUISITION)}",
+    )
     out = {}
     for key, (kind, lo, hi) in ACQUISITION.items():
-        _need(key in table, origin, f"acquisition.{key} is required ({kind.__name__} in [{lo:g}, {hi:g}])")
+        _need(
+            key in table,
+            origin,
+            f"acquisition.{key} is required ({kind.__name__} in [{lo:g}, {hi:g}])",
+        )
         value = table[key]
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
         ok = isinstance(value, kind) and not isinstance(value, bool) and lo <= value <= hi
-        _need(ok, origin, f"acquisition.{key} must be {kind.__name__} in [{lo:g}, {hi:g}], got {table[key]!r}")
+        _need(
+            ok,
+            origin,
+            f"acquisition.{key} must be {kind.__name__} in [{lo:g}, {hi:g}], got {table[key]!r}",
+        )
         out[key] = value
     _cross_rules(out, origin)
     return out
@@ -107,26 +135,44 @@ def _acquisition(table: dict, origin: str) -> dict:
 
 def _cross_rules(a: dict, origin: str) -> None:
     n, rate = a["n_samples"], a["sample_rate_hz"]
-    _need(a["blind_zone_samples"] < n, origin,
-          f"acquisition.blind_zone_samples must be in [0, n_samples - 1 = {n - 1}], got {a['blind_zone_samples']}")
-    _need(rate * a["decimation"] <= MAX_ADC_HZ, origin,
-          f"acquisition.decimation must be in [1, {int(MAX_ADC_HZ // rate)}] at sample_rate_hz = {rate:g} "
-          f"(the ADC runs at most {MAX_ADC_HZ:g} Hz), got {a['decimation']}")
+    _need(
+        a["blind_zone_samples"] < n,
+        origin,
+        f"acquisition.blind_zone_samples must be in [0, n_samples - 1 = {n - 1}], got {a['blind_zone_samples']}",
+    )
+    _need(
+        rate * a["decimation"] <= MAX_ADC_HZ,
+        origin,
+        f"acquisition.decimation must be in [1, {int(MAX_ADC_HZ // rate)}] at sample_rate_hz = {rate:g} "
+        f"(the ADC runs at most {MAX_ADC_HZ:g} Hz), got {a['decimation']}",
+    )
     pulse_samples = a["pulse_cycles"] / a["carrier_hz"] * rate
     max_cycles = int(max(a["blind_zone_samples"], 1) * a["carrier_hz"] / rate)
-    _need(pulse_samples <= max(a["blind_zone_samples"], 1), origin,
-          f"acquisition.pulse_cycles must be in [1, {max_cycles}] so that the pulse ends inside the blind zone "
-          f"({a['blind_zone_samples']} samples), got {a['pulse_cycles']}")
+    _need(
+        pulse_samples <= max(a["blind_zone_samples"], 1),
+        origin,
+        f"acquisition.pulse_cycles must be in [1, {max_cycles}] so that the pulse ends inside the blind zone "
+        f"({a['blind_zone_samples']} samples), got {a['pulse_cycles']}",
+    )
     max_rate = rate / n
-    _need(a["acquisition_rate_hz"] <= max_rate, origin,
-          f"acquisition.acquisition_rate_hz must be in [0.1, {max_rate:.4g}] for {n} samples at {rate:g} Hz, "
-          f"got {a['acquisition_rate_hz']:g}")
+    _need(
+        a["acquisition_rate_hz"] <= max_rate,
+        origin,
+        f"acquisition.acquisition_rate_hz must be in [0.1, {max_rate:.4g}] for {n} samples at {rate:g} Hz, "
+        f"got {a['acquisition_rate_hz']:g}",
+    )
 
 
 def _geometry(table: dict, acq: dict, origin: str) -> dict:
     """Validated by the profile's own rules (shapes, >= 3 listening channels, speed range)."""
-    profile = profile_from_dict({"name": "board", "geometry": table, "acquisition": {
-        "n_samples": acq["n_samples"], "sample_rate_hz": acq["sample_rate_hz"]}}, origin=origin)
+    profile = profile_from_dict(
+        {
+            "name": "board",
+            "geometry": table,
+            "acquisition": {"n_samples": acq["n_samples"], "sample_rate_hz": acq["sample_rate_hz"]},
+        },
+        origin=origin,
+    )
     full = profile_to_dict(profile)["geometry"]
     return {key: full[key] for key in full if key in table or key == "channels_mm"}
 
@@ -134,20 +180,33 @@ def _geometry(table: dict, acq: dict, origin: str) -> dict:
 def _calibration(table: Any, origin: str) -> dict:
     _need(isinstance(table, dict), origin, "[calibration] must be a table")
     unknown = set(table) - set(CALIBRATION)
-    _need(not unknown, origin, f"unknown key(s) {sorted(unknown)} in [calibration]; allowed: {sorted(CALIBRATION)}")
+    _need(
+        not unknown,
+        origin,
+        f"unknown key(s) {sorted(unknown)} in [calibration]; allowed: {sorted(CALIBRATION)}",
+    )
     out = {}
     for key, value in table.items():
         kind = CALIBRATION[key]
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
-        _need(isinstance(value, kind) and not isinstance(value, bool), origin,
-              f"calibration.{key} must be {kind.__name__}, got {value!r}")
-        _need(kind is not float or 0.0 <= value <= 100.0, origin, f"calibration.{key} must be in [0, 100], got {value!r}")
+        _need(
+            isinstance(value, kind) and not isinstance(value, bool),
+            origin,
+            f"calibration.{key} must be {kind.__name__}, got {value!r}",
+        )
+        _need(
+            kind is not float or 0.0 <= value <= 100.0,
+            origin,
+            f"calibration.{key} must be in [0, 100], got {value!r}",
+        )
         out[key] = value
     return out
 
 
-def overlay(base: dict[str, Any], partial: dict[str, Any], origin: str = "board config") -> dict[str, Any]:
+def overlay(
+    base: dict[str, Any], partial: dict[str, Any], origin: str = "board config"
+) -> dict[str, Any]:
     """``partial`` (e.g. a calibration file with only [geometry]) over ``base``, validated."""
     _need(isinstance(partial, dict), origin, "must be a TOML table")
     unknown = set(partial) - set(TABLES)
@@ -162,11 +221,20 @@ def overlay(base: dict[str, Any], partial: dict[str, Any], origin: str = "board 
 def from_profile(profile: Profile, name: str = "spiel-board", **acquisition: Any) -> dict[str, Any]:
     """A board config with a profile's geometry and acquisition (other settings: defaults)."""
     a = profile.acquisition
-    defaults = {"n_samples": a.n_samples, "sample_rate_hz": a.sample_rate_hz, "decimation": 8,
-                "carrier_hz": a.carrier_hz, "pulse_cycles": 30, "gain_db": 20.0,
-                "blind_zone_samples": profile.preprocess.blind_zone_samples, "acquisition_rate_hz": 30.0}
+    defaults = {
+        "n_samples": a.n_samples,
+        "sample_rate_hz": a.sample_rate_hz,
+        "decimation": 8,
+        "carrier_hz": a.carrier_hz,
+        "pulse_cycles": 30,
+        "gain_db": 20.0,
+        "blind_zone_samples": profile.preprocess.blind_zone_samples,
+        "acquisition_rate_hz": 30.0,
+    }
     geometry = profile_to_dict(profile)["geometry"]
-    return validate({"board": {"name": name}, "acquisition": {**defaults, **acquisition}, "geometry": geometry})
+    return validate(
+        {"board": {"name": name}, "acquisition": {**defaults, **acquisition}, "geometry": geometry}
+    )
 
 
 def to_toml(config: dict[str, Any]) -> str:
@@ -183,18 +251,40 @@ def encode(config: dict[str, Any]) -> bytes:
 
 def decode(blob: bytes, origin: str = "board") -> dict[str, Any]:
     """The validated config from a blob read from the board; ConfigError if it is not one."""
-    _need(len(blob) >= HEADER.size, origin, f"config is {len(blob)} bytes, shorter than its {HEADER.size}-byte header")
+    _need(
+        len(blob) >= HEADER.size,
+        origin,
+        f"config is {len(blob)} bytes, shorter than its {HEADER.size}-byte header",
+    )
     magic, version, size, *scalars, length = HEADER.unpack_from(blob)
-    _need(magic == MAGIC, origin, f"config does not start with {MAGIC!r} (got {magic!r}): not a spiel-edge config")
-    _need(version == VERSION and size == HEADER.size, origin, f"config version {version} is not supported (this host reads {VERSION})")
-    _need(len(blob) == size + length, origin, f"config length {len(blob)} does not match its header ({size} + {length})")
+    _need(
+        magic == MAGIC,
+        origin,
+        f"config does not start with {MAGIC!r} (got {magic!r}): not a spiel-edge config",
+    )
+    _need(
+        version == VERSION and size == HEADER.size,
+        origin,
+        f"config version {version} is not supported (this host reads {VERSION})",
+    )
+    _need(
+        len(blob) == size + length,
+        origin,
+        f"config length {len(blob)} does not match its header ({size} + {length})",
+    )
     try:
         data = tomllib.loads(blob[size:].decode("utf-8"))
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"{origin}: stored config is not valid TOML: {exc}") from exc
     config = validate(data, origin)
-    stored = HEADER.pack(MAGIC, VERSION, size, *(config["acquisition"][k] for k in _HEADER_KEYS), length)
-    _need(stored == blob[:size], origin, "config header and TOML disagree: the stored config is corrupt")
+    stored = HEADER.pack(
+        MAGIC, VERSION, size, *(config["acquisition"][k] for k in _HEADER_KEYS), length
+    )
+    _need(
+        stored == blob[:size],
+        origin,
+        "config header and TOML disagree: the stored config is corrupt",
+    )
     return config
 
 
@@ -224,7 +314,12 @@ def diff(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
 
 
 def _flatten(config: dict[str, Any]) -> dict[str, Any]:
-    return {f"{t}.{k}": v for t, table in config.items() if isinstance(table, dict) for k, v in table.items()}
+    return {
+        f"{t}.{k}": v
+        for t, table in config.items()
+        if isinstance(table, dict)
+        for k, v in table.items()
+    }
 
 
 def profile_with_board(base: Profile, config: dict[str, Any]) -> Profile:
@@ -232,7 +327,9 @@ def profile_with_board(base: Profile, config: dict[str, Any]) -> Profile:
     merged = profile_to_dict(base)
     a = config["acquisition"]
     merged["geometry"].update(config["geometry"])
-    merged["acquisition"].update(n_samples=a["n_samples"], sample_rate_hz=a["sample_rate_hz"], carrier_hz=a["carrier_hz"])
+    merged["acquisition"].update(
+        n_samples=a["n_samples"], sample_rate_hz=a["sample_rate_hz"], carrier_hz=a["carrier_hz"]
+    )
     merged["preprocess"]["blind_zone_samples"] = a["blind_zone_samples"]
     return profile_from_dict(merged, origin=f"board {config['board']['name']!r}")
 
@@ -245,7 +342,7 @@ def profile_from_board(session: Any, base_profile: Profile) -> Profile:
 
 def _board_profile(session: Any, base: Profile) -> tuple[Profile, str | None]:
     """``base`` with the board's config and the board's name, or ``(base, None)``."""
-    from spiel_edge.board_flash import pull  # the session side lives there
+    from spiel_edge.board.flash import pull  # the session side lives there
 
     try:
         config = pull(session)
@@ -262,8 +359,13 @@ def _board_profile(session: Any, base: Profile) -> tuple[Profile, str | None]:
     return base, None
 
 
-def run_profile(session: Any, profile_name: str, calibration: str | Path | None = None, *,
-                use_board: bool = True) -> tuple[Profile, str]:
+def run_profile(
+    session: Any,
+    profile_name: str,
+    calibration: str | Path | None = None,
+    *,
+    use_board: bool = True,
+) -> tuple[Profile, str]:
     """The profile ``run`` uses and where its geometry came from. Precedence: ``calibration``
     over the board's stored config (unless ``use_board`` is false) over ``profile_name``."""
     profile = load_profile(profile_name)

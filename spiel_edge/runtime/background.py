@@ -12,7 +12,9 @@ import numpy as np
 from spiel_edge.errors import InputError
 
 
-def median_background(acquisitions: Iterable, count: int, stop: threading.Event | None = None) -> np.ndarray:
+def median_background(
+    acquisitions: Iterable, count: int, stop: threading.Event | None = None
+) -> np.ndarray:
     """Per-sample median of the first ``count`` acquisitions' samples (channels, samples)."""
     if count < 1:
         raise InputError(f"a background needs at least 1 acquisition, got {count}")
@@ -20,7 +22,9 @@ def median_background(acquisitions: Iterable, count: int, stop: threading.Event 
     for acq in acquisitions:
         frames.append(np.asarray(acq.samples, dtype=np.float64))
         if frames[0].shape != frames[-1].shape:
-            raise InputError(f"acquisition shape changed during the capture: {frames[0].shape} -> {frames[-1].shape}")
+            raise InputError(
+                f"acquisition shape changed during the capture: {frames[0].shape} -> {frames[-1].shape}"
+            )
         if len(frames) == count or (stop is not None and stop.is_set()):
             break
     if len(frames) < count:

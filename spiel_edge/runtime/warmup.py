@@ -29,7 +29,7 @@ def warmup() -> dict:
     """Run one vendored acquisition through the default pipeline; report compile/cache use."""
     from spiel_edge.data import load_subset
     from spiel_edge.pipeline.factory import build_pipeline
-    from spiel_edge.profile import load_profile
+    from spiel_edge.profile.schema import load_profile
 
     t0 = time.perf_counter()
     subset = load_subset()

@@ -18,7 +18,7 @@ from crc32c import crc32c
 
 from firmware_protocol import ConfigSource
 from firmware_protocol.errors import ErrorCode
-from spiel_edge.board_config import decode, encode
+from spiel_edge.board.schema import decode, encode
 from spiel_edge.errors import DeviceDisconnectedError, DeviceError
 
 log = logging.getLogger(__name__)
@@ -38,15 +38,22 @@ def pull(session: Any, *, staging: bool = False) -> dict[str, Any] | None:
     return decode(blob, origin="board staging" if staging else "board")
 
 
-def push(session: Any, config: dict[str, Any], progress: Callable[[int], None] | None = None) -> int:
+def push(
+    session: Any, config: dict[str, Any], progress: Callable[[int], None] | None = None
+) -> int:
     """Write ``config`` to the board's staging area, read it back, compare; returns its CRC-32C."""
     blob = encode(config)
     session.write_config(blob, progress=progress)
     back = session.read_config(source=ConfigSource.STAGING)
     if back != blob:
-        where = next((i for i, (a, b) in enumerate(zip(back, blob, strict=False)) if a != b), min(len(back), len(blob)))
-        raise DeviceError(f"staged config read back differs from what was written at byte {where} "
-                          f"({len(back)} vs {len(blob)} bytes); nothing was committed")
+        where = next(
+            (i for i, (a, b) in enumerate(zip(back, blob, strict=False)) if a != b),
+            min(len(back), len(blob)),
+        )
+        raise DeviceError(
+            f"staged config read back differs from what was written at byte {where} "
+            f"({len(back)} vs {len(blob)} bytes); nothing was committed"
+        )
     crc = crc32c(blob)
     log.info("staged %d bytes, CRC-32C %08x", len(blob), crc)
     return crc
@@ -64,8 +71,11 @@ def commit(session: Any, expected_crc: int | None = None) -> int:
     except DeviceDisconnectedError as exc:
         raise DeviceDisconnectedError(
             f"the board went away during the commit ({exc}); its flash keeps the previous config "
-            "active and the staged one is lost: push and commit again") from exc
+            "active and the staged one is lost: push and commit again"
+        ) from exc
     active = session.read_config(source=ConfigSource.ACTIVE)
     if crc32c(active) != expected_crc:
-        raise DeviceError(f"after the commit the active config has CRC {crc32c(active):08x}, expected {expected_crc:08x}")
+        raise DeviceError(
+            f"after the commit the active config has CRC {crc32c(active):08x}, expected {expected_crc:08x}"
+        )
     return expected_crc

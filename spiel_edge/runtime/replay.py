@@ -24,12 +24,21 @@ class Replayed:
 
     def record(self) -> dict:
         if self.result is None:
-            return {"source": self.source, "position_mm": None, "reason": "input error", "residual_mm": None,
-                    "echoes": [], "matched": [], "error": self.error}
+            return {
+                "source": self.source,
+                "position_mm": None,
+                "reason": "input error",
+                "residual_mm": None,
+                "echoes": [],
+                "matched": [],
+                "error": self.error,
+            }
         return {"source": self.source, **self.result.record()}
 
 
-def iter_sources(path: str | Path, fmt: str | None = None, background: str | Path | None = None) -> Iterator[Recording]:
+def iter_sources(
+    path: str | Path, fmt: str | None = None, background: str | Path | None = None
+) -> Iterator[Recording]:
     """Recordings from a spiel-csv folder or an MCAP file (format guessed from the path)."""
     path = Path(path)
     fmt = fmt or ("mcap" if path.suffix == ".mcap" else "spiel-csv")
@@ -39,7 +48,9 @@ def iter_sources(path: str | Path, fmt: str | None = None, background: str | Pat
         try:
             from spiel_edge.outputs.mcap import iter_mcap_recordings
         except ImportError as exc:
-            raise InputError(f"{path}: MCAP replay is not available in this install ({exc})") from exc
+            raise InputError(
+                f"{path}: MCAP replay is not available in this install ({exc})"
+            ) from exc
         yield from iter_mcap_recordings(path)
     else:
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
@@ -60,5 +71,3 @@ def replay(pipeline: Pipeline, recordings: Iterator[Recording]) -> Iterator[Repl
             yield Replayed(rec.source, None, message)
             continue
         yield Replayed(rec.source, result, None)
-
-

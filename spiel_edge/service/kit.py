@@ -89,7 +89,11 @@ WantedBy=multi-user.target
 def render_sysusers() -> str:
     lines = [f'u {SERVICE_USER} - "spiel-edge sensor driver" /var/lib/spiel-edge']
     lines += [f"m {SERVICE_USER} {group}" for group in GROUPS]
-    return "# The unprivileged service user, in the groups that own the board's device nodes.\n" + "\n".join(lines) + "\n"
+    return (
+        "# The unprivileged service user, in the groups that own the board's device nodes.\n"
+        + "\n".join(lines)
+        + "\n"
+    )
 
 
 def render_udev(ids: tuple[tuple[int, int], ...] | None = None) -> str:
@@ -184,8 +188,12 @@ def next_steps(prefix: str | Path = "/") -> list[str]:
 
 
 # Where each kit file sits in the repository's packaging/ folder.
-PACKAGING_LAYOUT = {UNIT_PATH: "systemd/spiel-edge.service", SYSUSERS_PATH: "sysusers/spiel-edge.conf",
-                    UDEV_PATH: "udev/99-spiel-edge.rules", ENV_PATH: "etc/spiel-edge/spiel-edge.env"}
+PACKAGING_LAYOUT = {
+    UNIT_PATH: "systemd/spiel-edge.service",
+    SYSUSERS_PATH: "sysusers/spiel-edge.conf",
+    UDEV_PATH: "udev/99-spiel-edge.rules",
+    ENV_PATH: "etc/spiel-edge/spiel-edge.env",
+}
 
 
 def packaging_files() -> dict[str, str]:

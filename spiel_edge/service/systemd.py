@@ -57,7 +57,9 @@ def _warn_rate_limited(fmt: str, *args: object) -> None:
         log.debug(fmt, *args)
 
 
-def watchdog_interval_s(env: Mapping[str, str] | None = None, pid: int | None = None) -> float | None:
+def watchdog_interval_s(
+    env: Mapping[str, str] | None = None, pid: int | None = None
+) -> float | None:
     """Half of systemd's WatchdogSec (as sd_watchdog_enabled(3) advises), or None when off."""
     env = os.environ if env is None else env
     try:
@@ -77,7 +79,9 @@ class Notifier:
     the pings and systemd restarts the service.
     """
 
-    def __init__(self, env: Mapping[str, str] | None = None, clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self, env: Mapping[str, str] | None = None, clock: Callable[[], float] = time.monotonic
+    ):
         self._env = dict(os.environ if env is None else env)
         self.enabled = bool(self._env.get("NOTIFY_SOCKET"))
         self.interval_s = watchdog_interval_s(self._env) if self.enabled else None

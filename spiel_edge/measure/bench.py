@@ -1,7 +1,7 @@
 """Benchmarks: microseconds per acquisition for each stage and end to end, and start-up time.
 
 Real 4 x 64 acquisitions come from the vendored recordings; synthetic 8 x 256 and 16 x 1024
-acquisitions from the virtual board's echo model (:mod:`spiel_edge.synthetic`, two targets each). Start-up is measured in
+acquisitions from the virtual board's echo model (:mod:`spiel_edge.sim.synthetic`, two targets each). Start-up is measured in
 fresh interpreters: the second start must load numba's compiled kernels from its cache.
 """
 
@@ -17,13 +17,13 @@ import numpy as np
 from spiel_edge.data import load_subset
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.run import STAGES, Pipeline
-from spiel_edge.profile import load_profile
-from spiel_edge.synthetic import ring_profile, synthesize
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.sim.synthetic import ring_profile, synthesize
 
 STARTUP_SNIPPET = (
     "from spiel_edge.data import load_subset;"
     "from spiel_edge.pipeline.factory import build_pipeline;"
-    "from spiel_edge.profile import load_profile;"
+    "from spiel_edge.profile.schema import load_profile;"
     "s = load_subset(); p = build_pipeline(load_profile());"
     "p.process(s.frames[0], s.backgrounds[0])"
 )
@@ -33,24 +33,37 @@ def _summarise(timings: list[dict[str, float]]) -> dict:
     out = {}
     for stage in (*STAGES, "end_to_end"):
         values = np.array([t[stage] for t in timings])
-        out[stage] = {"median_us": round(float(np.median(values)), 2), "p95_us": round(float(np.percentile(values, 95)), 2)}
+        out[stage] = {
+            "median_us": round(float(np.median(values)), 2),
+            "p95_us": round(float(np.percentile(values, 95)), 2),
+        }
     return out
 
 
-def time_pipeline(pipeline: Pipeline, frames: np.ndarray, backgrounds: np.ndarray | None, repeat: int) -> dict:
+def time_pipeline(
+    pipeline: Pipeline, frames: np.ndarray, backgrounds: np.ndarray | None, repeat: int
+) -> dict:
     """Per-stage timings over every acquisition, after one warm-up pass."""
     bgs = backgrounds if backgrounds is not None else [None] * len(frames)
     for f, b in zip(frames, bgs, strict=True):
         pipeline.process(f, b)
-    timings = [pipeline.process(f, b, timed=True).timings_us for _ in range(repeat) for f, b in zip(frames, bgs, strict=True)]
+    timings = [
+        pipeline.process(f, b, timed=True).timings_us
+        for _ in range(repeat)
+        for f, b in zip(frames, bgs, strict=True)
+    ]
     return {"acquisitions": len(timings), **_summarise(timings)}
 
 
 def synthetic_set(n_channels: int, n_samples: int, count: int, seed: int = 0):
     profile = ring_profile(n_channels, n_samples)
     rng = np.random.default_rng(seed)
-    pairs = [synthesize(profile, np.c_[rng.uniform(-80, 80, (2, 2)), rng.uniform(100, 300, 2)], seed=seed + i)
-             for i in range(count)]  # fmt: skip
+    pairs = [
+        synthesize(
+            profile, np.c_[rng.uniform(-80, 80, (2, 2)), rng.uniform(100, 300, 2)], seed=seed + i
+        )
+        for i in range(count)
+    ]
     return profile, np.array([f for f, _ in pairs]), np.array([b for _, b in pairs])
 
 
@@ -59,7 +72,9 @@ def startup_seconds(runs: int = 2) -> list[float]:
     times = []
     for _ in range(runs):
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", STARTUP_SNIPPET], check=True, capture_output=True, timeout=600)
+        subprocess.run(
+            [sys.executable, "-c", STARTUP_SNIPPET], check=True, capture_output=True, timeout=600
+        )
         times.append(round(time.perf_counter() - t0, 3))
     return times
 
@@ -74,7 +89,9 @@ def run_bench(repeat: int = 5, association: str | None = None, startup: bool = T
     }
     for n_ch, n_t, count in ((8, 256, 100), (16, 1024, 30)):
         prof, frames, backgrounds = synthetic_set(n_ch, n_t, count)
-        result[f"synthetic_{n_ch}x{n_t}"] = time_pipeline(Pipeline(prof), frames, backgrounds, max(1, repeat // 2))
+        result[f"synthetic_{n_ch}x{n_t}"] = time_pipeline(
+            Pipeline(prof), frames, backgrounds, max(1, repeat // 2)
+        )
     result["end_to_end"] = result["real_4x64"]["end_to_end"]
     for stage in STAGES:
         result[stage] = result["real_4x64"][stage]
@@ -90,6 +107,7 @@ def _onnx_scoring(profile) -> dict | None:
 
     try:
         from spiel_edge.pipeline.associate_onnx import bench_scoring
+
         return bench_scoring(n=1000, profile=profile)
     except (ImportError, ModelError):
         return None

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.board_config import run_profile
+from spiel_edge.board.schema import run_profile
 from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
 from spiel_edge.outputs import Sink
@@ -55,7 +55,9 @@ def load_background(path: str | Path) -> np.ndarray:
 
         arr = read_frames(path)
     if arr.ndim != 2 or not np.all(np.isfinite(arr)):
-        raise InputError(f"{path}: a background must be a finite (channels, samples) array, got shape {arr.shape}")
+        raise InputError(
+            f"{path}: a background must be a finite (channels, samples) array, got shape {arr.shape}"
+        )
     return arr.astype(np.float64)
 
 
@@ -65,8 +67,12 @@ def warm_up(pipeline: Pipeline) -> None:
     from spiel_edge.sim.scenes import EchoModelScene
 
     p = pipeline.profile
-    scene = EchoModelScene(p.geometry, sample_rate_hz=p.acquisition.sample_rate_hz,
-                           n_samples=p.acquisition.n_samples, targets_mm=np.array([0.0, 0.0, 150.0]))  # fmt: skip
+    scene = EchoModelScene(
+        p.geometry,
+        sample_rate_hz=p.acquisition.sample_rate_hz,
+        n_samples=p.acquisition.n_samples,
+        targets_mm=np.array([0.0, 0.0, 150.0]),
+    )
     frame = scene.frame(0, p.acquisition.n_samples, 0.0)
     try:
         pipeline.process(frame.samples.astype(np.float64), frame.background.astype(np.float64))
@@ -74,8 +80,14 @@ def warm_up(pipeline: Pipeline) -> None:
         log.debug("warm-up: %s", exc)
 
 
-def open_pipeline(session: DeviceSession, profile_name: str, calibration: str | Path | None = None,
-                  association: str | None = None, *, use_board: bool = True) -> tuple[Pipeline, str]:
+def open_pipeline(
+    session: DeviceSession,
+    profile_name: str,
+    calibration: str | Path | None = None,
+    association: str | None = None,
+    *,
+    use_board: bool = True,
+) -> tuple[Pipeline, str]:
     """Open ``session``, choose the profile (``calibration`` > the board's stored config, unless
     ``use_board`` is false > ``profile_name``), build the pipeline and warm it up. Returns the
     pipeline and where its geometry came from; closing the session is the caller's."""
@@ -97,13 +109,24 @@ def check_stream_shape(session: DeviceSession, pipeline: Pipeline) -> None:
             f"{p.name!r} expects {want[0]} x {want[1]}; use a matching --profile"
         )
     if stream is not None and abs(stream.sample_rate_hz - p.acquisition.sample_rate_hz) > 0.5:
-        log.warning("board samples at %d Hz, profile %r assumes %g Hz", stream.sample_rate_hz, p.name,
-                    p.acquisition.sample_rate_hz)  # fmt: skip
+        log.warning(
+            "board samples at %d Hz, profile %r assumes %g Hz",
+            stream.sample_rate_hz,
+            p.name,
+            p.acquisition.sample_rate_hz,
+        )
 
 
 class LiveRunner:
-    def __init__(self, session: DeviceSession, pipeline: Pipeline, sink: Sink, *,
-                 background: np.ndarray | None = None, keep_latencies: bool = False):  # fmt: skip
+    def __init__(
+        self,
+        session: DeviceSession,
+        pipeline: Pipeline,
+        sink: Sink,
+        *,
+        background: np.ndarray | None = None,
+        keep_latencies: bool = False,
+    ):
         self.session = session
         self.pipeline = pipeline
         self.sink = sink
@@ -114,8 +137,14 @@ class LiveRunner:
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
         self._warned_no_background = False
 
-    def run(self, stop: threading.Event, *, frames: int | None = None,
-            status: Callable[[LiveRunner], None] | None = None, status_every_s: float = 2.0) -> LiveStats:  # fmt: skip
+    def run(
+        self,
+        stop: threading.Event,
+        *,
+        frames: int | None = None,
+        status: Callable[[LiveRunner], None] | None = None,
+        status_every_s: float = 2.0,
+    ) -> LiveStats:
         """Process acquisitions until ``stop`` is set or ``frames`` records were written."""
         next_status = time.monotonic() + status_every_s
         for acq in self.session.acquisitions(stop):
@@ -147,23 +176,40 @@ class LiveRunner:
 
     def _acquisition_meta(self, acq: LiveAcquisition, record: dict) -> dict:
         background = self.background if self.background is not None else acq.background
-        return {"seq": record["seq"], "acquisition": acq.index, "device_time_us": acq.timestamp_us,
-                "timestamp_ns": int(acq.host_time * 1e9), "background": background}  # fmt: skip
+        return {
+            "seq": record["seq"],
+            "acquisition": acq.index,
+            "device_time_us": acq.timestamp_us,
+            "timestamp_ns": int(acq.host_time * 1e9),
+            "background": background,
+        }
 
     def record(self, acq: LiveAcquisition) -> dict:
         stats = self.stats
         head = {
-            "seq": stats.records, "acquisition": acq.index, "device_time_us": acq.timestamp_us,
-            "host_time": round(acq.host_time, 6), "source": self.session.url,
-        }  # fmt: skip
+            "seq": stats.records,
+            "acquisition": acq.index,
+            "device_time_us": acq.timestamp_us,
+            "host_time": round(acq.host_time, 6),
+            "source": self.session.url,
+        }
         stats.records += 1
         try:
-            result = self.pipeline.process(acq.samples.astype(np.float64), self._background_for(acq))
+            result = self.pipeline.process(
+                acq.samples.astype(np.float64), self._background_for(acq)
+            )
         except SpielError as exc:
             stats.errors += 1
             log.error("acquisition %d: %s", acq.index, exc)
-            record = {**head, "position_mm": None, "reason": "input error", "residual_mm": None,
-                      "echoes": [], "matched": [], "error": str(exc)}  # fmt: skip
+            record = {
+                **head,
+                "position_mm": None,
+                "reason": "input error",
+                "residual_mm": None,
+                "echoes": [],
+                "matched": [],
+                "error": str(exc),
+            }
         else:
             stats.fixes += result.position_mm is not None
             record = {**head, **result.record()}
@@ -175,7 +221,10 @@ class LiveRunner:
         if self.background is not None:
             return self.background
         if acq.background is None:
-            if not self._warned_no_background and self.pipeline.profile.preprocess.background_subtraction:
+            if (
+                not self._warned_no_background
+                and self.pipeline.profile.preprocess.background_subtraction
+            ):
                 log.warning("no background capture: positions will be poor; give --background FILE")
                 self._warned_no_background = True
             return None
@@ -199,17 +248,24 @@ class LiveRunner:
         fixes = 100.0 * s.fixes / s.records if s.records else 0.0
         latency = s.median_latency_ms()
         lat = "-" if latency is None else f"{latency:.2f} ms"
-        return (f"{s.records} records {s.records / elapsed:.1f}/s  fixes {fixes:.0f}%  "
-                f"lost {c['lost']} (damaged {c['damaged']}, overruns {c['overruns']})  "
-                f"reconnects {c['reconnects']}  latency {lat}")  # fmt: skip
+        return (
+            f"{s.records} records {s.records / elapsed:.1f}/s  fixes {fixes:.0f}%  "
+            f"lost {c['lost']} (damaged {c['damaged']}, overruns {c['overruns']})  "
+            f"reconnects {c['reconnects']}  latency {lat}"
+        )
 
     def summary(self) -> str:
         s = self.stats
         elapsed = time.monotonic() - s.started
         c = self.session.counts()
         lat = np.array(s.latencies_us) / 1e3
-        latency = f"latency median {np.median(lat):.2f} ms, p95 {np.percentile(lat, 95):.2f} ms" if lat.size else "no latency"
+        latency = (
+            f"latency median {np.median(lat):.2f} ms, p95 {np.percentile(lat, 95):.2f} ms"
+            if lat.size
+            else "no latency"
+        )
         errors = f", {s.errors} rejected" if s.errors else ""
         counters = ", ".join(f"{k} {v}" for k, v in c.items() if v and k != "acquisitions")
-        return (f"{s.records} records in {elapsed:.1f} s, {s.fixes} fixes{errors}; {latency}"
-                + (f"; {counters}" if counters else ""))  # fmt: skip
+        return f"{s.records} records in {elapsed:.1f} s, {s.fixes} fixes{errors}; {latency}" + (
+            f"; {counters}" if counters else ""
+        )
