@@ -1,6 +1,6 @@
 """Ablation of the echo association on the validation split (the paper's Table II and more).
 
-    python tools/ablation_association.py            # after tools/train_association.py
+    python -m tools.ablation_association            # after python -m tools.train_association
 
 Methods, each giving one matched echo per channel (or none):
 - ``alpha+munkres``: reference = the echo with the largest MEMG amplitude alpha; every other
@@ -25,9 +25,6 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import train_association as ta  # noqa: E402  (tools/ is not a package)
-
 from spiel_edge.pipeline.associate import GeometricAssociator  # noqa: E402
 from spiel_edge.pipeline.associate_onnx import (  # noqa: E402
     OnnxAssociator,
@@ -38,8 +35,8 @@ from spiel_edge.pipeline.associate_onnx import (  # noqa: E402
 )
 from spiel_edge.pipeline.echo_labels import AssociationScore, score_association  # noqa: E402
 from spiel_edge.pipeline.features import FEATURE_NAMES, TOA_COLUMN  # noqa: E402
-from spiel_edge.pipeline.locate import locate  # noqa: E402
 from spiel_edge.profile.schema import Profile, load_profile  # noqa: E402
+from tools import association_model as ta
 
 ALPHA_COLUMN = FEATURE_NAMES.index("alpha")
 TOA_AMP_COLUMNS = (TOA_COLUMN, ALPHA_COLUMN)
@@ -79,18 +76,6 @@ def alpha_reference(s: ta.Sample) -> tuple[int, int]:
     rows = s.rows()
     i = int(np.argmax(s.features[rows[2], rows[3], ALPHA_COLUMN]))
     return int(rows[2][i]), int(rows[3][i])
-
-
-def position_error(profile: Profile, s: ta.Sample, matched: np.ndarray) -> float:
-    """|located - truth| in mm, NaN when the matches cannot be located."""
-    g = profile.geometry
-    use = matched >= 0
-    if use.sum() < 3:
-        return float("nan")
-    toa = s.features[np.arange(len(matched)), np.maximum(matched, 0), TOA_COLUMN]
-    paths = (toa - g.delays()) * profile.mm_per_sample
-    pos, _, ok = locate(paths, g.channels_mm, g.emitter_mm, g.facing, use)
-    return float(np.linalg.norm(pos - s.truth_mm)) if ok else float("nan")
 
 
 def method_matches(
@@ -137,7 +122,7 @@ def summarise(profile: Profile, samples: list[ta.Sample], matches: list[np.ndarr
     sc = AssociationScore()
     for s, m in zip(samples, matches, strict=True):
         sc = sc + score_association(m, s.labels, listening)
-    e = np.array([position_error(profile, s, m) for s, m in zip(samples, matches, strict=True)])
+    e = np.array([ta.position_error(profile, s, m) for s, m in zip(samples, matches, strict=True)])
     ok = np.isfinite(e)
     return {
         "accuracy": sc.accuracy,

@@ -1,6 +1,6 @@
 """Benchmark: calibrate from 1000 acquisitions (target: <= 10 s including echo extraction).
 
-    python tools/bench_calibrate.py [--n 1000]
+    python -m tools.bench_calibrate [--n 1000]
 
 Uses the vendored recordings (z = 90 mm excluded), repeated to the requested count.
 """

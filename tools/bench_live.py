@@ -1,6 +1,6 @@
 """Benchmark of the live path against the live-link targets; one JSON object on stdout.
 
-    python tools/bench_live.py [--acquisitions 3000] [--rate 500]
+    python -m tools.bench_live [--acquisitions 3000] [--rate 500]
 
 - pty: ``spiel-edge simulate --pty`` in its own process, the pipeline here reading the pty at
   ``--rate`` (target >= 500/s with no drops) and at rate 0 (as fast as the link allows);

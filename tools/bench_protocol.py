@@ -1,6 +1,6 @@
 """Benchmark the firmware_protocol frame decoder; prints one JSON object.
 
-    .venv/bin/python tools/bench_protocol.py [--frames 20000] [--payload 4096] [--chunk 65536]
+    .venv/bin/python -m tools.bench_protocol [--frames 20000] [--payload 4096] [--chunk 65536]
 
 Throughput is wire bytes per second through ``FrameDecoder.feed`` (COBS decode + CRC-32C +
 header checks), fed in ``--chunk``-sized reads as a USB/serial reader would.

@@ -1,7 +1,7 @@
 """Evidence for the README: calibrate on the train positions of the shared recordings, then
 the 3-D error on the validation positions (unseen x, y) with nominal vs calibrated geometry.
 
-    python tools/calibration_evidence.py /work/shared/datasets/spiel-icra23 [--seeds 5]
+    python -m tools.calibration_evidence ../shared/datasets/spiel-icra23 [--seeds 5]
 
 The z = 90 mm frames are excluded (mislabelled, see the dataset README).
 """

@@ -1,9 +1,9 @@
 """Fuzz the firmware_protocol decoders (framing, messages, reassembly).
 
 With atheris installed (``pip install atheris``) this is a libFuzzer target:
-    .venv/bin/python tools/fuzz_protocol.py -atheris_runs=1000000
+    .venv/bin/python -m tools.fuzz_protocol -atheris_runs=1000000
 Otherwise a plain random loop mutating valid frames and random bytes:
-    .venv/bin/python tools/fuzz_protocol.py --iterations 200000 [--seed 1]
+    .venv/bin/python -m tools.fuzz_protocol --iterations 200000 [--seed 1]
 Only ProtocolError may come out of message decoding; nothing may escape ``feed``.
 """
 

@@ -7,8 +7,8 @@ least-squares slope (MB per 10 min, the extrapolation), records written, the tim
 and what the recording holds. The run's sd_notify messages go to a socket of ours, so READY and
 WATCHDOG pings are counted too.
 
-    python tools/soak_memory.py                      # 600 s
-    python tools/soak_memory.py --duration 120 --rate 100
+    python -m tools.soak_memory                      # 600 s
+    python -m tools.soak_memory --duration 120 --rate 100
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Keeps FRAMES_PER_POSITION frames (the lowest indices) of every position, with ba
 ground truth, as uint16 arrays: small enough to ship in the package (< 1 MB) for the virtual
 board, the demo and the tests.
 
-    python tools/vendor_dataset.py ../shared/datasets/spiel-icra23
+    python -m tools.vendor_dataset ../shared/datasets/spiel-icra23
 """
 
 from __future__ import annotations

@@ -12,14 +12,16 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from crc32c import crc32c
 
 from firmware_protocol import ConfigSource
 from firmware_protocol.errors import ErrorCode
-from spiel_edge.board.schema import decode, encode
-from spiel_edge.errors import DeviceDisconnectedError, DeviceError
+from spiel_edge.board.schema import decode, encode, profile_with_board
+from spiel_edge.errors import ConfigError, DeviceDisconnectedError, DeviceError
+from spiel_edge.profile.schema import Profile, apply_calibration, load_profile
 
 log = logging.getLogger(__name__)
 
@@ -79,3 +81,48 @@ def commit(session: Any, expected_crc: int | None = None) -> int:
             f"after the commit the active config has CRC {crc32c(active):08x}, expected {expected_crc:08x}"
         )
     return expected_crc
+
+
+def profile_from_board(session: Any, base_profile: Profile) -> Profile:
+    """The profile to run with: ``base_profile`` with what the board stores, or unchanged
+    (with a warning) when the board holds no config, an unusable one, or cannot store one."""
+    return _board_profile(session, base_profile)[0]
+
+
+def _board_profile(session: Any, base: Profile) -> tuple[Profile, str | None]:
+    """``base`` with the board's config and the board's name, or ``(base, None)``."""
+    try:
+        config = pull(session)
+        if config is None:
+            log.info("the board holds no config; using profile %r", base.name)  # normal when new
+            return base, None
+        return profile_with_board(base, config), config["board"]["name"]
+    except ConfigError as exc:
+        log.warning("the board's config is not usable, using profile %r: %s", base.name, exc)
+    except DeviceError as exc:  # the session's DeviceRequestError carries the board's code
+        if getattr(exc, "code", None) != ErrorCode.UNSUPPORTED:
+            raise
+        log.info("the board cannot store a config; using profile %r", base.name)
+    return base, None
+
+
+def run_profile(
+    session: Any,
+    profile_name: str,
+    calibration: str | Path | None = None,
+    *,
+    use_board: bool = True,
+) -> tuple[Profile, str]:
+    """The profile ``run`` uses and where its geometry came from. Precedence: ``calibration``
+    over the board's stored config (unless ``use_board`` is false) over ``profile_name``."""
+    profile = load_profile(profile_name)
+    source = f"profile {profile.name!r}"
+    if use_board:
+        profile, board = _board_profile(session, profile)
+        if board is not None:
+            source = f"board {board!r}"
+    if calibration:
+        profile = apply_calibration(profile, calibration)
+        source = f"calibration {str(calibration)!r} over {source}"
+    log.info("geometry from %s", source)
+    return profile, source

@@ -9,7 +9,7 @@ checks types, ranges and cross-field rules and names the key and the allowed ran
 The blob written to the board is a fixed little-endian header the firmware reads without a
 TOML parser (magic, version, the acquisition scalars) followed by the whole config as UTF-8
 TOML for hosts. Decoding checks that both agree. Pure, except the file helpers and, at the
-end, the profile a host runs with: ``run_profile`` (``--calibration`` > the board's stored
+end, the profile a host runs with: ``flash.run_profile`` (``--calibration`` > the board's stored
 config > the profile), whose board read goes through a device session.
 """
 
@@ -22,13 +22,10 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from firmware_protocol.errors import ErrorCode
-from spiel_edge.errors import ConfigError, DeviceError
+from spiel_edge.errors import ConfigError
 from spiel_edge.profile.schema import (
     Profile,
-    apply_calibration,
     dump_toml,
-    load_profile,
     profile_from_dict,
     profile_to_dict,
 )
@@ -332,50 +329,3 @@ def profile_with_board(base: Profile, config: dict[str, Any]) -> Profile:
     )
     merged["preprocess"]["blind_zone_samples"] = a["blind_zone_samples"]
     return profile_from_dict(merged, origin=f"board {config['board']['name']!r}")
-
-
-def profile_from_board(session: Any, base_profile: Profile) -> Profile:
-    """The profile to run with: ``base_profile`` with what the board stores, or unchanged
-    (with a warning) when the board holds no config, an unusable one, or cannot store one."""
-    return _board_profile(session, base_profile)[0]
-
-
-def _board_profile(session: Any, base: Profile) -> tuple[Profile, str | None]:
-    """``base`` with the board's config and the board's name, or ``(base, None)``."""
-    from spiel_edge.board.flash import pull  # the session side lives there
-
-    try:
-        config = pull(session)
-        if config is None:
-            log.info("the board holds no config; using profile %r", base.name)  # normal when new
-            return base, None
-        return profile_with_board(base, config), config["board"]["name"]
-    except ConfigError as exc:
-        log.warning("the board's config is not usable, using profile %r: %s", base.name, exc)
-    except DeviceError as exc:  # the session's DeviceRequestError carries the board's code
-        if getattr(exc, "code", None) != ErrorCode.UNSUPPORTED:
-            raise
-        log.info("the board cannot store a config; using profile %r", base.name)
-    return base, None
-
-
-def run_profile(
-    session: Any,
-    profile_name: str,
-    calibration: str | Path | None = None,
-    *,
-    use_board: bool = True,
-) -> tuple[Profile, str]:
-    """The profile ``run`` uses and where its geometry came from. Precedence: ``calibration``
-    over the board's stored config (unless ``use_board`` is false) over ``profile_name``."""
-    profile = load_profile(profile_name)
-    source = f"profile {profile.name!r}"
-    if use_board:
-        profile, board = _board_profile(session, profile)
-        if board is not None:
-            source = f"board {board!r}"
-    if calibration:
-        profile = apply_calibration(profile, calibration)
-        source = f"calibration {str(calibration)!r} over {source}"
-    log.info("geometry from %s", source)
-    return profile, source

@@ -1,1 +1,2 @@
-"""Recorded acquisitions in and out (spiel-csv folders; MCAP lives in outputs/)."""
+"""Recorded acquisitions in: spiel-csv folders (``spiel_csv``) and MCAP recordings (``mcap``);
+writing MCAP is an output (``spiel_edge.outputs.mcap``)."""

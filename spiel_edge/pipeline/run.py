@@ -33,6 +33,30 @@ REASON_SATURATED = "frame is saturated"
 
 
 @dataclass
+class Target:
+    """One target found in an acquisition (the record's ``targets`` entries, best first)."""
+
+    position_mm: np.ndarray  # (3,)
+    covariance_mm2: np.ndarray  # (3, 3), symmetric positive semi-definite
+    residual_mm: float
+    matched: list[int | None]  # per channel: index into the record's echoes, or None
+    score: float  # higher is better; comparable within one acquisition
+    track_id: int | None = None  # set by the tracker
+
+    def record(self) -> dict:
+        out = {
+            "position_mm": [round(float(v), 2) for v in self.position_mm],
+            "covariance_mm2": [[round(float(v), 3) for v in row] for row in self.covariance_mm2],
+            "residual_mm": round(float(self.residual_mm), 3),
+            "matched": self.matched,
+            "score": round(float(self.score), 4),
+        }
+        if self.track_id is not None:
+            out["track_id"] = int(self.track_id)
+        return out
+
+
+@dataclass
 class Result:
     """What the pipeline makes of one acquisition."""
 
@@ -44,6 +68,7 @@ class Result:
     features: np.ndarray = field(repr=False)  # (channels, max_echoes, 8)
     counts: np.ndarray = field(repr=False)
     timings_us: dict[str, float] = field(default_factory=dict, repr=False)
+    targets: list[Target] = field(default_factory=list)  # best first; filled by the scene stage
 
     def record(self) -> dict:
         """JSON-ready fields shared by replay and run records."""
@@ -55,6 +80,7 @@ class Result:
             "residual_mm": None if self.residual_mm is None else round(float(self.residual_mm), 3),
             "echoes": [[round(t, 3) for t in ch] for ch in self.echoes],
             "matched": self.matched,
+            "targets": [t.record() for t in self.targets],
         }
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.board.schema import run_profile
+from spiel_edge.board.flash import run_profile
 from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
 from spiel_edge.outputs import Sink

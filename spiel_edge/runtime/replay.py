@@ -46,7 +46,7 @@ def iter_sources(
         yield from iter_recordings(path, background)
     elif fmt == "mcap":
         try:
-            from spiel_edge.outputs.mcap import iter_mcap_recordings
+            from spiel_edge.io.mcap import iter_mcap_recordings
         except ImportError as exc:
             raise InputError(
                 f"{path}: MCAP replay is not available in this install ({exc})"

@@ -4,15 +4,12 @@ training is deterministic for a seed. Skipped without torch."""
 from __future__ import annotations
 
 import hashlib
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
-ta = pytest.importorskip("train_association")
+ta = pytest.importorskip("tools.association_model")
 
 
 @pytest.fixture(scope="module")

@@ -14,13 +14,13 @@ from mcap.reader import make_reader
 
 from spiel_edge.cli import main
 from spiel_edge.data import load_subset
-from spiel_edge.outputs.mcap import (
+from spiel_edge.io.mcap import (
     ACQUISITION_TOPIC,
     BACKGROUND_TOPIC,
     POSITION_TOPIC,
-    McapSink,
     iter_mcap_recordings,
 )
+from spiel_edge.outputs.mcap import McapSink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
 

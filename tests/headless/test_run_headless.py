@@ -17,7 +17,7 @@ import pytest
 from mcap.reader import make_reader
 
 from spiel_edge.cli import main
-from spiel_edge.outputs.mcap import ACQUISITION_TOPIC, POSITION_TOPIC, iter_mcap_recordings
+from spiel_edge.io.mcap import ACQUISITION_TOPIC, POSITION_TOPIC, iter_mcap_recordings
 
 _names = itertools.count()
 
