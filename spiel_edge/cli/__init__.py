@@ -1,7 +1,8 @@
 """The ``spiel-edge`` command line: thin click commands over the library API.
 
-Each module in this package holds one command (or a group) as a module-level ``command``;
-they are discovered here, so adding a command never touches this file. One top-level handler
+Each module in this package holds one command (or a group) as a module-level ``command``,
+listed in :data:`COMMANDS` with its one-line help: a command's module (and numba, onnxruntime,
+...) is imported only when that command runs, so ``--help`` stays fast. One top-level handler
 maps SpielError to a one-line message and exit status 2.
 """
 
@@ -10,7 +11,6 @@ from __future__ import annotations
 import importlib
 import logging
 import os
-import pkgutil
 import sys
 
 import click
@@ -38,25 +38,49 @@ def setup_logging(verbosity: int) -> None:
         logging.getLogger().handlers[0].setFormatter(JournalFormatter())
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+# name -> one-line help; the module spiel_edge.cli.<name> holds ``command``. A test checks
+# that the help here is the command's own and that every command module is listed.
+COMMANDS = {
+    "background": "Capture the empty scene for `run --background FILE`.",
+    "bench": "Median and p95 microseconds per acquisition (JSON with --json).",
+    "calibrate": "Receiver positions, delays, speed of sound from known targets.",
+    "config": "Pull, show, diff, push and commit the board's stored config.",
+    "doctor": "Check what the service needs; print a fix for each problem.",
+    "evaluate": "3-D error, fix rate, association accuracy against ground truth.",
+    "profile": "Device profiles: geometry, timing and pipeline tuning as TOML.",
+    "replay": "Run the pipeline over recordings; one NDJSON record each.",
+    "run": "Stream from the board and write one record per acquisition.",
+    "service": "The systemd service kit: unit, user, udev rule, config.",
+    "simulate": "The virtual board on a pseudo-terminal (a sim:// URL).",
+}
+
+
+class LazyGroup(click.Group):
+    """A group whose subcommands are imported when they run, not when the CLI starts."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS:
+            return None
+        return importlib.import_module(f"{__name__}.{name}").command
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, COMMANDS[name]) for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+@click.group(
+    cls=LazyGroup,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
 @click.version_option(__version__, prog_name="spiel-edge")
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
 def cli(verbose: int) -> None:
     """3-D ultrasonic echolocation (PaCE) for robots."""
     setup_logging(verbose)
-
-
-def _register_commands() -> None:
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{__name__}.{info.name}")
-        command = getattr(module, "command", None)
-        if command is not None:
-            cli.add_command(command)
-
-
-_register_commands()
 
 
 def main(argv: list[str] | None = None) -> int:

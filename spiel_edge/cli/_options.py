@@ -4,7 +4,26 @@ from __future__ import annotations
 
 import click
 
-from spiel_edge.profile.schema import Profile, apply_calibration, load_profile
+PORT_ENV = "SPIEL_PORT"
+
+port_option = click.option(
+    "--port",
+    envvar=PORT_ENV,
+    default=None,
+    metavar="URL",
+    help="Board: /dev/ttyACM0, serial://PATH, usb://VID:PID[/SERIAL] or sim://[?options] "
+    f"(env {PORT_ENV}). Default: the one board found by USB id.",
+)
+
+
+def board_port(port: str | None) -> str:
+    """``--port`` as given, else the one attached board (DeviceError naming the choices)."""
+    if port:
+        return port
+    from spiel_edge.link.discover import default_port  # USB scanning only when needed
+
+    return default_port()
+
 
 profile_option = click.option(
     "--profile",
@@ -25,10 +44,3 @@ association_option = click.option(
     default=None,
     help="Echo association (default: the profile's; auto = onnx when the model loads).",
 )
-
-
-def resolve_profile(profile_name: str, calibration: str | None) -> Profile:
-    profile = load_profile(profile_name)
-    if calibration:
-        profile = apply_calibration(profile, calibration)
-    return profile

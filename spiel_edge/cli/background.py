@@ -7,16 +7,14 @@ import threading
 
 import click
 
+from spiel_edge.cli._options import board_port, port_option
 from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
-from spiel_edge.link.discover import default_port
 from spiel_edge.runtime.background import median_background, save_background
 
 
 @click.command("background")
-@click.option(
-    "--port", envvar="SPIEL_PORT", default=None, help="Board URL (as for `run`; env SPIEL_PORT)."
-)
+@port_option
 @click.option(
     "--frames",
     "count",
@@ -42,7 +40,7 @@ from spiel_edge.runtime.background import median_background, save_background
 )
 def command(port, count, rate, n_samples, output) -> int:
     """Capture the scene without the target; use it with `run --background FILE`."""
-    port = port or default_port()
+    port = board_port(port)
     stop = threading.Event()
     with stop_on_signals(stop), DeviceSession(port) as session:
         session.start_stream(rate_hz=rate, n_samples=n_samples)

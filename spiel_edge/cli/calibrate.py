@@ -9,8 +9,9 @@ import click
 from spiel_edge.calibrate import FIXABLE, calibrate_frames, load_recordings, read_positions
 from spiel_edge.calibrate.report import plot_calibration, summary_lines, write_calibration
 from spiel_edge.cli import EXIT_OK
-from spiel_edge.cli._options import calibration_option, profile_option, resolve_profile
+from spiel_edge.cli._options import board_port, calibration_option, port_option, profile_option
 from spiel_edge.errors import ConfigError
+from spiel_edge.profile.schema import resolve_profile
 
 
 @click.command("calibrate")
@@ -35,7 +36,7 @@ from spiel_edge.errors import ConfigError
     multiple=True,
     help="Skip recordings whose target is at this height (mm); repeatable.",
 )
-@click.option("--port", default=None, help="Live: the board's URL (serial://, usb://, sim://...).")
+@port_option
 @click.option(
     "--positions",
     type=click.Path(exists=True, dir_okay=False),
@@ -100,9 +101,10 @@ def command(
     """Estimate receiver positions (and the emitter's), per-channel delays and the speed of sound
     from a target at known positions: offline from labelled recordings, or live, guided."""
     profile = resolve_profile(profile_name, calibration)
-    if (recordings is None) == (port is None):
+    if (recordings is None) == (positions is None):
         raise ConfigError(
-            "give either --recordings DIR (offline) or --port URL --positions FILE (live)"
+            "give either --recordings DIR (offline) or --positions FILE (live, on --port or "
+            "the one attached board)"
         )
     if recordings is not None:
         data = load_recordings(recordings, background, exclude_z=exclude_z)
@@ -113,8 +115,7 @@ def command(
             recordings,
         )
     else:
-        if positions is None:
-            raise ConfigError("live calibration needs --positions FILE.csv (x, y, z in mm per row)")
+        port = board_port(port)
         frames, backgrounds, truth = _capture_live(
             port, profile, read_positions(positions), captures, not no_prompt
         )

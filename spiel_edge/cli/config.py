@@ -11,23 +11,16 @@ import click
 from spiel_edge.board import schema as bc
 from spiel_edge.board.flash import commit, pull, push
 from spiel_edge.cli import EXIT_OK
-from spiel_edge.cli._options import profile_option
+from spiel_edge.cli._options import board_port, port_option, profile_option
 from spiel_edge.errors import ConfigError, DeviceError
 from spiel_edge.profile.schema import load_profile
-
-port_option = click.option(
-    "--port",
-    envvar="SPIEL_PORT",
-    required=True,
-    help="Board URL: /dev/ttyACM0, serial://PATH, usb://VID:PID or sim://[?options] (env SPIEL_PORT).",
-)
 
 
 def open_session(port: str):
     """The board session (imported here so that the rest of the CLI loads without it)."""
     from spiel_edge.device import DeviceSession
 
-    session = DeviceSession(port, reconnect=False)
+    session = DeviceSession(board_port(port), reconnect=False)
     missing = [
         m
         for m in ("read_config", "write_config", "commit_config", "config_status")

@@ -11,11 +11,11 @@ from spiel_edge.cli._options import (
     association_option,
     calibration_option,
     profile_option,
-    resolve_profile,
 )
 from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.profile.schema import resolve_profile
 
 
 @click.command("evaluate")

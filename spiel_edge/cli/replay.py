@@ -9,10 +9,10 @@ from spiel_edge.cli._options import (
     association_option,
     calibration_option,
     profile_option,
-    resolve_profile,
 )
 from spiel_edge.outputs.ndjson import NdjsonSink
 from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
 
 

@@ -9,24 +9,23 @@ import threading
 import click
 
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
-from spiel_edge.cli._options import association_option, calibration_option, profile_option
+from spiel_edge.cli._options import (
+    association_option,
+    board_port,
+    calibration_option,
+    port_option,
+    profile_option,
+)
 from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
-from spiel_edge.link.discover import default_port
 from spiel_edge.outputs import open_outputs
 from spiel_edge.runtime.loop import LiveRunner, check_stream_shape, load_background, open_pipeline
 from spiel_edge.service.systemd import Notifier
 
 
 @click.command("run")
-@click.option(
-    "--port",
-    envvar="SPIEL_PORT",
-    default=None,
-    help="Board URL: /dev/ttyACM0, serial://PATH, usb://VID:PID[/SERIAL] or sim://[?options] "
-    "(env SPIEL_PORT). Default: the one board found by USB id.",
-)
+@port_option
 @click.option("--frames", type=click.IntRange(min=1), default=None, help="Stop after N records.")
 @click.option(
     "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
@@ -114,7 +113,7 @@ def command(
     stream and exits cleanly.
     """
     fixed_background = load_background(background) if background else None
-    port = port or default_port()
+    port = board_port(port)
     if show_status is None:
         show_status = sys.stderr.isatty()
     session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)

@@ -9,21 +9,16 @@ Channels (message encoding ``json``, schemas ``jsonschema``, so Foxglove opens t
   acquisitions that follow it;
 * ``/spiel/position``: one pipeline record per acquisition.
 
-The file is finalized (summary, indexes) on :meth:`McapSink.close`, at interpreter exit
-(exceptions included) and on SIGTERM; a file cut short by a hard kill is still replayed up
-to its last complete chunk.
+The file is finalized (summary, indexes) on :meth:`McapSink.close`; the sink installs no
+signal handler (the command line turns INT, TERM and HUP into a clean stop that closes it). A
+file cut short by a hard kill is still replayed up to its last complete chunk.
 """
 
 from __future__ import annotations
 
-import atexit
 import json
 import logging
-import os
-import signal
-import threading
 import time
-import weakref
 from pathlib import Path
 from typing import IO, Any
 
@@ -32,7 +27,6 @@ from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
 from spiel_edge.io.mcap import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
-from spiel_edge.service.systemd import Terminated, signals_deferred
 
 log = logging.getLogger(__name__)
 
@@ -111,8 +105,6 @@ class McapSink:
         self._background: np.ndarray | None = None
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}
-        atexit.register(self.close)
-        self._sigterm = _own_sigterm(self)
 
     def _channel(self, topic: str, schema: dict) -> int:
         schema_id = self._writer.register_schema(
@@ -142,14 +134,13 @@ class McapSink:
             raise ValueError(f"{self.path}: recording already closed")
         data = _dumps(payload)
         now = time.time_ns()
-        with signals_deferred():  # a raising SIGTERM handler must not tear a chunk in half
-            self._writer.add_message(
-                self._channels[topic],
-                log_time=now,
-                data=data,
-                publish_time=stamp or now,
-                sequence=self._sequence,
-            )
+        self._writer.add_message(
+            self._channels[topic],
+            log_time=now,
+            data=data,
+            publish_time=stamp or now,
+            sequence=self._sequence,
+        )
         self._sequence += 1
 
     def close(self) -> None:
@@ -157,14 +148,10 @@ class McapSink:
         if self.closed:
             return
         self.closed = True
-        atexit.unregister(self.close)
         try:
-            with signals_deferred():
-                self._writer.finish()
+            self._writer.finish()
         finally:
             self._fh.close()
-            if self._sigterm is not None and signal.getsignal(signal.SIGTERM) is self._sigterm:
-                signal.signal(signal.SIGTERM, signal.SIG_DFL)
         log.info(
             "recording %s finalized: %d acquisitions, %d records",
             self.path,
@@ -177,26 +164,6 @@ class McapSink:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _own_sigterm(sink: McapSink):
-    """When nobody handles SIGTERM, make it raise while ``sink`` is open, so finally blocks and
-    atexit finalize the file; once it is closed (or gone), SIGTERM does its default again."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        return None
-    ref = weakref.ref(sink)
-
-    def handler(signum: int, frame: object) -> None:
-        alive = ref()
-        if alive is not None and not alive.closed:
-            raise Terminated(f"signal {signum}")
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    signal.signal(signal.SIGTERM, handler)
-    return handler
 
 
 def _stamp(meta: dict) -> int:

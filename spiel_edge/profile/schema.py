@@ -171,6 +171,13 @@ def apply_calibration(profile: Profile, path: str | Path) -> Profile:
     return profile_from_dict(merged, origin=str(path))
 
 
+def resolve_profile(name_or_path: str | Path, calibration: str | Path | None = None) -> Profile:
+    """The profile ``name_or_path`` with the calibration file (if any) applied over it: the one
+    way every command and the service load "profile + calibration"."""
+    profile = load_profile(name_or_path)
+    return apply_calibration(profile, calibration) if calibration else profile
+
+
 def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
     candidate = Path(name_or_path)
     if candidate.suffix == ".toml" or candidate.exists():

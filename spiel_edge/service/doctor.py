@@ -216,7 +216,7 @@ def check_config(
 ) -> Check:
     """The profile and calibration the service would use (from config_dir's env file unless
     given), loaded and validated."""
-    from spiel_edge.profile.schema import apply_calibration, load_profile
+    from spiel_edge.profile.schema import resolve_profile
 
     env_file = Path(config_dir) / "spiel-edge.env"
     origin = "defaults"
@@ -233,9 +233,7 @@ def check_config(
         origin = str(env_file)
     profile = profile or "spiel-icra23"
     try:
-        loaded = load_profile(profile)
-        if calibration:
-            loaded = apply_calibration(loaded, calibration)
+        loaded = resolve_profile(profile, calibration)
     except SpielError as exc:
         return Check(
             "config",

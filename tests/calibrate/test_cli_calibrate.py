@@ -97,11 +97,14 @@ def test_plot_is_written(folder, tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_needs_exactly_one_source(folder, capsys):
+def test_needs_exactly_one_source(folder, tmp_path, capsys):
     assert main(["calibrate"]) == 2
     assert "--recordings" in capsys.readouterr().err
-    assert main(["calibrate", "--port", "sim://", "--recordings", str(folder / "fr")]) == 2
-    assert main(["calibrate", "--port", "sim://"]) == 2
+    positions = tmp_path / "p.csv"
+    positions.write_text("0,0,100\n")
+    both = ["--positions", str(positions), "--recordings", str(folder / "fr")]
+    assert main(["calibrate", "--port", "sim://", *both]) == 2
+    assert main(["calibrate", "--port", "sim://"]) == 2  # live needs the target positions
     assert "--positions" in capsys.readouterr().err
 
 

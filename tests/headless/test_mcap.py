@@ -158,40 +158,30 @@ def test_finalized_when_an_exception_escapes(tmp_path, subset):
         sink.write({"seq": 1})
 
 
-def test_sigterm_handler_only_while_open_and_only_if_unhandled(tmp_path):
-    previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    try:
-        sink = McapSink(tmp_path / "a.mcap")
-        assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
-        sink.close()
-        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
-
-        def theirs(signum, frame):
-            pass
-
-        signal.signal(signal.SIGTERM, theirs)
-        with McapSink(tmp_path / "b.mcap"):
-            assert signal.getsignal(signal.SIGTERM) is theirs  # a caller's handler is left alone
-        assert signal.getsignal(signal.SIGTERM) is theirs
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+def test_the_sink_installs_no_signal_handler(tmp_path):
+    """Sinks own only their files: the command line owns signals."""
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
+    with McapSink(tmp_path / "a.mcap"):
+        assert {sig: signal.getsignal(sig) for sig in before} == before
 
 
 _WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
+    from spiel_edge.cli._signals import terminate_raises
     from spiel_edge.outputs.mcap import McapSink
     sink = McapSink(sys.argv[1])
     frames = np.arange(256, dtype=np.float64).reshape(4, 64)
     n = 0
     try:
-        while True:
-            sink.write_acquisition({"seq": n}, frames)
-            sink.write({"seq": n, "position_mm": None})
-            n += 1
-            if n == 50:
-                print("ready", flush=True)
-            time.sleep(0.002)
+        with terminate_raises():
+            while True:
+                sink.write_acquisition({"seq": n}, frames)
+                sink.write({"seq": n, "position_mm": None})
+                n += 1
+                if n == 50:
+                    print("ready", flush=True)
+                time.sleep(0.002)
     finally:
         sink.close()
         print(n, flush=True)
@@ -199,7 +189,7 @@ _WRITER = textwrap.dedent("""
 
 
 def test_sigterm_finalizes_a_recording(tmp_path):
-    """Only the library's own SIGTERM handling: no CLI in the writing process."""
+    """A writer that turns SIGTERM into an exception (the CLI's helper) gets a finalized file."""
     path = tmp_path / "r.mcap"
     proc = subprocess.Popen(
         [sys.executable, "-c", _WRITER, str(path)], stdout=subprocess.PIPE, text=True

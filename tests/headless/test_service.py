@@ -10,13 +10,12 @@ import time
 
 import pytest
 
+from spiel_edge.cli._signals import Terminated, terminate_raises
 from spiel_edge.service.systemd import (
     JournalFormatter,
     Notifier,
-    Terminated,
     notify,
     stderr_is_journal,
-    stop_on_sigterm,
     watchdog_interval_s,
 )
 
@@ -97,7 +96,7 @@ def test_notifier_without_systemd_does_nothing():
 
 def test_sigterm_raises_terminated_inside_and_restores_after():
     before = signal.getsignal(signal.SIGTERM)
-    with pytest.raises(Terminated), stop_on_sigterm():
+    with pytest.raises(Terminated), terminate_raises():
         os.kill(os.getpid(), signal.SIGTERM)
         for _ in range(10**6):  # the handler runs at the next bytecode boundary
             pass
