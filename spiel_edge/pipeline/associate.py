@@ -25,8 +25,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.locate import _locate_kernel
@@ -146,7 +146,7 @@ class GeometricAssociator:
         return matched, cost
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos):
     """Locate the chosen echoes; cost as in the module docstring, inf when infeasible."""
     max_res, penalty, strength_weight, range_weight = weights[0], weights[1], weights[2], weights[3]
@@ -171,7 +171,7 @@ def _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos):
     )
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _feasible(paths, choice, c, k, max_diff):
     for j in range(c):
         if choice[j] >= 0 and abs(paths[c, k] - paths[j, choice[j]]) > max_diff[c, j]:
@@ -179,7 +179,7 @@ def _feasible(paths, choice, c, k, max_diff):
     return True
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _exhaustive_kernel(
     paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best
 ):
@@ -221,7 +221,7 @@ def _exhaustive_kernel(
     return best_cost
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice):
     """Give every channel the echo nearest the path the position predicts (within gate)."""
     n_used = 0
@@ -245,7 +245,7 @@ def _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice)
     return n_used
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _hypothesis_kernel(
     paths,
     strength,

@@ -8,8 +8,8 @@ and the next start. Hysteresis keeps one ragged rise from splitting into several
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline._validate import as_frames
 
@@ -45,7 +45,7 @@ def detect(
     return peaks, counts
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _detect_kernel(y, hi, lo, min_amp, first, peaks, counts):
     n_ch, n_t = y.shape
     k_max = peaks.shape[1]

@@ -18,8 +18,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.profile.schema import LocateSpec
 
@@ -68,7 +68,7 @@ def echo_quality(
     return weights, shift
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _echo_quality_kernel(y, bg, toa, alpha, params, weights, shift):
     base, per_background, alpha_counts, shift_after, shift_before = (
         params[0],

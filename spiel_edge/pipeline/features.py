@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline._validate import as_frames
 from spiel_edge.pipeline.memg import emg_value
@@ -61,7 +61,7 @@ def echo_features(
     return np.take_along_axis(out, order[:, :, None], axis=1)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _mode(alpha, mu, sigma, eta):
     """Time of the component's maximum: golden-section search on [mu - 2 sigma, mu + 3 sigma]
     (unimodal there for the bounded eta)."""
@@ -86,7 +86,7 @@ def _mode(alpha, mu, sigma, eta):
     return 0.5 * (lo + hi)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _leading_half_max(alpha, mu, sigma, eta, mode):
     peak = emg_value(mode, alpha, mu, sigma, eta)
     lo = mode - 6.0 * sigma
@@ -100,7 +100,7 @@ def _leading_half_max(alpha, mu, sigma, eta, mode):
     return 0.5 * (lo + hi)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _interpolated_peak(y, k):
     """Sub-sample maximum of the data around sample k by a parabola through 3 samples."""
     n_t = y.shape[0]
@@ -115,14 +115,14 @@ def _interpolated_peak(y, k):
 SUPPORT_SIGMAS = 6.0  # a component is below 1e-7 of its peak beyond mu +- 6 sigma
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _support(mu, sigma, n_t):
     lo = max(0, int(math.floor(mu - SUPPORT_SIGMAS * sigma)))
     hi = min(n_t, int(math.ceil(mu + SUPPORT_SIGMAS * sigma)) + 1)
     return lo, hi
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _features_kernel(y, params, peaks, toa_code, out):
     n_ch, n_t = y.shape
     k_max = params.shape[1]

@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.memg import solve_spd
 
@@ -61,7 +61,7 @@ def locate(
     return pos, float(rms), bool(ok)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _initial_guess(d, use, e, ch, facing, q):
     """Start point q (relative to the emitter) from the linearised ellipsoid equations."""
     radius = -1.0
@@ -106,7 +106,7 @@ def _initial_guess(d, use, e, ch, facing, q):
         q[i] += t * facing[i]
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _cost(d, use, w, e, ch, p):
     """Weighted and plain sums of squared path residuals, and the channels used."""
     weighted = 0.0
@@ -127,7 +127,7 @@ def _cost(d, use, w, e, ch, p):
     return weighted, plain, n_use
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _gauss_newton(d, use, w, e, ch, p, max_iter):
     a = np.empty((3, 3))
     b = np.empty(3)
@@ -185,7 +185,7 @@ def _gauss_newton(d, use, w, e, ch, p, max_iter):
     return math.sqrt(plain / max(n_use, 1))
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _locate_kernel(d, use, w, e, ch, facing, max_iter, out):
     n_use = 0
     for n in range(d.shape[0]):

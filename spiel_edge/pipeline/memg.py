@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline._validate import as_frames
 
@@ -54,7 +54,7 @@ def fit_memg(
     return params
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _check_peaks(peaks, counts, n_t):
     """0 when valid; 1 for a count out of range; 2 for peaks not ascending inside the frame
     (a compiled check: numpy's per-call overhead would cost more than the fit itself)."""
@@ -67,13 +67,13 @@ def _check_peaks(peaks, counts, n_t):
     return 0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@jit(inline="always")
 def emg_value(t, alpha, mu, sigma, eta):
     u = (t - mu) / sigma
     return alpha * math.exp(-0.5 * u * u) * (1.0 + math.erf(eta * u / SQRT2))
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
     """Value of one component at t; its partial derivatives go to out[col:col + 4]."""
     u = (t - mu) / sigma
@@ -88,7 +88,7 @@ def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
     return alpha * g * e
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _cluster_cost(y, lo, hi, p, n_comp):
     cost = 0.0
     for t in range(lo, hi):
@@ -100,7 +100,7 @@ def _cluster_cost(y, lo, hi, p, n_comp):
     return cost
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
     for k in range(n_comp):
         p[4 * k] = min(max(p[4 * k], 1e-6), alpha_max)
@@ -109,7 +109,7 @@ def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
         p[4 * k + 3] = min(max(p[4 * k + 3], ETA_MIN), ETA_MAX)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def solve_spd(a, b, n, x):
     """Solve a x = b for the leading n x n block of a symmetric positive definite a
     (Cholesky, in place on a). Returns False when a is not positive definite."""
@@ -139,7 +139,7 @@ def solve_spd(a, b, n, x):
     return True
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations)."""
     n_par = 4 * n_comp
@@ -161,7 +161,7 @@ def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
             a[i, j] = a[j, i]
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     """LM on components fitted jointly over y[lo:hi]; p holds 4 * n_comp parameters.
 
@@ -220,7 +220,7 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
             break
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _memg_kernel(y, peaks, counts, mu_window, max_iter, params):
     n_ch, n_t = y.shape
     n_max = 4 * peaks.shape[1]

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline._validate import as_frames
 
@@ -38,7 +38,7 @@ def preprocess(
     return out
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _preprocess_kernel(y, bg, blind_zone, out):
     n_ch, n_t = y.shape
     subtract = bg.shape[0] == n_ch
@@ -69,7 +69,7 @@ def envelope(rf: np.ndarray, carrier_cycles_per_sample: float) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _envelope_kernel(y, f, half_width, out):
     n_ch, n_t = y.shape
     i_mix = np.empty(n_t)

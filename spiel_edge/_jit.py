@@ -1,0 +1,22 @@
+"""The project's numba flags in one place: every kernel is ``@jit``-compiled with them.
+
+``cache=True`` writes compiled kernels next to the sources or to ``NUMBA_CACHE_DIR`` (the
+service points that at a writable folder, so a read-only install still starts warm);
+``nogil=True`` lets a caller run pipelines in threads.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from numba import njit
+
+FLAGS = {"cache": True, "nogil": True}
+
+
+def jit(fn: Callable | None = None, **extra: Any) -> Any:
+    """``@jit`` or ``@jit(inline="always")``: ``numba.njit`` with :data:`FLAGS`."""
+    if fn is None:
+        return njit(**FLAGS, **extra)
+    return njit(**FLAGS)(fn)
