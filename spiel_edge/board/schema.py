@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.profile.ranges import RANGES
 from spiel_edge.profile.schema import (
     Profile,
     dump_toml,
@@ -42,8 +43,8 @@ NAME_MAX = 32
 
 # key -> (type, low, high); ranges are inclusive
 ACQUISITION = {
-    "n_samples": (int, 8, 4096),
-    "sample_rate_hz": (float, 1e3, 1e7),
+    "n_samples": (int, *RANGES["acquisition.n_samples"]),
+    "sample_rate_hz": (float, *RANGES["acquisition.sample_rate_hz"]),
     "decimation": (int, 1, 256),
     "carrier_hz": (float, 20e3, 5e6),
     "pulse_cycles": (int, 1, 1000),

@@ -17,6 +17,7 @@ import numpy as np
 
 from spiel_edge.errors import DeviceError
 from spiel_edge.profile.schema import Profile
+from spiel_edge.runtime.background import background_of
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +66,7 @@ def capture_positions(
     if background is None:
         before_position(-1, None)
         empty, _ = capture(session, captures, n_samples, rate_hz)
-        background = empty.mean(axis=0)
+        background = background_of(empty)
     frames, backgrounds, truth = [], [], []
     for i, p in enumerate(np.asarray(positions, dtype=np.float64)):
         before_position(i, p)

@@ -29,7 +29,7 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.locate import _locate_kernel
+from spiel_edge.pipeline.locate import locate_kernel
 from spiel_edge.profile.schema import Profile
 
 EXHAUSTIVE_MAX_CHANNELS = 6
@@ -159,7 +159,7 @@ def _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos):
         if use[j]:
             n_used += 1
             mean_strength += strength[j, choice[j]]
-    ok, rms = _locate_kernel(d, use, unit, e, ch, facing, 20, pos)
+    ok, rms = locate_kernel(d, use, unit, e, ch, facing, 20, pos)
     if not ok or rms > max_res:
         return math.inf
     distance = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2)
@@ -292,7 +292,7 @@ def _hypothesis_kernel(
                     use[:] = False
                     use[a] = use[b] = use[c] = True
                     d[a], d[b], d[c] = paths[a, ka], paths[b, kb], paths[c, kc]
-                    ok, rms = _locate_kernel(d, use, unit, e, ch, facing, 20, pos)
+                    ok, rms = locate_kernel(d, use, unit, e, ch, facing, 20, pos)
                     if not ok:
                         continue
                     if (

@@ -48,7 +48,7 @@ def locate(
     if w.shape != d.shape or not np.all(np.isfinite(w[mask]) & (w[mask] > 0)):
         raise InputError("weights must be (channels,) positive finite numbers")
     pos = np.zeros(3)
-    ok, rms = _locate_kernel(
+    ok, rms = locate_kernel(
         d,
         mask,
         w,
@@ -186,7 +186,9 @@ def _gauss_newton(d, use, w, e, ch, p, max_iter):
 
 
 @jit
-def _locate_kernel(d, use, w, e, ch, facing, max_iter, out):
+def locate_kernel(d, use, w, e, ch, facing, max_iter, out):
+    """The solve for other kernels (association tries candidate echo sets with it): paths
+    ``d``, channel mask ``use``, weights ``w``; the position into ``out``; (ok, rms mm)."""
     n_use = 0
     for n in range(d.shape[0]):
         if use[n]:

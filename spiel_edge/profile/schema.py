@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.profile.ranges import check_range
 
 log = logging.getLogger(__name__)
 
@@ -277,14 +278,7 @@ def _geometry(origin: str, values: Any) -> Geometry:
         )
     if "speed_of_sound_m_s" in values:
         speed = values["speed_of_sound_m_s"]
-        if (
-            not isinstance(speed, (int, float))
-            or isinstance(speed, bool)
-            or not 200.0 <= speed <= 2000.0
-        ):
-            raise ConfigError(
-                f"{origin}: geometry.speed_of_sound_m_s must be a number in [200, 2000], got {speed!r}"
-            )
+        check_range("geometry.speed_of_sound_m_s", speed, origin)
         kwargs["speed_of_sound_m_s"] = float(speed)
     return Geometry(**kwargs)
 
@@ -316,11 +310,8 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
             raise ConfigError(f"{origin}: {msg}")
 
     a, g = p.acquisition, p.geometry
-    need(
-        1000.0 <= a.sample_rate_hz <= 10e6,
-        f"acquisition.sample_rate_hz must be in [1e3, 1e7], got {a.sample_rate_hz}",
-    )
-    need(8 <= a.n_samples <= 4096, f"acquisition.n_samples must be in [8, 4096], got {a.n_samples}")
+    check_range("acquisition.sample_rate_hz", a.sample_rate_hz, origin)
+    check_range("acquisition.n_samples", a.n_samples, origin)
     need(
         a.signal in ("envelope", "rf"),
         f"acquisition.signal must be 'envelope' or 'rf', got {a.signal!r}",
@@ -338,15 +329,12 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     )
     d = p.detect
     need(d.threshold > 0, f"detect.threshold must be > 0, got {d.threshold}")
-    need(0.0 <= d.hysteresis <= 1.0, f"detect.hysteresis must be in [0, 1], got {d.hysteresis}")
+    check_range("detect.hysteresis", d.hysteresis, origin)
     need(d.min_amplitude >= 0, f"detect.min_amplitude must be >= 0, got {d.min_amplitude}")
-    need(1 <= d.max_echoes <= 16, f"detect.max_echoes must be in [1, 16], got {d.max_echoes}")
+    check_range("detect.max_echoes", d.max_echoes, origin)
     m = p.memg
-    need(
-        1 <= m.max_iterations <= 200,
-        f"memg.max_iterations must be in [1, 200], got {m.max_iterations}",
-    )
-    need(0.5 <= m.mu_window <= 20, f"memg.mu_window must be in [0.5, 20], got {m.mu_window}")
+    check_range("memg.max_iterations", m.max_iterations, origin)
+    check_range("memg.mu_window", m.mu_window, origin)
     need(m.toa in TOA_METHODS, f"memg.toa must be one of {TOA_METHODS}, got {m.toa!r}")
     s = p.associate
     need(

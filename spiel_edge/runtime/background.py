@@ -29,7 +29,13 @@ def median_background(
             break
     if len(frames) < count:
         raise InputError(f"background capture stopped after {len(frames)} of {count} acquisitions")
-    return np.median(np.stack(frames), axis=0)
+    return background_of(np.stack(frames))
+
+
+def background_of(frames: np.ndarray) -> np.ndarray:
+    """The empty scene from a stack (acquisitions, channels, samples): the per-sample median,
+    robust to a passing reflection (the one estimator for ``background`` and calibration)."""
+    return np.median(np.asarray(frames, dtype=np.float64), axis=0)
 
 
 def save_background(path: str | Path, background: np.ndarray) -> Path:

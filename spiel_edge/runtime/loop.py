@@ -23,6 +23,7 @@ from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
 from spiel_edge.outputs import Sink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.runtime.records import error_record
 
 log = logging.getLogger(__name__)
 
@@ -201,15 +202,7 @@ class LiveRunner:
         except SpielError as exc:
             stats.errors += 1
             log.error("acquisition %d: %s", acq.index, exc)
-            record = {
-                **head,
-                "position_mm": None,
-                "reason": "input error",
-                "residual_mm": None,
-                "echoes": [],
-                "matched": [],
-                "error": str(exc),
-            }
+            record = {**head, **error_record(str(exc))}
         else:
             stats.fixes += result.position_mm is not None
             record = {**head, **result.record()}

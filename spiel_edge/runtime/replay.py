@@ -10,6 +10,7 @@ from pathlib import Path
 from spiel_edge.errors import InputError, SpielError
 from spiel_edge.io.spiel_csv import Recording, iter_recordings
 from spiel_edge.pipeline.run import Pipeline, Result
+from spiel_edge.runtime.records import error_record
 
 log = logging.getLogger(__name__)
 
@@ -24,15 +25,7 @@ class Replayed:
 
     def record(self) -> dict:
         if self.result is None:
-            return {
-                "source": self.source,
-                "position_mm": None,
-                "reason": "input error",
-                "residual_mm": None,
-                "echoes": [],
-                "matched": [],
-                "error": self.error,
-            }
+            return {"source": self.source, **error_record(str(self.error))}
         return {"source": self.source, **self.result.record()}
 
 

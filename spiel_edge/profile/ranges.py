@@ -1,0 +1,29 @@
+"""The allowed range of every bounded setting, in one table shared by device profiles and the
+board's stored config, so both say the same thing about the same key."""
+
+from __future__ import annotations
+
+from spiel_edge.errors import ConfigError
+
+# "section.key" -> (low, high), inclusive
+RANGES: dict[str, tuple[float, float]] = {
+    "acquisition.n_samples": (8, 4096),
+    "acquisition.sample_rate_hz": (1e3, 1e7),
+    "geometry.speed_of_sound_m_s": (200.0, 2000.0),
+    "detect.hysteresis": (0.0, 1.0),
+    "detect.max_echoes": (1, 16),
+    "memg.max_iterations": (1, 200),
+    "memg.mu_window": (0.5, 20.0),
+}
+
+
+def in_range(key: str, value: object) -> bool:
+    low, high = RANGES[key]
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and low <= value <= high
+
+
+def check_range(key: str, value: object, origin: str) -> None:
+    """ConfigError naming the key, its range and the value when ``value`` is outside it."""
+    if not in_range(key, value):
+        low, high = RANGES[key]
+        raise ConfigError(f"{origin}: {key} must be a number in [{low:g}, {high:g}], got {value!r}")
