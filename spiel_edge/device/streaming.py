@@ -1,0 +1,168 @@
+"""Streaming and reconnection for the device session: start, stop and status of the board's
+stream, the acquisitions as they arrive, and waiting for an unplugged board to come back
+(same serial number) before resuming the stream it had."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Iterator
+
+from firmware_protocol import (
+    MAX_RETRIES,
+    SampleFormat,
+    StreamStart,
+    StreamStartResponse,
+    StreamStatus,
+    StreamStatusRequest,
+    StreamStop,
+)
+from firmware_protocol.errors import ErrorCode
+from spiel_edge.device.stream import LiveAcquisition
+from spiel_edge.errors import (
+    DeviceDisconnectedError,
+    DeviceError,
+    DeviceRequestError,
+    DeviceTimeoutError,
+)
+from spiel_edge.link.discover import find_again
+
+log = logging.getLogger(__name__)
+
+RECONNECT_POLL_S = 0.05  # how often to look for a board that went away
+
+
+class StreamingMixin:
+    """Mixed into DeviceSession, whose state (link, tracker, inbox, counters) it uses."""
+
+    # --- streaming -----------------------------------------------------------------------
+
+    def start_stream(
+        self, *, rate_hz: float = 50.0, n_samples: int = 0, n_acquisitions: int = 0
+    ) -> StreamStartResponse:
+        """Start streaming (stopping any stream the board still runs)."""
+        request = StreamStart(
+            n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, 0
+        )
+        self._stop_quietly()
+        self.tracker.begin()
+        answer = self.request(request)
+        assert isinstance(answer, StreamStartResponse)
+        self.tracker.started(answer.first_acquisition)
+        self.stream, self._stream_request = answer, request
+        self._last_data = time.monotonic()
+        return answer
+
+    def stop_stream(self, *, retries: int = MAX_RETRIES) -> None:
+        self._stream_request = None
+        try:
+            self.request(StreamStop(), retries=retries)
+        finally:
+            self.tracker.stop()
+
+    def _stop_quietly(self) -> None:
+        try:
+            self.request(StreamStop())
+        except DeviceRequestError as exc:  # some firmware refuses to stop what is not running
+            if exc.code != ErrorCode.BAD_STATE:
+                raise
+
+    def stream_status(self) -> StreamStatus:
+        status = self.request(StreamStatusRequest())
+        assert isinstance(status, StreamStatus)
+        self.device_status = status
+        return status
+
+    def acquisitions(self, stop: threading.Event | None = None) -> Iterator[LiveAcquisition]:
+        """Acquisitions as they arrive, until ``stop`` is set; survives unplugs when
+        ``reconnect`` is on (else DeviceDisconnectedError ends it)."""
+        stop = stop or threading.Event()
+        ready = self.tracker.ready
+        while not stop.is_set():
+            if ready:
+                yield ready.popleft()
+                continue
+            try:
+                self._pump()
+            except (DeviceDisconnectedError, DeviceTimeoutError) as exc:
+                if not self.reconnect:
+                    raise
+                self._recover(exc, stop)
+
+    def _pump(self) -> None:
+        while self._inbox:
+            self._dispatch(*self._inbox.popleft())
+        if self.tracker.ready:
+            return
+        self._fill(self.poll_s)
+        while self._inbox:
+            self._dispatch(*self._inbox.popleft())
+        if self._stream_request is not None and time.monotonic() - self._last_data > self.stall_s:
+            self._check_alive()
+
+    def _check_alive(self) -> None:
+        """No data for a while: a board that does not answer is treated as gone; one that
+        stopped streaming by itself is asked to start again."""
+        status = self.stream_status()
+        self._last_data = time.monotonic()
+        if not status.streaming and self._stream_request is not None:
+            log.warning("%s: the board stopped streaming; starting again", self.url)
+            self.counters.restarts += 1
+            self._resume_stream()
+
+    def _resume_stream(self) -> None:
+        request = self._stream_request
+        if request is not None:
+            self.start_stream(
+                rate_hz=request.rate_hz,
+                n_samples=request.n_samples,
+                n_acquisitions=request.n_acquisitions,
+            )
+
+    # --- reconnection --------------------------------------------------------------------
+
+    def _recover(self, cause: Exception, stop: threading.Event) -> None:
+        self.counters.disconnects += 1
+        log.warning("%s; waiting for the board to come back", cause)
+        self.tracker.stop()
+        self._drop_link()
+        lost_at = time.monotonic()
+        while not stop.wait(RECONNECT_POLL_S):
+            if self.on_waiting is not None:
+                self.on_waiting(time.monotonic() - lost_at)
+            if (
+                self.reconnect_timeout_s is not None
+                and time.monotonic() - lost_at > self.reconnect_timeout_s
+            ):
+                raise DeviceDisconnectedError(
+                    f"{self.url}: the board did not come back within {self.reconnect_timeout_s:g} s"
+                )
+            try:
+                self._reopen()
+            except DeviceError as exc:
+                log.debug("%s: not back yet: %s", self.url, exc)
+                self._drop_link()
+                continue
+            self.counters.reconnects += 1
+            log.warning(
+                "%s: board back after %.2f s; streaming again", self.url, time.monotonic() - lost_at
+            )
+            return
+
+    def _reopen(self) -> None:
+        candidates = [self.url]
+        moved = find_again(self.identity) if self.identity is not None else None
+        if moved and moved != self.url:
+            candidates.append(moved)
+        error: DeviceError | None = None
+        for url in candidates:
+            try:
+                self._connect(url)
+                self._resume_stream()
+                return
+            except DeviceError as exc:
+                error = exc
+                self._drop_link()
+        assert error is not None
+        raise error
