@@ -22,6 +22,7 @@ __all__ = [
     "SAMPLE_DTYPE",
     "SAMPLE_SIZE",
     "STREAM_HEADER",
+    "STREAM_HEADER_FIELDS",
     "SampleFormat",
     "StreamData",
 ]
@@ -41,9 +42,19 @@ SAMPLE_DTYPE = {
     SampleFormat.I16_RF: np.dtype("<i2"),
     SampleFormat.F32: np.dtype("<f4"),
 }
-# acquisition u32, channel u8, n_channels u8, sample_format u8, header_size u8,
-# sample_rate_hz u32, timestamp_us u64, n_samples u16, reserved u16 (0)
-STREAM_HEADER = struct.Struct("<IBBBBIQHH")
+# (name, struct code, meaning); the order is the byte order of the sub-header
+STREAM_HEADER_FIELDS: tuple[tuple[str, str, str], ...] = (
+    ("acquisition", "I", "acquisition index, +1 per acquisition, wraps at 2^32"),
+    ("channel", "B", "0 .. n_channels - 1"),
+    ("n_channels", "B", "channels in this acquisition"),
+    ("sample_format", "B", "SampleFormat (SP_SAMPLE_*)"),
+    ("header_size", "B", "offset of the first sample (= 24 in version 1)"),
+    ("sample_rate_hz", "I", "Hz"),
+    ("timestamp_us", "Q", "device clock at the acquisition's first sample, us"),
+    ("n_samples", "H", "samples in this frame"),
+    ("reserved", "H", "0"),
+)
+STREAM_HEADER = struct.Struct("<" + "".join(code for _, code, _ in STREAM_HEADER_FIELDS))
 MAX_SAMPLES_PER_FRAME = {
     fmt: (MAX_PAYLOAD - STREAM_HEADER.size) // size for fmt, size in SAMPLE_SIZE.items()
 }

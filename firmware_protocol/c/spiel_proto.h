@@ -13,27 +13,15 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "spiel_registry.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-#define SP_PROTOCOL_VERSION 1u
-#define SP_HEADER_SIZE 12u
-#define SP_CRC_SIZE 4u
-#define SP_MAX_PAYLOAD 8256u
-#define SP_MAX_BODY (SP_HEADER_SIZE + SP_MAX_PAYLOAD + SP_CRC_SIZE)
-/* COBS adds one code byte per started run of 254 bytes, plus the leading one. */
-#define SP_MAX_ENCODED (SP_MAX_BODY + SP_MAX_BODY / 254u + 1u)
-#define SP_MAX_WIRE (SP_MAX_ENCODED + 1u) /* with the 0x00 delimiter */
-
-/* Header flags; a frame with any other bit set is dropped and counted. */
-#define SP_FLAG_RESPONSE 0x01u
-#define SP_FLAG_NACK 0x02u
-#define SP_FLAG_ACK_REQUEST 0x04u
-#define SP_FLAG_STREAM 0x08u
-#define SP_FLAG_MORE 0x10u
-#define SP_KNOWN_FLAGS 0x1Fu
-
+/* Protocol constants (SP_PROTOCOL_VERSION, SP_HEADER_SIZE, SP_MAX_PAYLOAD, SP_MAX_ENCODED,
+ * SP_FLAG_*, ...), message types, error codes and the packed STREAM_DATA and config blob
+ * headers are generated from the Python registry into spiel_registry.h. */
 typedef struct {
     uint8_t version;
     uint8_t flags;

@@ -17,11 +17,18 @@ from __future__ import annotations
 
 import copy
 import logging
-import struct
 import tomllib
 from pathlib import Path
 from typing import Any
 
+from firmware_protocol.config_blob import (
+    HEADER,
+    HEADER_SIZE,
+    MAGIC,
+    VERSION,
+    pack_header,
+    unpack_header,
+)
 from spiel_edge.errors import ConfigError
 from spiel_edge.profile.ranges import RANGES
 from spiel_edge.profile.schema import (
@@ -31,13 +38,29 @@ from spiel_edge.profile.schema import (
     profile_to_dict,
 )
 
+__all__ = [
+    "ACQUISITION",
+    "CALIBRATION",
+    "HEADER",
+    "MAGIC",
+    "MAX_ADC_HZ",
+    "NAME_MAX",
+    "TABLES",
+    "VERSION",
+    "decode",
+    "diff",
+    "encode",
+    "from_profile",
+    "overlay",
+    "profile_with_board",
+    "read_file",
+    "to_toml",
+    "validate",
+]
+
 log = logging.getLogger(__name__)
 
-MAGIC = b"SPCF"
-VERSION = 1
-# magic, version, header size, n_samples, decimation, pulse_cycles, blind_zone_samples,
-# sample_rate_hz, carrier_hz, gain_db, acquisition_rate_hz, toml length
-HEADER = struct.Struct("<4sHHHHHHffffI")
+# The blob's header layout (MAGIC, VERSION, HEADER) is the protocol's: firmware_protocol.config_blob
 MAX_ADC_HZ = 10e6  # the ADC's maximum rate: sample_rate_hz * decimation may not exceed it
 NAME_MAX = 32
 
@@ -54,16 +77,6 @@ ACQUISITION = {
 }
 CALIBRATION = {"source": str, "date": str, "residual_samples": float}
 TABLES = ("board", "acquisition", "geometry", "calibration")
-_HEADER_KEYS = (
-    "n_samples",
-    "decimation",
-    "pulse_cycles",
-    "blind_zone_samples",
-    "sample_rate_hz",
-    "carrier_hz",
-    "gain_db",
-    "acquisition_rate_hz",
-)
 
 
 def validate(data: dict[str, Any], origin: str = "board config") -> dict[str, Any]:
@@ -243,25 +256,26 @@ def encode(config: dict[str, Any]) -> bytes:
     """The bytes for the board: the firmware header, then the config as UTF-8 TOML."""
     config = validate(config)
     text = to_toml(config).encode("utf-8")
-    a = config["acquisition"]
-    return HEADER.pack(MAGIC, VERSION, HEADER.size, *(a[k] for k in _HEADER_KEYS), len(text)) + text
+    return pack_header(config["acquisition"], len(text)) + text
 
 
 def decode(blob: bytes, origin: str = "board") -> dict[str, Any]:
     """The validated config from a blob read from the board; ConfigError if it is not one."""
     _need(
-        len(blob) >= HEADER.size,
+        len(blob) >= HEADER_SIZE,
         origin,
-        f"config is {len(blob)} bytes, shorter than its {HEADER.size}-byte header",
+        f"config is {len(blob)} bytes, shorter than its {HEADER_SIZE}-byte header",
     )
-    magic, version, size, *scalars, length = HEADER.unpack_from(blob)
+    header = unpack_header(blob)
+    magic, version = header.magic, header.version
+    size, length = header.header_size, header.toml_length
     _need(
         magic == MAGIC,
         origin,
         f"config does not start with {MAGIC!r} (got {magic!r}): not a spiel-edge config",
     )
     _need(
-        version == VERSION and size == HEADER.size,
+        version == VERSION and size == HEADER_SIZE,
         origin,
         f"config version {version} is not supported (this host reads {VERSION})",
     )
@@ -275,9 +289,7 @@ def decode(blob: bytes, origin: str = "board") -> dict[str, Any]:
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"{origin}: stored config is not valid TOML: {exc}") from exc
     config = validate(data, origin)
-    stored = HEADER.pack(
-        MAGIC, VERSION, size, *(config["acquisition"][k] for k in _HEADER_KEYS), length
-    )
+    stored = pack_header(config["acquisition"], length)
     _need(
         stored == blob[:size],
         origin,

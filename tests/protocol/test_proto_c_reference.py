@@ -3,60 +3,16 @@ the test vectors and differentially against the Python decoder."""
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
-import pytest
 from cobs import cobs
 
 from firmware_protocol import MAX_PAYLOAD, FrameDecoder, encode_frame, load_test_vectors
 from firmware_protocol.framing import HEADER, crc32c
+from tests.protocol.c_driver import hx, run
 
 VECTORS = load_test_vectors()
-DRIVER = Path(__file__).with_name("sp_driver.c")
-CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
-
-
-def _compiler() -> str | None:
-    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
-        if name and shutil.which(name):
-            return name
-    return None
-
-
-@pytest.fixture(scope="module")
-def driver(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    cc = _compiler()
-    if cc is None:
-        pytest.skip("no C compiler found (set CC or install gcc/cc/clang)")
-    src = resources.files("firmware_protocol").joinpath("c")
-    c_dir = Path(str(src))
-    exe = tmp_path_factory.mktemp("c") / "sp_driver"
-    sources = sorted(str(p) for p in c_dir.glob("*.c"))
-    cmd = [cc, *CFLAGS, f"-I{c_dir}", *sources, str(DRIVER), "-o", str(exe)]
-    result = subprocess.run(cmd, capture_output=True, text=True)
-    assert result.returncode == 0, result.stderr
-    return exe
-
-
-def run(driver: Path, commands: list[str]) -> list[str]:
-    out = subprocess.run(
-        [str(driver)],
-        input="\n".join(commands) + "\n",
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    )
-    return out.stdout.splitlines()
-
-
-def hx(data: bytes) -> str:
-    return data.hex() or "-"
 
 
 def py_decode(wire: bytes) -> list[str]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import struct
 from importlib import resources
 
 import pytest
@@ -19,8 +20,10 @@ from firmware_protocol import (
     Hello,
     MsgType,
     StreamData,
+    config_blob,
     decode_message,
 )
+from spiel_edge.board import schema as board_schema
 
 SPEC = resources.files("firmware_protocol").joinpath("PROTOCOL.md").read_text()
 
@@ -73,3 +76,43 @@ def test_documented_sizes_match_struct_sizes() -> None:
     for cls in REGISTRY.values():
         if cls._STRUCT.size and not cls._TAIL and cls is not StreamData:
             assert f"({cls._STRUCT.size} B" in SPEC or f"({cls._STRUCT.size} bytes" in SPEC, cls
+
+
+def test_config_blob_example_decodes_to_the_documented_values() -> None:
+    block = SPEC[SPEC.index("## 13. The board config blob") :]
+    found = re.findall(r"^blob\s+([0-9a-f |]+(?:\n\s+[0-9a-f |]+)*)$", block, re.M)
+    assert len(found) == 1
+    raw = bytes.fromhex(found[0].replace("|", " "))
+    documented = {
+        "n_samples": 64,
+        "decimation": 8,
+        "pulse_cycles": 30,
+        "blind_zone_samples": 9,
+        "sample_rate_hz": 22000.0,
+        "carrier_hz": 175000.0,
+        "gain_db": 20.0,
+        "acquisition_rate_hz": 30.0,
+    }
+    header = config_blob.unpack_header(raw)
+    assert (header.magic, header.version, header.header_size) == (b"SPCF", 1, len(raw))
+    assert header.acquisition == documented and header.toml_length == 469
+    assert config_blob.pack_header(documented, 469) == raw
+
+
+_C_TYPE = {"4s": "char[4]", "H": "u16", "I": "u32", "f": "f32"}
+
+
+def test_config_blob_table_matches_the_layout_and_ranges() -> None:
+    section = SPEC[SPEC.index("## 13. The board config blob") :]
+    offset = 0
+    for name, code, _ in config_blob.HEADER_FIELDS:
+        row = re.search(
+            rf"^\| {offset} \| {re.escape(_C_TYPE[code])} \| `{name}` \|(.*)$", section, re.M
+        )
+        assert row, name
+        if name in board_schema.ACQUISITION:
+            kind, low, high = board_schema.ACQUISITION[name]
+            prefix = "int in " if kind is int else ""
+            assert row.group(1).endswith(f"| {prefix}[{low:g}, {high:g}] |"), name
+        offset += struct.calcsize("<" + code)
+    assert f"blob = header ({config_blob.HEADER_SIZE} bytes" in SPEC

@@ -1,0 +1,45 @@
+"""Build and run tests/protocol/sp_driver.c against the C reference in firmware_protocol/c."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from importlib import resources
+from pathlib import Path
+
+DRIVER = Path(__file__).with_name("sp_driver.c")
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+
+
+def compiler() -> str | None:
+    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if name and shutil.which(name):
+            return name
+    return None
+
+
+def c_dir() -> Path:
+    return Path(str(resources.files("firmware_protocol").joinpath("c")))
+
+
+def build(cc: str, exe: Path) -> subprocess.CompletedProcess:
+    sources = sorted(str(p) for p in c_dir().glob("*.c"))
+    cmd = [cc, *CFLAGS, f"-I{c_dir()}", *sources, str(DRIVER), "-o", str(exe)]
+    return subprocess.run(cmd, capture_output=True, text=True)
+
+
+def run(driver: Path, commands: list[str]) -> list[str]:
+    out = subprocess.run(
+        [str(driver)],
+        input="\n".join(commands) + "\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    return out.stdout.splitlines()
+
+
+def hx(data: bytes) -> str:
+    return data.hex() or "-"
