@@ -108,6 +108,25 @@ class LocateSpec:
 
 
 @dataclass(frozen=True)
+class SceneSpec:
+    """Several targets per acquisition and their uncertainty; see docs/scene.md."""
+
+    max_targets: int = 1
+    max_cost_mm: float = 0.0  # a further target needs an association cost <= this
+    share_penalty_mm: float = 40.0  # cost of reusing an echo another target took
+    share_tolerance_mm: float = 6.0  # two targets share an echo within this of the prediction
+    min_separation_mm: float = 25.0  # a target nearer than this to a better one is dropped
+    double_tolerance_mm: float = 20.0  # target -> board -> target paths within this are dropped
+    covariance_scale: float = 1.0  # scales the linearised covariance's standard deviations
+    covariance_floor_mm: float = 0.0  # std added in every direction (unmodelled errors)
+    static_model: str = ""  # file in spiel_edge/models (or a path): used without a background
+    static_mad_factor: float = 0.0  # stand-in background = median + this x MAD of the model
+
+
+MAX_TARGETS_LIMIT = 16
+
+
+@dataclass(frozen=True)
 class Profile:
     name: str
     geometry: Geometry
@@ -117,6 +136,7 @@ class Profile:
     memg: MemgSpec = MemgSpec()
     associate: AssociateSpec = AssociateSpec()
     locate: LocateSpec = LocateSpec()
+    scene: SceneSpec = SceneSpec()
     description: str = ""
 
     @property
@@ -135,6 +155,7 @@ _SECTIONS = {
     "memg": MemgSpec,
     "associate": AssociateSpec,
     "locate": LocateSpec,
+    "scene": SceneSpec,
 }
 _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
@@ -361,6 +382,38 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     need(
         abs(loc.toa_shift_background_after) <= 5 and abs(loc.toa_shift_background_before) <= 5,
         "locate.toa_shift_background_after/before must be in [-5, 5] samples",
+    )
+    _validate_scene(p.scene, need)
+
+
+def _validate_scene(sc: SceneSpec, need) -> None:
+    need(
+        1 <= sc.max_targets <= MAX_TARGETS_LIMIT,
+        f"scene.max_targets must be in [1, {MAX_TARGETS_LIMIT}], got {sc.max_targets}",
+    )
+    need(
+        -1000.0 <= sc.max_cost_mm <= 1000.0,
+        f"scene.max_cost_mm must be in [-1000, 1000], got {sc.max_cost_mm}",
+    )
+    need(
+        0.0 <= sc.share_tolerance_mm <= 100.0 and 0.0 <= sc.double_tolerance_mm <= 100.0,
+        "scene.share_tolerance_mm and scene.double_tolerance_mm must be in [0, 100]",
+    )
+    need(
+        0.0 <= sc.share_penalty_mm <= 1000.0 and 0.0 <= sc.min_separation_mm <= 1000.0,
+        "scene.share_penalty_mm and scene.min_separation_mm must be in [0, 1000]",
+    )
+    need(
+        0.0 <= sc.static_mad_factor <= 10.0,
+        f"scene.static_mad_factor must be in [0, 10], got {sc.static_mad_factor}",
+    )
+    need(
+        0.01 <= sc.covariance_scale <= 100.0,
+        f"scene.covariance_scale must be in [0.01, 100], got {sc.covariance_scale}",
+    )
+    need(
+        0.0 <= sc.covariance_floor_mm <= 1000.0,
+        f"scene.covariance_floor_mm must be in [0, 1000], got {sc.covariance_floor_mm}",
     )
 
 
