@@ -19,7 +19,7 @@ from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
 from spiel_edge.pipeline.static_scene import load_static_model
-from spiel_edge.pipeline.uncertainty import position_covariance
+from spiel_edge.pipeline.uncertainty import _covariance_kernel
 from spiel_edge.profile.schema import MAX_TARGETS_LIMIT, Profile
 
 log = logging.getLogger(__name__)
@@ -267,15 +267,18 @@ class Pipeline:
         if not ok:
             return None
         sigma_mm = self.profile.mm_per_sample / weights
-        cov = position_covariance(
+        cov = np.empty((3, 3))  # arrays checked above: the kernel directly (hot path)
+        sc = self.profile.scene
+        _covariance_kernel(
             pos,
             paths,
             sigma_mm,
-            use,
+            use & np.isfinite(paths),
             self._channels,
             self._emitter,
-            self.profile.scene.covariance_scale,
-            self.profile.scene.covariance_floor_mm,
+            sc.covariance_scale,
+            sc.covariance_floor_mm,
+            cov,
         )
         match_list = [int(m) if m >= 0 else None for m in matched]
         score = -cost if np.isfinite(cost) else 0.0
