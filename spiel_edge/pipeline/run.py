@@ -118,7 +118,11 @@ class Pipeline:
         self.max_targets = int(k)
         sc = self.profile.scene
         self.scene = SceneAssociator(
-            self.associator, self.max_targets, sc.max_cost_mm, sc.share_penalty_mm
+            self.associator,
+            self.max_targets,
+            sc.max_cost_mm,
+            sc.share_penalty_mm,
+            sc.extra_min_channels,
         )
 
     def check_shape(self, frames: np.ndarray, what: str = "frames") -> None:

@@ -7,7 +7,9 @@ Greedy hypothesise-and-verify over all channels' echoes (docs/scene.md):
 2. Its echoes are removed and the search runs again on the rest; a combination becomes a
    further target while its cost (the associator's cost: rms residual + missing-channel
    penalty - strength and score bonus + range term, lower is better) is at most
-   ``[scene] max_cost_mm``. At most K searches run, each bounded by the associator's
+   ``[scene] max_cost_mm`` and it uses at least ``extra_min_channels`` channels (on
+   spiel-icra23 most 3-channel extra combinations are ghosts: 3 paths always intersect,
+   while 4 must agree). At most K searches run, each bounded by the associator's
    MAX_SOLVES located combinations, so an acquisition with hundreds of echo candidates
    (``detect.max_echoes`` <= 16 per channel) costs at most K * MAX_SOLVES solves.
 3. After locating (:func:`shared_echoes`): a target that lacks a channel takes an echo
@@ -29,13 +31,21 @@ class SceneAssociator:
     """``(features, counts) -> [(matched, cost), ...]``: best first, at most ``max_targets``."""
 
     def __init__(
-        self, associator, max_targets: int, max_cost_mm: float, share_penalty_mm: float = 40.0
+        self,
+        associator,
+        max_targets: int,
+        max_cost_mm: float,
+        share_penalty_mm: float = 40.0,
+        extra_min_channels: int = 3,
     ):
         self.associator = associator
         self.geometric = getattr(associator, "geometric", associator)
         self.max_targets = int(max_targets)
         self.max_cost_mm = float(max_cost_mm)
         self.share_penalty_mm = float(share_penalty_mm)
+        listening = getattr(self.geometric, "listening", None)
+        n_listening = 3 if listening is None else int(np.sum(listening))
+        self.extra_min_channels = max(3, min(int(extra_min_channels), n_listening))
 
     def _bonus(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
         """The learned score prior as a per-echo cost bonus (None for geometric association)."""
@@ -71,7 +81,11 @@ class SceneAssociator:
             # echoes already taken stay available (two targets at one range share an echo)
             # but cost share_penalty_mm each (spread over the combination's channels)
             matched, cost = self.geometric.candidates(
-                features, counts, None, base - self.share_penalty_mm * used
+                features,
+                counts,
+                None,
+                base - self.share_penalty_mm * used,
+                min_channels=self.extra_min_channels,
             )
             if (
                 not math.isfinite(cost)

@@ -114,6 +114,7 @@ class SceneSpec:
     max_targets: int = 1
     max_cost_mm: float = 0.0  # a further target needs an association cost <= this
     share_penalty_mm: float = 40.0  # cost of reusing an echo another target took
+    extra_min_channels: int = 3  # channels a further target must use (capped at the listening)
     share_tolerance_mm: float = 6.0  # two targets share an echo within this of the prediction
     min_separation_mm: float = 25.0  # a target nearer than this to a better one is dropped
     double_tolerance_mm: float = 20.0  # target -> board -> target paths within this are dropped
@@ -402,6 +403,10 @@ def _validate_scene(sc: SceneSpec, need) -> None:
     need(
         0.0 <= sc.share_penalty_mm <= 1000.0 and 0.0 <= sc.min_separation_mm <= 1000.0,
         "scene.share_penalty_mm and scene.min_separation_mm must be in [0, 1000]",
+    )
+    need(
+        3 <= sc.extra_min_channels <= 64,
+        f"scene.extra_min_channels must be in [3, 64], got {sc.extra_min_channels}",
     )
     need(
         0.0 <= sc.static_mad_factor <= 10.0,
