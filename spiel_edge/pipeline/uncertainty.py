@@ -22,8 +22,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 
 PRIOR_MM = 2000.0  # std of the implicit prior per axis: far outside any echo path of interest
@@ -67,7 +67,7 @@ def position_covariance(
     return out
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _covariance_kernel(p, d, sigma, use, ch, e, scale, floor_mm, out):
     a = np.zeros((3, 3))
     rss = 0.0
@@ -105,7 +105,7 @@ def _covariance_kernel(p, d, sigma, use, ch, e, scale, floor_mm, out):
         out[i, i] += floor_mm * floor_mm
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _inverse_sym3(a, out):
     """Inverse of a symmetric positive definite 3x3 matrix by its adjugate."""
     c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]

@@ -124,7 +124,7 @@ class SceneSpec:
     static_mad_factor: float = 0.0  # stand-in background = median + this x MAD of the model
 
 
-MAX_TARGETS_LIMIT = 16
+MAX_TARGETS_LIMIT = 16  # also in profile/ranges.py (scene.max_targets)
 
 
 @dataclass(frozen=True)
@@ -384,42 +384,13 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
         abs(loc.toa_shift_background_after) <= 5 and abs(loc.toa_shift_background_before) <= 5,
         "locate.toa_shift_background_after/before must be in [-5, 5] samples",
     )
-    _validate_scene(p.scene, need)
+    _validate_scene(p.scene, origin)
 
 
-def _validate_scene(sc: SceneSpec, need) -> None:
-    need(
-        1 <= sc.max_targets <= MAX_TARGETS_LIMIT,
-        f"scene.max_targets must be in [1, {MAX_TARGETS_LIMIT}], got {sc.max_targets}",
-    )
-    need(
-        -1000.0 <= sc.max_cost_mm <= 1000.0,
-        f"scene.max_cost_mm must be in [-1000, 1000], got {sc.max_cost_mm}",
-    )
-    need(
-        0.0 <= sc.share_tolerance_mm <= 100.0 and 0.0 <= sc.double_tolerance_mm <= 100.0,
-        "scene.share_tolerance_mm and scene.double_tolerance_mm must be in [0, 100]",
-    )
-    need(
-        0.0 <= sc.share_penalty_mm <= 1000.0 and 0.0 <= sc.min_separation_mm <= 1000.0,
-        "scene.share_penalty_mm and scene.min_separation_mm must be in [0, 1000]",
-    )
-    need(
-        3 <= sc.extra_min_channels <= 64,
-        f"scene.extra_min_channels must be in [3, 64], got {sc.extra_min_channels}",
-    )
-    need(
-        0.0 <= sc.static_mad_factor <= 10.0,
-        f"scene.static_mad_factor must be in [0, 10], got {sc.static_mad_factor}",
-    )
-    need(
-        0.01 <= sc.covariance_scale <= 100.0,
-        f"scene.covariance_scale must be in [0.01, 100], got {sc.covariance_scale}",
-    )
-    need(
-        0.0 <= sc.covariance_floor_mm <= 1000.0,
-        f"scene.covariance_floor_mm must be in [0, 1000], got {sc.covariance_floor_mm}",
-    )
+def _validate_scene(sc: SceneSpec, origin: str) -> None:
+    for f in dataclasses.fields(SceneSpec):
+        if f.name != "static_model":
+            check_range(f"scene.{f.name}", getattr(sc, f.name), origin)
 
 
 def profile_to_dict(p: Profile) -> dict[str, Any]:
