@@ -161,3 +161,35 @@ def test_without_background_static_model_finds_vendored_targets(profile, subset)
         found = [t.position_mm for t in pipe.process(frames, None).targets]
         hits.append(bool(found) and np.linalg.norm(np.array(found) - truth, axis=1).min() < 30)
     assert np.mean(hits) > 0.6
+
+
+def test_scene_file_evaluate_and_max_targets_option(subset, tmp_path, capsys):
+    import json
+
+    from spiel_edge.cli import main
+    from tools.build_scenes import compose
+
+    frames, bgs = subset.frames.astype(float), subset.backgrounds.astype(float)
+    a, b = 0, int(np.argmax(np.linalg.norm(subset.truth_mm - subset.truth_mm[0], axis=1)))
+    truth = np.full((2, 3, 3), np.nan)
+    truth[0, :1] = subset.truth_mm[a]
+    truth[1, :2] = subset.truth_mm[[a, b]]
+    path = tmp_path / "scenes.npz"
+    np.savez(
+        path,
+        frames=np.array([frames[a], compose(frames, bgs, [a, b])]),
+        backgrounds=np.array([np.full((4, 64), np.nan), bgs[a]]),
+        truth_mm=truth,
+        names=np.array(["single", "pair"]),
+        split="test",
+    )
+    assert main(["evaluate", str(path), "--max-targets", "4", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["max_targets"] == 4 and set(out["by_targets"]) == {"1", "2"}
+    assert out["by_targets"]["2"]["frames"] == 1
+    assert main(["evaluate", str(path), "--max-targets", "17"]) == 2
+    assert "--max-targets" in capsys.readouterr().err
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, frames=np.zeros(3))
+    assert main(["evaluate", str(bad)]) != 0
+    assert "not a scene file" in capsys.readouterr().err
