@@ -49,12 +49,9 @@ class SceneAssociator:
 
     def _bonus(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
         """The learned score prior as a per-echo cost bonus (None for geometric association)."""
-        if not hasattr(self.associator, "score") or getattr(self.associator, "mode", "") != "prior":
+        if not hasattr(self.associator, "bonus") or getattr(self.associator, "mode", "") != "prior":
             return None
-        from spiel_edge.pipeline.associate_onnx import score_bonus
-
-        rows, score, _ = self.associator.score(features, counts)
-        return score_bonus(np.shape(features)[:2], rows, score, self.associator.score_weight_mm)
+        return self.associator.bonus(features, counts)
 
     def first(self, features: np.ndarray, counts: np.ndarray, bonus) -> tuple[np.ndarray, float]:
         if hasattr(self.associator, "candidates") or bonus is not None:
@@ -62,7 +59,7 @@ class SceneAssociator:
         return np.asarray(self.associator(features, counts)), math.nan
 
     def __call__(self, features: np.ndarray, counts: np.ndarray):
-        reference_mode = hasattr(self.associator, "score") and self.associator.mode != "prior"
+        reference_mode = hasattr(self.associator, "bonus") and self.associator.mode != "prior"
         bonus = None if reference_mode else self._bonus(features, counts)
         if reference_mode:
             hyps = [(np.asarray(self.associator(features, counts)), math.nan)]
