@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from spiel_edge.profile.schema import MAX_TARGETS_LIMIT
+
 PORT_ENV = "SPIEL_PORT"
 
 port_option = click.option(
@@ -43,4 +45,10 @@ association_option = click.option(
     type=click.Choice(["auto", "onnx", "geometric"]),
     default=None,
     help="Echo association (default: the profile's; auto = onnx when the model loads).",
+)
+max_targets_option = click.option(
+    "--max-targets",
+    type=click.IntRange(1, MAX_TARGETS_LIMIT),
+    default=None,
+    help="Report up to K targets per acquisition (default: the profile's [scene] max_targets).",
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import click
 
@@ -10,16 +11,18 @@ from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
     calibration_option,
+    max_targets_option,
     profile_option,
 )
 from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
+from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 
 
 @click.command("evaluate")
-@click.argument("folder", type=click.Path(exists=True, file_okay=False))
+@click.argument("folder", type=click.Path(exists=True))
 @click.option(
     "--background",
     type=click.Path(exists=True, file_okay=False),
@@ -29,6 +32,7 @@ from spiel_edge.profile.schema import resolve_profile
 @profile_option
 @calibration_option
 @association_option
+@max_targets_option
 @click.option(
     "--split",
     type=click.Choice(["all", "train", "val"]),
@@ -57,14 +61,23 @@ def command(
     profile_name,
     calibration,
     association,
+    max_targets,
     split,
     val_fraction,
     exclude_z,
     max_z,
     as_json,
 ) -> int:
-    """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings."""
+    """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings.
+
+    FOLDER is a labelled spiel-csv folder, or a scene file (.npz from tools/build_scenes.py:
+    several targets, or frames without background) for the per-number-of-targets metrics.
+    """
     pipeline = build_pipeline(resolve_profile(profile_name, calibration), association)
+    if max_targets:
+        pipeline.set_max_targets(max_targets)
+    if Path(folder).is_file():
+        return _evaluate_scene_file(pipeline, folder, as_json)
     positions = None
     if split != "all":
         train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
@@ -80,9 +93,43 @@ def command(
         click.echo(json.dumps(summary))
     else:
         _print_table(summary)
+        print_scene_table(summary["by_targets"])
     for message in ev.failed:
         click.echo(f"failed: {message}", err=True)
     return EXIT_PARTIAL if ev.failed else EXIT_OK
+
+
+def _evaluate_scene_file(pipeline, path: str, as_json: bool) -> int:
+    tally = evaluate_scenes(pipeline, path)
+    summary = {
+        "scenes": str(path),
+        "association": pipeline.associator.name,
+        "max_targets": pipeline.max_targets,
+        "by_targets": tally.summary(),
+    }
+    if as_json:
+        click.echo(json.dumps(summary))
+    else:
+        print_scene_table(summary["by_targets"])
+    return EXIT_OK
+
+
+def print_scene_table(by_targets: dict) -> None:
+    click.echo(
+        f"{'targets':>7} {'frames':>7} {'recall':>7} {'all':>6} {'prec':>6} {'mean':>6} "
+        f"{'per fr':>6} {'cover':>6} {'cov1':>6}"
+    )
+    for n, s in by_targets.items():
+
+        def fmt(v, spec=".1%"):
+            return "-" if v is None else format(v, spec)
+
+        click.echo(
+            f"{n:>7} {s['frames']:>7} {fmt(s['recall']):>7} {fmt(s['all_found']):>6} "
+            f"{fmt(s['precision']):>6} {fmt(s['mean_mm'], '.1f'):>6} "
+            f"{fmt(s['targets_per_frame'], '.2f'):>6} {fmt(s['coverage']):>6} "
+            f"{fmt(s['coverage_best']):>6}"
+        )
 
 
 def _print_table(summary: dict) -> None:

@@ -8,6 +8,7 @@ from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
     calibration_option,
+    max_targets_option,
     profile_option,
 )
 from spiel_edge.outputs.ndjson import NdjsonSink
@@ -34,15 +35,20 @@ from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
 @profile_option
 @calibration_option
 @association_option
+@max_targets_option
 @click.option(
     "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
 )
-def command(path, fmt, background, profile_name, calibration, association, output) -> int:
+def command(
+    path, fmt, background, profile_name, calibration, association, max_targets, output
+) -> int:
     """Run the pipeline over recorded frames; one NDJSON record per acquisition.
 
     Label files are never read. Exit status 1 when some inputs could not be processed.
     """
     pipeline = build_pipeline(resolve_profile(profile_name, calibration), association)
+    if max_targets:
+        pipeline.set_max_targets(max_targets)
     failed = total = 0
     sink = NdjsonSink(output)
     try:

@@ -13,6 +13,7 @@ from spiel_edge.cli._options import (
     association_option,
     board_port,
     calibration_option,
+    max_targets_option,
     port_option,
     profile_option,
 )
@@ -62,6 +63,7 @@ from spiel_edge.service.systemd import Notifier
     "over --profile; --calibration still overrides them.",
 )
 @association_option
+@max_targets_option
 @click.option(
     "--rate",
     type=click.FloatRange(0, 10000),
@@ -100,6 +102,7 @@ def command(
     calibration,
     use_board,
     association,
+    max_targets,
     rate,
     background,
     reconnect_timeout,
@@ -126,6 +129,8 @@ def command(
             pipeline, source = open_pipeline(
                 session, profile_name, calibration, association, use_board=use_board
             )
+            if max_targets:
+                pipeline.set_max_targets(max_targets)
             profile = pipeline.profile
             sink = open_outputs(
                 output,

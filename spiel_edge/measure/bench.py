@@ -95,10 +95,33 @@ def run_bench(repeat: int = 5, association: str | None = None, startup: bool = T
     result["end_to_end"] = result["real_4x64"]["end_to_end"]
     for stage in STAGES:
         result[stage] = result["real_4x64"][stage]
+    result["max_targets_4"] = max_targets_cost(pipeline, subset.frames, repeat)
     result["onnx_scoring"] = _onnx_scoring(profile)
     if startup:
         result["startup_s"] = startup_seconds()
     return result
+
+
+def max_targets_cost(pipeline: Pipeline, frames: np.ndarray, repeat: int, k: int = 4) -> dict:
+    """Median end-to-end us with up to ``k`` targets vs one, on the same frames WITHOUT a
+    background (the robot's case, where further targets are searched most), in one run."""
+    single, multi = [], []
+    before = pipeline.max_targets
+    try:
+        for _ in range(max(1, repeat // 2)):
+            for limit, out in ((1, single), (k, multi)):
+                pipeline.set_max_targets(limit)
+                for f in frames:
+                    out.append(pipeline.process(f, None, timed=True).timings_us["end_to_end"])
+    finally:
+        pipeline.set_max_targets(before)
+    one, many = float(np.median(single)), float(np.median(multi))
+    return {
+        "k": k,
+        "single_median_us": round(one, 2),
+        "k_median_us": round(many, 2),
+        "ratio": round(many / one, 3),
+    }
 
 
 def _onnx_scoring(profile) -> dict | None:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
+from spiel_edge.measure.scenes import SceneTally
 from spiel_edge.pipeline.echo_labels import (
     AssociationScore,
     expected_toa,
@@ -37,9 +38,11 @@ class Evaluation:
     fixes_seen3: dict[float, int] = field(default_factory=dict)
     association: AssociationScore = field(default_factory=AssociationScore)
     failed: list[str] = field(default_factory=list)
+    scenes: SceneTally = field(default_factory=SceneTally)
 
     def add(self, profile: Profile, result: Result, truth: np.ndarray) -> None:
         z = float(truth[2])
+        self.scenes.add(result, truth[None, :])
         self.frames[z] = self.frames.get(z, 0) + 1
         labels = label_echoes(result.features, result.counts, expected_toa(profile, truth))
         listening = profile.geometry.listening_mask()
@@ -82,6 +85,7 @@ class Evaluation:
             else None,
             "association_f1": round(self.association.f1, 4) if self.association.channels else None,
             "failed_inputs": len(self.failed),
+            "by_targets": self.scenes.summary(),
             "by_height": {f"{z:g}": stats([z]) for z in heights},
         }
 

@@ -98,10 +98,12 @@ class GeometricAssociator:
         counts: np.ndarray,
         allowed: np.ndarray | None = None,
         bonus_mm: np.ndarray | None = None,
+        min_channels: int | None = None,
     ):
         """Best combination as ``(matched, cost)``; ``allowed`` (channels, max_echoes) bool
         restricts the search, ``bonus_mm`` (channels, max_echoes) lowers the cost of
-        combinations by the mean bonus of their echoes (both used by the learned associator)."""
+        combinations by the mean bonus of their echoes (both used by the learned associator);
+        ``min_channels`` overrides the profile's (the scene stage asks more of extra targets)."""
         features = np.asarray(features, dtype=np.float64)
         counts = np.ascontiguousarray(counts, dtype=np.int64)
         if (
@@ -136,7 +138,7 @@ class GeometricAssociator:
             self.facing,
             self.max_path_diff,
             weights,
-            self.min_channels,
+            self.min_channels if min_channels is None else max(3, int(min_channels)),
             matched,
         )
         if self.anchors is None:

@@ -208,6 +208,11 @@ class OnnxAssociator:
         score, embedding = self.session.run(list(OUTPUTS), {INPUT_NAME: x})
         return rows, score[:, 0], embedding
 
+    def bonus(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
+        """The score prior as a (channels, max_echoes) cost bonus in mm (the scene stage)."""
+        rows, score, _ = self.score(features, counts)
+        return score_bonus(np.shape(features)[:2], rows, score, self.score_weight_mm)
+
     def __call__(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
         rows, score, embedding = self.score(features, counts)
         if self.mode == "prior":

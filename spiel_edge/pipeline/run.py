@@ -17,7 +17,10 @@ from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.locate import locate
 from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
-from spiel_edge.profile.schema import Profile
+from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
+from spiel_edge.pipeline.static_scene import load_static_model
+from spiel_edge.pipeline.uncertainty import _covariance_kernel
+from spiel_edge.profile.schema import MAX_TARGETS_LIMIT, Profile
 
 log = logging.getLogger(__name__)
 
@@ -88,16 +91,39 @@ class Pipeline:
     """preprocess -> detect -> memg -> features -> associate -> locate for one profile."""
 
     def __init__(
-        self, profile: Profile, associator: Associator | None = None, *, saturation: float = 65535.0
+        self,
+        profile: Profile,
+        associator: Associator | None = None,
+        *,
+        saturation: float = 65535.0,
+        max_targets: int | None = None,
     ):
         self.profile = profile
         self.associator = associator or GeometricAssociator(profile)
+        self.set_max_targets(profile.scene.max_targets if max_targets is None else max_targets)
+        self.static_model = load_static_model(profile)  # stands in for a missing background
         self.saturation = saturation  # full scale of the board's samples (u16 envelopes)
         g = profile.geometry
         self._channels = np.ascontiguousarray(g.channels_mm, dtype=np.float64)
         self._emitter = np.ascontiguousarray(g.emitter_mm, dtype=np.float64)
         self._facing = np.ascontiguousarray(g.facing, dtype=np.float64)
         self._delays = g.delays()
+
+    def set_max_targets(self, k: int) -> None:
+        """Report up to ``k`` targets per acquisition (1 .. MAX_TARGETS_LIMIT)."""
+        if not (isinstance(k, int | np.integer) and 1 <= k <= MAX_TARGETS_LIMIT):
+            raise InputError(
+                f"max_targets must be an integer in [1, {MAX_TARGETS_LIMIT}], got {k!r}"
+            )
+        self.max_targets = int(k)
+        sc = self.profile.scene
+        self.scene = SceneAssociator(
+            self.associator,
+            self.max_targets,
+            sc.max_cost_mm,
+            sc.share_penalty_mm,
+            sc.extra_min_channels,
+        )
 
     def check_shape(self, frames: np.ndarray, what: str = "frames") -> None:
         n_ch, n_t = self.profile.geometry.n_channels, self.profile.acquisition.n_samples
@@ -119,6 +145,8 @@ class Pipeline:
         acq = p.acquisition
         if not p.preprocess.background_subtraction:
             background = None
+        elif background is None:
+            background = self.static_model
         y = preprocess(
             frames,
             background,
@@ -143,9 +171,9 @@ class Pipeline:
         t3 = clock()
         feats = echo_features(y, params, peaks, p.memg.toa)
         t4 = clock()
-        matched = self.associator(feats, counts)
+        hypotheses = self.scene(feats, counts)
         t5 = clock()
-        result = self._locate(feats, counts, matched, np.asarray(frames), background)
+        result = self._locate(feats, counts, hypotheses, np.asarray(frames), background)
         t6 = clock()
         if timed:
             stamps = (t0, t1, t2, t3, t4, t5, t6)
@@ -157,17 +185,80 @@ class Pipeline:
         self,
         feats: np.ndarray,
         counts: np.ndarray,
-        matched: np.ndarray,
+        hypotheses: list,
         raw: np.ndarray,
         background: np.ndarray | None,
     ) -> Result:
         toa = feats[:, :, TOA_COLUMN]
         echoes = [[float(v) for v in toa[c, : counts[c]]] for c in range(len(counts))]
-        match_list = [int(m) if m >= 0 else None for m in matched]
-        base = {"echoes": echoes, "matched": match_list, "features": feats, "counts": counts}
+        first = hypotheses[0][0]
+        base = {"features": feats, "counts": counts}
+        targets = self._targets(feats, hypotheses, raw, background)
+        if not targets:
+            match_list = [int(m) if m >= 0 else None for m in first]
+            reason = (
+                REASON_SOLVE_FAILED if (first >= 0).sum() >= 3 else self._why_empty(raw, counts)
+            )
+            return Result(None, reason, None, echoes, match_list, **base)
+        best = targets[0]
+        return Result(
+            best.position_mm, None, best.residual_mm, echoes, best.matched, targets=targets, **base
+        )
+
+    def _targets(self, feats, hypotheses, raw, background) -> list[Target]:
+        """Locate every hypothesis; share echoes where two targets sit at one range; drop
+        double reflections and failed solves (docs/scene.md)."""
+        sc, g = self.profile.scene, self.profile.geometry
+        paths_all = (feats[:, :, TOA_COLUMN] - self._delays[:, None]) * self.profile.mm_per_sample
+        taken = np.zeros(paths_all.shape, dtype=np.bool_)
+        for matched, _ in hypotheses:
+            taken[np.flatnonzero(matched >= 0), matched[matched >= 0]] = True
+        out: list[tuple[Target, np.ndarray]] = []
+        for i, (matched, cost) in enumerate(hypotheses):
+            located = self._target(feats, matched, cost, raw, background)
+            if located is None:
+                continue
+            if i > 0 and (matched < 0).any():
+                more = shared_echoes(
+                    matched,
+                    located[0].position_mm,
+                    paths_all,
+                    taken,
+                    self._channels,
+                    self._emitter,
+                    g.listening_mask(),
+                    sc.share_tolerance_mm,
+                )
+                if (more != matched).any():
+                    located = self._target(feats, more, cost, raw, background) or located
+            target, paths = located
+            if any(
+                np.linalg.norm(target.position_mm - other.position_mm) < sc.min_separation_mm
+                for other, _ in out
+            ):
+                continue  # the same target again, from a partly different echo combination
+            if any(
+                is_double_reflection(
+                    paths,
+                    other_paths,
+                    other.position_mm,
+                    self._emitter,
+                    self._facing,
+                    sc.double_tolerance_mm,
+                )
+                for other, other_paths in out
+            ):
+                continue
+            out.append((target, paths))
+        return [t for t, _ in out]
+
+    def _target(self, feats, matched, cost, raw, background) -> tuple[Target, np.ndarray] | None:
+        """One target from its matched echoes (a per-target ToA refinement slots in here,
+        before echo_quality), with its covariance; None when the solve fails."""
         use = matched >= 0
         if use.sum() < 3:
-            return Result(None, self._why_empty(raw, counts), None, **base)
+            return None
+        toa = feats[:, :, TOA_COLUMN]
         rows = np.arange(len(matched)), np.maximum(matched, 0)
         picked = np.where(use, toa[rows], np.nan)
         weights, shift = echo_quality(
@@ -178,8 +269,24 @@ class Pipeline:
             paths, self._channels, self._emitter, self._facing, use, weights=weights
         )
         if not ok:
-            return Result(None, REASON_SOLVE_FAILED, None, **base)
-        return Result(pos, None, rms, **base)
+            return None
+        sigma_mm = self.profile.mm_per_sample / weights
+        cov = np.empty((3, 3))  # arrays checked above: the kernel directly (hot path)
+        sc = self.profile.scene
+        _covariance_kernel(
+            pos,
+            paths,
+            sigma_mm,
+            use & np.isfinite(paths),
+            self._channels,
+            self._emitter,
+            sc.covariance_scale,
+            sc.covariance_floor_mm,
+            cov,
+        )
+        match_list = [int(m) if m >= 0 else None for m in matched]
+        score = -cost if np.isfinite(cost) else 0.0
+        return Target(pos, cov, rms, match_list, score), paths
 
     def _why_empty(self, raw: np.ndarray, counts: np.ndarray) -> str:
         if raw.size and np.mean(raw >= self.saturation) > 0.5:

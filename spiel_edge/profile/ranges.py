@@ -14,6 +14,16 @@ RANGES: dict[str, tuple[float, float]] = {
     "detect.max_echoes": (1, 16),
     "memg.max_iterations": (1, 200),
     "memg.mu_window": (0.5, 20.0),
+    "scene.max_targets": (1, 16),
+    "scene.max_cost_mm": (-1000.0, 1000.0),
+    "scene.share_penalty_mm": (0.0, 1000.0),
+    "scene.extra_min_channels": (3, 64),
+    "scene.share_tolerance_mm": (0.0, 100.0),
+    "scene.min_separation_mm": (0.0, 1000.0),
+    "scene.double_tolerance_mm": (0.0, 100.0),
+    "scene.covariance_scale": (0.01, 100.0),
+    "scene.covariance_floor_mm": (0.0, 1000.0),
+    "scene.static_mad_factor": (0.0, 10.0),
 }
 
 

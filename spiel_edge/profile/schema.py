@@ -108,6 +108,26 @@ class LocateSpec:
 
 
 @dataclass(frozen=True)
+class SceneSpec:
+    """Several targets per acquisition and their uncertainty; see docs/scene.md."""
+
+    max_targets: int = 1
+    max_cost_mm: float = 0.0  # a further target needs an association cost <= this
+    share_penalty_mm: float = 40.0  # cost of reusing an echo another target took
+    extra_min_channels: int = 3  # channels a further target must use (capped at the listening)
+    share_tolerance_mm: float = 6.0  # two targets share an echo within this of the prediction
+    min_separation_mm: float = 25.0  # a target nearer than this to a better one is dropped
+    double_tolerance_mm: float = 20.0  # target -> board -> target paths within this are dropped
+    covariance_scale: float = 1.0  # scales the linearised covariance's standard deviations
+    covariance_floor_mm: float = 0.0  # std added in every direction (unmodelled errors)
+    static_model: str = ""  # file in spiel_edge/models (or a path): used without a background
+    static_mad_factor: float = 0.0  # stand-in background = median + this x MAD of the model
+
+
+MAX_TARGETS_LIMIT = 16  # also in profile/ranges.py (scene.max_targets)
+
+
+@dataclass(frozen=True)
 class Profile:
     name: str
     geometry: Geometry
@@ -117,6 +137,7 @@ class Profile:
     memg: MemgSpec = MemgSpec()
     associate: AssociateSpec = AssociateSpec()
     locate: LocateSpec = LocateSpec()
+    scene: SceneSpec = SceneSpec()
     description: str = ""
 
     @property
@@ -135,6 +156,7 @@ _SECTIONS = {
     "memg": MemgSpec,
     "associate": AssociateSpec,
     "locate": LocateSpec,
+    "scene": SceneSpec,
 }
 _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
@@ -362,6 +384,13 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
         abs(loc.toa_shift_background_after) <= 5 and abs(loc.toa_shift_background_before) <= 5,
         "locate.toa_shift_background_after/before must be in [-5, 5] samples",
     )
+    _validate_scene(p.scene, origin)
+
+
+def _validate_scene(sc: SceneSpec, origin: str) -> None:
+    for f in dataclasses.fields(SceneSpec):
+        if f.name != "static_model":
+            check_range(f"scene.{f.name}", getattr(sc, f.name), origin)
 
 
 def profile_to_dict(p: Profile) -> dict[str, Any]:

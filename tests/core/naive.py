@@ -108,3 +108,21 @@ def brute_force_association(
         if cost < best_cost:
             best, best_cost = choice, cost
     return best, best_cost
+
+
+def position_covariance(position, paths_mm, sigma_mm, use, channels, emitter, scale, floor_mm):
+    """Covariance by a finite-difference Jacobian and a plain inverse (uncertainty.py)."""
+    p = np.asarray(position, float)
+
+    def model(q):
+        return np.linalg.norm(q - emitter) + np.linalg.norm(q - channels, axis=1)
+
+    jac = np.array([(model(p + h) - model(p - h)) / 2e-4 for h in np.eye(3) * 1e-4]).T[use]
+    w = 1.0 / np.asarray(sigma_mm)[use] ** 2
+    info = jac.T @ (w[:, None] * jac) + np.eye(3) / 2000.0**2
+    n = int(use.sum())
+    inflation = 1.0
+    if n > 3:
+        r = model(p)[use] - np.asarray(paths_mm)[use]
+        inflation = min(max(float((w * r * r).sum()) / (n - 3), 1.0), 100.0)
+    return scale**2 * inflation * np.linalg.inv(info) + floor_mm**2 * np.eye(3)

@@ -1,0 +1,148 @@
+"""Scene stage: up to K targets per acquisition from one multi-hypothesis association.
+
+Greedy hypothesise-and-verify over all channels' echoes (docs/scene.md):
+
+1. The best consistent echo combination (the associator's own search: geometric cost with the
+   learned score prior when the model is loaded) is the first target, exactly as with K = 1.
+2. Its echoes are removed and the search runs again on the rest; a combination becomes a
+   further target while its cost (the associator's cost: rms residual + missing-channel
+   penalty - strength and score bonus + range term, lower is better) is at most
+   ``[scene] max_cost_mm`` and it uses at least ``extra_min_channels`` channels (on
+   spiel-icra23 most 3-channel extra combinations are ghosts: 3 paths always intersect,
+   while 4 must agree). At most K searches run, each bounded by the associator's
+   MAX_SOLVES located combinations, so an acquisition with hundreds of echo candidates
+   (``detect.max_echoes`` <= 16 per channel) costs at most K * MAX_SOLVES solves.
+3. After locating (:func:`shared_echoes`): a target that lacks a channel takes an echo
+   already used by another target when that echo lies within ``share_tolerance_mm`` of the
+   path its position predicts: two targets at nearly one range on a channel share the echo.
+4. :func:`is_double_reflection`: a target whose paths are another (nearer) target's paths
+   plus twice that target's distance from the board plane (target -> board -> target) is that
+   target's double reflection, not a target; it is dropped.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class SceneAssociator:
+    """``(features, counts) -> [(matched, cost), ...]``: best first, at most ``max_targets``."""
+
+    def __init__(
+        self,
+        associator,
+        max_targets: int,
+        max_cost_mm: float,
+        share_penalty_mm: float = 40.0,
+        extra_min_channels: int = 3,
+    ):
+        self.associator = associator
+        self.geometric = getattr(associator, "geometric", associator)
+        self.max_targets = int(max_targets)
+        self.max_cost_mm = float(max_cost_mm)
+        self.share_penalty_mm = float(share_penalty_mm)
+        listening = getattr(self.geometric, "listening", None)
+        n_listening = 3 if listening is None else int(np.sum(listening))
+        self.extra_min_channels = max(3, min(int(extra_min_channels), n_listening))
+
+    def _bonus(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
+        """The learned score prior as a per-echo cost bonus (None for geometric association)."""
+        if not hasattr(self.associator, "bonus") or getattr(self.associator, "mode", "") != "prior":
+            return None
+        return self.associator.bonus(features, counts)
+
+    def first(self, features: np.ndarray, counts: np.ndarray, bonus) -> tuple[np.ndarray, float]:
+        if hasattr(self.associator, "candidates") or bonus is not None:
+            return self.geometric.candidates(features, counts, bonus_mm=bonus)
+        return np.asarray(self.associator(features, counts)), math.nan
+
+    def __call__(self, features: np.ndarray, counts: np.ndarray):
+        reference_mode = hasattr(self.associator, "bonus") and self.associator.mode != "prior"
+        bonus = None if reference_mode else self._bonus(features, counts)
+        if reference_mode:
+            hyps = [(np.asarray(self.associator(features, counts)), math.nan)]
+        else:
+            hyps = [self.first(features, counts, bonus)]
+        if (
+            self.max_targets == 1
+            or (hyps[0][0] < 0).all()
+            or not hasattr(self.geometric, "candidates")
+        ):
+            return hyps
+        used = np.zeros(np.shape(features)[:2], dtype=np.bool_)
+        _mark(used, hyps[0][0])
+        base = np.zeros(used.shape) if bonus is None else bonus
+        for _ in range(self.max_targets - 1):
+            # echoes already taken stay available (two targets at one range share an echo)
+            # but cost share_penalty_mm each (spread over the combination's channels)
+            matched, cost = self.geometric.candidates(
+                features,
+                counts,
+                None,
+                base - self.share_penalty_mm * used,
+                min_channels=self.extra_min_channels,
+            )
+            if (
+                not math.isfinite(cost)
+                or cost > self.max_cost_mm
+                or (matched < 0).all()
+                or any((matched == m).all() for m, _ in hyps)
+            ):
+                break
+            hyps.append((matched, cost))
+            _mark(used, matched)
+        return hyps
+
+
+def _mark(used: np.ndarray, matched: np.ndarray) -> None:
+    for c, k in enumerate(matched):
+        if k >= 0:
+            used[c, k] = True
+
+
+def predicted_paths(position_mm: np.ndarray, channels_mm: np.ndarray, emitter_mm: np.ndarray):
+    """Echo path (mm) per channel of a point target."""
+    p = np.asarray(position_mm, dtype=np.float64)
+    return np.linalg.norm(p - emitter_mm) + np.linalg.norm(p - channels_mm, axis=1)
+
+
+def shared_echoes(
+    matched: np.ndarray,
+    position_mm: np.ndarray,
+    paths_mm: np.ndarray,
+    taken: np.ndarray,
+    channels_mm: np.ndarray,
+    emitter_mm: np.ndarray,
+    listening: np.ndarray,
+    tolerance_mm: float,
+) -> np.ndarray:
+    """``matched`` plus, on each listening channel it leaves out, the already taken echo
+    (``taken`` (channels, max_echoes) bool) nearest the predicted path, if within tolerance."""
+    out = np.array(matched, dtype=np.int64)
+    pred = predicted_paths(position_mm, channels_mm, emitter_mm)
+    for c in np.flatnonzero((out < 0) & listening):
+        err = np.where(taken[c] & np.isfinite(paths_mm[c]), np.abs(paths_mm[c] - pred[c]), np.inf)
+        k = int(np.argmin(err)) if err.size else -1
+        if k >= 0 and err[k] <= tolerance_mm:
+            out[c] = k
+    return out
+
+
+def is_double_reflection(
+    paths_mm: np.ndarray,
+    other_paths_mm: np.ndarray,
+    other_position_mm: np.ndarray,
+    emitter_mm: np.ndarray,
+    facing: np.ndarray,
+    tolerance_mm: float,
+) -> bool:
+    """True when every used path (finite entries of ``paths_mm``) is the other target's path
+    plus twice its distance from the board plane, within ``tolerance_mm``."""
+    height = float(np.dot(np.asarray(other_position_mm) - emitter_mm, facing))
+    used = np.isfinite(paths_mm) & np.isfinite(other_paths_mm)
+    if used.sum() < 3 or height <= 0:
+        return False
+    gap = paths_mm[used] - (other_paths_mm[used] + 2.0 * height)
+    return bool(np.all(np.abs(gap) <= tolerance_mm))
