@@ -17,6 +17,7 @@ import click
 
 from spiel_edge import __version__
 from spiel_edge.errors import SpielError
+from spiel_edge.io.guard import shorten
 
 EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
 
@@ -48,6 +49,7 @@ COMMANDS = {
     "doctor": "Check what the service needs; print a fix for each problem.",
     "evaluate": "3-D error, fix rate, association accuracy against ground truth.",
     "profile": "Device profiles: geometry, timing and pipeline tuning as TOML.",
+    "recover": "Rewrite a damaged or unfinalized recording into a valid one.",
     "replay": "Run the pipeline over recordings; one NDJSON record each.",
     "run": "Stream from the board and write one record per acquisition.",
     "service": "The systemd service kit: unit, user, udev rule, config.",
@@ -83,19 +85,83 @@ def cli(verbose: int) -> None:
     setup_logging(verbose)
 
 
+BUG_HINT = (
+    "this is a bug in spiel-edge: please report it with the command line and the output of "
+    "the same command run with `spiel-edge -vv ...`"
+)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point; returns the exit status (0 ok, 1 some inputs failed, 2 error)."""
+    """Console entry point; returns the exit status (0 ok, 1 some inputs failed, 2 error).
+
+    No traceback reaches a user: anything unexpected is one line, a bug-report hint and
+    status 2 (the traceback only with ``-vv``)."""
+    args = sys.argv[1:] if argv is None else list(argv)
     try:
-        result = cli.main(args=argv, prog_name="spiel-edge", standalone_mode=False)
+        result = cli.main(args=args, prog_name="spiel-edge", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("aborted", err=True)
         return 130
     except click.ClickException as exc:
         exc.show()
+        return EXIT_ERROR if exc.exit_code == 1 else exc.exit_code
+    except click.exceptions.Exit as exc:
         return exc.exit_code
     except SpielError as exc:
-        click.echo(f"error: {exc}", err=True)
+        _error(f"error: {exc}", args, exc)
         return EXIT_ERROR
     except KeyboardInterrupt:
         return 130
-    return int(result or 0)
+    except BrokenPipeError:  # the reader of stdout went away (| head): a normal end
+        _silence_stdout()
+        return EXIT_OK
+    except OSError as exc:  # a disk that filled up, a folder that went away, ...
+        where = f": {shorten(exc.filename)}" if getattr(exc, "filename", None) else ""
+        _error(f"error: {exc.strerror or exc}{where}", args, exc)
+        return EXIT_ERROR
+    except MemoryError as exc:
+        _error("error: out of memory", args, exc)
+        return EXIT_ERROR
+    except Exception as exc:  # the last resort: a bug
+        _error(f"internal error: {type(exc).__name__}: {shorten(exc, 200)}", args, exc)
+        click.echo(BUG_HINT, err=True)
+        return EXIT_ERROR
+    return _status(result)
+
+
+def _status(result: object) -> int:
+    return result if isinstance(result, int) and 0 <= result <= 255 else EXIT_OK
+
+
+def _error(line: str, args: list[str], exc: BaseException) -> None:
+    try:
+        click.echo(line, err=True)
+        if _verbosity(args) >= 2:
+            import traceback
+
+            traceback.print_exception(exc, file=sys.stderr)
+    except (OSError, ValueError):  # stderr itself is gone: nothing more can be said
+        pass
+
+
+def _verbosity(args: list[str]) -> int:
+    """-v/-vv/--verbose given before the command (counted here: the group may not have run)."""
+    count = 0
+    for arg in args:
+        if arg == "--verbose":
+            count += 1
+        elif arg.startswith("-") and not arg.startswith("--") and set(arg[1:]) == {"v"}:
+            count += len(arg) - 1
+        elif not arg.startswith("-"):
+            break
+    return count
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's last flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
