@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import stat
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -29,7 +30,7 @@ log = logging.getLogger(__name__)
 ACQUISITION_TOPIC = "/spiel/acquisition"
 BACKGROUND_TOPIC = "/spiel/background"
 POSITION_TOPIC = "/spiel/position"
-KEEP_BACKGROUNDS = 8  # backgrounds remembered by sequence number
+KEEP_BACKGROUNDS = 8  # distinct backgrounds remembered, by the CRC-32 of their message
 
 
 def iter_mcap_recordings(
@@ -109,7 +110,7 @@ def _recordings(scanner: McapScanner, name: str, limits: InputLimits) -> Iterato
         topic = topic_of(msg)
         if topic == BACKGROUND_TOPIC:
             current = _background_of(msg, limits)
-            backgrounds[msg.sequence] = current
+            backgrounds[zlib.crc32(msg.data)] = current
             while len(backgrounds) > KEEP_BACKGROUNDS:
                 backgrounds.pop(next(iter(backgrounds)))
         elif topic == ACQUISITION_TOPIC:
@@ -152,9 +153,9 @@ def _recording(
     except (ValueError, TypeError, KeyError, OverflowError) as exc:
         return Recording(source, None, None, f"{source}: bad acquisition message: {shorten(exc)}")
     background = current
-    wanted = payload.get("background_seq")
+    wanted = payload.get("background_crc")
     if isinstance(wanted, int):  # written since the background is repeated: find that one
-        background = backgrounds.get(wanted, f"its background (message {wanted}) was not found")
+        background = backgrounds.get(wanted, f"its background (CRC {wanted:#010x}) was lost")
     if isinstance(background, str):
         return Recording(source, None, None, f"{source}: {background}")
     if not np.all(np.isfinite(frames)):

@@ -6,7 +6,7 @@ Channels (message encoding ``json``, schemas ``jsonschema``, so Foxglove opens t
 * ``/spiel/acquisition``: one raw acquisition (``frames``: channels x samples) plus the
   acquisition's metadata (``seq``, timestamps, ...);
 * ``/spiel/background``: the target-free capture, written when it changes (and again every
-  16 acquisitions, each acquisition naming its ``background_seq``); it applies to the
+  16 acquisitions; each acquisition names its ``background_crc``, the CRC-32 of that message); it applies to the
   acquisitions that follow it;
 * ``/spiel/position``: one pipeline record per acquisition.
 
@@ -21,6 +21,7 @@ import json
 import logging
 import threading
 import time
+import zlib
 from pathlib import Path
 from typing import IO, Any
 
@@ -110,7 +111,8 @@ class McapSink:
         )
         self._sequence = 0
         self._background: np.ndarray | None = None
-        self._background_seq = -1
+        self._background_crc = 0
+        self._background_chunk = -1
         self._lock = threading.RLock()  # close() may come from the signal watchdog
         self.owns_file = True
         self._since_background = 0
@@ -131,26 +133,38 @@ class McapSink:
         if background is not None and (
             self._background is None
             or self._since_background >= BACKGROUND_EVERY
+            or self._chunks_written() != self._background_chunk
             or not np.array_equal(background, self._background)
         ):
             self._background = np.array(background, copy=True)
-            self._background_seq = self._sequence
             self._since_background = 0
-            self._add(BACKGROUND_TOPIC, {"frames": _samples(self._background)}, stamp)
+            data = _dumps({"frames": _samples(self._background)})
+            self._background_crc = zlib.crc32(data)
+            self._add(BACKGROUND_TOPIC, data, stamp)
+            self._background_chunk = self._chunks_written()
         if background is not None:
-            meta["background_seq"] = self._background_seq  # which one applies, for replay
+            # which background applies, by content: replay finds it even when the message
+            # written just before was lost to damage (an identical earlier one serves)
+            meta["background_crc"] = self._background_crc
             self._since_background += 1
         self._add(ACQUISITION_TOPIC, {**meta, "frames": _samples(np.asarray(frames))}, stamp)
         self.counts["acquisitions"] += 1
+
+    def _chunks_written(self) -> int:
+        """Chunks the writer has finished: a new one starts with the background again, so a
+        damaged chunk costs only its own acquisitions (the mcap Writer does not expose this
+        count; without it the background is still repeated every BACKGROUND_EVERY)."""
+        stats = getattr(self._writer, "_Writer__statistics", None)
+        return getattr(stats, "chunk_count", 0)
 
     def write(self, record: dict) -> None:
         self._add(POSITION_TOPIC, record, _stamp(record))
         self.counts["records"] += 1
 
-    def _add(self, topic: str, payload: dict, stamp: int) -> None:
+    def _add(self, topic: str, payload: dict | bytes, stamp: int) -> None:
         if self.closed:
             raise ValueError(f"{self.path}: recording already closed")
-        data = _dumps(payload)
+        data = payload if isinstance(payload, bytes) else _dumps(payload)
         now = time.time_ns()
         with self._lock:  # close() may run in the signal watchdog meanwhile
             if self.closed:
