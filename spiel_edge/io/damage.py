@@ -54,4 +54,6 @@ def sample_offsets(size: int, n: int, seed: int = 0, start: int = 8) -> list[int
     """``n`` distinct offsets spread over the file (stratified, so every region is hit)."""
     rng = np.random.default_rng(seed)
     edges = np.linspace(start, size, n + 1)
-    return sorted({int(rng.uniform(lo, hi)) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo})
+    return sorted(
+        {int(rng.uniform(lo, hi)) for lo, hi in zip(edges[:-1], edges[1:], strict=True) if hi > lo}
+    )
