@@ -139,7 +139,8 @@ def open_exclusive(path: str | Path, force: bool, text: bool = False) -> IO:
     """Open ``path`` for writing; without ``force`` it must not exist (checked atomically,
     so a file that appeared since the checks is not overwritten either)."""
     path = Path(path)
-    mode = ("w" if force else "x") + ("" if text else "b")
+    special = path.exists() and not path.is_file()  # /dev/null, a FIFO: nothing to destroy
+    mode = ("w" if force or special else "x") + ("" if text else "b")
     try:
         return open(path, mode, **({"encoding": "utf-8"} if text else {}))  # noqa: SIM115
     except FileExistsError as exc:
