@@ -42,6 +42,7 @@ from spiel_edge.profile.schema import resolve_profile
 )
 @click.option(
     "--val-fraction",
+    type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
     default=0.3,
     show_default=True,
     help="Share of (x, y) positions in the validation split.",
