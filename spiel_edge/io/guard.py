@@ -180,3 +180,32 @@ class AtomicTextFile:
             self.fh.close()
         with contextlib.suppress(OSError):
             os.unlink(self._tmp)
+
+
+MAX_CONFIG_BYTES = 1 << 20  # a profile, calibration or board config is a few kB
+
+
+def read_config_text(path: str | Path, what: str) -> str:
+    """A small text file (profile, calibration, config): regular, at most MAX_CONFIG_BYTES,
+    UTF-8; ConfigError naming the file otherwise (never blocks on a FIFO)."""
+    path = Path(path)
+    shown = shorten(path)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise ConfigError(f"{shown}: {what} file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{shown}: cannot read {what}: {exc.strerror}") from None
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ConfigError(f"{shown}: {what} is not a regular file")
+        try:
+            data = fh.read(MAX_CONFIG_BYTES + 1)
+        except OSError as exc:
+            raise ConfigError(f"{shown}: cannot read {what}: {exc.strerror}") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{shown}: {what} larger than {MAX_CONFIG_BYTES} bytes")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"{shown}: {what} is not UTF-8 text") from None
