@@ -8,6 +8,7 @@ maps SpielError to a one-line message and exit status 2.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 import os
@@ -17,7 +18,7 @@ import click
 
 from spiel_edge import __version__
 from spiel_edge.errors import SpielError
-from spiel_edge.io.guard import shorten
+from spiel_edge.io.guard import shorten, shorten_tokens
 
 EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
 
@@ -35,8 +36,19 @@ def setup_logging(verbosity: int) -> None:
         else "%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     logging.basicConfig(level=max(level, logging.DEBUG), format=fmt, stream=sys.stderr, force=True)
+    handler = logging.getLogger().handlers[0]
     if stderr_is_journal():
-        logging.getLogger().handlers[0].setFormatter(JournalFormatter())
+        handler.setFormatter(JournalFormatter())
+    handler.addFilter(_shorten_record)
+
+
+def _shorten_record(record: logging.LogRecord) -> bool:
+    """No log line carries a huge token (a 10 MB argument echoed by some message)."""
+    message = record.getMessage()
+    short = shorten_tokens(message)
+    if short != message:
+        record.msg, record.args = short, None
+    return True
 
 
 # name -> one-line help; the module spiel_edge.cli.<name> holds ``command``. A test checks
@@ -105,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         click.echo("aborted", err=True)
         return 130
     except click.ClickException as exc:
-        exc.show()
+        _show_click(exc)
         return EXIT_ERROR if exc.exit_code == 1 else exc.exit_code
     except click.exceptions.Exit as exc:
         return exc.exit_code
@@ -135,9 +147,18 @@ def _status(result: object) -> int:
     return result if isinstance(result, int) and 0 <= result <= 255 else EXIT_OK
 
 
+def _show_click(exc: click.ClickException) -> None:
+    import io
+
+    buffer = io.StringIO()
+    exc.show(file=buffer)
+    with contextlib.suppress(OSError, ValueError):  # stderr itself may be gone
+        click.echo(shorten_tokens(buffer.getvalue()), err=True, nl=False)
+
+
 def _error(line: str, args: list[str], exc: BaseException) -> None:
     try:
-        click.echo(line, err=True)
+        click.echo(shorten_tokens(line), err=True)
         if _verbosity(args) >= 2:
             import traceback
 

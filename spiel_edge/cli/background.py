@@ -28,7 +28,7 @@ from spiel_edge.runtime.background import median_background, save_background
 @click.option(
     "--samples",
     "n_samples",
-    type=click.IntRange(min=0),
+    type=click.IntRange(0, 4096),
     default=0,
     help="Samples per channel to ask for (0: the board's default).",
 )

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -30,6 +31,15 @@ def shorten(text: object, limit: int = MAX_SHOWN) -> str:
     echoed back)."""
     text = str(text)
     return text if len(text) <= limit else f"{text[: limit - 20]}... ({len(text)} characters)"
+
+
+_LONG_TOKEN = re.compile(rf"\S{{{MAX_SHOWN + 1},}}")
+
+
+def shorten_tokens(text: str) -> str:
+    """Every over-long word of ``text`` shortened: a message or log line never carries a
+    10 MB token back to the user, whatever raised it."""
+    return _LONG_TOKEN.sub(lambda m: shorten(m.group()), text)
 
 
 def _key(path: Path) -> Path:
