@@ -23,6 +23,7 @@ from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
+from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.loop import LiveRunner, check_stream_shape, load_background, open_pipeline
 from spiel_edge.service.systemd import Notifier
 
@@ -124,6 +125,7 @@ def command(
         if path:
             plan.input_file(path, option)
     record = check_outputs(plan, output, record)
+    resolve_profile(profile_name, calibration)  # a bad profile or calibration: before the board
     fixed_background = load_background(background) if background else None
     port = board_port(port)
     if show_status is None:

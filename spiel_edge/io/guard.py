@@ -125,6 +125,10 @@ def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
     """Write to a temporary file beside ``path`` and rename it into place only when the block
     succeeds; on any failure the temporary file goes and ``path`` is untouched."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # /dev/null, a FIFO: no file to replace
+        with open(path, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as fh:
+            yield fh
+        return
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:40]}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as fh:

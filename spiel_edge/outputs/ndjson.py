@@ -20,7 +20,7 @@ class NdjsonSink:
         self._atomic: AtomicTextFile | None = None
         if not self.owns_file:
             self._fh: TextIO = sys.stdout
-        elif atomic:
+        elif atomic and not (Path(target).exists() and not Path(target).is_file()):
             self._atomic = AtomicTextFile(target)
             self._fh = self._atomic.fh
         elif exclusive:
