@@ -148,7 +148,7 @@ class McapScanner:
             block = self._read(pos, WINDOW + 64)
             at = block.find(bytes([OP_CHUNK]))
             while 0 <= at < min(len(block), WINDOW):
-                if self._plausible_chunk(pos + at):
+                if self._plausible_chunk(block[at : at + _HEAD.size + _CHUNK.size]):
                     self.report.skipped_bytes += pos + at - start
                     return pos + at
                 at = block.find(bytes([OP_CHUNK]), at + 1)
@@ -156,8 +156,8 @@ class McapScanner:
         self.report.skipped_bytes += self.size - start
         return self.size
 
-    def _plausible_chunk(self, pos: int) -> bool:
-        head = self._read(pos, _HEAD.size + _CHUNK.size + 8)
+    def _plausible_chunk(self, head: bytes) -> bool:
+        """Whether ``head`` (bytes from a 0x06) reads as a chunk header within the limits."""
         if len(head) < _HEAD.size + _CHUNK.size:
             return False
         _op, length = _HEAD.unpack_from(head)
