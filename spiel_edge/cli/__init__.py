@@ -69,6 +69,10 @@ COMMANDS = {
 }
 
 
+class ReaderGone(Exception):
+    """The reader of stdout went away (``| head``): a normal end, status 0."""
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported when they run, not when the CLI starts."""
 
@@ -81,6 +85,12 @@ class LazyGroup(click.Group):
         from spiel_edge.cli._types import harden_command
 
         return harden_command(importlib.import_module(f"{__name__}.{name}").command)
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError as exc:  # click would turn it into a silent exit status 1
+            raise ReaderGone from exc
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         rows = [(name, COMMANDS[name]) for name in self.list_commands(ctx)]
@@ -126,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_ERROR
     except KeyboardInterrupt:
         return 130
-    except BrokenPipeError:  # the reader of stdout went away (| head): a normal end
+    except (BrokenPipeError, ReaderGone):  # the reader of stdout went away (| head)
         _silence_stdout()
         return EXIT_OK
     except OSError as exc:  # a disk that filled up, a folder that went away, ...

@@ -163,8 +163,8 @@ def _mcap_sink(path: Path, metadata: dict[str, Any] | None, exclusive: bool = Fa
 
     try:
         return McapSink(path, metadata=metadata, exclusive=exclusive)
-    except FileExistsError as exc:
-        raise ConfigError(f"--record {path}: exists; pass --force to overwrite it") from exc
+    except ConfigError as exc:
+        raise ConfigError(f"--record {exc}") from exc
     except OSError as exc:
         raise ConfigError(f"--record {path}: cannot write: {exc.strerror or exc}") from exc
 

@@ -29,6 +29,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
+from spiel_edge.io.guard import open_exclusive
 from spiel_edge.io.mcap import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
 
 log = logging.getLogger(__name__)
@@ -92,7 +93,7 @@ class McapSink:
     ):
         self.path = Path(path)
         # exclusive: never replace a file that appeared since the command checked its outputs
-        self._fh: IO[bytes] = open(self.path, "xb" if exclusive else "wb")  # noqa: SIM115
+        self._fh: IO[bytes] = open_exclusive(self.path, force=not exclusive)
         self._writer = Writer(
             self._fh, chunk_size=chunk_size, compression=CompressionType[compression.upper()]
         )
