@@ -45,7 +45,8 @@ def command(port, count, rate, n_samples, output, force) -> int:
     FilePlan(force).output(output, "--output")  # before the capture, not after
     port = board_port(port)
     stop = threading.Event()
-    with stop_on_signals(stop), DeviceSession(port) as session:
+    # no reconnect: a board that goes away ends the capture with an error, never a silent wait
+    with stop_on_signals(stop), DeviceSession(port, reconnect=False) as session:
         session.start_stream(rate_hz=rate, n_samples=n_samples)
         with click.progressbar(length=count, label="capturing background", file=sys.stderr) as bar:
 
