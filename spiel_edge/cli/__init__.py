@@ -9,6 +9,7 @@ maps SpielError to a one-line message and exit status 2.
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import logging
 import os
@@ -121,6 +122,14 @@ def main(argv: list[str] | None = None) -> int:
     No traceback reaches a user: anything unexpected is one line, a bug-report hint and
     status 2 (the traceback only with ``-vv``)."""
     args = sys.argv[1:] if argv is None else list(argv)
+    try:
+        return _main(args)
+    finally:
+        if argv is None:  # the process ends now: skip the final garbage collection of numba's
+            gc.freeze()  # and scipy's objects (seconds on a loaded host; a stop must be quick)
+
+
+def _main(args: list[str]) -> int:
     try:
         result = cli.main(args=args, prog_name="spiel-edge", standalone_mode=False)
     except click.exceptions.Abort:
