@@ -29,7 +29,8 @@ class Finalizers:
     Each runs at most once, whoever calls first: the command on its normal way out, or the
     watchdog when the command is stuck."""
 
-    def __init__(self) -> None:
+    def __init__(self, exit_status: int = 0) -> None:
+        self.exit_status = exit_status  # the watchdog's, when they all succeed
         self._pending: list[Callable[[], None]] = []
         self._lock = threading.Lock()
 
@@ -91,7 +92,7 @@ def _watchdog(done: threading.Event, finalizers: Finalizers) -> None:
     if done.is_set():  # the command got unstuck meanwhile and ends by itself
         hard.cancel()
         return
-    os._exit(0 if ok else 2)
+    os._exit(finalizers.exit_status if ok else 2)
 
 
 @contextmanager

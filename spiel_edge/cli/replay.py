@@ -14,7 +14,8 @@ from spiel_edge.cli._options import (
     max_targets_option,
     profile_option,
 )
-from spiel_edge.cli._signals import stop_on_signals
+from spiel_edge.cli._signals import Finalizers, stop_on_signals
+from spiel_edge.errors import OutputError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.outputs.ndjson import NdjsonSink
@@ -69,8 +70,11 @@ def command(
     failed = total = 0
     stop = threading.Event()
     sink = NdjsonSink(output, atomic=True)
+    finalizers = Finalizers(exit_status=EXIT_PARTIAL)  # stuck on a blocked stdout: keep the
+    if sink.owns_file:  # complete lines written so far; the replay is incomplete (1)
+        finalizers.add(sink.close)
     try:
-        with stop_on_signals(stop):
+        with stop_on_signals(stop, finalizers):
             for item in replay(pipeline, sources):
                 sink.write(item.record())
                 total += 1
@@ -82,7 +86,10 @@ def command(
     except BaseException:
         sink.discard()
         raise
-    sink.close()
+    if not finalizers.run_all():  # closes the file, unless the watchdog already did
+        raise OutputError(f"--output {output}: could not be completed (see the log above)")
+    if not sink.owns_file:
+        sink.close()
     if failed:
         click.echo(f"{failed} of {total} acquisitions could not be processed", err=True)
     return EXIT_PARTIAL if failed else EXIT_OK

@@ -73,6 +73,8 @@ class MultiSink:
                     sink.close()
                 except OSError as exc:
                     log.error("closing output %s failed: %s", type(sink).__name__, exc)
+                    self.failed.append(f"{type(sink).__name__}: {exc.strerror or exc}")
+                    self.sinks.remove(sink)
 
     def close(self) -> None:
         for sink in list(self.sinks):
