@@ -125,8 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _main(args)
     finally:
-        if argv is None:  # the process ends now: skip the final garbage collection of numba's
-            gc.freeze()  # and scipy's objects (seconds on a loaded host; a stop must be quick)
+        if args == sys.argv[1:]:  # the process's own command line: it ends now, so skip the
+            gc.freeze()  # final GC of numba's and scipy's objects (seconds on a loaded host)
 
 
 def _main(args: list[str]) -> int:
