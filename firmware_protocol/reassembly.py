@@ -18,6 +18,7 @@ __all__ = ["Acquisition", "AcquisitionAssembler", "AssemblerStats"]
 
 _MASK = 0xFFFFFFFF
 _HALF = 1 << 31
+MAX_COUNTER_GAP = 1 << 16  # frames; a larger jump is a reset or a corrupt counter, not loss
 
 
 def _ahead(a: int, b: int) -> int:
@@ -52,6 +53,7 @@ class AssemblerStats:
     duplicates: int = 0  # repeated counter, or a channel already received
     stale: int = 0  # frames of an acquisition older than the current one
     inconsistent: int = 0  # sub-header disagrees with the acquisition's other channels
+    jumps: int = 0  # counter jumps too large to be lost frames (resynchronized, not counted)
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -99,7 +101,10 @@ class AcquisitionAssembler:
             if ahead < 0:
                 self.stats.duplicates += 1
                 return False
-            self.stats.gaps += ahead
+            if ahead > MAX_COUNTER_GAP:  # counting it as lost frames would be nonsense
+                self.stats.jumps += 1
+            else:
+                self.stats.gaps += ahead
         self._next_counter = (counter + 1) & _MASK
         return True
 

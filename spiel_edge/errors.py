@@ -13,6 +13,10 @@ class InputError(SpielError, ValueError):
     """An acquisition or recording is malformed (the message names the file)."""
 
 
+class OutputError(SpielError, OSError):
+    """Every output of a command failed (disk full, folder gone, ...): nothing more is kept."""
+
+
 class ModelError(SpielError):
     """The association model is missing or unusable."""
 

@@ -64,6 +64,11 @@ def push(
 def commit(session: Any, expected_crc: int | None = None) -> int:
     """Make the staged config persistent; returns its CRC-32C. Without ``expected_crc`` the
     staged bytes are read back and must decode as a valid config."""
+    status = session.config_status() if hasattr(session, "config_status") else None
+    if status is not None and not status.staged_length:
+        raise ConfigError(
+            "nothing is staged on the board: `spiel-edge config push FILE` first, then commit"
+        )
     if expected_crc is None:
         staged = session.read_config(source=ConfigSource.STAGING)
         decode(staged, origin="board staging")

@@ -30,6 +30,7 @@ from firmware_protocol.config_blob import (
     unpack_header,
 )
 from spiel_edge.errors import ConfigError
+from spiel_edge.io.guard import read_config_text
 from spiel_edge.profile.ranges import RANGES
 from spiel_edge.profile.schema import (
     Profile,
@@ -302,10 +303,8 @@ def read_file(path: str | Path) -> dict[str, Any]:
     """A TOML file as a dict (full board config or a partial one such as a calibration)."""
     path = Path(path)
     try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: file not found") from exc
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        return tomllib.loads(read_config_text(path, "config"))
+    except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: cannot read TOML: {exc}") from exc
 
 

@@ -8,6 +8,8 @@ maps SpielError to a one-line message and exit status 2.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import importlib
 import logging
 import os
@@ -17,6 +19,7 @@ import click
 
 from spiel_edge import __version__
 from spiel_edge.errors import SpielError
+from spiel_edge.io.guard import shorten, shorten_tokens
 
 EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
 
@@ -34,8 +37,19 @@ def setup_logging(verbosity: int) -> None:
         else "%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     logging.basicConfig(level=max(level, logging.DEBUG), format=fmt, stream=sys.stderr, force=True)
+    handler = logging.getLogger().handlers[0]
     if stderr_is_journal():
-        logging.getLogger().handlers[0].setFormatter(JournalFormatter())
+        handler.setFormatter(JournalFormatter())
+    handler.addFilter(_shorten_record)
+
+
+def _shorten_record(record: logging.LogRecord) -> bool:
+    """No log line carries a huge token (a 10 MB argument echoed by some message)."""
+    message = record.getMessage()
+    short = shorten_tokens(message)
+    if short != message:
+        record.msg, record.args = short, None
+    return True
 
 
 # name -> one-line help; the module spiel_edge.cli.<name> holds ``command``. A test checks
@@ -48,11 +62,16 @@ COMMANDS = {
     "doctor": "Check what the service needs; print a fix for each problem.",
     "evaluate": "3-D error, fix rate, association accuracy against ground truth.",
     "profile": "Device profiles: geometry, timing and pipeline tuning as TOML.",
+    "recover": "Rewrite a damaged or unfinalized recording into a valid one.",
     "replay": "Run the pipeline over recordings; one NDJSON record each.",
     "run": "Stream from the board and write one record per acquisition.",
     "service": "The systemd service kit: unit, user, udev rule, config.",
     "simulate": "The virtual board on a pseudo-terminal (a sim:// URL).",
 }
+
+
+class ReaderGone(Exception):
+    """The reader of stdout went away (``| head``): a normal end, status 0."""
 
 
 class LazyGroup(click.Group):
@@ -64,7 +83,15 @@ class LazyGroup(click.Group):
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
         if name not in COMMANDS:
             return None
-        return importlib.import_module(f"{__name__}.{name}").command
+        from spiel_edge.cli._types import harden_command
+
+        return harden_command(importlib.import_module(f"{__name__}.{name}").command)
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError as exc:  # click would turn it into a silent exit status 1
+            raise ReaderGone from exc
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         rows = [(name, COMMANDS[name]) for name in self.list_commands(ctx)]
@@ -83,19 +110,100 @@ def cli(verbose: int) -> None:
     setup_logging(verbose)
 
 
+BUG_HINT = (
+    "this is a bug in spiel-edge: please report it with the command line and the output of "
+    "the same command run with `spiel-edge -vv ...`"
+)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point; returns the exit status (0 ok, 1 some inputs failed, 2 error)."""
+    """Console entry point; returns the exit status (0 ok, 1 some inputs failed, 2 error).
+
+    No traceback reaches a user: anything unexpected is one line, a bug-report hint and
+    status 2 (the traceback only with ``-vv``)."""
+    args = sys.argv[1:] if argv is None else list(argv)
     try:
-        result = cli.main(args=argv, prog_name="spiel-edge", standalone_mode=False)
+        return _main(args)
+    finally:
+        if args == sys.argv[1:]:  # the process's own command line: it ends now, so skip the
+            gc.freeze()  # final GC of numba's and scipy's objects (seconds on a loaded host)
+
+
+def _main(args: list[str]) -> int:
+    try:
+        result = cli.main(args=args, prog_name="spiel-edge", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("aborted", err=True)
         return 130
     except click.ClickException as exc:
-        exc.show()
+        _show_click(exc)
+        return EXIT_ERROR if exc.exit_code == 1 else exc.exit_code
+    except click.exceptions.Exit as exc:
         return exc.exit_code
     except SpielError as exc:
-        click.echo(f"error: {exc}", err=True)
+        _error(f"error: {exc}", args, exc)
         return EXIT_ERROR
     except KeyboardInterrupt:
         return 130
-    return int(result or 0)
+    except (BrokenPipeError, ReaderGone):  # the reader of stdout went away (| head)
+        _silence_stdout()
+        return EXIT_OK
+    except OSError as exc:  # a disk that filled up, a folder that went away, ...
+        where = f": {shorten(exc.filename)}" if getattr(exc, "filename", None) else ""
+        _error(f"error: {exc.strerror or exc}{where}", args, exc)
+        return EXIT_ERROR
+    except MemoryError as exc:
+        _error("error: out of memory", args, exc)
+        return EXIT_ERROR
+    except Exception as exc:  # the last resort: a bug
+        _error(f"internal error: {type(exc).__name__}: {shorten(exc, 200)}", args, exc)
+        click.echo(BUG_HINT, err=True)
+        return EXIT_ERROR
+    return _status(result)
+
+
+def _status(result: object) -> int:
+    return result if isinstance(result, int) and 0 <= result <= 255 else EXIT_OK
+
+
+def _show_click(exc: click.ClickException) -> None:
+    import io
+
+    buffer = io.StringIO()
+    exc.show(file=buffer)
+    with contextlib.suppress(OSError, ValueError):  # stderr itself may be gone
+        click.echo(shorten_tokens(buffer.getvalue()), err=True, nl=False)
+
+
+def _error(line: str, args: list[str], exc: BaseException) -> None:
+    try:
+        click.echo(shorten_tokens(line), err=True)
+        if _verbosity(args) >= 2:
+            import traceback
+
+            traceback.print_exception(exc, file=sys.stderr)
+    except (OSError, ValueError):  # stderr itself is gone: nothing more can be said
+        pass
+
+
+def _verbosity(args: list[str]) -> int:
+    """-v/-vv/--verbose given before the command (counted here: the group may not have run)."""
+    count = 0
+    for arg in args:
+        if arg == "--verbose":
+            count += 1
+        elif arg.startswith("-") and not arg.startswith("--") and set(arg[1:]) == {"v"}:
+            count += len(arg) - 1
+        elif not arg.startswith("-"):
+            break
+    return count
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's last flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass

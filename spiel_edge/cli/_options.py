@@ -52,3 +52,8 @@ max_targets_option = click.option(
     default=None,
     help="Report up to K targets per acquisition (default: the profile's [scene] max_targets).",
 )
+force_option = click.option(
+    "--force",
+    is_flag=True,
+    help="Overwrite output files that already exist (never an input of the command).",
+)

@@ -1,14 +1,55 @@
 """The command line's signal handling (the one place that installs handlers): INT, TERM and
-HUP end a session cleanly, so every output is finalized."""
+HUP end a session cleanly, so every output is finalized.
+
+A command's loop sees the stop event and ends normally. When it cannot (its thread is blocked
+writing to a stdout nobody reads), a watchdog runs the registered :class:`Finalizers` itself
+within ``FINALIZE_WITHIN_S`` and ends the process: a signal never leaves a recording
+unfinalized.
+"""
 
 from __future__ import annotations
 
+import logging
+import os
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+log = logging.getLogger(__name__)
+
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+GRACE_S = 0.4  # the loop's own chance to stop before the watchdog steps in
+FINALIZE_WITHIN_S = 1.0
+
+
+class Finalizers:
+    """Callables that make outputs complete (close a recording, rename a file into place).
+
+    Each runs at most once, whoever calls first: the command on its normal way out, or the
+    watchdog when the command is stuck."""
+
+    def __init__(self, exit_status: int = 0) -> None:
+        self.exit_status = exit_status  # the watchdog's, when they all succeed
+        self._pending: list[Callable[[], None]] = []
+        self._lock = threading.Lock()
+
+    def add(self, finalize: Callable[[], None]) -> None:
+        with self._lock:
+            self._pending.append(finalize)
+
+    def run_all(self) -> bool:
+        """True when every one succeeded."""
+        with self._lock:
+            pending, self._pending = self._pending, []
+        ok = True
+        for finalize in pending:
+            try:
+                finalize()
+            except Exception as exc:  # finalize the others regardless
+                log.error("finalizing an output failed: %s", exc)
+                ok = False
+        return ok
 
 
 class Terminated(KeyboardInterrupt):
@@ -16,17 +57,42 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextmanager
-def stop_on_signals(stop: threading.Event) -> Iterator[threading.Event]:
-    """Set ``stop`` on the first signal; a second SIGINT interrupts at once. Handlers are only
-    installed in the main thread (elsewhere the caller sets ``stop`` itself)."""
+def stop_on_signals(
+    stop: threading.Event, finalizers: Finalizers | None = None
+) -> Iterator[threading.Event]:
+    """Set ``stop`` on the first signal; a second SIGINT interrupts at once. With
+    ``finalizers``, a command still running ``GRACE_S`` after the signal has them run by a
+    watchdog, which then ends the process (status 0 when they all succeeded, else 2).
+    Handlers are only installed in the main thread (elsewhere the caller sets ``stop``)."""
+    done = threading.Event()
 
     def handler(signum: int, frame: object) -> None:
         if stop.is_set() and signum == signal.SIGINT:
             raise KeyboardInterrupt
+        if not stop.is_set() and finalizers is not None:
+            threading.Thread(
+                target=_watchdog, args=(done, finalizers), name="finalize-on-signal", daemon=True
+            ).start()
         stop.set()
 
-    with _handling(STOP_SIGNALS, handler):
-        yield stop
+    try:
+        with _handling(STOP_SIGNALS, handler):
+            yield stop
+    finally:
+        done.set()
+
+
+def _watchdog(done: threading.Event, finalizers: Finalizers) -> None:
+    if done.wait(GRACE_S):
+        return
+    hard = threading.Timer(FINALIZE_WITHIN_S - GRACE_S, os._exit, args=(2,))
+    hard.daemon = True
+    hard.start()
+    ok = finalizers.run_all()
+    if done.is_set():  # the command got unstuck meanwhile and ends by itself
+        hard.cancel()
+        return
+    os._exit(finalizers.exit_status if ok else 2)
 
 
 @contextmanager

@@ -7,9 +7,10 @@ import threading
 
 import click
 
-from spiel_edge.cli._options import board_port, port_option
+from spiel_edge.cli._options import board_port, force_option, port_option
 from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
+from spiel_edge.io.guard import FilePlan
 from spiel_edge.runtime.background import median_background, save_background
 
 
@@ -27,7 +28,7 @@ from spiel_edge.runtime.background import median_background, save_background
 @click.option(
     "--samples",
     "n_samples",
-    type=click.IntRange(min=0),
+    type=click.IntRange(0, 4096),
     default=0,
     help="Samples per channel to ask for (0: the board's default).",
 )
@@ -38,11 +39,14 @@ from spiel_edge.runtime.background import median_background, save_background
     type=click.Path(dir_okay=False),
     help="Where to save it: FILE.npy, or a spiel-csv frames file for any other suffix.",
 )
-def command(port, count, rate, n_samples, output) -> int:
+@force_option
+def command(port, count, rate, n_samples, output, force) -> int:
     """Capture the scene without the target; use it with `run --background FILE`."""
+    FilePlan(force).output(output, "--output")  # before the capture, not after
     port = board_port(port)
     stop = threading.Event()
-    with stop_on_signals(stop), DeviceSession(port) as session:
+    # no reconnect: a board that goes away ends the capture with an error, never a silent wait
+    with stop_on_signals(stop), DeviceSession(port, reconnect=False) as session:
         session.start_stream(rate_hz=rate, n_samples=n_samples)
         with click.progressbar(length=count, label="capturing background", file=sys.stderr) as bar:
 

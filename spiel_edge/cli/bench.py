@@ -9,7 +9,13 @@ from spiel_edge.measure.bench import run_bench, to_json
 
 @click.command("bench")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object as the last line.")
-@click.option("--repeat", default=5, show_default=True, help="Passes over the acquisitions.")
+@click.option(
+    "--repeat",
+    type=click.IntRange(1, 1000),
+    default=5,
+    show_default=True,
+    help="Passes over the acquisitions.",
+)
 @click.option("--association", type=click.Choice(["auto", "onnx", "geometric"]), default=None)
 @click.option("--no-startup", is_flag=True, help="Skip the fresh-interpreter start-up timing.")
 def command(as_json: bool, repeat: int, association: str | None, no_startup: bool) -> int:

@@ -7,10 +7,17 @@ import sys
 import click
 
 from spiel_edge.calibrate import FIXABLE, calibrate_frames, load_recordings, read_positions
-from spiel_edge.calibrate.report import plot_calibration, summary_lines, write_calibration
+from spiel_edge.calibrate.report import calibration_toml, plot_calibration, summary_lines
 from spiel_edge.cli import EXIT_OK
-from spiel_edge.cli._options import board_port, calibration_option, port_option, profile_option
+from spiel_edge.cli._options import (
+    board_port,
+    calibration_option,
+    force_option,
+    port_option,
+    profile_option,
+)
 from spiel_edge.errors import ConfigError
+from spiel_edge.io.guard import FilePlan, atomic_write
 from spiel_edge.profile.schema import resolve_profile
 
 
@@ -82,6 +89,7 @@ from spiel_edge.profile.schema import resolve_profile
     default=None,
     help="Write a PNG of the geometry and the residuals (needs the 'plot' extra).",
 )
+@force_option
 def command(
     recordings,
     fmt,
@@ -97,9 +105,16 @@ def command(
     reject_sigma,
     output,
     plot,
+    force,
 ) -> int:
     """Estimate receiver positions (and the emitter's), per-channel delays and the speed of sound
     from a target at known positions: offline from labelled recordings, or live, guided."""
+    plan = FilePlan(force)  # outputs checked before anything is captured or fitted
+    for path, option in ((calibration, "--calibration"), (positions, "--positions")):
+        if path:
+            plan.input_file(path, option)
+    plan.output(output, "--output")
+    plan.output(plot, "--plot")
     profile = resolve_profile(profile_name, calibration)
     if (recordings is None) == (positions is None):
         raise ConfigError(
@@ -126,7 +141,8 @@ def command(
     for line in summary_lines(cal):
         click.echo(line, err=True)
     if output:
-        write_calibration(cal, output, source=str(source))
+        with atomic_write(output) as fh:
+            fh.write(calibration_toml(cal, str(source)))
         click.echo(f"calibration written to {output}", err=True)
     if plot:
         plot_calibration(cal, plot)

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import contextlib
 import sys
-from pathlib import Path
 
 import click
 
 from spiel_edge.board import schema as bc
 from spiel_edge.board.flash import commit, pull, push
 from spiel_edge.cli import EXIT_OK
-from spiel_edge.cli._options import board_port, port_option, profile_option
+from spiel_edge.cli._options import board_port, force_option, port_option, profile_option
 from spiel_edge.errors import ConfigError, DeviceError
+from spiel_edge.io.guard import FilePlan, atomic_write
 from spiel_edge.profile.schema import load_profile
 
 
@@ -54,15 +54,18 @@ def command() -> None:
 @command.command("pull")
 @port_option
 @click.argument("file", required=False, type=click.Path(dir_okay=False))
-def pull_cmd(port: str, file: str | None) -> int:
+@force_option
+def pull_cmd(port: str, file: str | None, force: bool) -> int:
     """Write the board's active config as TOML to FILE (or stdout)."""
+    FilePlan(force).output(file, "FILE")
     with _Board(port) as session:
         config = pull(session)
     if config is None:
         raise DeviceError("the board holds no config yet: `spiel-edge config push` one")
     text = bc.to_toml(config)
     if file:
-        Path(file).write_text(text)
+        with atomic_write(file) as fh:
+            fh.write(text)
         click.echo(f"config of {config['board']['name']!r} written to {file}", err=True)
     else:
         click.echo(text, nl=False)

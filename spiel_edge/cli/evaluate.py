@@ -14,6 +14,7 @@ from spiel_edge.cli._options import (
     max_targets_option,
     profile_option,
 )
+from spiel_edge.errors import InputError
 from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
@@ -42,6 +43,7 @@ from spiel_edge.profile.schema import resolve_profile
 )
 @click.option(
     "--val-fraction",
+    type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
     default=0.3,
     show_default=True,
     help="Share of (x, y) positions in the validation split.",
@@ -96,7 +98,13 @@ def command(
         print_scene_table(summary["by_targets"])
     for message in ev.failed:
         click.echo(f"failed: {message}", err=True)
+    if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result
+        raise InputError(f"{folder}: no usable labelled acquisitions ({len(ev.failed)} failed)")
     return EXIT_PARTIAL if ev.failed else EXIT_OK
+
+
+def fmt(v, spec=".1f"):
+    return "-" if v is None else format(v, spec)
 
 
 def _evaluate_scene_file(pipeline, path: str, as_json: bool) -> int:
@@ -138,14 +146,11 @@ def _print_table(summary: dict) -> None:
         (f"<={summary['max_z']:g}", summary)
     ]
     for name, s in rows:
-
-        def fmt(v, spec=".1f"):
-            return "-" if v is None else format(v, spec)
-
         click.echo(
             f"{name:>8} {s['frames']:>7} {fmt(s['fix_rate'], '.0%'):>6} {fmt(s['mean_mm']):>7} "
             f"{fmt(s['median_mm']):>7} {fmt(s['p95_mm']):>7}"
         )
     click.echo(
-        f"association accuracy {summary['association_accuracy']:.1%}, F1 {summary['association_f1']:.3f} ({summary['association']})"
+        f"association accuracy {fmt(summary['association_accuracy'], '.1%')}, "
+        f"F1 {fmt(summary['association_f1'], '.3f')} ({summary['association']})"
     )

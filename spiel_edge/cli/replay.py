@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
+import threading
+
 import click
 
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
     calibration_option,
+    force_option,
     max_targets_option,
     profile_option,
 )
+from spiel_edge.cli._signals import Finalizers, stop_on_signals
+from spiel_edge.errors import OutputError
+from spiel_edge.io.guard import FilePlan
+from spiel_edge.io.limits import InputLimits
 from spiel_edge.outputs.ndjson import NdjsonSink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
@@ -39,24 +46,49 @@ from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
 @click.option(
     "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
 )
+@force_option
 def command(
-    path, fmt, background, profile_name, calibration, association, max_targets, output
+    path, fmt, background, profile_name, calibration, association, max_targets, output, force
 ) -> int:
     """Run the pipeline over recorded frames; one NDJSON record per acquisition.
 
-    Label files are never read. Exit status 1 when some inputs could not be processed.
+    Label files are never read. Exit status 1 when some inputs could not be processed. An
+    output file appears only complete (written beside it, then renamed into place).
     """
-    pipeline = build_pipeline(resolve_profile(profile_name, calibration), association)
+    plan = FilePlan(force)
+    plan.input_any(path, "PATH")
+    if background:
+        plan.input_folder(background, "--background")
+    if calibration:
+        plan.input_file(calibration, "--calibration")
+    plan.output(output, "--output")
+    profile = resolve_profile(profile_name, calibration)
+    pipeline = build_pipeline(profile, association)
+    sources = iter_sources(path, fmt, background, InputLimits.for_profile(profile))
     if max_targets:
         pipeline.set_max_targets(max_targets)
     failed = total = 0
-    sink = NdjsonSink(output)
+    stop = threading.Event()
+    sink = NdjsonSink(output, atomic=True)
+    finalizers = Finalizers(exit_status=EXIT_PARTIAL)  # stuck on a blocked stdout: keep the
+    if sink.owns_file:  # complete lines written so far; the replay is incomplete (1)
+        finalizers.add(sink.close)
     try:
-        for item in replay(pipeline, iter_sources(path, fmt, background)):
-            sink.write(item.record())
-            total += 1
-            failed += item.error is not None
-    finally:
+        with stop_on_signals(stop, finalizers):
+            for item in replay(pipeline, sources):
+                sink.write(item.record())
+                total += 1
+                failed += item.error is not None
+                if stop.is_set():
+                    click.echo(f"stopped by a signal after {total} acquisitions", err=True)
+                    failed += 1
+                    break
+    except BaseException:
+        sink.discard()
+        raise
+    if not finalizers.run_all():  # closes the file, unless the watchdog already did
+        raise OutputError(f"--output {output}: could not be completed (see the log above)")
+    if not sink.owns_file:
         sink.close()
     if failed:
         click.echo(f"{failed} of {total} acquisitions could not be processed", err=True)

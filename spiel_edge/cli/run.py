@@ -13,14 +13,17 @@ from spiel_edge.cli._options import (
     association_option,
     board_port,
     calibration_option,
+    force_option,
     max_targets_option,
     port_option,
     profile_option,
 )
-from spiel_edge.cli._signals import stop_on_signals
+from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
-from spiel_edge.outputs import open_outputs
+from spiel_edge.io.guard import FilePlan
+from spiel_edge.outputs import check_outputs, open_outputs
+from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.loop import LiveRunner, check_stream_shape, load_background, open_pipeline
 from spiel_edge.service.systemd import Notifier
 
@@ -84,6 +87,7 @@ from spiel_edge.service.systemd import Notifier
     default=None,
     help="Give up when the board stays away this many seconds (default: wait for it).",
 )
+@force_option
 @click.option(
     "--status/--no-status",
     "show_status",
@@ -106,6 +110,7 @@ def command(
     rate,
     background,
     reconnect_timeout,
+    force,
     show_status,
 ) -> int:
     """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
@@ -113,8 +118,14 @@ def command(
     The geometry is, by precedence: --calibration, else the config stored on the board (unless
     --no-board-config), else --profile. Unplugging the board does not stop the command: it
     waits for the same board to come back and streams again. SIGINT or SIGTERM stops the
-    stream and exits cleanly.
+    stream and exits cleanly; SIGINT, SIGTERM or SIGHUP finalize the outputs within 1 s.
     """
+    plan = FilePlan(force)  # every file checked before the board is touched
+    for path, option in ((background, "--background"), (calibration, "--calibration")):
+        if path:
+            plan.input_file(path, option)
+    record = check_outputs(plan, output, record)
+    resolve_profile(profile_name, calibration)  # a bad profile or calibration: before the board
     fixed_background = load_background(background) if background else None
     port = board_port(port)
     if show_status is None:
@@ -124,7 +135,8 @@ def command(
     runner: LiveRunner | None = None
     sink = None
     stop = threading.Event()
-    with stop_on_signals(stop):
+    finalizers = Finalizers()
+    with stop_on_signals(stop, finalizers):
         try:
             pipeline, source = open_pipeline(
                 session, profile_name, calibration, association, use_board=use_board
@@ -140,7 +152,9 @@ def command(
                 zenoh,
                 receivers_mm=profile.geometry.channels_mm,
                 metadata={"port": port, "profile": profile.name, "geometry": source},
+                force=force,
             )
+            finalizers.add(sink.close_files)
             runner = LiveRunner(session, pipeline, sink, background=fixed_background)
             runner.on_record = notifier.ping
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
@@ -152,8 +166,12 @@ def command(
             sys.stdout = None  # type: ignore[assignment]  # nothing more can be flushed there
         finally:
             notifier.stopping()
+            finalizers.run_all()  # the files first: closing the session can take a while
             _close(runner, session, sink, show_status)
-    return EXIT_PARTIAL if runner is not None and runner.stats.errors else EXIT_OK
+    failed = sink is not None and sink.failed
+    if failed:
+        click.echo(f"outputs that failed: {'; '.join(sink.failed)}", err=True)
+    return EXIT_PARTIAL if failed or (runner is not None and runner.stats.errors) else EXIT_OK
 
 
 def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
@@ -182,7 +200,8 @@ def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status:
     if sink is not None:
         with contextlib.suppress(BrokenPipeError, ValueError):
             sink.close()
-    if show_status:
-        click.echo("", err=True)
-    if runner is not None and (runner.stats.records or session.hello is not None):
-        click.echo(runner.summary(), err=True)
+    with contextlib.suppress(OSError):  # stderr may be a terminal that hung up
+        if show_status:
+            click.echo("", err=True)
+        if runner is not None and (runner.stats.records or session.hello is not None):
+            click.echo(runner.summary(), err=True)

@@ -42,6 +42,7 @@ from firmware_protocol import (
 from firmware_protocol.errors import ErrorCode
 from firmware_protocol.framing import Frame
 from spiel_edge.device.config import ConfigTransferMixin
+from spiel_edge.device.hello import MIN_PROTOCOL_VERSION, check_hello, version_refused
 from spiel_edge.device.stream import StreamTracker
 from spiel_edge.device.streaming import StreamingMixin
 from spiel_edge.errors import (
@@ -141,8 +142,15 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             raise
 
     def _handshake(self) -> None:
-        hello = self.request(Hello(1, PROTOCOL_VERSION, MAX_PAYLOAD, 0))
-        assert isinstance(hello, HelloResponse)
+        try:
+            hello = self.request(Hello(MIN_PROTOCOL_VERSION, PROTOCOL_VERSION, MAX_PAYLOAD, 0))
+        except DeviceRequestError as exc:
+            if exc.code in (ErrorCode.VERSION_TOO_OLD, ErrorCode.VERSION_TOO_NEW):
+                raise DeviceError(version_refused(self.url, exc.code)) from exc
+            raise
+        if not isinstance(hello, HelloResponse):
+            raise DeviceError(f"{self.url}: the board answered HELLO with {type(hello).__name__}")
+        check_hello(self.url, hello)
         previous = self.hello
         if previous is not None and previous.serial and hello.serial != previous.serial:
             raise DeviceError(
@@ -229,8 +237,18 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
                 return answer
         self.counters.timeouts += 1
         raise DeviceTimeoutError(
-            f"{self.url}: no answer to {type(msg).__name__} after {1 + retries} tries of {timeout_s:.3g} s"
+            f"{self.url}: no answer to {type(msg).__name__} after {1 + retries} tries of "
+            f"{timeout_s:.3g} s ({self.decoder_summary()})"
         )
+
+    def decoder_summary(self) -> str:
+        """What came back meanwhile: a board that talks garbage differs from a silent one."""
+        stats = self.decoder.stats
+        bad = {k: v for k, v in stats.as_dict().items() if k != "frames" and v}
+        if not stats.frames and not bad:
+            return "nothing was received"
+        detail = ", ".join(f"{k} {v}" for k, v in bad.items())
+        return f"frames decoded {stats.frames}" + (f"; undecodable: {detail}" if detail else "")
 
     def _await(self, seq: int, msg_type: int, deadline: float) -> Message | None:
         while True:
@@ -283,6 +301,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             "lost": self.tracker.lost,
             "damaged": assembler.incomplete,
             "gaps": assembler.gaps,
+            "jumps": self.tracker.jumps + assembler.jumps,
             "duplicates": assembler.duplicates,
             "crc_errors": decoder.crc,
             "framing_errors": decoder.errors - decoder.crc,

@@ -22,6 +22,7 @@ log = logging.getLogger(__name__)
 
 _MASK = 0xFFFFFFFF
 MAX_PENDING_TRUTH = 256
+MAX_INDEX_GAP = 1 << 16  # acquisitions; a larger jump is a reset or corrupt index, not loss
 
 
 @dataclass(frozen=True)
@@ -44,8 +45,9 @@ class StreamTracker:
     def __init__(self) -> None:
         self.assembler = AcquisitionAssembler()
         self.ready: deque[LiveAcquisition] = deque()
-        self.acquisitions = 0  # delivered
+        self.acquisitions = 0  # delivered to the caller (pop), not merely assembled
         self.lost = 0  # acquisition indices never delivered (damaged, dropped, overrun)
+        self.jumps = 0  # index jumps too large to be losses (counted here, not in lost)
         self.bad_messages = 0  # frames with a valid CRC whose payload did not decode
         self.background: np.ndarray | None = None
         self._last_index: int | None = None
@@ -63,12 +65,24 @@ class StreamTracker:
         self._last_index = None
         self._first_delivered: int | None = None
 
+    def pop(self) -> LiveAcquisition:
+        """The next ready acquisition, counted as delivered."""
+        acq = self.ready.popleft()
+        self.acquisitions += 1
+        return acq
+
+    def _count_gap(self, gap: int) -> None:
+        if gap > MAX_INDEX_GAP:
+            self.jumps += 1
+        else:
+            self.lost += gap
+
     def started(self, first_acquisition: int) -> None:
         """The board's answer: the stream began at ``first_acquisition``."""
         if self._first_delivered is None:
             self._last_index = (first_acquisition - 1) & _MASK
         else:
-            self.lost += (self._first_delivered - first_acquisition) & _MASK
+            self._count_gap((self._first_delivered - first_acquisition) & _MASK)
 
     def stop(self) -> None:
         """The stream ended or the link was lost: a partial acquisition is incomplete."""
@@ -99,11 +113,10 @@ class StreamTracker:
         if self._last_index is not None:
             gap = (acq.index - self._last_index - 1) & _MASK
             if gap < (1 << 31):
-                self.lost += gap
+                self._count_gap(gap)
         elif self._first_delivered is None:
             self._first_delivered = acq.index
         self._last_index = acq.index
-        self.acquisitions += 1
         self.ready.append(
             LiveAcquisition(
                 acq.index,

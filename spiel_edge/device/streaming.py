@@ -81,7 +81,7 @@ class StreamingMixin:
         ready = self.tracker.ready
         while not stop.is_set():
             if ready:
-                yield ready.popleft()
+                yield self.tracker.pop()  # counted as delivered here
                 continue
             try:
                 self._pump()

@@ -1,20 +1,28 @@
 """Reading MCAP recordings written by :class:`spiel_edge.outputs.mcap.McapSink`: every recorded
-acquisition with the background in force, a damaged or unfinalized file read as far as it goes."""
+acquisition with the background in force, a damaged, cut or unfinalized file read as far as
+it goes (:mod:`spiel_edge.io.mcap_scan`), one error entry at the end saying what was skipped.
+
+Inputs are bounded before they are parsed: a message larger than the profile's frame allows
+is skipped unread, and a hostile JSON payload (deep nesting, huge numbers) becomes an error
+for that message only.
+"""
 
 from __future__ import annotations
 
 import json
 import logging
-import struct
+import os
+import stat
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader, SeekingReader
 
 from spiel_edge.errors import InputError
+from spiel_edge.io.guard import shorten
+from spiel_edge.io.limits import InputLimits
+from spiel_edge.io.mcap_scan import MAGIC, Limits, McapScanner, RawMessage
 from spiel_edge.io.spiel_csv import Recording
 
 log = logging.getLogger(__name__)
@@ -22,78 +30,132 @@ log = logging.getLogger(__name__)
 ACQUISITION_TOPIC = "/spiel/acquisition"
 BACKGROUND_TOPIC = "/spiel/background"
 POSITION_TOPIC = "/spiel/position"
+KEEP_BACKGROUNDS = 8  # distinct backgrounds remembered, by the CRC-32 of their message
 
 
-def iter_mcap_recordings(path: str | Path) -> Iterator[Recording]:
-    """Each recorded acquisition with the background in force; bad messages become errors.
+def iter_mcap_recordings(
+    path: str | Path, limits: InputLimits | None = None, report: list | None = None
+) -> Iterator[Recording]:
+    """Each recorded acquisition with its background; bad messages become error entries.
 
-    A file that was never finalized is read up to where it ends, then one error entry says so.
-    """
+    A damaged, cut or unfinalized file is read as far as it goes; then one error entry says
+    what was skipped (``report``, when given, receives the :class:`ScanReport`)."""
+    limits = limits or InputLimits()
     path = Path(path)
-    try:
-        fh = open(path, "rb")  # noqa: SIM115 - closed below
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open recording: {exc}") from exc
-    with fh:
-        yield from _recordings(fh, path)
-
-
-def _recordings(fh: IO[bytes], path: str | Path) -> Iterator[Recording]:
-    path = Path(path)
-    if fh.read(8) != b"\x89MCAP0\r\n":
-        raise InputError(f"{path}: not an MCAP file")
-    fh.seek(0)
-    background: np.ndarray | str | None = None  # str: why the last background is unreadable
-    count = 0
-    try:
-        for topic, data, sequence in _messages(fh):
-            if topic == BACKGROUND_TOPIC:
-                background = _background_of(data, sequence)
-                continue
+    with open_recording(path) as (fh, size):
+        scanner = McapScanner(fh, size, scan_limits(limits))
+        count = 0
+        for rec in _recordings(scanner, path.name, limits):
             count += 1
-            yield _recording(path.name, data, sequence, background)
-    except (
-        McapError,
-        ValueError,
-        EOFError,
-        OSError,
-        struct.error,
-    ) as exc:  # truncated or corrupt tail
-        message = f"{path.name}: recording ends early after {count} acquisitions ({type(exc).__name__}: {exc})"
-        log.warning("%s", message)
-        yield Recording(f"{path.name}#end", None, None, message)
+            yield rec
+        if report is not None:
+            report.append(scanner.report)
+        scan = scanner.report
+        if scan.damaged or scan.truncated or not scan.finalized:
+            how = "ends early" if scan.truncated or not scan.finalized else "is damaged"
+            message = f"{path.name}: recording {how} after {count} acquisitions: {scan.summary()}"
+            log.warning("%s", message)
+            yield Recording(f"{path.name}#end", None, None, message)
 
 
-def _messages(fh: IO[bytes]) -> Iterator[tuple[str, bytes, int]]:
-    """(topic, data, sequence) in file order; the index when the file is finalized, else a scan."""
-    topics = [ACQUISITION_TOPIC, BACKGROUND_TOPIC]
+class open_recording:  # noqa: N801 - used as a context manager
+    """A regular MCAP file opened for reading: (file, size); InputError otherwise."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __enter__(self):
+        try:
+            fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        except OSError as exc:
+            raise InputError(
+                f"{shorten(self.path)}: cannot open recording: {exc.strerror}"
+            ) from exc
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            os.close(fd)
+            raise InputError(f"{shorten(self.path)}: not a regular file")
+        self.fh = os.fdopen(fd, "rb")
+        if self.fh.read(len(MAGIC)) != MAGIC:
+            self.fh.close()
+            raise InputError(f"{shorten(self.path)}: not an MCAP file")
+        return self.fh, st.st_size
+
+    def __exit__(self, *exc: object) -> None:
+        self.fh.close()
+
+
+def scan_limits(limits: InputLimits) -> Limits:
+    """Message and chunk bounds from the profile's frame size (memory stays about that)."""
+    message = limits.max_json_bytes
+    return Limits(max_message=message, max_chunk=max(4 << 20, 4 * message))
+
+
+def topic_of(msg: RawMessage) -> str:
+    """The channel's topic; when the channel record was lost, told by the payload's keys."""
+    if msg.topic is not None:
+        return msg.topic
+    head = msg.data[:4096]
+    if b'"position_mm"' in head or b'"reason"' in head:
+        return POSITION_TOPIC
+    if msg.data.startswith(b'{"frames"') and msg.data.rstrip().endswith(b"]]}"):
+        return BACKGROUND_TOPIC
+    return ACQUISITION_TOPIC
+
+
+def _recordings(scanner: McapScanner, name: str, limits: InputLimits) -> Iterator[Recording]:
+    backgrounds: dict[int, np.ndarray | str] = {}
+    current: np.ndarray | str | None = None  # str: why the last background is unreadable
+    for msg in scanner.messages():
+        topic = topic_of(msg)
+        if topic == BACKGROUND_TOPIC:
+            current = _background_of(msg, limits)
+            backgrounds[zlib.crc32(msg.data)] = current
+            while len(backgrounds) > KEEP_BACKGROUNDS:
+                backgrounds.pop(next(iter(backgrounds)))
+        elif topic == ACQUISITION_TOPIC:
+            yield _recording(name, msg, current, backgrounds, limits)
+
+
+def load_payload(data: bytes) -> dict:
+    """A JSON object; ValueError for anything else (deep nesting and huge numbers included)."""
     try:
-        reader = SeekingReader(fh)
-        reader.get_summary()  # raises on a file without footer/summary
-    except (McapError, ValueError, EOFError, OSError, struct.error):
-        fh.seek(0)
-        reader = NonSeekingReader(fh)
-    for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
-        yield channel.topic, message.data, message.sequence
+        payload = json.loads(data)
+    except RecursionError as exc:
+        raise ValueError("JSON nested too deeply") from exc
+    except (UnicodeDecodeError, MemoryError) as exc:
+        raise ValueError(type(exc).__name__) from exc
+    if not isinstance(payload, dict):
+        raise ValueError(f"expected a JSON object, got {type(payload).__name__}")
+    return payload
 
 
-def _background_of(data: bytes, sequence: int) -> np.ndarray | str:
+def _background_of(msg: RawMessage, limits: InputLimits) -> np.ndarray | str:
     try:
-        return _frames_of(json.loads(data))
-    except (ValueError, TypeError, KeyError) as exc:
-        return f"background message {sequence} is unreadable: {exc!r}"
+        return frames_of(load_payload(msg.data), limits)
+    except (ValueError, TypeError, KeyError, OverflowError) as exc:
+        return f"background message {msg.sequence} is unreadable: {shorten(exc)}"
 
 
 def _recording(
-    name: str, data: bytes, sequence: int, background: np.ndarray | str | None
+    name: str,
+    msg: RawMessage,
+    current: np.ndarray | str | None,
+    backgrounds: dict[int, np.ndarray | str],
+    limits: InputLimits,
 ) -> Recording:
-    source = f"{name}#{sequence}"
+    source = f"{name}#{msg.sequence}"
     try:
-        payload = json.loads(data)
-        source = f"{name}#{payload.get('seq', sequence)}"
-        frames = _frames_of(payload)
-    except (ValueError, TypeError, KeyError, AttributeError) as exc:
-        return Recording(source, None, None, f"{source}: bad acquisition message: {exc!r}")
+        payload = load_payload(msg.data)
+        seq = payload.get("seq", msg.sequence)
+        source = f"{name}#{seq if isinstance(seq, int) and 0 <= seq < 1 << 63 else msg.sequence}"
+        frames = frames_of(payload, limits)
+    except (ValueError, TypeError, KeyError, OverflowError) as exc:
+        return Recording(source, None, None, f"{source}: bad acquisition message: {shorten(exc)}")
+    background = current
+    wanted = payload.get("background_crc")
+    if isinstance(wanted, int):  # written since the background is repeated: find that one
+        background = backgrounds.get(wanted, f"its background (CRC {wanted:#010x}) was lost")
     if isinstance(background, str):
         return Recording(source, None, None, f"{source}: {background}")
     if not np.all(np.isfinite(frames)):
@@ -110,10 +172,13 @@ def _recording(
     return Recording(source, frames, background)
 
 
-def _frames_of(payload: dict) -> np.ndarray:
-    if not isinstance(payload, dict):
-        raise TypeError(f"expected a JSON object, got {type(payload).__name__}")
-    frames = np.array(payload["frames"], dtype=np.float64)  # None -> nan; ragged -> ValueError
+def frames_of(payload: dict, limits: InputLimits | None = None) -> np.ndarray:
+    rows = payload["frames"]
+    if not isinstance(rows, list) or not all(isinstance(r, list) for r in rows):
+        raise ValueError("frames must be a list of channels, each a list of samples")
+    if limits is not None:
+        limits.check_shape(len(rows), max((len(r) for r in rows), default=0))
+    frames = np.array(rows, dtype=np.float64)  # None -> nan; ragged -> ValueError
     if frames.ndim != 2:
         raise ValueError(f"frames must be channels x samples, got shape {frames.shape}")
     return frames

@@ -8,7 +8,9 @@ frames under the same names.
 
 from __future__ import annotations
 
+import os
 import re
+import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,9 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
+from spiel_edge.io.guard import shorten
+from spiel_edge.io.limits import InputLimits
 
 FRAMES_SUFFIX = "_frames.csv"
 LABELS_SUFFIX = "_labels.csv"
+MAX_LABELS_BYTES = 1 << 20
 _POSITION_RE = re.compile(r"^(-?[\d.]+)mm_(-?[\d.]+)mm_(-?[\d.]+)mm_")
 
 
@@ -40,45 +45,76 @@ def frame_files(folder: str | Path) -> list[Path]:
     return files
 
 
-def read_frames(path: str | Path) -> np.ndarray:
-    """One acquisition (channels, samples) as float64; InputError naming the file otherwise."""
+def read_frames(path: str | Path, limits: InputLimits | None = None) -> np.ndarray:
+    """One acquisition (channels, samples) as float64; InputError naming the file otherwise.
+
+    The file must be a regular file no larger than ``limits`` allow (the profile's frame
+    shape); its size and then its shape are checked before any sample is converted."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError as exc:
-        raise InputError(f"{path.name}: file not found") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path.name}: cannot read: {exc}") from exc
+    limits = limits or InputLimits()
+    text = _read_bounded(path, limits.max_text_bytes)
     rows = [line.replace(",", " ").split() for line in text.splitlines() if line.strip()]
     if not rows:
         raise InputError(f"{path.name}: empty file")
     if len({len(r) for r in rows}) != 1:
-        raise InputError(
-            f"{path.name}: channels have different sample counts {[len(r) for r in rows]}"
-        )
+        counts = [len(r) for r in rows]
+        raise InputError(f"{path.name}: channels have different sample counts {shorten(counts)}")
+    try:
+        limits.check_shape(len(rows), len(rows[0]))
+    except InputError as exc:
+        raise InputError(f"{path.name}: {exc}") from None
     try:
         arr = np.array(rows, dtype=np.float64)
-    except ValueError as exc:
-        raise InputError(f"{path.name}: not numeric: {exc}") from exc
+    except (ValueError, OverflowError) as exc:
+        raise InputError(f"{path.name}: not numeric: {shorten(exc)}") from None
     if not np.all(np.isfinite(arr)):
         raise InputError(f"{path.name}: contains NaN or infinite samples")
     return arr
 
 
+def _read_bounded(path: Path, max_bytes: int) -> str:
+    """The text of a regular file of at most ``max_bytes`` (never blocks on a FIFO)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise InputError(f"{path.name}: file not found") from None
+    except OSError as exc:
+        raise InputError(f"{path.name}: cannot read: {exc.strerror}") from None
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise InputError(f"{path.name}: not a regular file")
+        if st.st_size > max_bytes:
+            raise InputError(
+                f"{path.name}: {st.st_size} bytes, more than a frame of the profile's shape "
+                f"can take ({max_bytes})"
+            )
+        try:
+            data = fh.read(max_bytes + 1)
+        except OSError as exc:
+            raise InputError(f"{path.name}: cannot read: {exc.strerror}") from None
+    if len(data) > max_bytes:
+        raise InputError(f"{path.name}: grew beyond {max_bytes} bytes while read")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{path.name}: not text (bytes that are not UTF-8)") from None
+
+
 def iter_recordings(
-    folder: str | Path, background: str | Path | None = None
+    folder: str | Path, background: str | Path | None = None, limits: InputLimits | None = None
 ) -> Iterator[Recording]:
     """Each frames file with its background; read errors become Recording.error, never raise."""
     bg_folder = Path(background) if background is not None else None
     for path in frame_files(folder):
         try:
-            frames = read_frames(path)
+            frames = read_frames(path, limits)
             bg = None
             if bg_folder is not None:
                 bg_path = bg_folder / path.name
                 if not bg_path.exists():
                     raise InputError(f"{path.name}: no background file {bg_path}")
-                bg = read_frames(bg_path)
+                bg = read_frames(bg_path, limits)
                 if bg.shape != frames.shape:
                     raise InputError(
                         f"{path.name}: background shape {bg.shape} differs from frames {frames.shape}"
@@ -92,12 +128,12 @@ def read_truth(frames_path: str | Path) -> np.ndarray | None:
     """Ground-truth position (mm) from the labels file beside a frames file, else from its name."""
     frames_path = Path(frames_path)
     labels = frames_path.with_name(frames_path.name[: -len(FRAMES_SUFFIX)] + LABELS_SUFFIX)
-    if labels.exists():
+    if labels.is_file() and labels.stat().st_size <= MAX_LABELS_BYTES:
         try:
             rows = np.loadtxt(labels, ndmin=2)
             if rows.shape[1] >= 6 and np.all(np.isfinite(rows[0, 3:6])):
                 return rows[0, 3:6].astype(np.float64)
-        except ValueError:
+        except (ValueError, OSError, UnicodeDecodeError):
             pass
     m = _POSITION_RE.match(frames_path.name)
     return np.array([float(v) for v in m.groups()]) if m else None

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spiel_edge.io.limits import InputLimits
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure.scenes import SceneTally
 from spiel_edge.pipeline.echo_labels import (
@@ -116,7 +117,8 @@ def evaluate_folder(
     """Replay a labelled spiel-csv folder; ``positions`` keeps only those (x, y) positions."""
     ev = Evaluation()
     skip_z = set(exclude_z)
-    for rec in iter_recordings(folder, background):
+    limits = InputLimits.for_profile(pipeline.profile)
+    for rec in iter_recordings(folder, background, limits):
         key = position_key(rec.source)
         if positions is not None and (key is None or key[:2] not in positions):
             continue

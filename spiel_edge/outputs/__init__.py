@@ -15,7 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from spiel_edge.errors import ConfigError
+from spiel_edge.errors import ConfigError, OutputError
 
 log = logging.getLogger(__name__)
 
@@ -27,19 +27,21 @@ class Sink(Protocol):
 
 
 class MultiSink:
-    """Fan records out to several sinks; a failing sink is logged and dropped, not fatal."""
+    """Fan records out to several sinks; a failing sink is logged and dropped, not fatal,
+    until none is left (OutputError). ``failed`` names the dropped ones (the command's exit
+    status says some output failed). The reader of stdout going away (BrokenPipeError) is
+    passed on: it is a normal end, not a failure."""
 
     def __init__(self, sinks: list[Sink]):
         self.sinks = list(sinks)
+        self.failed: list[str] = []
 
     def write(self, record: dict) -> None:
         for sink in list(self.sinks):
             try:
                 sink.write(record)
             except OSError as exc:
-                log.error("output %s failed, dropping it: %s", type(sink).__name__, exc)
-                self.sinks.remove(sink)
-                _close_quietly(sink)
+                self._drop(sink, exc)
 
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
         for sink in list(self.sinks):
@@ -49,12 +51,33 @@ class MultiSink:
             try:
                 hook(acquisition, frames)
             except OSError as exc:  # disk full, ...: stop recording, keep publishing
-                log.error("output %s failed, dropping it: %s", type(sink).__name__, exc)
-                self.sinks.remove(sink)
-                _close_quietly(sink)
+                self._drop(sink, exc)
+
+    def _drop(self, sink: Sink, exc: OSError) -> None:
+        if isinstance(exc, BrokenPipeError) and not getattr(sink, "owns_file", False):
+            raise exc
+        name = type(sink).__name__
+        log.error("output %s failed, dropping it: %s", name, exc)
+        self.sinks.remove(sink)
+        self.failed.append(f"{name}: {exc.strerror or exc}")
+        _close_quietly(sink)
+        if not self.sinks:
+            raise OutputError(f"every output failed ({'; '.join(self.failed)})") from exc
+
+    def close_files(self) -> None:
+        """Finalize the outputs that are files (recordings, NDJSON files); nothing that could
+        block on a reader. Safe to call again, and from the signal watchdog."""
+        for sink in list(self.sinks):
+            if getattr(sink, "owns_file", False):
+                try:
+                    sink.close()
+                except OSError as exc:
+                    log.error("closing output %s failed: %s", type(sink).__name__, exc)
+                    self.failed.append(f"{type(sink).__name__}: {exc.strerror or exc}")
+                    self.sinks.remove(sink)
 
     def close(self) -> None:
-        for sink in self.sinks:
+        for sink in list(self.sinks):
             try:
                 sink.close()
             except OSError as exc:
@@ -88,6 +111,17 @@ def recording_path(template: str | Path, now: float | None = None) -> Path:
     return path
 
 
+def check_outputs(plan, output: str | None, record: str | Path | None) -> Path | None:
+    """Check the file outputs of ``run`` before it starts (io.guard rules); the recording's
+    expanded path, to pass to :func:`open_outputs`."""
+    plan.output(output, "--output")
+    if record is None:
+        return None
+    path = recording_path(record)
+    plan.output(path, "--record")
+    return path
+
+
 def open_outputs(
     output: str | None = "-",
     record: str | Path | None = None,
@@ -97,6 +131,7 @@ def open_outputs(
     *,
     metadata: dict[str, Any] | None = None,
     receivers_mm: Any = None,
+    force: bool = True,
 ) -> MultiSink:
     """The sinks the options ask for, all at once: NDJSON (``output``; None for none), an MCAP
     recording, UDP targets, a Foxglove live view, Zenoh. Closes what it opened on failure."""
@@ -104,10 +139,10 @@ def open_outputs(
 
     factories: list = []
     if output is not None:
-        factories.append(lambda: NdjsonSink(output))
+        factories.append(lambda: NdjsonSink(output, exclusive=not force))
     if record is not None:
         path = recording_path(record)
-        factories.append(lambda: _mcap_sink(path, metadata))
+        factories.append(lambda: _mcap_sink(path, metadata, exclusive=not force))
     for target in [udp] if isinstance(udp, str) else list(udp or []):
         factories.append(lambda target=target: _udp_sink(target))
     if foxglove is not None:
@@ -125,13 +160,15 @@ def open_outputs(
     return MultiSink(sinks)
 
 
-def _mcap_sink(path: Path, metadata: dict[str, Any] | None) -> Sink:
+def _mcap_sink(path: Path, metadata: dict[str, Any] | None, exclusive: bool = False) -> Sink:
     from spiel_edge.outputs.mcap import McapSink
 
     try:
-        return McapSink(path, metadata=metadata)
+        return McapSink(path, metadata=metadata, exclusive=exclusive)
+    except ConfigError as exc:
+        raise ConfigError(f"--record {exc}") from exc
     except OSError as exc:
-        raise ConfigError(f"--record {path}: cannot write: {exc}") from exc
+        raise ConfigError(f"--record {path}: cannot write: {exc.strerror or exc}") from exc
 
 
 def _udp_sink(target: str) -> Sink:

@@ -5,7 +5,8 @@ Channels (message encoding ``json``, schemas ``jsonschema``, so Foxglove opens t
 
 * ``/spiel/acquisition``: one raw acquisition (``frames``: channels x samples) plus the
   acquisition's metadata (``seq``, timestamps, ...);
-* ``/spiel/background``: the target-free capture, written when it changes; it applies to the
+* ``/spiel/background``: the target-free capture, written when it changes (and again every
+  16 acquisitions; each acquisition names its ``background_crc``, the CRC-32 of that message); it applies to the
   acquisitions that follow it;
 * ``/spiel/position``: one pipeline record per acquisition.
 
@@ -18,7 +19,9 @@ from __future__ import annotations
 
 import json
 import logging
+import threading
 import time
+import zlib
 from pathlib import Path
 from typing import IO, Any
 
@@ -26,12 +29,16 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
+from spiel_edge.io.guard import open_exclusive
 from spiel_edge.io.mcap import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
 
 log = logging.getLogger(__name__)
 
 MCAP_PROFILE = ""  # no ROS message definitions: plain JSON with JSON schemas
-CHUNK_SIZE = 256 * 1024  # about 2 s at 100 Hz: the most a hard kill can lose
+CHUNK_SIZE = (
+    32 * 1024
+)  # about 20 acquisitions of 4 x 64: the most a hard kill or one bad byte loses
+BACKGROUND_EVERY = 16  # the background is written again this often, so damage loses little
 
 _FRAMES = {
     "type": "array",
@@ -82,9 +89,11 @@ class McapSink:
         metadata: dict[str, Any] | None = None,
         chunk_size: int = CHUNK_SIZE,
         compression: str = "zstd",
+        exclusive: bool = False,
     ):
         self.path = Path(path)
-        self._fh: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        # exclusive: never replace a file that appeared since the command checked its outputs
+        self._fh: IO[bytes] = open_exclusive(self.path, force=not exclusive)
         self._writer = Writer(
             self._fh, chunk_size=chunk_size, compression=CompressionType[compression.upper()]
         )
@@ -103,6 +112,11 @@ class McapSink:
         )
         self._sequence = 0
         self._background: np.ndarray | None = None
+        self._background_crc = 0
+        self._background_chunk = -1
+        self._lock = threading.RLock()  # close() may come from the signal watchdog
+        self.owns_file = True
+        self._since_background = 0
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}
 
@@ -118,33 +132,59 @@ class McapSink:
         stamp = _stamp(meta)
         background = acquisition.get("background")
         if background is not None and (
-            self._background is None or not np.array_equal(background, self._background)
+            self._background is None
+            or self._since_background >= BACKGROUND_EVERY
+            or self._chunks_written() != self._background_chunk
+            or not np.array_equal(background, self._background)
         ):
             self._background = np.array(background, copy=True)
-            self._add(BACKGROUND_TOPIC, {"frames": _samples(self._background)}, stamp)
+            self._since_background = 0
+            data = _dumps({"frames": _samples(self._background)})
+            self._background_crc = zlib.crc32(data)
+            self._add(BACKGROUND_TOPIC, data, stamp)
+            self._background_chunk = self._chunks_written()
+        if background is not None:
+            # which background applies, by content: replay finds it even when the message
+            # written just before was lost to damage (an identical earlier one serves)
+            meta["background_crc"] = self._background_crc
+            self._since_background += 1
         self._add(ACQUISITION_TOPIC, {**meta, "frames": _samples(np.asarray(frames))}, stamp)
         self.counts["acquisitions"] += 1
+
+    def _chunks_written(self) -> int:
+        """Chunks the writer has finished: a new one starts with the background again, so a
+        damaged chunk costs only its own acquisitions (the mcap Writer does not expose this
+        count; without it the background is still repeated every BACKGROUND_EVERY)."""
+        stats = getattr(self._writer, "_Writer__statistics", None)
+        return getattr(stats, "chunk_count", 0)
 
     def write(self, record: dict) -> None:
         self._add(POSITION_TOPIC, record, _stamp(record))
         self.counts["records"] += 1
 
-    def _add(self, topic: str, payload: dict, stamp: int) -> None:
+    def _add(self, topic: str, payload: dict | bytes, stamp: int) -> None:
         if self.closed:
             raise ValueError(f"{self.path}: recording already closed")
-        data = _dumps(payload)
+        data = payload if isinstance(payload, bytes) else _dumps(payload)
         now = time.time_ns()
-        self._writer.add_message(
-            self._channels[topic],
-            log_time=now,
-            data=data,
-            publish_time=stamp or now,
-            sequence=self._sequence,
-        )
+        with self._lock:  # close() may run in the signal watchdog meanwhile
+            if self.closed:
+                raise ValueError(f"{self.path}: recording already closed")
+            self._writer.add_message(
+                self._channels[topic],
+                log_time=now,
+                data=data,
+                publish_time=stamp or now,
+                sequence=self._sequence,
+            )
         self._sequence += 1
 
     def close(self) -> None:
-        """Write the summary and close the file; safe to call more than once."""
+        """Write the summary and close the file; safe to call more than once, from any thread."""
+        with self._lock:
+            self._close()
+
+    def _close(self) -> None:
         if self.closed:
             return
         self.closed = True

@@ -7,18 +7,43 @@ import sys
 from pathlib import Path
 from typing import TextIO
 
+from spiel_edge.io.guard import AtomicTextFile, open_exclusive
+
 
 class NdjsonSink:
-    def __init__(self, target: str | Path = "-"):
-        self._own = str(target) != "-"
-        self._fh: TextIO = open(target, "w", encoding="utf-8") if self._own else sys.stdout  # noqa: SIM115
+    """``exclusive``: the file must not exist yet (no --force); ``atomic``: written to a
+    temporary file renamed into place on close (a failed or interrupted command leaves the
+    target untouched, unless :meth:`commit` is called)."""
+
+    def __init__(self, target: str | Path = "-", *, exclusive: bool = False, atomic: bool = False):
+        self.owns_file = str(target) != "-"
+        self._atomic: AtomicTextFile | None = None
+        if not self.owns_file:
+            self._fh: TextIO = sys.stdout
+        elif atomic and not (Path(target).exists() and not Path(target).is_file()):
+            self._atomic = AtomicTextFile(target)
+            self._fh = self._atomic.fh
+        elif exclusive:
+            self._fh = open_exclusive(target, force=False, text=True)
+        else:
+            self._fh = open(target, "w", encoding="utf-8")  # noqa: SIM115
 
     def write(self, record: dict) -> None:
         self._fh.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
         self._fh.flush()
 
     def close(self) -> None:
-        if self._own:
+        """Close the file (an atomic one is renamed into place); flush stdout."""
+        if self._atomic is not None:
+            self._atomic.commit()
+        elif self.owns_file:
             self._fh.close()
         else:
             self._fh.flush()
+
+    def discard(self) -> None:
+        """An atomic file is dropped, leaving the target as it was."""
+        if self._atomic is not None:
+            self._atomic.discard()
+        elif self.owns_file:
+            self._fh.close()

@@ -12,6 +12,7 @@ import socket
 import time
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.io.guard import shorten
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +36,7 @@ def parse_host_port(
         port = -1
     if not host or not 0 <= port <= 65535:
         form = "[HOST:]PORT" if default_host else "HOST:PORT"
-        raise ConfigError(f"{what} {text!r} is not {form} (port 0-65535)")
+        raise ConfigError(f"{what} {shorten(text)!r} is not {form} (port 0-65535)")
     return host, port
 
 

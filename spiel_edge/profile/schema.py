@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.io.guard import read_config_text
+from spiel_edge.profile.geometry_checks import check_geometry
 from spiel_edge.profile.ranges import check_range
 
 log = logging.getLogger(__name__)
@@ -180,10 +182,8 @@ def apply_calibration(profile: Profile, path: str | Path) -> Profile:
     """Overlay a calibration (a partial profile TOML, e.g. only [geometry]) on ``profile``."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: calibration file not found") from exc
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        data = tomllib.loads(read_config_text(path, "calibration"))
+    except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: cannot read calibration: {exc}") from exc
     merged = profile_to_dict(profile)
     for key, value in data.items():
@@ -204,12 +204,7 @@ def resolve_profile(name_or_path: str | Path, calibration: str | Path | None = N
 def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
     candidate = Path(name_or_path)
     if candidate.suffix == ".toml" or candidate.exists():
-        try:
-            return candidate.read_text(), str(candidate)
-        except FileNotFoundError as exc:
-            raise ConfigError(f"{candidate}: profile file not found") from exc
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{candidate}: cannot read profile: {exc}") from exc
+        return read_config_text(candidate, "profile"), str(candidate)
     name = str(name_or_path)
     if name not in builtin_profiles():
         raise ConfigError(
@@ -345,6 +340,7 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
         )
     n_listen = int(g.listening_mask().sum())
     need(n_listen >= 3, f"geometry needs at least 3 listening channels, has {n_listen}")
+    check_geometry(g, a.n_samples, origin)
     need(
         0 <= p.preprocess.blind_zone_samples < a.n_samples,
         f"preprocess.blind_zone_samples must be in [0, {a.n_samples})",

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
+from spiel_edge.io.guard import atomic_write
 
 
 def median_background(
@@ -41,8 +42,9 @@ def background_of(frames: np.ndarray) -> np.ndarray:
 def save_background(path: str | Path, background: np.ndarray) -> Path:
     """Write a .npy file (or, for any other suffix, a spiel-csv frames file)."""
     path = Path(path)
-    if path.suffix == ".npy":
-        np.save(path, background, allow_pickle=False)
-    else:
-        np.savetxt(path, background, fmt="%.1f")
+    with atomic_write(path, "wb") as fh:  # never half a file where a good one was
+        if path.suffix == ".npy":
+            np.save(fh, background, allow_pickle=False)
+        else:
+            np.savetxt(fh, background, fmt="%.1f")
     return path

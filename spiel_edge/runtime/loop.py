@@ -23,6 +23,7 @@ from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
 from spiel_edge.outputs import Sink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.runtime.once import OncePerProblem
 from spiel_edge.runtime.records import error_record
 
 log = logging.getLogger(__name__)
@@ -137,6 +138,7 @@ class LiveRunner:
         self.stats = LiveStats()
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
         self._warned_no_background = False
+        self.problems = OncePerProblem(log)
 
     def run(
         self,
@@ -201,7 +203,7 @@ class LiveRunner:
             )
         except SpielError as exc:
             stats.errors += 1
-            log.error("acquisition %d: %s", acq.index, exc)
+            self.problems.log(str(exc), f"first at acquisition {acq.index}")
             record = {**head, **error_record(str(exc))}
         else:
             stats.fixes += result.position_mm is not None

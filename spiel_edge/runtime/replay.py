@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spiel_edge.errors import InputError, SpielError
+from spiel_edge.io.limits import InputLimits
 from spiel_edge.io.spiel_csv import Recording, iter_recordings
 from spiel_edge.pipeline.run import Pipeline, Result
 from spiel_edge.runtime.records import error_record
@@ -30,13 +31,17 @@ class Replayed:
 
 
 def iter_sources(
-    path: str | Path, fmt: str | None = None, background: str | Path | None = None
+    path: str | Path,
+    fmt: str | None = None,
+    background: str | Path | None = None,
+    limits: InputLimits | None = None,
 ) -> Iterator[Recording]:
-    """Recordings from a spiel-csv folder or an MCAP file (format guessed from the path)."""
+    """Recordings from a spiel-csv folder or an MCAP file (format guessed from the path),
+    each bounded by ``limits`` (the profile's frame shape) before it is parsed."""
     path = Path(path)
     fmt = fmt or ("mcap" if path.suffix == ".mcap" else "spiel-csv")
     if fmt == "spiel-csv":
-        yield from iter_recordings(path, background)
+        yield from iter_recordings(path, background, limits)
     elif fmt == "mcap":
         try:
             from spiel_edge.io.mcap import iter_mcap_recordings
@@ -44,7 +49,7 @@ def iter_sources(
             raise InputError(
                 f"{path}: MCAP replay is not available in this install ({exc})"
             ) from exc
-        yield from iter_mcap_recordings(path)
+        yield from iter_mcap_recordings(path, limits)
     else:
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
 

@@ -96,7 +96,50 @@ def check_config(
             "spiel_edge/profile/builtin/ for comparison",
         )
     extra = f" + calibration {calibration}" if calibration else ""
+    if origin != "defaults":
+        problem = service_rejects(read_env_file(env_file))
+        if problem:
+            return Check(
+                "config",
+                False,
+                f"{env_file}: {problem}",
+                "fix SPIEL_RUN_OPTIONS / SPIEL_PORT; `spiel-edge run --help` lists the options",
+            )
     return Check("config", True, f"profile {loaded.name!r}{extra} is valid ({origin})")
+
+
+def service_rejects(env: dict[str, str]) -> str | None:
+    """Why `spiel-edge run` would refuse SPIEL_RUN_OPTIONS or SPIEL_PORT (parsed by run's own
+    option parser, ranges included), or None."""
+    import click
+
+    from spiel_edge.cli import cli
+    from spiel_edge.link import LINK_SCHEMES, scheme_of
+
+    port = env.get("SPIEL_PORT", "")
+    if port and scheme_of(port) not in LINK_SCHEMES:
+        return f"SPIEL_PORT {port!r}: unknown URL scheme {scheme_of(port)!r}"
+    try:
+        args = shlex.split(env.get("SPIEL_RUN_OPTIONS", ""))
+    except ValueError as exc:
+        return f"SPIEL_RUN_OPTIONS: {exc}"
+    run = cli.get_command(click.Context(cli), "run")
+    try:
+        ctx = run.make_context("run", list(args), resilient_parsing=False)
+    except click.ClickException as exc:
+        return f"SPIEL_RUN_OPTIONS: {exc.format_message()}"
+    except click.exceptions.Exit:
+        return "SPIEL_RUN_OPTIONS: --help or --version ends the service at once"
+    from spiel_edge.outputs.udp import parse_host_port
+
+    try:
+        for target in ctx.params.get("udp") or ():
+            parse_host_port(target, what="--udp")
+        if ctx.params.get("foxglove"):
+            parse_host_port(ctx.params["foxglove"], default_host="127.0.0.1", what="--foxglove")
+    except SpielError as exc:
+        return f"SPIEL_RUN_OPTIONS: {exc}"
+    return None
 
 
 # -- model ---------------------------------------------------------------------------------

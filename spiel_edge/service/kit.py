@@ -14,6 +14,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from spiel_edge.service.unit_quote import exec_path as quote_exec_path
+
 log = logging.getLogger(__name__)
 
 SERVICE_USER = "spiel-edge"
@@ -41,6 +43,8 @@ def usb_ids() -> tuple[tuple[int, int], ...]:
 
 
 def render_unit(exec_path: str = DEFAULT_EXEC) -> str:
+    """The unit; ``exec_path`` quoted per systemd's rules (ConfigError when it cannot be)."""
+    exec_word = quote_exec_path(exec_path)
     return f"""\
 # spiel-edge: 3-D ultrasonic echolocation, published headless.
 # Installed by `spiel-edge service install`; settings live in {CONFIG_DIR}/spiel-edge.env.
@@ -64,7 +68,7 @@ Environment=NUMBA_CACHE_DIR=/var/cache/spiel-edge/numba
 StateDirectory=spiel-edge
 Environment=PYTHONUNBUFFERED=1
 EnvironmentFile=-{CONFIG_DIR}/spiel-edge.env
-ExecStart={exec_path} $SPIEL_VERBOSITY run $SPIEL_RUN_OPTIONS
+ExecStart={exec_word} $SPIEL_VERBOSITY run $SPIEL_RUN_OPTIONS
 # READY comes after the pipeline is compiled or loaded from the cache; WATCHDOG on progress.
 TimeoutStartSec=180
 WatchdogSec={WATCHDOG_SEC}

@@ -22,6 +22,8 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
+from spiel_edge.errors import ConfigError
+from spiel_edge.io.guard import shorten
 from spiel_edge.sim.device import DeviceGone, SimDevice
 from spiel_edge.sim.options import SimOptions
 
@@ -49,6 +51,13 @@ class _Pty:
         for fd in (self.master, self.slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
+
+
+def check_link_path(link: str) -> None:
+    """The --link path may be a symlink (ours, from an earlier run) or nothing: never a file
+    or folder, which replacing it would destroy."""
+    if os.path.lexists(link) and not os.path.islink(link):
+        raise ConfigError(f"--link {shorten(link)}: exists and is not a symlink; not replacing it")
 
 
 def _point_link(link: str | None, target: str) -> None:
@@ -157,6 +166,7 @@ def serve_pty(
     """Run a virtual board from ``url``'s options on a pty until ``stop`` is set."""
     device = SimDevice(SimOptions.from_url(url))
     if link:
+        check_link_path(link)
         Path(link).parent.mkdir(parents=True, exist_ok=True)
     PtyServer(device, link=link, announce=announce).serve(stop or threading.Event())
     return device

@@ -189,7 +189,19 @@ def geometries(tmp_path_factory):
 
 
 def median_error(port: str, out, *args: str, verbose: bool = False) -> float:
-    argv = ["run", "--port", port, "--frames", "10", "--rate", "500", "-o", str(out), *args]
+    argv = [
+        "run",
+        "--port",
+        port,
+        "--frames",
+        "10",
+        "--rate",
+        "500",
+        "-o",
+        str(out),
+        "--force",
+        *args,
+    ]
     assert main(["-v", *argv] if verbose else argv) == 0
     recs = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(recs) == 10
