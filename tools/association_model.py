@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure import evaluate
 from spiel_edge.pipeline import Pipeline
@@ -58,7 +59,6 @@ DEFAULT_DATA = Path(
 )
 DEFAULT_OUT = REPO / "spiel_edge" / "models"
 OPSET = 17
-EXCLUDED_Z_MM = (90.0,)
 MARGIN = 1.0
 LAMBDA_BCE, LAMBDA_CONTRASTIVE = 10.0, 1.0
 SPLIT_SALT = "spiel-edge"  # spiel_edge.measure.evaluate.split_by_position's default
@@ -76,6 +76,8 @@ class Sample:
     labels: np.ndarray  # (channels,) target echo index or -1
     truth_mm: np.ndarray
     geometric: np.ndarray  # the geometric associator's matched (channels,)
+    frames: np.ndarray | None = None  # the raw acquisition, for the final stages' 3-D error
+    background: np.ndarray | None = None
 
     @property
     def xy(self) -> tuple[float, float]:
@@ -103,7 +105,9 @@ def load_samples(
         r = pipe.process(rec.frames, rec.background)
         labels = label_echoes(r.features, r.counts, expected_toa(profile, truth), tolerance)
         geo = np.array([-1 if m is None else m for m in r.matched], dtype=np.int64)
-        out.append(Sample(rec.source, r.features, r.counts, labels, truth, geo))
+        out.append(
+            Sample(rec.source, r.features, r.counts, labels, truth, geo, rec.frames, rec.background)
+        )
     return out
 
 
@@ -281,15 +285,34 @@ def pick_guard(profile: Profile, net: EchoNet, samples: list[Sample]) -> tuple[f
 
 
 def position_error(profile: Profile, s: Sample, matched: np.ndarray) -> float:
-    """|located - truth| in mm, NaN when the matches cannot be located."""
+    """|located - truth| in mm, NaN when the matches cannot be located: through the runtime's
+    final stages (echo timing, echo quality, locate) when the sample holds its frames."""
     g = profile.geometry
     use = matched >= 0
     if use.sum() < 3:
         return float("nan")
+    if s.frames is not None:
+        pipe = _final_stages(profile)
+        located = pipe._target(s.features, matched, 0.0, s.frames, s.background)
+        return (
+            float("nan")
+            if located is None
+            else float(np.linalg.norm(located[0].position_mm - s.truth_mm))
+        )
     toa = s.features[np.arange(len(matched)), np.maximum(matched, 0), TOA_COLUMN]
     paths = (toa - g.delays()) * profile.mm_per_sample
     pos, _, ok = locate(paths, g.channels_mm, g.emitter_mm, g.facing, use)
     return float(np.linalg.norm(pos - s.truth_mm)) if ok else float("nan")
+
+
+_FINAL_STAGES: dict[int, Pipeline] = {}
+
+
+def _final_stages(profile: Profile) -> Pipeline:
+    """One pipeline per profile object for position_error (its echo timing loads the model)."""
+    if id(profile) not in _FINAL_STAGES:
+        _FINAL_STAGES[id(profile)] = Pipeline(profile)
+    return _FINAL_STAGES[id(profile)]
 
 
 SCORE_WEIGHTS_MM = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0)

@@ -17,16 +17,17 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.calibrate import calibrate_frames, load_recordings
+from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import Profile, load_profile
 
-EXCLUDE_Z = (90.0,)
-
 
 def val_error(profile: Profile, folder: Path, bg: Path, val: set) -> dict:
-    ev = evaluate_folder(build_pipeline(profile), folder, bg, positions=val, exclude_z=EXCLUDE_Z)
+    ev = evaluate_folder(
+        build_pipeline(profile), folder, bg, positions=val, exclude_z=EXCLUDED_Z_MM
+    )
     s = ev.summary()
     return {k: s[k] for k in ("frames", "fix_rate", "mean_mm", "median_mm", "p95_mm")}
 
@@ -55,7 +56,7 @@ def main() -> None:
     folder, bg = args.dataset / "train_val", args.dataset / "train_val_bg"
     train, val = split_by_position(p.name for p in frame_files(folder))
     fix = {f for f in args.fix.split(",") if f}
-    data = load_recordings(folder, bg, positions=train, exclude_z=EXCLUDE_Z)
+    data = load_recordings(folder, bg, positions=train, exclude_z=EXCLUDED_Z_MM)
     hand = load_profile("spiel-icra23")
     nominal = hand.replace(
         geometry=dataclasses.replace(

@@ -2,7 +2,11 @@
 belongs to the known target.
 
 The first four pipeline stages (preprocess, detect, MEMG, features) do not depend on the
-geometry, so candidates are extracted once and re-picked as the geometry improves.
+geometry, so candidates are extracted once and re-picked as the geometry improves. When the
+profile's echo-timing step is on, every candidate is re-timed by it (as the pipeline re-times the
+matched echoes, without the learned correction: it knows only the recorded board's echo shapes,
+and its mean over the training echoes is zero) and its delay shift taken off, so the fitted
+``geometry.delay_samples`` are the ones the pipeline adds that shift to.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ import numpy as np
 
 from spiel_edge.calibrate.solve import Observations
 from spiel_edge.errors import InputError
+from spiel_edge.pipeline.echo_timing import EchoTiming
+from spiel_edge.pipeline.echo_timing_setup import timing_delays
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.run import Pipeline
 from spiel_edge.profile.schema import Profile
@@ -42,9 +48,23 @@ def extract_echoes(
     pipeline = Pipeline(profile, _no_association)
     out = np.full((frames.shape[0], profile.geometry.n_channels, profile.detect.max_echoes), np.nan)
     for i, frame in enumerate(frames):
-        result = pipeline.process(frame, None if backgrounds is None else backgrounds[i])
-        out[i] = result.features[:, :, TOA_COLUMN]
+        background = None if backgrounds is None else backgrounds[i]
+        result = pipeline.process(frame, background)
+        out[i] = _timed(pipeline, profile, frame, background, result.features[:, :, TOA_COLUMN])
     return out
+
+
+def _timed(pipeline: Pipeline, profile: Profile, frame, background, toa: np.ndarray) -> np.ndarray:
+    """Candidates re-timed by the pipeline's echo-timing estimator, minus its delay shift."""
+    step = pipeline.echo_timing
+    if not step.active:
+        return toa
+    timing = EchoTiming(step.estimator, step.half_window, step.blind_zone)
+    if not profile.preprocess.background_subtraction:
+        background = None
+    shift = timing_delays(profile) - np.asarray(profile.geometry.delays(), dtype=np.float64)
+    cols = [timing(frame, background, toa[:, k]) for k in range(toa.shape[1])]
+    return np.stack(cols, axis=1) - shift[:, None]
 
 
 def channel_offsets(

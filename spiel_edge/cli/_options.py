@@ -57,3 +57,10 @@ force_option = click.option(
     is_flag=True,
     help="Overwrite output files that already exist (never an input of the command).",
 )
+
+toa_correction_option = click.option(
+    "--toa-correction",
+    type=click.Choice(["auto", "onnx", "none"]),
+    default=None,
+    help="Learned ToA correction (default: the profile's; auto/onnx = the model when it loads).",
+)

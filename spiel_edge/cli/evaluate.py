@@ -13,7 +13,9 @@ from spiel_edge.cli._options import (
     calibration_option,
     max_targets_option,
     profile_option,
+    toa_correction_option,
 )
+from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import InputError
 from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
@@ -34,6 +36,7 @@ from spiel_edge.profile.schema import resolve_profile
 @calibration_option
 @association_option
 @max_targets_option
+@toa_correction_option
 @click.option(
     "--split",
     type=click.Choice(["all", "train", "val"]),
@@ -48,7 +51,12 @@ from spiel_edge.profile.schema import resolve_profile
     show_default=True,
     help="Share of (x, y) positions in the validation split.",
 )
-@click.option("--exclude-z", multiple=True, type=float, help="Leave out a height (mm); repeatable.")
+@click.option(
+    "--exclude-z",
+    multiple=True,
+    type=float,
+    help="Leave out a height (mm); repeatable (default: the mislabelled z = 90 mm).",
+)
 @click.option(
     "--max-z",
     type=float,
@@ -64,6 +72,7 @@ def command(
     calibration,
     association,
     max_targets,
+    toa_correction,
     split,
     val_fraction,
     exclude_z,
@@ -75,7 +84,9 @@ def command(
     FOLDER is a labelled spiel-csv folder, or a scene file (.npz from tools/build_scenes.py:
     several targets, or frames without background) for the per-number-of-targets metrics.
     """
-    pipeline = build_pipeline(resolve_profile(profile_name, calibration), association)
+    pipeline = build_pipeline(
+        resolve_profile(profile_name, calibration), association, toa_correction
+    )
     if max_targets:
         pipeline.set_max_targets(max_targets)
     if Path(folder).is_file():
@@ -84,7 +95,8 @@ def command(
     if split != "all":
         train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
         positions = train if split == "train" else val
-    ev = evaluate_folder(pipeline, folder, background, positions=positions, exclude_z=exclude_z)
+    skip = exclude_z or EXCLUDED_Z_MM
+    ev = evaluate_folder(pipeline, folder, background, positions=positions, exclude_z=skip)
     summary = {
         "split": split,
         "max_z": max_z,

@@ -13,6 +13,7 @@ from spiel_edge.cli._options import (
     force_option,
     max_targets_option,
     profile_option,
+    toa_correction_option,
 )
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.errors import OutputError
@@ -43,12 +44,22 @@ from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
 @calibration_option
 @association_option
 @max_targets_option
+@toa_correction_option
 @click.option(
     "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
 )
 @force_option
 def command(
-    path, fmt, background, profile_name, calibration, association, max_targets, output, force
+    path,
+    fmt,
+    background,
+    profile_name,
+    calibration,
+    association,
+    max_targets,
+    toa_correction,
+    output,
+    force,
 ) -> int:
     """Run the pipeline over recorded frames; one NDJSON record per acquisition.
 
@@ -63,7 +74,7 @@ def command(
         plan.input_file(calibration, "--calibration")
     plan.output(output, "--output")
     profile = resolve_profile(profile_name, calibration)
-    pipeline = build_pipeline(profile, association)
+    pipeline = build_pipeline(profile, association, toa_correction)
     sources = iter_sources(path, fmt, background, InputLimits.for_profile(profile))
     if max_targets:
         pipeline.set_max_targets(max_targets)

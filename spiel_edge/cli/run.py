@@ -17,6 +17,7 @@ from spiel_edge.cli._options import (
     max_targets_option,
     port_option,
     profile_option,
+    toa_correction_option,
 )
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.device import DeviceSession
@@ -67,6 +68,7 @@ from spiel_edge.service.systemd import Notifier
 )
 @association_option
 @max_targets_option
+@toa_correction_option
 @click.option(
     "--rate",
     type=click.FloatRange(0, 10000),
@@ -107,6 +109,7 @@ def command(
     use_board,
     association,
     max_targets,
+    toa_correction,
     rate,
     background,
     reconnect_timeout,
@@ -139,7 +142,12 @@ def command(
     with stop_on_signals(stop, finalizers):
         try:
             pipeline, source = open_pipeline(
-                session, profile_name, calibration, association, use_board=use_board
+                session,
+                profile_name,
+                calibration,
+                association,
+                use_board=use_board,
+                toa_correction=toa_correction,
             )
             if max_targets:
                 pipeline.set_max_targets(max_targets)

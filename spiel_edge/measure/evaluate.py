@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure.scenes import SceneTally
@@ -112,9 +113,10 @@ def evaluate_folder(
     background: str | Path | None = None,
     *,
     positions: set | None = None,
-    exclude_z: Iterable[float] = (),
+    exclude_z: Iterable[float] = EXCLUDED_Z_MM,
 ) -> Evaluation:
-    """Replay a labelled spiel-csv folder; ``positions`` keeps only those (x, y) positions."""
+    """Replay a labelled spiel-csv folder; ``positions`` keeps only those (x, y) positions;
+    heights in ``exclude_z`` (default: spiel-icra23's mislabelled z = 90 mm) are left out."""
     ev = Evaluation()
     skip_z = set(exclude_z)
     limits = InputLimits.for_profile(pipeline.profile)

@@ -13,6 +13,8 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.detect import detect
 from spiel_edge.pipeline.echo_quality import echo_quality
+from spiel_edge.pipeline.echo_timing import EchoTiming
+from spiel_edge.pipeline.echo_timing_setup import build_echo_timing, timing_delays
 from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.locate import locate
 from spiel_edge.pipeline.memg import fit_memg
@@ -25,7 +27,8 @@ from spiel_edge.profile.schema import MAX_TARGETS_LIMIT, Profile
 log = logging.getLogger(__name__)
 
 Associator = Callable[[np.ndarray, np.ndarray], np.ndarray]
-STAGES = ("preprocess", "detect", "memg", "features", "associate", "locate")
+# echo_timing runs per target inside locate; its time is reported apart from locate's
+STAGES = ("preprocess", "detect", "memg", "features", "associate", "echo_timing", "locate")
 
 # Why a record has no position (the ``reason`` field).
 REASON_TOO_FEW_CHANNELS = "fewer than 3 channels with echoes"
@@ -97,9 +100,12 @@ class Pipeline:
         *,
         saturation: float = 65535.0,
         max_targets: int | None = None,
+        echo_timing: EchoTiming | None = None,
     ):
         self.profile = profile
         self.associator = associator or GeometricAssociator(profile)
+        self.echo_timing = echo_timing or build_echo_timing(profile)
+        self._echo_timing_ns, self._clock = 0, _no_clock
         self.set_max_targets(profile.scene.max_targets if max_targets is None else max_targets)
         self.static_model = load_static_model(profile)  # stands in for a missing background
         self.saturation = saturation  # full scale of the board's samples (u16 envelopes)
@@ -107,7 +113,7 @@ class Pipeline:
         self._channels = np.ascontiguousarray(g.channels_mm, dtype=np.float64)
         self._emitter = np.ascontiguousarray(g.emitter_mm, dtype=np.float64)
         self._facing = np.ascontiguousarray(g.facing, dtype=np.float64)
-        self._delays = g.delays()
+        self._delays = timing_delays(profile) if self.echo_timing.active else g.delays()
 
     def set_max_targets(self, k: int) -> None:
         """Report up to ``k`` targets per acquisition (1 .. MAX_TARGETS_LIMIT)."""
@@ -173,10 +179,11 @@ class Pipeline:
         t4 = clock()
         hypotheses = self.scene(feats, counts)
         t5 = clock()
+        self._clock, self._echo_timing_ns = clock, 0
         result = self._locate(feats, counts, hypotheses, np.asarray(frames), background)
         t6 = clock()
         if timed:
-            stamps = (t0, t1, t2, t3, t4, t5, t6)
+            stamps = (t0, t1, t2, t3, t4, t5, t5 + self._echo_timing_ns, t6)
             result.timings_us = {s: (stamps[i + 1] - stamps[i]) / 1e3 for i, s in enumerate(STAGES)}
             result.timings_us["end_to_end"] = (t6 - t0) / 1e3
         return result
@@ -253,17 +260,22 @@ class Pipeline:
         return [t for t, _ in out]
 
     def _target(self, feats, matched, cost, raw, background) -> tuple[Target, np.ndarray] | None:
-        """One target from its matched echoes (a per-target ToA refinement slots in here,
-        before echo_quality), with its covariance; None when the solve fails."""
+        """One target from its matched echoes, re-timed by the echo-timing step, with its
+        covariance; None when the solve fails."""
         use = matched >= 0
         if use.sum() < 3:
             return None
         toa = feats[:, :, TOA_COLUMN]
         rows = np.arange(len(matched)), np.maximum(matched, 0)
         picked = np.where(use, toa[rows], np.nan)
+        start = self._clock()
+        picked = self.echo_timing(raw, background, picked)  # this target's ToAs, re-timed
+        self._echo_timing_ns += self._clock() - start
         weights, shift = echo_quality(
             raw, background, picked, feats[rows][:, 0], self.profile.locate
         )
+        if self.echo_timing.active:  # the echo timing replaces echo quality's ToA shift
+            shift = 0.0
         paths = (picked + shift - self._delays) * self.profile.mm_per_sample
         pos, rms, ok = locate(
             paths, self._channels, self._emitter, self._facing, use, weights=weights

@@ -24,6 +24,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "scene.covariance_scale": (0.01, 100.0),
     "scene.covariance_floor_mm": (0.0, 1000.0),
     "scene.static_mad_factor": (0.0, 10.0),
+    "echo_timing.half_window": (1, 8),
 }
 
 

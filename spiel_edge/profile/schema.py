@@ -26,6 +26,8 @@ log = logging.getLogger(__name__)
 
 TOA_METHODS = ("mode", "mu", "half", "peak")
 ASSOCIATION_METHODS = ("auto", "onnx", "geometric")
+ECHO_TIMING_ESTIMATORS = ("none", "parabola", "log_parabola")
+TOA_CORRECTIONS = ("auto", "onnx", "none")
 
 
 @dataclass(frozen=True)
@@ -130,6 +132,18 @@ MAX_TARGETS_LIMIT = 16  # also in profile/ranges.py (scene.max_targets)
 
 
 @dataclass(frozen=True)
+class EchoTimingSpec:
+    """Per matched echo, the ToA from the power-domain background-free envelope and a learned
+    correction; see pipeline/echo_timing.py. ``delay_shift_samples`` (one per channel, or
+    empty for none) is added to the geometry's delays when the estimator is on."""
+
+    estimator: str = "none"
+    half_window: int = 2
+    toa_correction: str = "none"
+    delay_shift_samples: tuple = ()
+
+
+@dataclass(frozen=True)
 class Profile:
     name: str
     geometry: Geometry
@@ -140,6 +154,7 @@ class Profile:
     associate: AssociateSpec = AssociateSpec()
     locate: LocateSpec = LocateSpec()
     scene: SceneSpec = SceneSpec()
+    echo_timing: EchoTimingSpec = EchoTimingSpec()
     description: str = ""
 
     @property
@@ -159,6 +174,7 @@ _SECTIONS = {
     "associate": AssociateSpec,
     "locate": LocateSpec,
     "scene": SceneSpec,
+    "echo_timing": EchoTimingSpec,
 }
 _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
@@ -251,10 +267,18 @@ def _section(origin: str, key: str, cls: type, values: Any) -> Any:
         expected = type(getattr(defaults, name))
         if expected is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
+        if expected is tuple and isinstance(value, list):
+            value = _number_tuple(origin, f"{key}.{name}", value)
         if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
             raise ConfigError(f"{origin}: {key}.{name} must be {expected.__name__}, got {value!r}")
         converted[name] = value
     return cls(**converted)
+
+
+def _number_tuple(origin: str, where: str, values: list) -> tuple:
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+        raise ConfigError(f"{origin}: {where} must be a list of numbers, got {values!r}")
+    return tuple(float(v) for v in values)
 
 
 def _geometry(origin: str, values: Any) -> Geometry:
@@ -381,12 +405,30 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
         "locate.toa_shift_background_after/before must be in [-5, 5] samples",
     )
     _validate_scene(p.scene, origin)
+    _validate_echo_timing(p.echo_timing, g.n_channels, need, origin)
 
 
 def _validate_scene(sc: SceneSpec, origin: str) -> None:
     for f in dataclasses.fields(SceneSpec):
         if f.name != "static_model":
             check_range(f"scene.{f.name}", getattr(sc, f.name), origin)
+
+
+def _validate_echo_timing(e: EchoTimingSpec, n_channels: int, need, origin: str) -> None:
+    need(
+        e.estimator in ECHO_TIMING_ESTIMATORS,
+        f"echo_timing.estimator must be one of {ECHO_TIMING_ESTIMATORS}, got {e.estimator!r}",
+    )
+    check_range("echo_timing.half_window", e.half_window, origin)
+    need(
+        e.toa_correction in TOA_CORRECTIONS,
+        f"echo_timing.toa_correction must be one of {TOA_CORRECTIONS}, got {e.toa_correction!r}",
+    )
+    shifts = e.delay_shift_samples
+    need(
+        len(shifts) in (0, n_channels) and all(abs(v) <= 5 for v in shifts),
+        f"echo_timing.delay_shift_samples must be empty or {n_channels} values in [-5, 5]",
+    )
 
 
 def profile_to_dict(p: Profile) -> dict[str, Any]:

@@ -89,13 +89,14 @@ def open_pipeline(
     association: str | None = None,
     *,
     use_board: bool = True,
+    toa_correction: str | None = None,
 ) -> tuple[Pipeline, str]:
     """Open ``session``, choose the profile (``calibration`` > the board's stored config, unless
     ``use_board`` is false > ``profile_name``), build the pipeline and warm it up. Returns the
     pipeline and where its geometry came from; closing the session is the caller's."""
     session.open()
     profile, source = run_profile(session, profile_name, calibration, use_board=use_board)
-    pipeline = build_pipeline(profile, association)
+    pipeline = build_pipeline(profile, association, toa_correction)
     warm_up(pipeline)
     return pipeline, source
 

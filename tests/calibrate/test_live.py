@@ -13,6 +13,7 @@ from spiel_edge.calibrate.capture import capture_positions
 from spiel_edge.cli import calibrate as cli_calibrate
 from spiel_edge.cli import main
 from spiel_edge.errors import DeviceError
+from spiel_edge.profile.schema import dump_toml, profile_to_dict
 from tests.calibrate.synth import nominal, perturbed_truth, render, target_grid
 
 FS = 22000.0
@@ -104,9 +105,15 @@ def test_cli_live_no_prompt_calibrates(tmp_path, monkeypatch):
     session.start_stream = robot_start
     monkeypatch.setattr(cli_calibrate, "open_session", lambda port: session)
     out = tmp_path / "cal.toml"
+    memg_toa = tmp_path / "memg-toa.toml"  # the fake board puts its delays at the MEMG mode
+    data = profile_to_dict(start)
+    data["echo_timing"]["estimator"] = "none"
+    memg_toa.write_text(dump_toml(data))
     rc = main(
         [
             "calibrate",
+            "--profile",
+            str(memg_toa),
             "--port",
             "sim://",
             "--positions",

@@ -126,3 +126,59 @@ def position_covariance(position, paths_mm, sigma_mm, use, channels, emitter, sc
         r = model(p)[use] - np.asarray(paths_mm)[use]
         inflation = min(max(float((w * r * r).sum()) / (n - 3), 1.0), 100.0)
     return scale**2 * inflation * np.linalg.inv(info) + floor_mm**2 * np.eye(3)
+
+
+def clean_envelope(frames, background, blind_zone):
+    """Power-domain background removal, blind zone zeroed."""
+    y = np.asarray(frames, dtype=float)
+    e = (
+        y.copy()
+        if background is None
+        else np.sqrt(np.maximum(y**2 - np.asarray(background) ** 2, 0))
+    )
+    e = np.maximum(e, 0)
+    e[:, :blind_zone] = 0
+    return e
+
+
+def refine_toa(clean, toa, half_window, log_domain):
+    """Parabola (optionally through the logs) around the largest sample near each ToA."""
+    out = np.array(toa, dtype=float)
+    n_t = clean.shape[1]
+    for c, t in enumerate(toa):
+        if not np.isfinite(t):
+            continue
+        centre = int(round(min(max(t, 0), n_t - 1)))
+        lo, hi = max(centre - half_window, 0), min(centre + half_window + 1, n_t)
+        k = lo + int(np.argmax(clean[c, lo:hi]))
+        if k < 1 or k > n_t - 2 or clean[c, k] <= 0:
+            continue
+        v = clean[c, k - 1 : k + 2]
+        if log_domain:
+            if np.any(v <= 0):
+                out[c] = k
+                continue
+            v = np.log(v)
+        curvature = v[0] - 2 * v[1] + v[2]
+        step = 0.5 * (v[0] - v[2]) / curvature if curvature < 0 else 0.0
+        out[c] = k + np.clip(step, -0.5, 0.5)
+    return out
+
+
+def toa_features(frames, background, clean, toa, half_width=6):
+    n_ch, n_t = frames.shape
+    rows = []
+    for c, t in enumerate(toa):
+        width = 3 * (2 * half_width + 1) + 3 + n_ch
+        if not np.isfinite(t) or round(t) - half_width < 0 or round(t) + half_width >= n_t:
+            rows.append(np.full(width, np.nan))
+            continue
+        k = int(round(t))
+        sl = slice(k - half_width, k + half_width + 1)
+        p = max(clean[c, k], 1.0)
+        bg = np.zeros(2 * half_width + 1) if background is None else background[c, sl] / p
+        scalars = [t - k, np.log(p), float(background is not None)]
+        rows.append(
+            np.concatenate([frames[c, sl] / p, bg, clean[c, sl] / p, scalars, np.eye(n_ch)[c]])
+        )
+    return np.array(rows)

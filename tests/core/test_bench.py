@@ -9,7 +9,7 @@ def test_bench_json_is_the_last_line_with_stage_timings(capsys):
         == 0
     )
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    stages = ("preprocess", "detect", "memg", "features", "associate", "locate")
+    stages = ("preprocess", "detect", "memg", "features", "associate", "echo_timing", "locate")
     for key in ("real_4x64", "synthetic_8x256", "synthetic_16x1024"):
         block = result[key]
         assert block["acquisitions"] > 0

@@ -40,6 +40,7 @@ def test_other_hardware_any_receivers(tmp_path, profile):
     ]
     data["geometry"]["listening"] = [False, True, True, True, True, True]
     data["geometry"]["delay_samples"] = [0.0] * 6
+    data["echo_timing"]["delay_shift_samples"] = []  # per channel, like the delays
     data["acquisition"]["n_samples"] = 512
     p = profile_from_dict(data)
     assert p.geometry.n_channels == 6 and int(p.geometry.listening_mask().sum()) == 5

@@ -49,7 +49,9 @@ def test_run_writes_one_record_per_acquisition(sim_url, tmp_path, capsys):
 def test_run_on_the_echo_model_is_accurate(sim_url, tmp_path):
     out = tmp_path / "out.ndjson"
     port = sim_url("scene=model&seed=3")
-    assert main(["run", "--port", port, "--frames", "60", "--rate", "500", "-o", str(out)]) == 0
+    # the learned ToA correction fits the recorded board's echo shapes, not the echo model's
+    argv = ["run", "--port", port, "--frames", "60", "--rate", "500", "--toa-correction", "none"]
+    assert main([*argv, "-o", str(out)]) == 0
     recs = records(out)
     errors = [
         np.linalg.norm(np.subtract(r["position_mm"], r["truth_mm"]))

@@ -1,0 +1,163 @@
+"""The learned ToA correction (gradient-boosted trees in ONNX), run by onnxruntime.
+
+Input ``features`` (batch, n_toa_features) float32 from
+:func:`spiel_edge.pipeline.echo_timing.toa_features`; output ``correction`` (batch, 1): the
+ToA error in samples (refined ToA minus delay minus the true ToA) to subtract; the trees are
+evaluated in numba (:mod:`spiel_edge.pipeline.tree_ensemble`, checked against onnxruntime on
+load), else by onnxruntime. Model card:
+``spiel_edge/models/toa_correction.md``; trained by ``python -m tools.train_toa_correction``.
+
+A missing, corrupt or mismatched model raises ModelError in :func:`load_correction`, which
+:func:`build_correction` turns into one warning and no correction. Rows with NaN features
+(no echo, window past the frame's edge) and non-finite predictions are left uncorrected.
+"""
+
+from __future__ import annotations
+
+import logging
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from spiel_edge._jit import jit
+from spiel_edge.errors import ModelError
+from spiel_edge.pipeline import tree_ensemble
+from spiel_edge.pipeline.echo_timing import n_toa_features
+
+log = logging.getLogger(__name__)
+
+INPUT_NAME = "features"
+OUTPUT_NAME = "correction"
+MAX_CORRECTION = 1.5  # samples: the model was trained on residuals within this bound
+CHOICES = ("auto", "onnx", "none")
+AGREEMENT = 1e-4  # samples: numba and onnxruntime must agree this well on the probe rows
+
+
+def default_model_path() -> Path:
+    return Path(str(resources.files("spiel_edge") / "models" / "toa_correction.onnx"))
+
+
+class ToaCorrection:
+    """Callable: (features (channels, n), toa (channels,)) -> corrected toa (channels,).
+
+    The trees run in numba when they can be read from the file and agree with onnxruntime on
+    probe rows (``engine`` = "numba"), else in onnxruntime ("onnxruntime")."""
+
+    name = "onnx"
+    max_correction = MAX_CORRECTION
+
+    @property
+    def trees(self) -> tuple | None:
+        """The dense trees for numba (see tree_ensemble.dense) plus the base, or None."""
+        return self._dense
+
+    def __init__(self, session, path: Path, blob: bytes):
+        self._session = session
+        self.path = path
+        self.metadata = dict(session.get_modelmeta().custom_metadata_map)
+        self._dense = None
+        self.engine = "onnxruntime"
+        try:
+            trees = tree_ensemble.read_trees(blob)
+            dense = (*tree_ensemble.dense(trees), trees.base)
+        except (ModelError, ValueError, IndexError) as exc:
+            log.info("ToA correction runs in onnxruntime (%s)", exc)
+            return
+        probe = np.random.default_rng(0).normal(0.5, 1.0, (64, session.get_inputs()[0].shape[1]))
+        self._dense = dense
+        if np.max(np.abs(self._numba(probe) - self._onnxruntime(probe))) <= AGREEMENT:
+            self.engine = "numba"
+        else:
+            self._dense = None
+            log.info("ToA correction runs in onnxruntime (numba trees disagree)")
+
+    def _onnxruntime(self, features: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(features, dtype=np.float32)
+        return self._session.run([OUTPUT_NAME], {INPUT_NAME: x})[0].reshape(-1).astype(np.float64)
+
+    def _numba(self, features: np.ndarray) -> np.ndarray:
+        out = np.empty(features.shape[0])
+        tree_ensemble._predict_kernel(
+            *self._dense, np.ascontiguousarray(features, dtype=np.float64), out
+        )
+        return out
+
+    def predict(self, features: np.ndarray) -> np.ndarray:
+        """Correction (samples) per row, clipped; 0 for rows with non-finite features or output."""
+        ok = np.all(np.isfinite(features), axis=1)
+        out = np.zeros(features.shape[0])
+        if ok.any():
+            pred = self._numba(features[ok]) if self._dense else self._onnxruntime(features[ok])
+            out[ok] = np.where(np.isfinite(pred), np.clip(pred, -MAX_CORRECTION, MAX_CORRECTION), 0)
+        return out
+
+    def __call__(self, features: np.ndarray, toa: np.ndarray) -> np.ndarray:
+        if self._dense is None:
+            return toa - self.predict(features)
+        out = np.empty(features.shape[0])
+        _correct_kernel(
+            *self._dense,
+            np.ascontiguousarray(features, dtype=np.float64),
+            np.ascontiguousarray(toa, dtype=np.float64),
+            MAX_CORRECTION,
+            out,
+        )
+        return out
+
+
+@jit
+def _correct_kernel(feature, threshold, value, base, x, toa, max_correction, out):
+    tree_ensemble._predict_kernel(feature, threshold, value, base, x, out)
+    for r in range(x.shape[0]):
+        pred = out[r]
+        if not np.isfinite(pred):
+            pred = 0.0
+        out[r] = toa[r] - min(max(pred, -max_correction), max_correction)
+
+
+def load_correction(n_channels: int, path: str | Path | None = None) -> ToaCorrection:
+    """Load and check the model for a board with ``n_channels`` channels."""
+    import onnxruntime as ort
+
+    path = Path(path) if path is not None else default_model_path()
+    if not path.is_file():
+        raise ModelError(f"ToA correction model {path} not found")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    opts.inter_op_num_threads = 1
+    opts.log_severity_level = 3
+    blob = path.read_bytes()
+    try:
+        session = ort.InferenceSession(blob, sess_options=opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime's own errors: corrupt file, unsupported opset
+        raise ModelError(f"ToA correction model {path} cannot be loaded: {exc}") from exc
+    inputs, outputs = session.get_inputs(), [o.name for o in session.get_outputs()]
+    want = n_toa_features(n_channels)
+    if len(inputs) != 1 or inputs[0].name != INPUT_NAME or OUTPUT_NAME not in outputs:
+        raise ModelError(
+            f"ToA correction model {path}: expected input {INPUT_NAME!r} and output "
+            f"{OUTPUT_NAME!r}, got {[i.name for i in inputs]} -> {outputs}"
+        )
+    shape = inputs[0].shape
+    if len(shape) != 2 or shape[1] != want or inputs[0].type != "tensor(float)":
+        raise ModelError(
+            f"ToA correction model {path}: input must be float32 (batch, {want}) for "
+            f"{n_channels} channels, got {inputs[0].type} {shape}"
+        )
+    return ToaCorrection(session, path, blob)
+
+
+def build_correction(
+    choice: str, n_channels: int, path: str | Path | None = None
+) -> ToaCorrection | None:
+    """``none``: no correction; ``auto``/``onnx``: the model, or one warning and None."""
+    if choice == "none":
+        return None
+    try:
+        return load_correction(n_channels, path)
+    except ImportError as exc:
+        log.warning("ToA correction unavailable (%s); using the uncorrected ToA", exc)
+    except ModelError as exc:
+        log.warning("%s; using the uncorrected ToA", exc)
+    return None
