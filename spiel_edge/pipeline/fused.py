@@ -100,17 +100,17 @@ class FusedPipeline:
             TOA_CODES[p.memg.toa],
         )
 
-    def check_shape(self, frames: np.ndarray, what: str = "frames") -> None:
-        self.pipeline.check_shape(frames, what)
+    def __getattr__(self, name: str):
+        return getattr(self.pipeline, name)  # anything else is the staged pipeline's
 
     def process(
         self, frames: np.ndarray, background: np.ndarray | None = None, *, timed: bool = False
     ) -> run.Result:
         if timed or self.fallback:
             return self.pipeline.process(frames, background, timed=timed)
-        self.check_shape(frames)
+        self.pipeline.check_shape(frames)
         if background is not None:
-            self.check_shape(background, "background")
+            self.pipeline.check_shape(background, "background")
         if not self.profile.preprocess.background_subtraction:
             background = None
         ws = self._workspaces.get()
