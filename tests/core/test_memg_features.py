@@ -123,3 +123,12 @@ def test_features_match_numpy_reference():
     f = echo_features(y, params, np.array([[k, 45]]), "peak")
     den = yy[k - 1] - 2 * yy[k] + yy[k + 1]
     assert f[0, 0, 6] == pytest.approx(k + 0.5 * (yy[k - 1] - yy[k + 1]) / den)
+
+
+def test_mode_is_the_maximum_for_every_bounded_eta():
+    from spiel_edge.pipeline.features import _mode
+
+    for eta in np.linspace(-4.0, 8.0, 49):
+        t = np.linspace(18.0, 25.0, 700001)  # mu 20, sigma 1: [mu - 2 sigma, mu + 5 sigma]
+        want = t[np.argmax(naive.emg(t, 500.0, 20.0, 1.0, eta))]
+        assert _mode(500.0, 20.0, 1.0, eta) == pytest.approx(want, abs=2e-5)
