@@ -44,17 +44,17 @@ class BackState:
     background: np.ndarray | None  # None when the profile does not subtract one
     features: np.ndarray
     counts: np.ndarray
-    matched: np.ndarray | None = None
+    hypotheses: list | None = None  # the scene associator's (matched, cost), best first
     result: run.Result | None = None
 
 
 def _associate_step(pipeline: run.Pipeline, state: BackState) -> None:
-    state.matched = pipeline.associator(state.features, state.counts)
+    state.hypotheses = pipeline.scene(state.features, state.counts)
 
 
 def _locate_step(pipeline: run.Pipeline, state: BackState) -> None:
     state.result = pipeline._locate(
-        state.features, state.counts, state.matched, state.frames, state.background
+        state.features, state.counts, state.hypotheses, state.frames, state.background
     )
 
 
@@ -78,7 +78,6 @@ class FusedPipeline:
         self.pipeline = pipeline
         p = pipeline.profile
         self.profile = p
-        self.associator = pipeline.associator
         self.fallback = unsupported_stages(pipeline)
         if self.fallback:
             log.info("fused path falls back to the staged one for %s", ", ".join(self.fallback))
@@ -113,6 +112,8 @@ class FusedPipeline:
             self.pipeline.check_shape(background, "background")
         if not self.profile.preprocess.background_subtraction:
             background = None
+        elif background is None:
+            background = self.pipeline.static_model  # None unless the profile names one
         ws = self._workspaces.get()
         y = _numeric(frames, "frames")
         bg = _numeric(background, "background") if background is not None else ws.background[:0]
