@@ -48,8 +48,19 @@ def pipeline_kernels() -> dict[str, object]:
     return found
 
 
+def closed_form_acquisition(profile, target_mm=(0.0, 0.0, 150.0)):
+    """``(frames, background)`` of ``profile``'s shape: one EMG-shaped echo per channel at the
+    target's echo time (a closed form, no simulator), on an empty background."""
+    g = profile.geometry
+    toa = g.echo_paths_mm(np.asarray(target_mm, dtype=np.float64)) / profile.mm_per_sample
+    u = (np.arange(profile.acquisition.n_samples)[None, :] - (toa + g.delays())[:, None]) / 1.5
+    skew = np.vectorize(lambda v: 1.0 + math.erf(v / math.sqrt(2.0)))(u)
+    frames = 2000.0 * np.exp(-0.5 * u * u) * skew
+    return frames, np.zeros_like(frames)
+
+
 def _ring_input(n_channels: int = 8, n_samples: int = 128):
-    """A ring-array profile and one closed-form acquisition of a target 200 mm in front."""
+    """A ring-array profile and a closed-form acquisition of a target 200 mm in front."""
     from spiel_edge.profile.schema import AcquisitionSpec, Geometry, Profile
 
     angles = np.linspace(0.0, 2.0 * np.pi, n_channels - 1, endpoint=False)
@@ -58,15 +69,9 @@ def _ring_input(n_channels: int = 8, n_samples: int = 128):
         channels_mm=np.vstack([np.zeros(3), ring]), delay_samples=np.zeros(n_channels)
     )
     profile = Profile(
-        name="warmup-ring",
-        geometry=geometry,
-        acquisition=AcquisitionSpec(n_samples=n_samples),
+        name="warmup-ring", geometry=geometry, acquisition=AcquisitionSpec(n_samples=n_samples)
     )
-    toa = geometry.echo_paths_mm(np.array([20.0, -10.0, 200.0])) / profile.mm_per_sample
-    t = np.arange(n_samples)[None, :] - toa[:, None]
-    skew = np.vectorize(lambda u: 1.0 + math.erf(u / math.sqrt(2.0)))(t / 1.5)
-    frames = 2000.0 * np.exp(-0.5 * (t / 1.5) ** 2) * skew
-    return profile, frames, np.zeros_like(frames)
+    return (profile, *closed_form_acquisition(profile, (20.0, -10.0, 200.0)))
 
 
 def _exercise() -> None:
