@@ -52,13 +52,22 @@ def _associate_step(pipeline: run.Pipeline, state: BackState) -> None:
     state.hypotheses = pipeline.scene(state.features, state.counts)
 
 
+def _echo_timing_step(pipeline: run.Pipeline, state: BackState) -> None:
+    """Nothing here: the echo-timing step runs per target inside ``Pipeline._locate``."""
+    pipeline._clock, pipeline._echo_timing_ns = run._no_clock, 0  # untimed, as process()
+
+
 def _locate_step(pipeline: run.Pipeline, state: BackState) -> None:
     state.result = pipeline._locate(
         state.features, state.counts, state.hypotheses, state.frames, state.background
     )
 
 
-BACK_STEPS = {"associate": _associate_step, "locate": _locate_step}
+BACK_STEPS = {
+    "associate": _associate_step,
+    "echo_timing": _echo_timing_step,
+    "locate": _locate_step,
+}
 
 
 def unsupported_stages(pipeline: run.Pipeline) -> list[str]:

@@ -78,7 +78,7 @@ def test_unknown_stage_or_subclass_falls_back_to_staged(profile, subset, monkeyp
     fast.process(subset.frames[0], subset.backgrounds[0])
     assert calls == [1]
     monkeypatch.setattr(run, "STAGES", (*run.STAGES[:5], "timing", "locate"))
-    assert unsupported_stages(Pipeline(profile)) == ["timing"]
+    assert unsupported_stages(Pipeline(profile)) == ["timing"]  # a step fused.py lacks
     staged = Pipeline(profile)
     seen = []
     monkeypatch.setattr(staged, "process", lambda *a, **k: seen.append(1) or "staged")
