@@ -18,9 +18,24 @@ from spiel_edge.measure.bench import run_bench, to_json
 )
 @click.option("--association", type=click.Choice(["auto", "onnx", "geometric"]), default=None)
 @click.option("--no-startup", is_flag=True, help="Skip the fresh-interpreter start-up timing.")
-def command(as_json: bool, repeat: int, association: str | None, no_startup: bool) -> int:
-    """Median and p95 microseconds per acquisition, real 4x64 and synthetic 8x256 / 16x1024."""
-    result = run_bench(repeat=repeat, association=association, startup=not no_startup)
+@click.option(
+    "--reference",
+    "reference_count",
+    default=8,
+    show_default=True,
+    help="Acquisitions for the numpy/scipy reference (0: skip it).",
+)
+def command(
+    as_json: bool, repeat: int, association: str | None, no_startup: bool, reference_count: int
+) -> int:
+    """Median and p95 microseconds per acquisition, real 4x64 and synthetic 8x256 / 16x1024:
+    per stage (staged path), fused vs staged end to end, and the numpy/scipy reference."""
+    result = run_bench(
+        repeat=repeat,
+        association=association,
+        startup=not no_startup,
+        reference_count=reference_count,
+    )
     for name in ("real_4x64", "synthetic_8x256", "synthetic_16x1024"):
         e2e = result[name]["end_to_end"]
         stages = ", ".join(
@@ -31,6 +46,21 @@ def command(as_json: bool, repeat: int, association: str | None, no_startup: boo
         click.echo(
             f"{name}: end to end median {e2e['median_us']:.0f} us, p95 {e2e['p95_us']:.0f} us ({stages})"
         )
+    for name in ("paths_4x64", "paths_8x256", "paths_16x1024"):
+        f, s = result[name]["fused"], result[name]["staged"]
+        click.echo(
+            f"{name}: fused median {f['median_us']:.0f} us (p95 {f['p95_us']:.0f}), staged "
+            f"median {s['median_us']:.0f} us (p95 {s['p95_us']:.0f}): staged / fused "
+            f"{result[name]['staged_over_fused']:.2f}"
+        )
+    ref = result.get("reference_4x64")
+    if ref is not None and ref["available"]:
+        click.echo(
+            f"numpy/scipy reference 4x64: median {ref['median_ms']:.1f} ms over "
+            f"{ref['acquisitions']} acquisitions: {ref['reference_over_fused']:.0f}x the fused path"
+        )
+    elif ref is not None:
+        click.echo(f"numpy/scipy reference: not run ({ref['why']})")
     if result.get("onnx_scoring"):
         click.echo(
             f"onnx scoring: median {result['onnx_scoring']['scoring_us']['median']:.1f} us per acquisition"

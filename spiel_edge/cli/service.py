@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from spiel_edge.service import kit as service_kit
@@ -27,9 +29,15 @@ def command() -> None:
     help="spiel-edge executable for ExecStart (default: the one beside this Python).",
 )
 @click.option("--dry-run", is_flag=True, help="Print the files and commands; write nothing.")
-def install(prefix: str, exec_path: str | None, dry_run: bool) -> int:
+@click.option(
+    "--warmup/--no-warmup",
+    default=None,
+    help="Compile the kernels into the service's numba cache [default: on when PREFIX is /].",
+)
+def install(prefix: str, exec_path: str | None, dry_run: bool, warmup: bool | None) -> int:
     """Write the kit under PREFIX; an existing spiel-edge.env is kept. Prints what to run next."""
-    files = service_kit.plan(exec_path or service_kit.default_exec())
+    exec_path = exec_path or service_kit.default_exec()
+    files = service_kit.plan(exec_path)
     if dry_run:
         for kit_file in files:
             note = " (kept if it exists)" if kit_file.config else ""
@@ -44,6 +52,12 @@ def install(prefix: str, exec_path: str | None, dry_run: bool) -> int:
             ) from exc
         for path, what in results:
             click.echo(f"{what:9} {path}")
+        if warmup if warmup is not None else Path(prefix).resolve() == Path("/"):
+            report = service_kit.warm_cache(exec_path, prefix)
+            click.echo(
+                f"warmed    {Path(prefix) / service_kit.CACHE_PATH}: {report['kernels']} kernels "
+                f"in {report['seconds']:.1f} s ({len(report['compiled'])} compiled)"
+            )
     click.echo("\nthen, as root:" if not dry_run else "--- then, as root:")
     for step in service_kit.next_steps(prefix):
         click.echo(f"  {step}")

@@ -3,11 +3,18 @@
 Real 4 x 64 acquisitions come from the vendored recordings; synthetic 8 x 256 and 16 x 1024
 acquisitions from the virtual board's echo model (:mod:`spiel_edge.sim.synthetic`, two targets each). Start-up is measured in
 fresh interpreters: the second start must load numba's compiled kernels from its cache.
+
+End-to-end figures of the fused path (:mod:`spiel_edge.pipeline.fused`, what the CLI runs)
+and of the staged path (``Pipeline.process``) are measured interleaved, acquisition by
+acquisition, so both see the same machine load; the plain numpy/scipy reference of the same
+method (:mod:`spiel_edge.measure.reference`) runs on a few acquisitions when scipy is
+installed, and the ratios are reference / fused and staged / fused from this one run.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 import time
@@ -15,17 +22,23 @@ import time
 import numpy as np
 
 from spiel_edge.data import load_subset
+from spiel_edge.measure import reference
 from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.pipeline.fused import FusedPipeline
 from spiel_edge.pipeline.run import STAGES, Pipeline
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.sim.synthetic import ring_profile, synthesize
+
+log = logging.getLogger(__name__)
 
 STARTUP_SNIPPET = (
     "from spiel_edge.data import load_subset;"
     "from spiel_edge.pipeline.factory import build_pipeline;"
     "from spiel_edge.profile.schema import load_profile;"
+    "from spiel_edge.runtime.warmup import pipeline_kernels;"
     "s = load_subset(); p = build_pipeline(load_profile());"
-    "p.process(s.frames[0], s.backgrounds[0])"
+    "p.process(s.frames[0], s.backgrounds[0]);"
+    "print(sum(bool(k.stats.cache_misses) for k in pipeline_kernels().values()))"
 )
 
 
@@ -55,6 +68,58 @@ def time_pipeline(
     return {"acquisitions": len(timings), **_summarise(timings)}
 
 
+def _stats(values_us: list[float]) -> dict:
+    v = np.array(values_us)
+    return {
+        "median_us": round(float(np.median(v)), 2),
+        "p95_us": round(float(np.percentile(v, 95)), 2),
+    }
+
+
+def compare_paths(
+    staged: Pipeline, frames: np.ndarray, backgrounds: np.ndarray | None, repeat: int
+) -> dict:
+    """End-to-end microseconds of the fused and the staged path, interleaved per acquisition
+    (alternating which goes first), and their ratio of medians."""
+    fused = FusedPipeline(staged)
+    bgs = backgrounds if backgrounds is not None else [None] * len(frames)
+    pairs = list(zip(frames, bgs, strict=True))
+    for f, b in pairs:  # warm both (compilation, caches)
+        fused.process(f, b)
+        staged.process(f, b)
+    times = {"fused": [], "staged": []}
+    clock = time.perf_counter_ns
+    for r in range(repeat):
+        for i, (f, b) in enumerate(pairs):
+            order = (fused, staged) if (r + i) % 2 == 0 else (staged, fused)
+            for pipe in order:
+                t0 = clock()
+                pipe.process(f, b)
+                times["fused" if pipe is fused else "staged"].append((clock() - t0) / 1e3)
+    out = {name: _stats(v) for name, v in times.items()}
+    out["staged_over_fused"] = round(out["staged"]["median_us"] / out["fused"]["median_us"], 2)
+    return out
+
+
+def reference_figures(profile, frames, backgrounds, fused_median_us: float, count: int) -> dict:
+    """Milliseconds per acquisition of the numpy/scipy reference, and reference / fused."""
+    if not reference.available():
+        return {"available": False, "why": "scipy is not installed (pip install scipy)"}
+    reference.process(profile, frames[0], backgrounds[0])  # imports scipy outside the timing
+    times = []
+    for f, b in zip(frames[:count], backgrounds[:count], strict=True):
+        t0 = time.perf_counter_ns()
+        reference.process(profile, f, b)
+        times.append((time.perf_counter_ns() - t0) / 1e3)
+    median = float(np.median(times))
+    return {
+        "available": True,
+        "acquisitions": len(times),
+        "median_ms": round(median / 1e3, 2),
+        "reference_over_fused": round(median / fused_median_us, 1),
+    }
+
+
 def synthetic_set(n_channels: int, n_samples: int, count: int, seed: int = 0):
     profile = ring_profile(n_channels, n_samples)
     rng = np.random.default_rng(seed)
@@ -68,29 +133,49 @@ def synthetic_set(n_channels: int, n_samples: int, count: int, seed: int = 0):
 
 
 def startup_seconds(runs: int = 2) -> list[float]:
-    """Wall time of fresh interpreters importing the pipeline and processing one acquisition."""
+    """Wall time of fresh interpreters importing the pipeline and processing one acquisition
+    (logged: how many kernels each had to compile, 0 when the cache is warm)."""
     times = []
     for _ in range(runs):
         t0 = time.perf_counter()
-        subprocess.run(
-            [sys.executable, "-c", STARTUP_SNIPPET], check=True, capture_output=True, timeout=600
+        out = subprocess.run(
+            [sys.executable, "-c", STARTUP_SNIPPET],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=600,
         )
         times.append(round(time.perf_counter() - t0, 3))
+        log.info("start-up compiled %s kernel(s)", out.stdout.strip().splitlines()[-1])
     return times
 
 
-def run_bench(repeat: int = 5, association: str | None = None, startup: bool = True) -> dict:
+def run_bench(
+    repeat: int = 5, association: str | None = None, startup: bool = True, reference_count: int = 8
+) -> dict:
     subset = load_subset()
     profile = load_profile()
-    pipeline = build_pipeline(profile, association)
+    pipeline = build_pipeline(profile, association, fused=False)
     result = {
         "association": getattr(pipeline.associator, "name", type(pipeline.associator).__name__),
         "real_4x64": time_pipeline(pipeline, subset.frames, subset.backgrounds, repeat),
+        "paths_4x64": compare_paths(pipeline, subset.frames, subset.backgrounds, repeat),
     }
     for n_ch, n_t, count in ((8, 256, 100), (16, 1024, 30)):
         prof, frames, backgrounds = synthetic_set(n_ch, n_t, count)
         result[f"synthetic_{n_ch}x{n_t}"] = time_pipeline(
             Pipeline(prof), frames, backgrounds, max(1, repeat // 2)
+        )
+        result[f"paths_{n_ch}x{n_t}"] = compare_paths(
+            Pipeline(prof), frames, backgrounds, max(1, repeat // 2)
+        )
+    if reference_count > 0:
+        result["reference_4x64"] = reference_figures(
+            profile,
+            subset.frames,
+            subset.backgrounds,
+            result["paths_4x64"]["fused"]["median_us"],
+            reference_count,
         )
     result["end_to_end"] = result["real_4x64"]["end_to_end"]
     for stage in STAGES:

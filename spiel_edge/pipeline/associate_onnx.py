@@ -62,6 +62,10 @@ def load_session(path: str | Path):
     opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     opts.log_severity_level = 3  # errors only: a bad file is reported through ModelError
+    # a few-kB model scored on a handful of rows: onnxruntime's arena and memory-pattern
+    # planner would reserve far more than the model ever uses (docs/performance.md)
+    opts.enable_cpu_mem_arena = False
+    opts.enable_mem_pattern = False
     try:
         session = ort.InferenceSession(
             path.read_bytes(), sess_options=opts, providers=["CPUExecutionProvider"]

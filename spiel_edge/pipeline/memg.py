@@ -25,6 +25,8 @@ CLUSTER_GAP = 7  # samples between peaks below which two echoes overlap enough t
 WINDOW_BEFORE, WINDOW_AFTER = 5, 6
 SQRT2 = math.sqrt(2.0)
 SQRT_2_OVER_PI = math.sqrt(2.0 / math.pi)
+LAMBDA_START, LAMBDA_DOWN = 1e-2, 1.0 / 3.0
+REL_TOL = 1e-3  # stop when an accepted step lowers the cost by less than this share
 
 
 def fit_memg(
@@ -50,7 +52,8 @@ def fit_memg(
     if mu_window <= 0 or max_iterations < 1:
         raise InputError("mu_window must be > 0 and max_iterations >= 1")
     params = np.full((y.shape[0], peaks.shape[1], 4), np.nan)
-    _memg_kernel(y, peaks, counts, float(mu_window), int(max_iterations), params)
+    iterations = np.zeros(peaks.shape, dtype=np.int64)
+    _memg_kernel(y, peaks, counts, float(mu_window), int(max_iterations), params, iterations)
     return params
 
 
@@ -86,18 +89,6 @@ def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
     out[col + 2] = -dm_du * u / sigma
     out[col + 3] = alpha * g * s * u
     return alpha * g * e
-
-
-@jit
-def _cluster_cost(y, lo, hi, p, n_comp):
-    cost = 0.0
-    for t in range(lo, hi):
-        m = 0.0
-        for k in range(n_comp):
-            m += emg_value(float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3])
-        r = y[t] - m
-        cost += r * r
-    return cost
 
 
 @jit
@@ -141,10 +132,12 @@ def solve_spd(a, b, n, x):
 
 @jit
 def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
-    """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations)."""
+    """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations); returns
+    the cost sum r^2 at p, so a trial step costs one pass that also yields the next system."""
     n_par = 4 * n_comp
     a[:, :] = 0.0
     b[:] = 0.0
+    cost = 0.0
     for t in range(lo, hi):
         m = 0.0
         for k in range(n_comp):
@@ -152,6 +145,7 @@ def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
                 float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3], jac_row, 4 * k
             )
         r = y[t] - m
+        cost += r * r
         for i in range(n_par):
             b[i] += jac_row[i] * r
             for j in range(i + 1):
@@ -159,14 +153,21 @@ def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     for i in range(n_par):
         for j in range(i + 1, n_par):
             a[i, j] = a[j, i]
+    return cost
 
 
 @jit
 def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     """LM on components fitted jointly over y[lo:hi]; p holds 4 * n_comp parameters.
 
-    ``work`` is a scratch buffer (>= 6 * 4K + 2 * (4K)^2 floats for K components) so the
-    hot loop allocates nothing."""
+    Each trial evaluates the residuals and the Jacobian in one pass, so an accepted step
+    already holds the next normal equations (one pass per trial instead of a cost pass per
+    trial plus a Jacobian pass per iteration). Stops when an accepted step lowers the cost by
+    less than REL_TOL of itself: the fits that ran to the cap were weakly identified shapes
+    (eta or sigma at a bound, wide flat echoes) creeping along a flat valley with no effect on
+    the ToA (docs/performance.md).
+    ``work`` is a scratch buffer (>= 6 * 4K + 3 * (4K)^2 floats for K components) so the
+    hot loop allocates nothing. Returns the number of iterations."""
     n_par = 4 * n_comp
     lower_mu = work[0:n_comp]
     upper_mu = work[n_comp : 2 * n_comp]
@@ -188,13 +189,17 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     b = work[base + n_par : base + 2 * n_par]
     step = work[base + 2 * n_par : base + 3 * n_par]
     trial = work[base + 3 * n_par : base + 4 * n_par]
-    start = base + 4 * n_par
-    a = work[start : start + n_par * n_par].reshape((n_par, n_par))
-    damped = work[start + n_par * n_par : start + 2 * n_par * n_par].reshape((n_par, n_par))
-    lam = 1e-2
-    cost = _cluster_cost(y, lo, hi, p, n_comp)
+    b_trial = work[base + 4 * n_par : base + 5 * n_par]
+    start = base + 5 * n_par
+    nn = n_par * n_par
+    a = work[start : start + nn].reshape((n_par, n_par))
+    damped = work[start + nn : start + 2 * nn].reshape((n_par, n_par))
+    a_trial = work[start + 2 * nn : start + 3 * nn].reshape((n_par, n_par))
+    lam = LAMBDA_START
+    cost = _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b)
+    iterations = 0
     for _ in range(max_iter):
-        _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b)
+        iterations += 1
         improved = False
         for _try in range(8):
             for i in range(n_par):
@@ -207,25 +212,29 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
             for i in range(n_par):
                 trial[i] = p[i] + step[i]
             _clamp(trial, n_comp, lower_mu, upper_mu, alpha_max)
-            new_cost = _cluster_cost(y, lo, hi, trial, n_comp)
+            new_cost = _normal_equations(y, lo, hi, trial, n_comp, jac_row, a_trial, b_trial)
             if new_cost < cost:
-                converged = cost - new_cost <= 1e-4 * cost
+                converged = cost - new_cost <= REL_TOL * cost
                 p[:n_par] = trial[:n_par]
+                a[:, :] = a_trial
+                b[:] = b_trial
                 cost = new_cost
-                lam = max(lam / 3.0, 1e-7)
+                lam = max(lam * LAMBDA_DOWN, 1e-7)
                 improved = not converged
                 break
             lam *= 4.0
         if not improved:
             break
+    return iterations
 
 
 @jit
-def _memg_kernel(y, peaks, counts, mu_window, max_iter, params):
+def _memg_kernel(y, peaks, counts, mu_window, max_iter, params, iterations):
+    """Fit every channel's echoes into params; LM iterations per echo into iterations."""
     n_ch, n_t = y.shape
     n_max = 4 * peaks.shape[1]
     p = np.empty(n_max)
-    work = np.empty(6 * n_max + 2 * n_max * n_max)
+    work = np.empty(7 * n_max + 3 * n_max * n_max)
     for c in range(n_ch):
         first = 0
         while first < counts[c]:
@@ -235,10 +244,11 @@ def _memg_kernel(y, peaks, counts, mu_window, max_iter, params):
             n_comp = last - first + 1
             lo = max(0, peaks[c, first] - WINDOW_BEFORE)
             hi = min(n_t, peaks[c, last] + WINDOW_AFTER + 1)
-            _fit_cluster(
+            used = _fit_cluster(
                 y[c], lo, hi, peaks[c, first : last + 1], n_comp, mu_window, max_iter, p, work
             )
             for k in range(n_comp):
+                iterations[c, first + k] = used
                 for j in range(4):
                     params[c, first + k, j] = p[4 * k + j]
             first = last + 1

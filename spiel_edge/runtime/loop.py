@@ -64,20 +64,12 @@ def load_background(path: str | Path) -> np.ndarray:
 
 
 def warm_up(pipeline: Pipeline) -> None:
-    """Run the pipeline once on a synthetic acquisition of the profile's shape, so numba's
-    compilation (or cache load) happens before the stream starts, not on its first records."""
-    from spiel_edge.sim.scenes import EchoModelScene
+    """Run the pipeline once on a closed-form acquisition of the profile's shape (no simulator
+    import), so numba's compilation or cache load happens before the stream starts."""
+    from spiel_edge.runtime.warmup import closed_form_acquisition
 
-    p = pipeline.profile
-    scene = EchoModelScene(
-        p.geometry,
-        sample_rate_hz=p.acquisition.sample_rate_hz,
-        n_samples=p.acquisition.n_samples,
-        targets_mm=np.array([0.0, 0.0, 150.0]),
-    )
-    frame = scene.frame(0, p.acquisition.n_samples, 0.0)
     try:
-        pipeline.process(frame.samples.astype(np.float64), frame.background.astype(np.float64))
+        pipeline.process(*closed_form_acquisition(pipeline.profile))
     except SpielError as exc:  # an unusual profile: the live stream will tell
         log.debug("warm-up: %s", exc)
 

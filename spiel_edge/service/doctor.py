@@ -10,7 +10,6 @@ from __future__ import annotations
 import logging
 import shlex
 import tempfile
-import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -176,12 +175,10 @@ def check_model(path: str | Path | None = None, method: str = "auto") -> Check:
 
 def numba_cache_dir() -> Path | None:
     """Where numba caches the pipeline's kernels in this environment (None: nowhere usable)."""
-    try:
-        from spiel_edge.pipeline import detect
-    except RuntimeError as exc:  # numba raises at import when no cache location is writable
-        log.debug("numba cache: %s", exc)
-        return None
-    return Path(detect._detect_kernel._cache._cache_path)
+    from spiel_edge.runtime.warmup import cache_dir
+
+    found = cache_dir()
+    return None if found is None else Path(found)
 
 
 def check_numba_cache_dir(path: Path | None) -> Check:
@@ -201,26 +198,10 @@ def check_numba_cache_dir(path: Path | None) -> Check:
 
 
 def pipeline_dispatchers() -> list[Any]:
-    """The pipeline's cached numba kernels (module-level dispatchers with a cache)."""
-    import importlib
-    import pkgutil
+    """The pipeline's cached numba kernels (the finder warm-up and bench use too)."""
+    from spiel_edge.runtime.warmup import pipeline_kernels
 
-    import spiel_edge.pipeline as package
-
-    found = []
-    for info in pkgutil.iter_modules(package.__path__):
-        try:
-            module = importlib.import_module(f"{package.__name__}.{info.name}")
-        except ImportError:
-            continue
-        found += [
-            obj
-            for obj in vars(module).values()
-            if getattr(obj, "_cache", None) is not None
-            and hasattr(obj, "stats")
-            and getattr(obj, "__module__", "") == module.__name__
-        ]
-    return found
+    return list(pipeline_kernels().values())
 
 
 def kernel_cache_counts(dispatchers: Iterable[Any]) -> tuple[int, int]:
@@ -231,17 +212,10 @@ def kernel_cache_counts(dispatchers: Iterable[Any]) -> tuple[int, int]:
 
 
 def warm_pipeline() -> float:
-    """Run the pipeline once on a vendored acquisition; seconds taken (compile or cache load)."""
-    from spiel_edge.data import load_subset
-    from spiel_edge.pipeline.associate import GeometricAssociator
-    from spiel_edge.pipeline.run import Pipeline
-    from spiel_edge.profile.schema import load_profile
+    """Run every kernel once (compile or cache load); seconds taken."""
+    from spiel_edge.runtime.warmup import warmup
 
-    subset = load_subset()
-    profile = load_profile("spiel-icra23")
-    start = time.perf_counter()
-    Pipeline(profile, GeometricAssociator(profile)).process(subset.frames[0], subset.backgrounds[0])
-    return time.perf_counter() - start
+    return float(warmup()["seconds"])
 
 
 def check_numba_kernels(warm: Callable[[], float], counts: Callable[[], tuple[int, int]]) -> Check:

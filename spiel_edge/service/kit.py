@@ -8,12 +8,16 @@ config file the user may have edited.
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import shutil
+import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from spiel_edge.errors import SpielError
 from spiel_edge.service.unit_quote import exec_path as quote_exec_path
 
 log = logging.getLogger(__name__)
@@ -175,6 +179,30 @@ def install(files: list[KitFile], prefix: str | Path = "/") -> list[tuple[Path, 
         target.write_text(kit_file.text)
         done.append((target, "written"))
     return done
+
+
+CACHE_PATH = "var/cache/spiel-edge/numba"  # the unit's NUMBA_CACHE_DIR, relative to the prefix
+
+
+def warm_cache(exec_path: str, prefix: str | Path = "/", timeout_s: float = 900.0) -> dict:
+    """Run ``spiel-edge warmup`` with the unit's NUMBA_CACHE_DIR (under ``prefix``), so the
+    service's first start loads compiled kernels; returns the warm-up's JSON report. systemd
+    hands CacheDirectory= to the service user when the unit starts."""
+    cache = Path(prefix) / CACHE_PATH
+    cache.mkdir(parents=True, exist_ok=True)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    try:
+        out = subprocess.run(
+            [exec_path, "warmup", "--json"],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=timeout_s,
+            check=True,
+        )
+        return json.loads(out.stdout.strip().splitlines()[-1])
+    except (OSError, subprocess.SubprocessError, ValueError, IndexError) as exc:
+        raise SpielError(f"warm-up with {exec_path} failed: {exc}") from exc
 
 
 def next_steps(prefix: str | Path = "/") -> list[str]:

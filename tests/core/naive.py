@@ -5,15 +5,8 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.special import erf
 
-
-def preprocess(frames, background, blind_zone):
-    y = frames - background if background is not None else frames.copy()
-    y = np.clip(y, 0.0, None)
-    y[:, :blind_zone] = 0.0
-    return y
+from spiel_edge.measure.reference import detect, emg, locate, paths, preprocess  # noqa: F401
 
 
 def envelope(rf, f):
@@ -29,51 +22,6 @@ def envelope(rf, f):
             lo, hi = max(0, k - half), min(n_t, k + half + 1)
             out[c, k] = 2 * np.hypot(i[lo:hi].sum(), q[lo:hi].sum()) / (hi - lo)
     return out
-
-
-def detect(y, threshold, hysteresis, min_amplitude, max_echoes, first_sample):
-    peaks = np.full((y.shape[0], max_echoes), -1)
-    counts = np.zeros(y.shape[0], dtype=int)
-    for c, row in enumerate(y):
-        starts, rising = [], False
-        for t in range(max(1, first_sample + 1), len(row)):
-            g = row[t] - row[t - 1]
-            if not rising and g > threshold:
-                rising = True
-                starts.append(t - 1)
-            elif rising and g < threshold * hysteresis:
-                rising = False
-        cands = []
-        for i, s in enumerate(starts):
-            end = starts[i + 1] if i + 1 < len(starts) else len(row)
-            best = s + int(np.argmax(row[s:end]))
-            if row[best] >= min_amplitude:
-                cands.append((row[best], best))
-        strongest = sorted(cands, key=lambda a: (-a[0], a[1]))[:max_echoes]
-        chosen = sorted(b for _, b in strongest)
-        peaks[c, : len(chosen)] = chosen
-        counts[c] = len(chosen)
-    return peaks, counts
-
-
-def emg(t, alpha, mu, sigma, eta):
-    u = (t - mu) / sigma
-    return alpha * np.exp(-0.5 * u * u) * (1 + erf(eta * u / np.sqrt(2)))
-
-
-def paths(position, channels, emitter):
-    return np.linalg.norm(position - emitter) + np.linalg.norm(position - channels, axis=1)
-
-
-def locate(d, channels, emitter, use, start, weights=None):
-    w = np.ones(len(d)) if weights is None else np.asarray(weights)
-
-    def resid(p):
-        return w[use] * (paths(p, channels[use], emitter) - d[use])
-
-    sol = least_squares(resid, start, method="lm", xtol=1e-12, ftol=1e-12)
-    plain = paths(sol.x, channels[use], emitter) - d[use]
-    return sol.x, float(np.sqrt(np.mean(plain**2)))
 
 
 def brute_force_association(

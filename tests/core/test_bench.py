@@ -5,7 +5,19 @@ from spiel_edge.cli import main
 
 def test_bench_json_is_the_last_line_with_stage_timings(capsys):
     assert (
-        main(["bench", "--json", "--repeat", "1", "--no-startup", "--association", "geometric"])
+        main(
+            [
+                "bench",
+                "--json",
+                "--repeat",
+                "1",
+                "--no-startup",
+                "--association",
+                "geometric",
+                "--reference",
+                "1",
+            ]
+        )
         == 0
     )
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -18,3 +30,9 @@ def test_bench_json_is_the_last_line_with_stage_timings(capsys):
         assert block["end_to_end"]["median_us"] >= block["memg"]["median_us"]
     assert result["end_to_end"] == result["real_4x64"]["end_to_end"]
     assert result["association"] == "geometric"
+    for key in ("paths_4x64", "paths_8x256", "paths_16x1024"):
+        block = result[key]
+        assert 0 < block["fused"]["median_us"] <= block["fused"]["p95_us"]
+        assert block["staged_over_fused"] > 0
+    ref = result["reference_4x64"]
+    assert ref["available"] and ref["acquisitions"] == 1 and ref["reference_over_fused"] > 1

@@ -5,7 +5,13 @@ from scipy.optimize import curve_fit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.detect import detect
 from spiel_edge.pipeline.features import FEATURE_NAMES, echo_features
-from spiel_edge.pipeline.memg import _emg_jacobian_row, emg_value, fit_memg, solve_spd
+from spiel_edge.pipeline.memg import (
+    _emg_jacobian_row,
+    _normal_equations,
+    emg_value,
+    fit_memg,
+    solve_spd,
+)
 from tests.core import naive
 
 T = np.arange(64.0)
@@ -25,6 +31,22 @@ def test_emg_value_and_jacobian_match_numpy():
             down[i] -= h
             numeric = (naive.emg(t, *up) - naive.emg(t, *down)) / (2 * h)
             assert row[i] == pytest.approx(numeric, rel=1e-5, abs=1e-6)
+
+
+def test_normal_equations_match_numpy(rng):
+    p = np.array([700.0, 20.3, 1.7, 1.4, 300.0, 24.0, 2.0, -0.5])
+    y = rng.uniform(0, 900, 64)
+    a, b = np.empty((8, 8)), np.empty(8)
+    cost = _normal_equations(y, 14, 31, p, 2, np.empty(8), a, b)
+    t = np.arange(14.0, 31.0)
+    r = y[14:31] - naive.emg(t, *p[:4]) - naive.emg(t, *p[4:])
+    jac = np.empty((t.size, 8))
+    for i, ti in enumerate(t):
+        _emg_jacobian_row(ti, *p[:4], jac[i], 0)
+        _emg_jacobian_row(ti, *p[4:], jac[i], 4)
+    assert cost == pytest.approx(float(r @ r), rel=1e-12)
+    np.testing.assert_allclose(a, jac.T @ jac, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(b, jac.T @ r, rtol=1e-10, atol=1e-9)
 
 
 def test_solve_spd_matches_numpy(rng):
@@ -101,3 +123,12 @@ def test_features_match_numpy_reference():
     f = echo_features(y, params, np.array([[k, 45]]), "peak")
     den = yy[k - 1] - 2 * yy[k] + yy[k + 1]
     assert f[0, 0, 6] == pytest.approx(k + 0.5 * (yy[k - 1] - yy[k + 1]) / den)
+
+
+def test_mode_is_the_maximum_for_every_bounded_eta():
+    from spiel_edge.pipeline.features import _mode
+
+    for eta in np.linspace(-4.0, 8.0, 49):
+        t = np.linspace(18.0, 25.0, 700001)  # mu 20, sigma 1: [mu - 2 sigma, mu + 5 sigma]
+        want = t[np.argmax(naive.emg(t, 500.0, 20.0, 1.0, eta))]
+        assert _mode(500.0, 20.0, 1.0, eta) == pytest.approx(want, abs=2e-5)

@@ -24,5 +24,6 @@ def test_second_start_loads_every_kernel_from_the_cache(tmp_path):
     assert first["kernels"] >= 6 and first["compiled"]
     second = run_fresh(tmp_path)
     assert second["compiled"] == []
-    assert len(second["cache_hits"]) == second["kernels"] == first["kernels"]
+    assert len(second["cache_hits"]) == second["kernels"] >= 10
+    assert first["kernels"] >= second["kernels"]  # cold: helpers compiled as callees count too
     assert any(tmp_path.rglob("*.nbi"))

@@ -1,0 +1,56 @@
+"""Preallocated buffers for one acquisition shape, so the fused path allocates no arrays for
+its intermediates (outputs handed to the caller are still fresh copies)."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spiel_edge.pipeline.features import N_FEATURES
+
+
+@dataclass
+class Workspace:
+    """Intermediate arrays of the front kernel for (channels, samples, max_echoes)."""
+
+    n_channels: int
+    n_samples: int
+    max_echoes: int
+    envelope: np.ndarray = field(init=False, repr=False)  # (channels, samples) RF -> envelope
+    background: np.ndarray = field(init=False, repr=False)
+    cleaned: np.ndarray = field(init=False, repr=False)  # preprocessed envelope
+    peaks: np.ndarray = field(init=False, repr=False)
+    counts: np.ndarray = field(init=False, repr=False)
+    params: np.ndarray = field(init=False, repr=False)
+    iterations: np.ndarray = field(init=False, repr=False)
+    unsorted: np.ndarray = field(init=False, repr=False)  # features in detection order
+    features: np.ndarray = field(init=False, repr=False)  # features in ToA order
+
+    def __post_init__(self) -> None:
+        shape = (self.n_channels, self.n_samples)
+        echoes = (self.n_channels, self.max_echoes)
+        self.envelope = np.empty(shape)
+        self.background = np.empty(shape)
+        self.cleaned = np.empty(shape)
+        self.peaks = np.empty(echoes, dtype=np.int64)
+        self.counts = np.empty(self.n_channels, dtype=np.int64)
+        self.params = np.empty(echoes + (4,))
+        self.iterations = np.empty(echoes, dtype=np.int64)
+        self.unsorted = np.empty(echoes + (N_FEATURES,))
+        self.features = np.empty(echoes + (N_FEATURES,))
+
+
+class ThreadWorkspaces:
+    """One Workspace per thread (the kernels release the GIL: threads must not share one)."""
+
+    def __init__(self, n_channels: int, n_samples: int, max_echoes: int):
+        self._dims = (n_channels, n_samples, max_echoes)
+        self._local = threading.local()
+
+    def get(self) -> Workspace:
+        ws = getattr(self._local, "workspace", None)
+        if ws is None:
+            ws = self._local.workspace = Workspace(*self._dims)
+        return ws
