@@ -40,7 +40,8 @@ TARGET_FIELDS = (
     ("var_z", 7, 28),
 )
 _TARGET_POINT = struct.Struct("<4fi3f")
-_STAMP = struct.Struct("<iI")
+_STEP = _TARGET_POINT.size
+_CLOUD_TAIL = struct.Struct("<?3xIII")  # is_bigendian, point_step, row_step, data length
 
 
 def stamp_of(seconds: float | None) -> tuple[int, int]:
@@ -48,13 +49,14 @@ def stamp_of(seconds: float | None) -> tuple[int, int]:
 
     Microsecond resolution: a float of today's Unix seconds holds no more (records carry
     ``host_time`` rounded to the microsecond)."""
-    if seconds is None or not math.isfinite(seconds) or seconds < 0:
+    try:
+        sec = int(seconds)  # type: ignore[arg-type]  # split first: seconds * 1e9 loses ~100 ns
+    except (TypeError, ValueError, OverflowError):  # None, NaN, infinity
         return 0, 0
-    sec = int(seconds)  # split first: seconds * 1e9 would lose ~100 ns to float rounding
-    nanosec = round((seconds - sec) * 1e6) * 1000
-    if nanosec >= 1_000_000_000:
-        return sec + 1, nanosec - 1_000_000_000
-    return sec, nanosec
+    if sec < 0:
+        return 0, 0
+    micro = round((seconds - sec) * 1e6)  # type: ignore[operator]
+    return (sec + 1, 0) if micro >= 1_000_000 else (sec, micro * 1000)
 
 
 class _Writer:
@@ -101,9 +103,9 @@ class Ros2Encoder:
         pad = -(12 + len(raw)) % 8  # stamp (8) + length (4) + text, then float64 alignment
         self._point = struct.Struct(f"<4siII{len(raw)}s{pad}x3d")
         self._raw = raw
-        # PointCloud2 after the stamp: frame id, then from a 4-aligned offset everything fixed
+        # PointCloud2: header and size, the fixed field list (from a 4-aligned offset), the rest
         head_pad = -(12 + len(raw)) % 4
-        self._cloud_frame = struct.pack(f"<I{len(raw)}s{head_pad}x", len(raw), raw)
+        self._cloud_head = struct.Struct(f"<4siII{len(raw)}s{head_pad}xII")
         fields = _Writer()
         fields.put("I", len(TARGET_FIELDS))
         for name, datatype, offset in TARGET_FIELDS:
@@ -125,16 +127,14 @@ class Ros2Encoder:
     def targets_cloud(self, targets: list[dict], stamp_s: float | None) -> bytes:
         """sensor_msgs/msg/PointCloud2, one point per target (TARGET_FIELDS), metres."""
         sec, nanosec = stamp_of(stamp_s)
-        data = b"".join(_target_point(t) for t in targets)
-        step = _TARGET_POINT.size
+        data = b"".join([_target_point(t) for t in targets])
+        count = len(targets)
+        raw = self._raw
         return b"".join(
             (
-                ENCAPSULATION,
-                _STAMP.pack(sec, nanosec),
-                self._cloud_frame,
-                struct.pack("<II", 1, len(targets)),  # height, width
+                self._cloud_head.pack(ENCAPSULATION, sec, nanosec, len(raw), raw, 1, count),
                 self._cloud_fields,
-                struct.pack("<?3xIII", False, step, step * len(targets), len(data)),
+                _CLOUD_TAIL.pack(False, _STEP, _STEP * count, len(data)),
                 data,
                 b"\x01",  # is_dense: no invalid points
             )
@@ -156,7 +156,6 @@ class Ros2Encoder:
 def _target_point(target: dict) -> bytes:
     x, y, z = target["position_mm"]
     cov = target.get("covariance_mm2")
-    var = (cov[0][0] / 1e6, cov[1][1] / 1e6, cov[2][2] / 1e6) if cov else (math.nan,) * 3
     track = target.get("track_id")
     score = target.get("score")
     return _TARGET_POINT.pack(
@@ -164,8 +163,10 @@ def _target_point(target: dict) -> bytes:
         y / 1e3,
         z / 1e3,
         math.nan if score is None else score,
-        -1 if track is None else int(track),
-        *var,
+        -1 if track is None else track,
+        cov[0][0] / 1e6 if cov else math.nan,
+        cov[1][1] / 1e6 if cov else math.nan,
+        cov[2][2] / 1e6 if cov else math.nan,
     )
 
 
