@@ -33,17 +33,11 @@ ENV_PATH = "etc/spiel-edge/spiel-edge.env"
 WATCHDOG_SEC = 10
 
 
-# The pid.codes test id the link layer uses until the board has its own PID.
-FALLBACK_USB_IDS = ((0x1209, 0x0001),)
-
-
 def usb_ids() -> tuple[tuple[int, int], ...]:
-    """The board's USB ids, from the link layer (the one source of truth) when present."""
-    try:
-        from spiel_edge.link.discover import BOARD_USB_IDS
-    except ImportError:
-        return FALLBACK_USB_IDS
-    return BOARD_USB_IDS
+    """The board's USB ids (link/usb_ids.py, or $SPIEL_USB_IDS when set)."""
+    from spiel_edge.link.usb_ids import board_usb_ids
+
+    return board_usb_ids()
 
 
 def render_unit(exec_path: str = DEFAULT_EXEC) -> str:
