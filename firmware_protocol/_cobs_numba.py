@@ -20,8 +20,13 @@ def decode(src, dst):  # pragma: no cover - compiled
         end = pos + code
         if end > size:
             return -2
-        dst[out : out + code - 1] = src[pos + 1 : end]
-        out += code - 1
+        if code > 32:  # a slice copy pays off on long blocks, a plain loop on short ones
+            dst[out : out + code - 1] = src[pos + 1 : end]
+            out += code - 1
+        else:
+            for i in range(pos + 1, end):
+                dst[out] = src[i]
+                out += 1
         if code != 0xFF and end < size:
             dst[out] = 0
             out += 1
