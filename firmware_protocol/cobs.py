@@ -3,11 +3,14 @@
 Replaces the ``cobs`` package, which ships no wheels (on a board without a compiler pip
 builds its pure fallback, ~50x slower). Two implementations with one behaviour:
 
-- numba kernels (numba is a runtime dependency of spiel-edge, with wheels everywhere): about
-  1 GB/s whatever the data, used when numba imports;
-- a pure-Python fallback on whole blocks (C-level ``bytes`` split/slice/join), so that any host
-  tool can import firmware_protocol without numba. Its cost grows with the number of blocks
-  (1 + len/254 + zero bytes): fine for random data, slow for data full of zero bytes.
+- numba kernels (numba is a runtime dependency of spiel-edge, with wheels everywhere) for
+  pieces of NUMBA_MIN_BYTES or more: hundreds of MB/s whatever the data. They are loaded on the
+  first such piece (stream data), not at import: small frames (HELLO, commands) never wait for
+  numba, and a host tool that only sends commands never imports it;
+- a pure-Python implementation on whole blocks (C-level ``bytes`` split/slice/join) for small
+  pieces, and for everything when numba does not import. Its cost grows with the number of
+  blocks (1 + len/254 + zero bytes): fine for small or random data, slow for long runs of
+  zero bytes.
 
 tests/protocol/test_proto_cobs.py checks both against a per-byte reference.
 """
@@ -29,25 +32,28 @@ class CobsDecodeError(ValueError):
     """The input is not a valid COBS encoding."""
 
 
+NUMBA_MIN_BYTES = 256  # below this the pure code is about as fast
+
+
 def encode(data: bytes | bytearray | memoryview) -> bytes:
     """Encode ``data``; the result contains no zero byte (the delimiter is not appended)."""
-    if _kernels is None:
+    if len(data) < NUMBA_MIN_BYTES or kernels() is None:
         return encode_pure(data)
     src = np.frombuffer(data, np.uint8)
     dst = np.empty(len(src) + len(src) // _MAX_RUN + 1, np.uint8)
-    return dst[: _kernels.encode(src, dst)].tobytes()
+    return dst[: _kernels.encode(src, dst)].tobytes()  # type: ignore[union-attr]
 
 
 def decode(data: bytes | bytearray | memoryview) -> bytes:
     """Decode one COBS-encoded piece (without its delimiter); raise CobsDecodeError if invalid."""
-    if _kernels is None:
+    if len(data) < NUMBA_MIN_BYTES or kernels() is None:
         return decode_pure(data)
     data = bytes(data)
     if b"\x00" in data:
         raise CobsDecodeError(_ERRORS[_ZERO])
     src = np.frombuffer(data, np.uint8)
     dst = np.empty(len(src), np.uint8)
-    size = _kernels.decode(src, dst)
+    size = _kernels.decode(src, dst)  # type: ignore[union-attr]
     if size < 0:
         raise CobsDecodeError(_ERRORS[size])
     return dst[:size].tobytes()
@@ -98,13 +104,32 @@ _ZERO, _SHORT = -1, -2
 _ERRORS = {_ZERO: "zero byte found in input", _SHORT: "not enough input bytes for length code"}
 
 
-def _load_kernels():
-    try:
-        from firmware_protocol import _cobs_numba
-    except ImportError as exc:  # numba missing or broken: the pure code is correct, slower
-        log.debug("COBS without numba (%s): pure-Python fallback", exc)
-        return None
-    return _cobs_numba
+_kernels = None
+_tried = False
 
 
-_kernels = _load_kernels()
+def kernels():
+    """The numba kernels module, loaded (or compiled) on first use; None without numba."""
+    global _kernels, _tried
+    if not _tried:
+        try:
+            from firmware_protocol import _cobs_numba as module
+        except ImportError as exc:  # numba missing or broken: the pure code is correct, slower
+            log.debug("COBS without numba (%s): pure-Python fallback", exc)
+            module = None
+        _kernels, _tried = module, True
+    return _kernels
+
+
+_warm = False
+
+
+def warm_up() -> None:
+    """Load (or compile) the numba kernels now, so that the first stream frame does not pay for
+    it inside a request's timeout; FrameDecoder calls it. Idempotent and cheap once done."""
+    global _warm
+    if not _warm:
+        _warm = True
+        if kernels() is not None:
+            sample = bytes(range(256)) * 2
+            decode(encode(sample))

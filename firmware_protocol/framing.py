@@ -139,6 +139,7 @@ class FrameDecoder:
     """
 
     def __init__(self) -> None:
+        cobs.warm_up()  # numba's start-up here, not inside the first request's timeout
         self.stats = DecoderStats()
         self._partial = bytearray()
         self._discarding = False  # inside an over-long piece: drop until the next delimiter

@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> dict:
             len(stream) / args.frames * 64 * (args.frames // 64) / encode_s / 1e6, 1
         ),
         "stream_data_decode_msgs_per_s": round(n_msg / msg_s),
-        "cobs_numba": cobs._kernels is not None,
+        "cobs_numba": cobs.kernels() is not None,
         "python": platform.python_version(),
         "machine": platform.machine(),
     }

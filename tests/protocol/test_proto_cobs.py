@@ -57,7 +57,7 @@ EDGES += [b"\x01" * 254 + b"\x00", b"\x01" * 508, b"\x00" + b"\x02" * 300 + b"\x
 
 
 def test_numba_kernels_are_used() -> None:
-    assert cobs._kernels is not None
+    assert cobs.kernels() is not None
 
 
 @pytest.mark.parametrize("data", EDGES)
