@@ -123,12 +123,16 @@ def render_env() -> str:
 
 # The board: a device path, a stable udev name, usb://VID:PID[/SERIAL], or sim:// (virtual board).
 SPIEL_PORT=/dev/spiel-0
+# A product with USB ids of its own (hexadecimal VID:PID, comma-separated; default 1209:0001):
+# SPIEL_USB_IDS=1209:0001
 
 # Options of `spiel-edge run`, split on spaces. Profile: a built-in name or a TOML path
 # (copy one here to edit it); calibration: the file `spiel-edge calibrate` writes.
 #   --calibration {CONFIG_DIR}/calibration.toml
 #   --record /var/lib/spiel-edge/spiel-%Y%m%d-%H%M%S.mcap   (strftime: one file per start)
 #   --udp HOST:PORT   --foxglove 127.0.0.1:8765   --zenoh robots/r1/spiel
+#   ROS 2 (docs/ros2.md): --record-profile ros2   --zenoh-encoding cdr   --frame-id spiel
+#   --static-tf base_link:0.10,0,0.25   (the sensor's pose on the robot: metres, radians)
 # NDJSON goes to /dev/null here: on stdout it would fill the journal at the frame rate.
 SPIEL_RUN_OPTIONS=--profile spiel-icra23 --output /dev/null --udp 127.0.0.1:9870
 
