@@ -123,8 +123,9 @@ def render_env() -> str:
 
 # The board: a device path, a stable udev name, usb://VID:PID[/SERIAL], or sim:// (virtual board).
 SPIEL_PORT=/dev/spiel-0
-# A product with USB ids of its own (hexadecimal VID:PID, comma-separated; default 1209:0001):
-# SPIEL_USB_IDS=1209:0001
+# The board's USB ids for discovery, doctor and the udev rule (hexadecimal VID:PID, comma-
+# separated; set it before `spiel-edge service install` renders the rule):
+# SPIEL_USB_IDS={",".join(f"{vid:04x}:{pid:04x}" for vid, pid in usb_ids())}
 
 # Options of `spiel-edge run`, split on spaces. Profile: a built-in name or a TOML path
 # (copy one here to edit it); calibration: the file `spiel-edge calibrate` writes.
