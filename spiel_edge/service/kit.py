@@ -123,8 +123,8 @@ def render_env() -> str:
 
 # The board: a device path, a stable udev name, usb://VID:PID[/SERIAL], or sim:// (virtual board).
 SPIEL_PORT=/dev/spiel-0
-# The board's USB ids for discovery, doctor and the udev rule (hexadecimal VID:PID, comma-
-# separated; set it before `spiel-edge service install` renders the rule):
+# The board's USB ids for discovery and doctor (hexadecimal VID:PID, comma-separated); the udev
+# rule takes them from `sudo SPIEL_USB_IDS=... spiel-edge service install`:
 # SPIEL_USB_IDS={",".join(f"{vid:04x}:{pid:04x}" for vid, pid in usb_ids())}
 
 # Options of `spiel-edge run`, split on spaces. Profile: a built-in name or a TOML path
