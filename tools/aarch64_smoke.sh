@@ -75,8 +75,10 @@ make_root() {
     touch "$ROOT/.spiel-root-done"
 }
 
+# the host's CA bundle: a network behind a TLS proxy has its CA there, not in the new root
+HOST_CA=${SPIEL_HOST_CA:-/etc/ssl/certs/ca-certificates.crt}
 in_root() { chroot "$ROOT" /usr/bin/env -i HOME=/root PATH=/opt/venv/bin:/usr/bin:/bin \
-    PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_DEFAULT_TIMEOUT=180 "$@"; }
+    PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_DEFAULT_TIMEOUT=180 PIP_CERT=/etc/ssl/host-ca.crt "$@"; }
 
 install_checkout() {
     step "copying the checkout and installing it with [test] (pip under emulation)"
@@ -84,11 +86,11 @@ install_checkout() {
     mount --bind /dev "$ROOT/dev"
     mount --bind /sys "$ROOT/sys"
     cp /etc/resolv.conf "$ROOT/etc/resolv.conf"
+    cp "$HOST_CA" "$ROOT/etc/ssl/host-ca.crt"
     rm -rf "$ROOT/src" && mkdir -p "$ROOT/src"
     tar -C "$REPO" --exclude=.git --exclude=.venv --exclude='__pycache__' --exclude='*.egg-info' \
         --exclude=build -cf - . | tar -C "$ROOT/src" -xf -
     [ -x "$ROOT/opt/venv/bin/python" ] || in_root python3 -m venv /opt/venv
-    in_root pip install -q --only-binary=:all: --upgrade pip >/dev/null
     # --only-binary for the dependencies: a missing aarch64 wheel fails here instead of
     # silently building from source (the project itself is built from the checkout)
     in_root sh -c 'cd /src && pip install -q --only-binary=:all: --no-binary=spiel-edge ".[test]"'
