@@ -11,7 +11,7 @@
 # 2. A Debian arm64 root (debootstrap, bookworm: Python 3.11) at WORKDIR/root, kept between
 #    runs (delete it to start afresh).
 # 3. The checkout (working tree, without .git and .venv) is installed there with '[test]',
-#    the core and protocol tests run, and `spiel-edge run --port sim://` is compared with the
+#    the core and framing tests run, and `spiel-edge run --port sim://` is compared with the
 #    host's output: every position within 0.01 mm.
 # SPIEL_SMOKE_ROOT_ONLY=1 stops after step 2; SPIEL_ARM_SUITE picks the Debian suite.
 # Timings under emulation mean nothing; the run time of each step is printed.
@@ -99,7 +99,7 @@ install_checkout() {
 }
 
 run_tests() {
-    step "core and protocol tests under emulation"
+    step "core and framing tests under emulation"
     in_root sh -c 'cd /src && python -m pytest -q -p no:cacheprovider tests/core tests/protocol/test_proto_vectors.py tests/protocol/test_proto_cobs.py tests/protocol/test_proto_framing.py' \
         | tail -5
 }
