@@ -3,13 +3,13 @@
 Replaces the ``cobs`` package, which ships no wheels (on a board without a compiler pip
 builds its pure fallback, ~50x slower). Two implementations with one behaviour:
 
-- numba kernels (numba is a runtime dependency of spiel-edge, with wheels everywhere) for
-  pieces of NUMBA_MIN_BYTES or more: hundreds of MB/s whatever the data. They are loaded on the
-  first such piece (stream data), not at import: small frames (HELLO, commands) never wait for
-  numba, and a host tool that only sends commands never imports it;
-- a pure-Python implementation on whole blocks (C-level ``bytes`` split/slice/join) for small
-  pieces, and for everything when numba does not import. Its cost grows with the number of
-  blocks (1 + len/254 + zero bytes): fine for small or random data, slow for long runs of
+- numba kernels (numba is a runtime dependency of spiel-edge, with wheels everywhere):
+  hundreds of MB/s whatever the data. They are loaded by ``warm_up()``, which FrameDecoder
+  calls when it is made (before any request and its timeout), not at import: a host tool that
+  never decodes a stream never imports numba;
+- a pure-Python implementation on whole blocks (C-level ``bytes`` split/slice/join), used
+  until the kernels are loaded and when numba does not import. Its cost grows with the number
+  of blocks (1 + len/254 + zero bytes): fine for random data, slow for sample data full of
   zero bytes.
 
 tests/protocol/test_proto_cobs.py checks both against a per-byte reference.
@@ -32,21 +32,20 @@ class CobsDecodeError(ValueError):
     """The input is not a valid COBS encoding."""
 
 
-NUMBA_MIN_BYTES = 256  # below this the pure code is about as fast
-
-
 def encode(data: bytes | bytearray | memoryview) -> bytes:
     """Encode ``data``; the result contains no zero byte (the delimiter is not appended)."""
-    if len(data) < NUMBA_MIN_BYTES or kernels() is None:
+    if _kernels is None:  # not loaded yet (warm_up) or no numba
         return encode_pure(data)
-    src = np.frombuffer(data, np.uint8)
+    # always a read-only array from bytes: one kernel signature, loaded by warm_up (a second
+    # one, e.g. from a bytearray, would be compiled or loaded mid-stream)
+    src = np.frombuffer(bytes(data), np.uint8)
     dst = np.empty(len(src) + len(src) // _MAX_RUN + 1, np.uint8)
     return dst[: _kernels.encode(src, dst)].tobytes()  # type: ignore[union-attr]
 
 
 def decode(data: bytes | bytearray | memoryview) -> bytes:
     """Decode one COBS-encoded piece (without its delimiter); raise CobsDecodeError if invalid."""
-    if len(data) < NUMBA_MIN_BYTES or kernels() is None:
+    if _kernels is None:
         return decode_pure(data)
     data = bytes(data)
     if b"\x00" in data:

@@ -50,6 +50,7 @@ def reference_decode(data: bytes) -> bytes | None:
     return bytes(out)
 
 
+cobs.warm_up()  # cobs.encode/decode below are the numba kernels, *_pure the fallback
 ENCODERS = [cobs.encode, cobs.encode_pure]
 DECODERS = [cobs.decode, cobs.decode_pure]
 EDGES = [b"", b"\x00", b"\x00\x00", b"\x01" * 253, b"\x01" * 254, b"\x01" * 255]
