@@ -1,8 +1,8 @@
 """Framing: ``wire = COBS(body + CRC-32C(body) as u32 LE) + 0x00``, ``body = header + payload``.
 
 Pure code: the decoder is fed bytes and returns frames; it never reads a port. It works on
-whole delimiter-separated pieces (``bytes.split``) with the C implementations of COBS and
-CRC-32C, so there is no per-byte Python loop (>= 100 MB/s, see tools/bench_protocol.py).
+whole delimiter-separated pieces (``bytes.split``) with COBS in numba kernels
+(firmware_protocol.cobs, with a pure fallback) and the C CRC-32C, so there is no per-byte Python loop (>= 100 MB/s, see tools/bench_protocol.py).
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import struct
 from dataclasses import asdict, dataclass
 from enum import IntFlag
 
-from cobs import cobs
 from crc32c import crc32c
 
+from firmware_protocol import cobs
 from firmware_protocol.errors import FrameError
 
 __all__ = [
@@ -139,6 +139,7 @@ class FrameDecoder:
     """
 
     def __init__(self) -> None:
+        cobs.warm_up()  # numba's start-up here, not inside the first request's timeout
         self.stats = DecoderStats()
         self._partial = bytearray()
         self._discarding = False  # inside an over-long piece: drop until the next delimiter
@@ -194,7 +195,7 @@ class FrameDecoder:
             return None
         try:
             body = cobs.decode(piece)
-        except cobs.DecodeError:
+        except cobs.CobsDecodeError:
             self.stats.cobs += 1
             return None
         if len(body) < _MIN_BODY:

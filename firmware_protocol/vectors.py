@@ -11,8 +11,7 @@ import json
 from importlib import resources
 from typing import Any
 
-from cobs import cobs
-
+from firmware_protocol import cobs
 from firmware_protocol import messages as m
 from firmware_protocol.errors import ErrorCode
 from firmware_protocol.framing import (

@@ -14,9 +14,7 @@ import os
 import platform
 import time
 
-from cobs import cobs as cobs_mod
-
-from firmware_protocol import FrameDecoder, StreamData, encode_frame, encode_message
+from firmware_protocol import FrameDecoder, StreamData, cobs, encode_frame, encode_message
 from firmware_protocol.messages import decode_message
 
 
@@ -70,7 +68,7 @@ def main(argv: list[str] | None = None) -> dict:
             len(stream) / args.frames * 64 * (args.frames // 64) / encode_s / 1e6, 1
         ),
         "stream_data_decode_msgs_per_s": round(n_msg / msg_s),
-        "cobs_c_extension": bool(getattr(cobs_mod, "_using_extension", False)),
+        "cobs_numba": cobs.kernels() is not None,
         "python": platform.python_version(),
         "machine": platform.machine(),
     }

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import copy
 import logging
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +28,7 @@ from firmware_protocol.config_blob import (
     pack_header,
     unpack_header,
 )
+from spiel_edge.compat import tomllib
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import read_config_text
 from spiel_edge.profile.ranges import RANGES

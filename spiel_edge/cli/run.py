@@ -19,6 +19,7 @@ from spiel_edge.cli._options import (
     profile_option,
     toa_correction_option,
 )
+from spiel_edge.cli._ros2 import ros2_options, ros2_output_options
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
@@ -56,6 +57,7 @@ from spiel_edge.service.systemd import Notifier
 @click.option(
     "--zenoh", default=None, metavar="KEY", help="Publish records on a Zenoh key (extra 'zenoh')."
 )
+@ros2_options
 @profile_option
 @calibration_option
 @click.option(
@@ -115,6 +117,7 @@ def command(
     reconnect_timeout,
     force,
     show_status,
+    **ros2,
 ) -> int:
     """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
 
@@ -161,6 +164,7 @@ def command(
                 receivers_mm=profile.geometry.channels_mm,
                 metadata={"port": port, "profile": profile.name, "geometry": source},
                 force=force,
+                **ros2_output_options(ros2),
             )
             finalizers.add(sink.close_files)
             runner = LiveRunner(session, pipeline, sink, background=fixed_background)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
+from spiel_edge.io.cdr import ENCAPSULATION, decode_acquisition
 from spiel_edge.io.guard import shorten
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.io.mcap_scan import MAGIC, Limits, McapScanner, RawMessage
@@ -118,7 +119,13 @@ def _recordings(scanner: McapScanner, name: str, limits: InputLimits) -> Iterato
 
 
 def load_payload(data: bytes) -> dict:
-    """A JSON object; ValueError for anything else (deep nesting and huge numbers included)."""
+    """A JSON object; ValueError for anything else (deep nesting and huge numbers included).
+
+    A CDR message (a ``--record-profile ros2`` recording: spiel_msgs/msg/Acquisition) reads as
+    the same {"seq", "frames"} object."""
+    if data[:4] == ENCAPSULATION:
+        seq, frames = decode_acquisition(data)
+        return {"seq": seq, "frames": frames.tolist()}
     try:
         payload = json.loads(data)
     except RecursionError as exc:

@@ -9,11 +9,12 @@ import serial.tools.list_ports
 
 from spiel_edge.errors import DeviceError
 from spiel_edge.link import LinkIdentity
+from spiel_edge.link.usb_ids import board_usb_ids
 
 log = logging.getLogger(__name__)
 
-# pid.codes test id: boards built from the reference design until they get their own PID.
-BOARD_USB_IDS: tuple[tuple[int, int], ...] = ((0x1209, 0x0001),)
+# the ids live in link/usb_ids.py (one line, or $SPIEL_USB_IDS); read once at import
+BOARD_USB_IDS: tuple[tuple[int, int], ...] = board_usb_ids()
 
 
 def _is_board(vid: int | None, pid: int | None, ids: tuple[tuple[int, int], ...]) -> bool:

@@ -132,9 +132,15 @@ def open_outputs(
     metadata: dict[str, Any] | None = None,
     receivers_mm: Any = None,
     force: bool = True,
+    record_profile: str = "json",
+    zenoh_encoding: str = "json",
+    ros2: Any = None,
 ) -> MultiSink:
     """The sinks the options ask for, all at once: NDJSON (``output``; None for none), an MCAP
-    recording, UDP targets, a Foxglove live view, Zenoh. Closes what it opened on failure."""
+    recording, UDP targets, a Foxglove live view, Zenoh. Closes what it opened on failure.
+
+    ``record_profile`` "ros2" and ``zenoh_encoding`` "cdr" write ROS 2 messages in CDR with the
+    frame id and static transforms of ``ros2`` (outputs.ros2.Ros2Settings)."""
     from spiel_edge.outputs.ndjson import NdjsonSink
 
     factories: list = []
@@ -142,13 +148,15 @@ def open_outputs(
         factories.append(lambda: NdjsonSink(output, exclusive=not force))
     if record is not None:
         path = recording_path(record)
-        factories.append(lambda: _mcap_sink(path, metadata, exclusive=not force))
+        factories.append(
+            lambda: _mcap_sink(path, metadata, record_profile, ros2, exclusive=not force)
+        )
     for target in [udp] if isinstance(udp, str) else list(udp or []):
         factories.append(lambda target=target: _udp_sink(target))
     if foxglove is not None:
         factories.append(lambda: _foxglove_sink(foxglove, receivers_mm))
     if zenoh is not None:
-        factories.append(lambda: _zenoh_sink(zenoh))
+        factories.append(lambda: _zenoh_sink(zenoh, zenoh_encoding, ros2))
     sinks: list[Sink] = []
     try:
         for make in factories:
@@ -160,10 +168,28 @@ def open_outputs(
     return MultiSink(sinks)
 
 
-def _mcap_sink(path: Path, metadata: dict[str, Any] | None, exclusive: bool = False) -> Sink:
+def _mcap_sink(
+    path: Path,
+    metadata: dict[str, Any] | None,
+    profile: str = "json",
+    ros2: Any = None,
+    exclusive: bool = False,
+) -> Sink:
     from spiel_edge.outputs.mcap import McapSink
 
     try:
+        if profile == "ros2":
+            from spiel_edge.outputs.ros2 import Ros2Settings
+            from spiel_edge.outputs.ros2_mcap import Ros2McapSink
+
+            ros2 = ros2 or Ros2Settings()
+            return Ros2McapSink(
+                path,
+                frame_id=ros2.frame_id,
+                transforms=ros2.transforms,
+                metadata=metadata,
+                exclusive=exclusive,
+            )
         return McapSink(path, metadata=metadata, exclusive=exclusive)
     except ConfigError as exc:
         raise ConfigError(f"--record {exc}") from exc
@@ -183,7 +209,11 @@ def _foxglove_sink(bind: str, receivers_mm: Any) -> Sink:
     return FoxgloveSink(bind, receivers_mm=receivers_mm)
 
 
-def _zenoh_sink(key: str) -> Sink:
+def _zenoh_sink(key: str, encoding: str = "json", ros2: Any = None) -> Sink:
+    if encoding == "cdr":
+        from spiel_edge.outputs.zenoh_ros2 import ZenohRos2Sink
+
+        return ZenohRos2Sink(key, ros2)
     from spiel_edge.outputs.zenoh import ZenohSink
 
     return ZenohSink(key)

@@ -97,15 +97,8 @@ class McapSink:
         self._writer = Writer(
             self._fh, chunk_size=chunk_size, compression=CompressionType[compression.upper()]
         )
-        self._writer.start(profile=MCAP_PROFILE, library=f"spiel-edge {__version__}")
-        self._channels = {
-            topic: self._channel(topic, schema)
-            for topic, schema in (
-                (ACQUISITION_TOPIC, ACQUISITION_SCHEMA),
-                (BACKGROUND_TOPIC, BACKGROUND_SCHEMA),
-                (POSITION_TOPIC, POSITION_SCHEMA),
-            )
-        }
+        self._writer.start(profile=self.profile, library=f"spiel-edge {__version__}")
+        self._channels = self._register_channels()
         self._writer.add_metadata(
             "spiel-edge",
             {"version": __version__, **{k: str(v) for k, v in (metadata or {}).items()}},
@@ -119,6 +112,18 @@ class McapSink:
         self._since_background = 0
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}
+
+    profile = MCAP_PROFILE  # subclasses (outputs/ros2_mcap.py) change the encoding
+
+    def _register_channels(self) -> dict[str, int]:
+        return {
+            topic: self._channel(topic, schema)
+            for topic, schema in (
+                (ACQUISITION_TOPIC, ACQUISITION_SCHEMA),
+                (BACKGROUND_TOPIC, BACKGROUND_SCHEMA),
+                (POSITION_TOPIC, POSITION_SCHEMA),
+            )
+        }
 
     def _channel(self, topic: str, schema: dict) -> int:
         schema_id = self._writer.register_schema(

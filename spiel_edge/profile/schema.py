@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from spiel_edge.compat import tomllib
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import read_config_text
 from spiel_edge.profile.geometry_checks import check_geometry

@@ -252,16 +252,18 @@ def run_checks(
     config_dir: str | Path = CONFIG_DIR,
     skip_numba: bool = False,
 ) -> list[Check]:
-    from spiel_edge.link.discover import BOARD_USB_IDS, find_boards
+    from spiel_edge.link.discover import find_boards
+    from spiel_edge.link.usb_ids import board_usb_ids
 
-    boards = find_boards(BOARD_USB_IDS)
+    ids = board_usb_ids()  # the same ids as discovery and the udev rule
+    boards = find_boards(ids)
     nodes = [b.url for b in boards if b.url.startswith("/dev/")]
     checks = [
-        check_board(boards, BOARD_USB_IDS),
+        check_board(boards, ids),
         check_device_access(nodes),
         check_symlinks("/dev"),
         check_groups(*user_groups()),
-        check_modemmanager(modemmanager_running(), installed_udev_rule(BOARD_USB_IDS)),
+        check_modemmanager(modemmanager_running(), installed_udev_rule(ids)),
         check_config(profile, calibration, config_dir),
         check_model(),
     ]

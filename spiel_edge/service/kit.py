@@ -33,17 +33,11 @@ ENV_PATH = "etc/spiel-edge/spiel-edge.env"
 WATCHDOG_SEC = 10
 
 
-# The pid.codes test id the link layer uses until the board has its own PID.
-FALLBACK_USB_IDS = ((0x1209, 0x0001),)
-
-
 def usb_ids() -> tuple[tuple[int, int], ...]:
-    """The board's USB ids, from the link layer (the one source of truth) when present."""
-    try:
-        from spiel_edge.link.discover import BOARD_USB_IDS
-    except ImportError:
-        return FALLBACK_USB_IDS
-    return BOARD_USB_IDS
+    """The board's USB ids (link/usb_ids.py, or $SPIEL_USB_IDS when set)."""
+    from spiel_edge.link.usb_ids import board_usb_ids
+
+    return board_usb_ids()
 
 
 def render_unit(exec_path: str = DEFAULT_EXEC) -> str:
@@ -129,12 +123,17 @@ def render_env() -> str:
 
 # The board: a device path, a stable udev name, usb://VID:PID[/SERIAL], or sim:// (virtual board).
 SPIEL_PORT=/dev/spiel-0
+# The board's USB ids for discovery and doctor (hexadecimal VID:PID, comma-separated); the udev
+# rule takes them from `sudo SPIEL_USB_IDS=... spiel-edge service install`:
+# SPIEL_USB_IDS={",".join(f"{vid:04x}:{pid:04x}" for vid, pid in usb_ids())}
 
 # Options of `spiel-edge run`, split on spaces. Profile: a built-in name or a TOML path
 # (copy one here to edit it); calibration: the file `spiel-edge calibrate` writes.
 #   --calibration {CONFIG_DIR}/calibration.toml
 #   --record /var/lib/spiel-edge/spiel-%Y%m%d-%H%M%S.mcap   (strftime: one file per start)
 #   --udp HOST:PORT   --foxglove 127.0.0.1:8765   --zenoh robots/r1/spiel
+#   ROS 2 (docs/ros2.md): --record-profile ros2   --zenoh-encoding cdr   --frame-id spiel
+#   --static-tf base_link:0.10,0,0.25   (the sensor's pose on the robot: metres, radians)
 # NDJSON goes to /dev/null here: on stdout it would fill the journal at the frame rate.
 SPIEL_RUN_OPTIONS=--profile spiel-icra23 --output /dev/null --udp 127.0.0.1:9870
 

@@ -44,6 +44,7 @@ from firmware_protocol import (
 from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import encode_annotations
+from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.sim.config_slots import BoardConfigMixin
 from spiel_edge.sim.faults import Outgoing
 from spiel_edge.sim.flash import Flash
@@ -91,8 +92,8 @@ class VirtualBoard(BoardConfigMixin):
         scene: ReplayScene | EchoModelScene,
         *,
         serial: str = "SIM0001",
-        vid: int = 0x1209,
-        pid: int = 0x0001,
+        vid: int = BOARD_USB_IDS[0][0],
+        pid: int = BOARD_USB_IDS[0][1],
         flash: Flash | None = None,
         seed: int = 0,
         now: float = 0.0,

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from urllib.parse import parse_qsl, urlsplit
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.link.usb_ids import BOARD_USB_IDS
 
 SCENES = ("replay", "model")
 
@@ -33,8 +34,8 @@ class SimOptions:
     power_cut: int = -1  # lose power at this flash operation (0-based), once
     # identity
     serial: str = "SIM0001"
-    vid: int = 0x1209
-    pid: int = 0x0001
+    vid: int = BOARD_USB_IDS[0][0]  # the board's own ids (link/usb_ids.py)
+    pid: int = BOARD_USB_IDS[0][1]
     fifo: int = 65536  # transmit buffer (bytes); a due acquisition that does not fit overruns
     # scene
     profile: str = "spiel-icra23"  # geometry and timing of the model scene

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import tomllib
 
 import numpy as np
 import pytest
 
 from spiel_edge.calibrate import read_positions
 from spiel_edge.cli import main
+from spiel_edge.compat import tomllib
 from spiel_edge.data import load_subset
 from spiel_edge.errors import InputError
 from spiel_edge.profile.schema import apply_calibration, load_profile

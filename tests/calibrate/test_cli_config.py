@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import tomllib
-
 import pytest
 
 from spiel_edge.board import schema as bc
 from spiel_edge.cli import config as cli_config
 from spiel_edge.cli import main
+from spiel_edge.compat import tomllib
 from tests.calibrate.fake_board import FakeBoardSession, TwoSlotFlash
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from types import SimpleNamespace
 
 import numpy as np
@@ -12,6 +11,7 @@ import pytest
 from spiel_edge.calibrate.capture import capture_positions
 from spiel_edge.cli import calibrate as cli_calibrate
 from spiel_edge.cli import main
+from spiel_edge.compat import tomllib
 from spiel_edge.errors import DeviceError
 from spiel_edge.profile.schema import dump_toml, profile_to_dict
 from tests.calibrate.synth import nominal, perturbed_truth, render, target_grid

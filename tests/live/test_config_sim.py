@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-import tomllib
 
 import numpy as np
 import pytest
@@ -15,6 +14,7 @@ from mcap.reader import make_reader
 
 from spiel_edge.board import schema as bc
 from spiel_edge.cli import main
+from spiel_edge.compat import tomllib
 from spiel_edge.device import DeviceSession
 from spiel_edge.profile.schema import dump_toml, load_profile, profile_to_dict
 from spiel_edge.sim.protocol_sim import device_for_url

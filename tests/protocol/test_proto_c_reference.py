@@ -6,9 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from cobs import cobs
 
-from firmware_protocol import MAX_PAYLOAD, FrameDecoder, encode_frame, load_test_vectors
+from firmware_protocol import MAX_PAYLOAD, FrameDecoder, cobs, encode_frame, load_test_vectors
 from firmware_protocol.framing import HEADER, crc32c
 from tests.protocol.c_driver import hx, run
 

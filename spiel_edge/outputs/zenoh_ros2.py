@@ -1,0 +1,97 @@
+"""ROS 2 messages over Zenoh without rclpy (``--zenoh KEY --zenoh-encoding cdr``).
+
+Each message is the CDR a DDS writer sends (encapsulation header included), on the plain keys
+that zenoh-bridge-ros2dds maps to ROS 2 topics (topic name without its leading slash):
+
+* ``KEY/point``: geometry_msgs/msg/PointStamped (the best target, metres) -> ``/KEY/point``;
+* ``KEY/targets``: sensor_msgs/msg/PointCloud2 (every target) -> ``/KEY/targets``;
+* ``tf_static``: tf2_msgs/msg/TFMessage (``--static-tf``) -> ``/tf_static``, sent at start and
+  then every TF_PERIOD_S, since a Zenoh subscriber that joins later has no latched copy.
+
+docs/ros2.md shows how to see them with ``ros2 topic echo`` through the bridge.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+from spiel_edge.errors import ConfigError
+from spiel_edge.io.cdr import Ros2Encoder
+from spiel_edge.outputs.ros2 import Ros2Settings
+from spiel_edge.outputs.zenoh import _import_zenoh, load_config
+
+log = logging.getLogger(__name__)
+
+TF_PERIOD_S = 1.0
+
+
+class ZenohRos2Sink:
+    """Publish CDR PointStamped and PointCloud2 under the key prefix ``key_expr``."""
+
+    def __init__(self, key_expr: str, ros2: Ros2Settings | None = None, config: Any = None):
+        zenoh = _import_zenoh()
+        ros2 = ros2 or Ros2Settings()
+        self.encoder = Ros2Encoder(ros2.frame_id)
+        self.transforms = list(ros2.transforms)
+        prefix = key_expr.strip("/")
+        try:
+            keys = {
+                "point": zenoh.KeyExpr(f"{prefix}/point"),
+                "targets": zenoh.KeyExpr(f"{prefix}/targets"),
+                "tf_static": zenoh.KeyExpr("tf_static"),
+            }
+        except Exception as exc:
+            raise ConfigError(f"--zenoh {key_expr!r} is not a valid key expression: {exc}") from exc
+        try:
+            self._session = zenoh.open(load_config(config))
+        except ConfigError:
+            raise
+        except Exception as exc:
+            raise ConfigError(f"--zenoh: cannot open a Zenoh session: {exc}") from exc
+        self._publishers = {
+            name: self._session.declare_publisher(
+                key,
+                encoding=zenoh.Encoding.APPLICATION_CDR,
+                congestion_control=zenoh.CongestionControl.DROP,
+            )
+            for name, key in keys.items()
+            if name != "tf_static" or self.transforms
+        }
+        self.keys = {name: str(key) for name, key in keys.items() if name in self._publishers}
+        self.failed = 0
+        self._tf_sent = -float("inf")
+        self._send_tf()
+        log.info("publishing ROS 2 CDR on Zenoh keys %s", ", ".join(self.keys.values()))
+
+    def _put(self, name: str, payload: bytes) -> None:
+        try:
+            self._publishers[name].put(payload)
+        except Exception as exc:  # zenoh.ZError: keep the run going, like UDP
+            self.failed += 1
+            if self.failed == 1 or self.failed % 1000 == 0:
+                log.warning(
+                    "Zenoh put on %s failed (%d so far): %s", self.keys[name], self.failed, exc
+                )
+
+    def _send_tf(self) -> None:
+        now = time.monotonic()
+        if self.transforms and now - self._tf_sent >= TF_PERIOD_S:
+            self._tf_sent = now
+            self._put("tf_static", self.encoder.tf_message(self.transforms, time.time()))
+
+    def write(self, record: dict) -> None:
+        seconds = record.get("host_time")
+        best = record.get("position_mm")
+        if best is not None:
+            self._put("point", self.encoder.point_stamped(best, seconds))
+        self._put("targets", self.encoder.targets_cloud(record.get("targets") or [], seconds))
+        self._send_tf()
+
+    def close(self) -> None:
+        try:
+            for publisher in self._publishers.values():
+                publisher.undeclare()
+        finally:
+            self._session.close()
