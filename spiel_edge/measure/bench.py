@@ -23,6 +23,7 @@ import numpy as np
 
 from spiel_edge.data import load_subset
 from spiel_edge.measure import reference
+from spiel_edge.measure.bench_track import time_tracker
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.fused import FusedPipeline
 from spiel_edge.pipeline.run import STAGES, Pipeline
@@ -182,6 +183,7 @@ def run_bench(
         result[stage] = result["real_4x64"][stage]
     result["max_targets_4"] = max_targets_cost(pipeline, subset.frames, repeat)
     result["onnx_scoring"] = _onnx_scoring(profile)
+    result["tracker_8_tracks"] = time_tracker()
     if startup:
         result["startup_s"] = startup_seconds()
     return result
