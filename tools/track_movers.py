@@ -1,6 +1,6 @@
 """Tracking figures on the virtual board's moving targets (docs/tracking.md).
 
-    python -m tools.track_movers [--movers 3] [--seed 0] [--acquisitions 1000]
+    python -m tools.track_movers [--movers 3] [--seed 0] [--acquisitions 1000] [--max-targets 4]
 
 Prints one JSON object: per true target the share of acquisitions (after the first 20) with a
 confirmed track within 40 mm, id switches, tracked vs per-acquisition error.
@@ -23,6 +23,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--acquisitions", type=int, default=1000)
     parser.add_argument("--rate", type=float, default=50.0, help="acquisitions per second")
     parser.add_argument("--profile", default="spiel-icra23")
+    parser.add_argument("--max-targets", type=int, default=4, help="targets per acquisition")
     parser.add_argument(
         "--oracle",
         type=float,
@@ -32,6 +33,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     pipeline = build_pipeline(load_profile(args.profile))
+    pipeline.set_max_targets(args.max_targets)
     url = f"sim://?scene=model&movers={args.movers}&seed={args.seed}"
     print(
         json.dumps(
