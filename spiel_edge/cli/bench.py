@@ -65,6 +65,12 @@ def command(
         click.echo(
             f"onnx scoring: median {result['onnx_scoring']['scoring_us']['median']:.1f} us per acquisition"
         )
+    tracker = result.get("tracker_8_tracks")
+    if tracker:
+        click.echo(
+            f"tracker ({tracker['tracks_median']} tracks): median {tracker['median_us']:.1f} us, "
+            f"p95 {tracker['p95_us']:.1f} us per acquisition"
+        )
     if "startup_s" in result:
         click.echo(
             f"start-up (fresh interpreter, import + first acquisition): {result['startup_s']} s"

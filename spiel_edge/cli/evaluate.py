@@ -20,6 +20,7 @@ from spiel_edge.errors import InputError
 from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
+from spiel_edge.measure.track_eval import evaluate_tracked
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 
@@ -65,6 +66,12 @@ from spiel_edge.profile.schema import resolve_profile
     help="Headline metrics over heights <= this.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as one JSON object.")
+@click.option(
+    "--track",
+    is_flag=True,
+    help="Also track each recording in time order and report the tracked error "
+    "(`tracked`; docs/tracking.md).",
+)
 def command(
     folder,
     background,
@@ -78,6 +85,7 @@ def command(
     exclude_z,
     max_z,
     as_json,
+    track,
 ) -> int:
     """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings.
 
@@ -103,6 +111,10 @@ def command(
         "association": pipeline.associator.name,
         **ev.summary(max_z=max_z),
     }
+    if track:
+        summary["tracked"] = evaluate_tracked(
+            pipeline, folder, background, positions=positions, exclude_z=exclude_z, max_z=max_z
+        )
     if as_json:
         click.echo(json.dumps(summary))
     else:
@@ -166,3 +178,10 @@ def _print_table(summary: dict) -> None:
         f"association accuracy {fmt(summary['association_accuracy'], '.1%')}, "
         f"F1 {fmt(summary['association_f1'], '.3f')} ({summary['association']})"
     )
+    tracked = summary.get("tracked")
+    if tracked and tracked["fixes"]:
+        click.echo(
+            f"tracked: mean {tracked['tracked_mean_mm']:.1f} mm vs per acquisition "
+            f"{tracked['per_acquisition_mean_mm']:.1f} mm over {tracked['fixes']} fixes "
+            f"({tracked['on_track_share']:.0%} on a confirmed track)"
+        )

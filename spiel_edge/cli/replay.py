@@ -23,6 +23,7 @@ from spiel_edge.outputs.ndjson import NdjsonSink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
+from spiel_edge.runtime.tracking import replay_tracked
 
 
 @click.command("replay")
@@ -49,6 +50,12 @@ from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
     "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
 )
 @force_option
+@click.option(
+    "--track",
+    is_flag=True,
+    help="Track targets over the recordings in time order; records gain `tracks` "
+    "(docs/tracking.md).",
+)
 def command(
     path,
     fmt,
@@ -60,6 +67,7 @@ def command(
     toa_correction,
     output,
     force,
+    track,
 ) -> int:
     """Run the pipeline over recorded frames; one NDJSON record per acquisition.
 
@@ -86,7 +94,8 @@ def command(
         finalizers.add(sink.close)
     try:
         with stop_on_signals(stop, finalizers):
-            for item in replay(pipeline, sources):
+            items = replay_tracked(pipeline, sources) if track else replay(pipeline, sources)
+            for item in items:
                 sink.write(item.record())
                 total += 1
                 failed += item.error is not None

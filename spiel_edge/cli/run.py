@@ -27,6 +27,7 @@ from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.loop import LiveRunner, check_stream_shape, load_background, open_pipeline
+from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier
 
 
@@ -93,6 +94,13 @@ from spiel_edge.service.systemd import Notifier
 )
 @force_option
 @click.option(
+    "--track/--no-track",
+    default=True,
+    show_default=True,
+    help="Track targets over acquisitions: records gain `tracks` and per target `track_id` "
+    "(docs/tracking.md; [track] in the profile).",
+)
+@click.option(
     "--status/--no-status",
     "show_status",
     default=None,
@@ -116,6 +124,7 @@ def command(
     background,
     reconnect_timeout,
     force,
+    track,
     show_status,
     **ros2,
 ) -> int:
@@ -167,7 +176,10 @@ def command(
                 **ros2_output_options(ros2),
             )
             finalizers.add(sink.close_files)
-            runner = LiveRunner(session, pipeline, sink, background=fixed_background)
+            tracker = ResultTracker(profile.track) if track else None
+            runner = LiveRunner(
+                session, pipeline, sink, background=fixed_background, tracker=tracker
+            )
             runner.on_record = notifier.ping
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
             session.start_stream(rate_hz=rate, n_samples=profile.acquisition.n_samples)

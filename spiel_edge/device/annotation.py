@@ -78,3 +78,35 @@ def encode_annotations(
         b"\x00" + encode_frame(ANNOTATION_TYPE, m.pack(), aux=acquisition & 0xFFFFFFFF)
         for m in msgs
     ]
+
+
+TARGETS_TYPE = 0x8A02
+MAX_TRUTH_TARGETS = 64
+
+
+@dataclass(frozen=True)
+class TruthTargets(Message):
+    """Vendor extension 0x8A02 beside ANNOTATION: the ground truth of every target of an
+    acquisition (a scene with several, e.g. ``sim://?scene=model&movers=3``); ``aux`` is the
+    acquisition index, as for ANNOTATION."""
+
+    MSG_TYPE: ClassVar[int] = TARGETS_TYPE
+    # acquisition u32, the tail's byte length u16, then K x (x, y, z) float32 mm
+    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IH")
+    _TAIL: ClassVar[str] = "positions"
+    acquisition: int = 0
+    positions: bytes = b""
+
+    def positions_mm(self) -> np.ndarray | None:
+        """(K, 3) float64, or None when malformed or not finite."""
+        if not self.positions or len(self.positions) % 12:
+            return None
+        arr = np.frombuffer(self.positions, "<f4").reshape(-1, 3).astype(np.float64)
+        return arr if np.all(np.isfinite(arr)) else None
+
+
+def encode_truth_targets(acquisition: int, positions_mm: np.ndarray) -> bytes:
+    """Wire bytes (with a leading 0x00) of the truth of every target (at most 64)."""
+    rows = np.ascontiguousarray(np.asarray(positions_mm)[:MAX_TRUTH_TARGETS], dtype="<f4")
+    msg = TruthTargets(acquisition, rows.tobytes())
+    return b"\x00" + encode_frame(TARGETS_TYPE, msg.pack(), aux=acquisition & 0xFFFFFFFF)

@@ -16,7 +16,7 @@ import numpy as np
 
 from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, StreamData
 from firmware_protocol.framing import Frame
-from spiel_edge.device.annotation import ANNOTATION_TYPE, Annotation
+from spiel_edge.device.annotation import ANNOTATION_TYPE, TARGETS_TYPE, Annotation, TruthTargets
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +37,7 @@ class LiveAcquisition:
     host_time: float  # time.time() at that moment
     truth_mm: np.ndarray | None = None  # ground truth, when a virtual board sends it
     background: np.ndarray | None = None  # latest target-free scene the link sent, if any
+    truth_targets_mm: np.ndarray | None = None  # (K, 3) every target's truth, when sent
 
 
 class StreamTracker:
@@ -52,6 +53,7 @@ class StreamTracker:
         self.background: np.ndarray | None = None
         self._last_index: int | None = None
         self._truth: dict[int, np.ndarray] = {}
+        self._truth_targets: dict[int, np.ndarray] = {}
         self._rows: dict[int, np.ndarray] = {}
         self._rows_for = -1
         self._first_delivered: int | None = None
@@ -62,6 +64,7 @@ class StreamTracker:
         self.assembler.reset()
         self.ready.clear()
         self._truth.clear()
+        self._truth_targets.clear()
         self._last_index = None
         self._first_delivered: int | None = None
 
@@ -98,6 +101,9 @@ class StreamTracker:
         if frame.msg_type == ANNOTATION_TYPE and not frame.is_response:
             self._annotation(frame)
             return True
+        if frame.msg_type == TARGETS_TYPE and not frame.is_response:
+            self._targets_annotation(frame)
+            return True
         return False
 
     def _stream_data(self, frame: Frame, received_ns: int) -> None:
@@ -127,14 +133,29 @@ class StreamTracker:
                 time.time(),
                 self._truth_for(acq.index),
                 self.background,
+                self._truth_targets.pop(acq.index, None),
             )
         )
+        if len(self._truth_targets) > MAX_PENDING_TRUTH:
+            self._truth_targets.clear()
 
     def _truth_for(self, index: int) -> np.ndarray | None:
         truth = self._truth.pop(index, None)
         if len(self._truth) > MAX_PENDING_TRUTH:  # annotations whose acquisition never came
             self._truth.clear()
         return truth
+
+    def _targets_annotation(self, frame: Frame) -> None:
+        try:
+            positions = TruthTargets.unpack(frame.payload)
+        except MessageError:
+            self.bad_messages += 1
+            return
+        truth = positions.positions_mm()
+        if truth is None:
+            self.bad_messages += 1
+            return
+        self._truth_targets[positions.acquisition] = truth
 
     def _annotation(self, frame: Frame) -> None:
         try:

@@ -24,6 +24,7 @@ import numpy as np
 from spiel_edge.data import load_subset
 from spiel_edge.measure import reference
 from spiel_edge.measure.bench_ros2 import ros2_encoding_us
+from spiel_edge.measure.bench_track import time_tracker
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.fused import FusedPipeline
 from spiel_edge.pipeline.run import STAGES, Pipeline
@@ -184,6 +185,7 @@ def run_bench(
     result["max_targets_4"] = max_targets_cost(pipeline, subset.frames, repeat)
     result["onnx_scoring"] = _onnx_scoring(profile)
     result["ros2_encoding"] = ros2_encoding_us()
+    result["tracker_8_tracks"] = time_tracker()
     if startup:
         result["startup_s"] = startup_seconds()
     return result

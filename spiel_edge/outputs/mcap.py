@@ -8,7 +8,8 @@ Channels (message encoding ``json``, schemas ``jsonschema``, so Foxglove opens t
 * ``/spiel/background``: the target-free capture, written when it changes (and again every
   16 acquisitions; each acquisition names its ``background_crc``, the CRC-32 of that message); it applies to the
   acquisitions that follow it;
-* ``/spiel/position``: one pipeline record per acquisition.
+* ``/spiel/position``: one pipeline record per acquisition, with its ``targets`` and, when
+  tracking, ``tracks`` (docs/tracking.md).
 
 The file is finalized (summary, indexes) on :meth:`McapSink.close`; the sink installs no
 signal handler (the command line turns INT, TERM and HUP into a clean stop that closes it). A
@@ -61,6 +62,30 @@ BACKGROUND_SCHEMA = {
     "properties": {"frames": _FRAMES},
     "required": ["frames"],
 }
+_VECTOR3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
+_COVARIANCE = {"type": "array", "items": _VECTOR3, "minItems": 3, "maxItems": 3}
+TARGET_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "position_mm": _VECTOR3,
+        "covariance_mm2": _COVARIANCE,
+        "residual_mm": {"type": "number"},
+        "matched": {"type": "array", "items": {"type": ["integer", "null"]}},
+        "score": {"type": "number"},
+        "track_id": {"type": "integer"},
+    },
+}
+TRACK_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "track_id": {"type": "integer"},
+        "position_mm": _VECTOR3,
+        "velocity_mm_s": _VECTOR3,
+        "covariance_mm2": _COVARIANCE,
+        "age": {"type": "integer"},
+        "hits": {"type": "integer"},
+    },
+}
 POSITION_SCHEMA = {
     "title": "spiel_edge.Position",
     "type": "object",
@@ -75,6 +100,8 @@ POSITION_SCHEMA = {
         "residual_mm": {"type": ["number", "null"]},
         "echoes": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
         "matched": {"type": "array", "items": {"type": ["integer", "null"]}},
+        "targets": {"type": "array", "items": TARGET_SCHEMA},
+        "tracks": {"type": "array", "items": TRACK_SCHEMA},
     },
 }
 

@@ -25,6 +25,16 @@ RANGES: dict[str, tuple[float, float]] = {
     "scene.covariance_floor_mm": (0.0, 1000.0),
     "scene.static_mad_factor": (0.0, 10.0),
     "echo_timing.half_window": (1, 8),
+    "track.acceleration_mm_s2": (0.0, 1e5),
+    "track.measurement_floor_mm": (0.01, 100.0),
+    "track.fallback_sigma_mm": (0.1, 1000.0),
+    "track.initial_speed_mm_s": (0.0, 1e4),
+    "track.gate_chi2": (1.0, 1000.0),
+    "track.confirm_hits": (1, 50),
+    "track.confirm_window": (1, 50),
+    "track.max_misses": (1, 1000),
+    "track.max_tracks": (1, 64),
+    "track.max_gap_s": (0.001, 3600.0),
 }
 
 

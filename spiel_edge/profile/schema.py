@@ -21,6 +21,7 @@ from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import read_config_text
 from spiel_edge.profile.geometry_checks import check_geometry
 from spiel_edge.profile.ranges import check_range
+from spiel_edge.profile.track_section import TrackSpec, validate_track
 
 log = logging.getLogger(__name__)
 
@@ -155,6 +156,7 @@ class Profile:
     locate: LocateSpec = LocateSpec()
     scene: SceneSpec = SceneSpec()
     echo_timing: EchoTimingSpec = EchoTimingSpec()
+    track: TrackSpec = TrackSpec()
     description: str = ""
 
     @property
@@ -175,6 +177,7 @@ _SECTIONS = {
     "locate": LocateSpec,
     "scene": SceneSpec,
     "echo_timing": EchoTimingSpec,
+    "track": TrackSpec,
 }
 _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
@@ -406,6 +409,7 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     )
     _validate_scene(p.scene, origin)
     _validate_echo_timing(p.echo_timing, g.n_channels, need, origin)
+    validate_track(p.track, origin)
 
 
 def _validate_scene(sc: SceneSpec, origin: str) -> None:

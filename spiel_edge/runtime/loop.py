@@ -25,6 +25,7 @@ from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.run import Pipeline
 from spiel_edge.runtime.once import OncePerProblem
 from spiel_edge.runtime.records import error_record
+from spiel_edge.runtime.tracking import ResultTracker, track_records
 
 log = logging.getLogger(__name__)
 
@@ -121,12 +122,14 @@ class LiveRunner:
         *,
         background: np.ndarray | None = None,
         keep_latencies: bool = False,
+        tracker: ResultTracker | None = None,
     ):
         self.session = session
         self.pipeline = pipeline
         self.sink = sink
         self.background = background  # fixed background; else the one the link sends, if any
         self.keep_latencies = keep_latencies
+        self.tracker = tracker  # records gain ``tracks`` (runtime/tracking.py)
         self.on_record: Callable[[], None] | None = None  # e.g. the systemd watchdog ping
         self.stats = LiveStats()
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
@@ -198,12 +201,25 @@ class LiveRunner:
             stats.errors += 1
             self.problems.log(str(exc), f"first at acquisition {acq.index}")
             record = {**head, **error_record(str(exc))}
+            tracks = self._track(None, acq)
         else:
             stats.fixes += result.position_mm is not None
+            tracks = self._track(result, acq)
             record = {**head, **result.record()}
+        if tracks is not None:
+            record["tracks"] = tracks
         if acq.truth_mm is not None:
             record["truth_mm"] = [round(float(v), 2) for v in acq.truth_mm]
+        truths = getattr(acq, "truth_targets_mm", None)
+        if truths is not None:
+            record["truth_targets_mm"] = [[round(float(v), 2) for v in p] for p in truths]
         return record
+
+    def _track(self, result, acq: LiveAcquisition) -> list[dict] | None:
+        """Track on the board's clock (sets the result's targets' track ids)."""
+        if self.tracker is None:
+            return None
+        return track_records(self.tracker.update(result, acq.timestamp_us / 1e6))
 
     def _background_for(self, acq: LiveAcquisition) -> np.ndarray | None:
         if self.background is not None:

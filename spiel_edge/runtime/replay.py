@@ -23,8 +23,15 @@ class Replayed:
     source: str
     result: Result | None
     error: str | None
+    tracks: list[dict] | None = None  # with tracking (runtime/tracking.py)
 
     def record(self) -> dict:
+        out = self._record()
+        if self.tracks is not None:
+            out["tracks"] = self.tracks
+        return out
+
+    def _record(self) -> dict:
         if self.result is None:
             return {"source": self.source, **error_record(str(self.error))}
         return {"source": self.source, **self.result.record()}

@@ -43,7 +43,7 @@ from firmware_protocol import (
 )
 from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
-from spiel_edge.device.annotation import encode_annotations
+from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.sim.config_slots import BoardConfigMixin
 from spiel_edge.sim.faults import Outgoing
@@ -344,6 +344,8 @@ class VirtualBoard(BoardConfigMixin):
         out = [
             Outgoing(w, exempt=True) for w in encode_annotations(index, frame.truth_mm, background)
         ]
+        if frame.truth_targets_mm is not None:
+            out.append(Outgoing(encode_truth_targets(index, frame.truth_targets_mm), exempt=True))
         n_ch = frame.samples.shape[0]
         rows = np.ascontiguousarray(frame.samples, dtype="<u2")
         stamp = int(time_s * 1e6)

@@ -41,6 +41,7 @@ class SimOptions:
     profile: str = "spiel-icra23"  # geometry and timing of the model scene
     targets: str = ""  # model: fixed targets "x,y,z;x,y,z" in mm (default: one orbiting)
     orbit: str = "60,150,8"  # model: radius mm, height mm, period s of the default target
+    movers: int = 0  # model: this many targets on smooth random paths (sim/movers.py), 0..8
     noise: float = 20.0  # model: Gaussian noise (counts, std)
     speed: float = 0.0  # model: speed of sound in m/s (0: the profile's)
     shuffle: bool = False  # replay: random order instead of the recorded one
@@ -79,6 +80,7 @@ class SimOptions:
             self.noise >= 0 and (self.speed == 0 or 200 <= self.speed <= 2000),
             "noise >= 0, speed in [200, 2000]",
         )
+        need(0 <= self.movers <= 8, f"movers must be in [0, 8], got {self.movers}")
         need(0 < len(self.serial.encode()) <= 16, "serial must be 1 to 16 bytes")
         need(0 <= self.vid <= 0xFFFF and 0 <= self.pid <= 0xFFFF, "vid and pid must be 16-bit")
 

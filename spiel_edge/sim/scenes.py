@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike
 from spiel_edge.data import load_subset
 from spiel_edge.errors import ConfigError
 from spiel_edge.profile.schema import Geometry, load_profile
+from spiel_edge.sim.movers import MoverPaths
 
 U16_MAX = 65535
 
@@ -24,6 +25,7 @@ class SceneFrame:
     samples: np.ndarray  # (channels, n_samples) uint16
     background: np.ndarray | None  # (channels, n_samples) uint16, the same pose without target
     truth_mm: np.ndarray | None  # (3,) position of the target, None when unknown
+    truth_targets_mm: np.ndarray | None = None  # (K, 3) every target, when there are several
 
 
 class ReplayScene:
@@ -80,12 +82,14 @@ class EchoModelScene:
         speed_of_sound_m_s: float | None = None,
         model: EchoModel = EchoModel(),
         seed: int = 0,
+        movers=None,
     ):
         self.geometry = geometry
         self.sample_rate_hz = int(round(sample_rate_hz))
         self.n_channels, self.n_samples = geometry.n_channels, n_samples
         self.targets = None if targets_mm is None else np.atleast_2d(np.asarray(targets_mm, float))
         self.orbit = orbit
+        self.movers = movers  # sim/movers.py MoverPaths: targets on smooth random paths
         self.noise = noise
         self.speed = speed_of_sound_m_s or geometry.speed_of_sound_m_s
         self.model = model
@@ -101,6 +105,9 @@ class EchoModelScene:
         return 8 <= n_samples <= 4096
 
     def target_positions(self, time_s: float) -> np.ndarray:
+        if self.movers is not None:
+            moving = self.movers.positions(time_s)
+            return moving if self.targets is None else np.vstack([self.targets, moving])
         if self.targets is not None:
             return self.targets
         radius, height, period = self.orbit
@@ -132,7 +139,7 @@ class EchoModelScene:
             clean += self._echoes(p, n_samples)
         noisy = clean + self._rng.normal(0.0, self.noise, clean.shape) if self.noise else clean
         samples = np.clip(np.rint(noisy), 0, U16_MAX).astype(np.uint16)
-        return SceneFrame(samples, background, targets[0].copy())
+        return SceneFrame(samples, background, targets[0].copy(), targets.copy())
 
     def background(self, n_samples: int) -> np.ndarray:
         """Ring-down, crosstalk and the static reflector: the scene without targets."""
@@ -235,4 +242,5 @@ def build_scene(options) -> ReplayScene | EchoModelScene:
         noise=options.noise,
         speed_of_sound_m_s=options.speed or None,
         seed=options.seed,
+        movers=MoverPaths(options.movers, seed=options.seed) if options.movers else None,
     )

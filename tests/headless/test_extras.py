@@ -19,6 +19,33 @@ RECORD = {
     "residual_mm": 0.5,
     "echoes": [[12.0]] * 4,
     "matched": [0, 0, 0, 0],
+    "targets": [
+        {
+            "position_mm": [10.0, -20.0, 300.0],
+            "covariance_mm2": [[40.0, 5.0, 0.0], [5.0, 30.0, 0.0], [0.0, 0.0, 90.0]],
+            "residual_mm": 0.5,
+            "matched": [0, 0, 0, 0],
+            "score": 1.0,
+            "track_id": 4,
+        },
+        {
+            "position_mm": [-60.0, 0.0, 200.0],
+            "covariance_mm2": [[9.0, 0.0, 0.0], [0.0, 9.0, 0.0], [0.0, 0.0, 9.0]],
+            "residual_mm": 1.5,
+            "matched": [None, 1, 1, 1],
+            "score": 0.5,
+        },
+    ],
+    "tracks": [
+        {
+            "track_id": 4,
+            "position_mm": [11.0, -20.0, 301.0],
+            "velocity_mm_s": [100.0, 0.0, 0.0],
+            "covariance_mm2": [[20.0, 0.0, 0.0], [0.0, 20.0, 0.0], [0.0, 0.0, 40.0]],
+            "age": 12,
+            "hits": 11,
+        }
+    ],
 }
 
 
@@ -65,7 +92,9 @@ def test_foxglove_serves_scene_and_records_on_localhost():
                 sub_id = struct.unpack_from("<I", payload, 1)[0]
                 got[sub_id] = payload[13:]
         assert json.loads(got[1]) == RECORD
-        assert b"target" in got[2] and b"receivers" in got[2]  # protobuf SceneUpdate entity ids
+        scene = got[2]  # protobuf SceneUpdate: entity ids and the track's label
+        assert b"target" in scene and b"target/1" in scene and b"receivers" in scene
+        assert b"track/4" in scene
     finally:
         ws.close()
         sink.close()

@@ -1,0 +1,37 @@
+"""The ``[track]`` section of a profile: the multi-target tracker's settings (spiel_edge/track/,
+docs/tracking.md); ranges in profile/ranges.py."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from spiel_edge.errors import ConfigError
+from spiel_edge.profile.ranges import check_range
+
+
+@dataclass(frozen=True)
+class TrackSpec:
+    """Constant-velocity Kalman filter per track, Mahalanobis gate, one global assignment per
+    acquisition, M-of-N confirmation, deletion after misses, a cap on tracks."""
+
+    acceleration_mm_s2: float = 1000.0  # white-noise acceleration std (process noise)
+    measurement_floor_mm: float = 3.0  # added in quadrature to every target's covariance
+    fallback_sigma_mm: float = 20.0  # target std when its covariance is missing or non-finite
+    initial_speed_mm_s: float = 300.0  # velocity std of a new track
+    gate_chi2: float = 16.27  # squared Mahalanobis gate (3 dof; 16.27 = 99.9 %)
+    confirm_hits: int = 3  # M: a tentative track is confirmed after M hits ...
+    confirm_window: int = 5  # ... within its first N acquisitions, else dropped
+    max_misses: int = 10  # a confirmed track is deleted after this many misses in a row
+    max_tracks: int = 16  # tentative and confirmed tracks at once (births beyond are dropped)
+    max_gap_s: float = 1.0  # a longer gap between acquisitions (or time going back) restarts
+
+
+def validate_track(spec: TrackSpec, origin: str) -> None:
+    """Every key within its range (profile/ranges.py), and M <= N."""
+    for f in fields(spec):
+        check_range(f"track.{f.name}", getattr(spec, f.name), origin)
+    if spec.confirm_hits > spec.confirm_window:
+        raise ConfigError(
+            f"{origin}: track.confirm_hits ({spec.confirm_hits}) must be <= "
+            f"track.confirm_window ({spec.confirm_window})"
+        )

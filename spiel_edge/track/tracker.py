@@ -1,0 +1,203 @@
+"""Multi-target tracker: ``Tracker(spec).update(targets, t_s) -> list[Track]``.
+
+Per acquisition: every track is predicted to ``t_s`` (constant velocity), targets are gated
+on the squared Mahalanobis distance with the predicted and the target's covariance, matched
+by one global assignment (confirmed tracks first), and the matched tracks updated. A track is
+born tentative from a target no track took and confirmed after ``confirm_hits`` hits within
+``confirm_window`` acquisitions (it then gets the next integer id, never reused); a confirmed
+track is deleted after ``max_misses`` misses in a row. At most ``max_tracks`` tracks exist at
+once (births beyond are dropped and counted) and at most ``MAX_TARGETS`` targets per update are
+used (the best first). Time going backwards or a gap over ``max_gap_s`` restarts the tracker
+(every track dropped; ids go on counting). Outputs are always finite and the covariances
+symmetric.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from typing import Protocol
+
+import numpy as np
+
+from spiel_edge.errors import InputError
+from spiel_edge.profile.track_section import TrackSpec
+from spiel_edge.track.step import _snapshot, _step
+
+log = logging.getLogger(__name__)
+
+MAX_TARGETS = 64  # targets used per update (the first, i.e. best, ones)
+
+
+class TargetLike(Protocol):
+    position_mm: np.ndarray
+    covariance_mm2: np.ndarray
+    track_id: int | None
+
+
+class Track:
+    """A confirmed track's state after an update (a snapshot, not updated later)."""
+
+    __slots__ = ("_covs", "_row", "_states", "age", "hits", "misses", "track_id")
+
+    def __init__(self, track_id: int, age: int, hits: int, misses: int, states, covs, row: int):
+        self.track_id = track_id
+        self.age = age  # acquisitions since birth
+        self.hits = hits  # acquisitions with a target
+        self.misses = misses  # acquisitions without one, in a row
+        self._states, self._covs, self._row = states, covs, row  # shared by one update's tracks
+
+    @property
+    def state(self) -> np.ndarray:
+        """(6,): position mm, velocity mm/s."""
+        return self._states[self._row]
+
+    @property
+    def state_covariance(self) -> np.ndarray:
+        """(6, 6), symmetric."""
+        return self._covs[self._row]
+
+    @property
+    def position_mm(self) -> np.ndarray:
+        return self._states[self._row, :3]
+
+    @property
+    def velocity_mm_s(self) -> np.ndarray:
+        return self._states[self._row, 3:]
+
+    @property
+    def covariance_mm2(self) -> np.ndarray:
+        return self._covs[self._row, :3, :3]
+
+    def record(self) -> dict:
+        return {
+            "track_id": int(self.track_id),
+            "position_mm": [round(v, 2) for v in self.position_mm.tolist()],
+            "velocity_mm_s": [round(v, 2) for v in self.velocity_mm_s.tolist()],
+            "covariance_mm2": [[round(v, 3) for v in row] for row in self.covariance_mm2.tolist()],
+            "age": int(self.age),
+            "hits": int(self.hits),
+        }
+
+    def __repr__(self) -> str:
+        pos = ", ".join(f"{v:.1f}" for v in self.position_mm)
+        return f"Track({self.track_id}, [{pos}] mm, age {self.age}, hits {self.hits})"
+
+
+class Tracker:
+    """Tracks targets across acquisitions; see the module docstring and docs/tracking.md."""
+
+    def __init__(self, spec: TrackSpec | None = None):
+        self.spec = spec = spec or TrackSpec()
+        cap = spec.max_tracks
+        self._x = np.zeros((cap, 6))
+        self._p = np.zeros((cap, 6, 6))
+        self._status = np.zeros(cap, dtype=np.int8)
+        self._ids = np.full(cap, -1, dtype=np.int64)
+        self._age = np.zeros(cap, dtype=np.int64)
+        self._hits = np.zeros(cap, dtype=np.int64)
+        self._misses = np.zeros(cap, dtype=np.int64)
+        self._next_id = np.zeros(1, dtype=np.int64)
+        self._counts = np.zeros(1, dtype=np.int64)
+        self._params = np.array(
+            [
+                spec.acceleration_mm_s2,
+                spec.gate_chi2,
+                spec.measurement_floor_mm**2,
+                spec.fallback_sigma_mm**2,
+                spec.initial_speed_mm_s**2,
+                spec.confirm_hits,
+                spec.confirm_window,
+                spec.max_misses,
+            ],
+            dtype=np.float64,
+        )
+        self._last_t: float | None = None
+        self.restarts = 0
+
+    @property
+    def dropped_births(self) -> int:
+        """Targets that would have started a track while ``max_tracks`` were in use."""
+        return int(self._counts[0])
+
+    def reset(self) -> None:
+        """Forget every track (ids keep counting, so an id never names two objects)."""
+        self._status[:] = 0
+        self._ids[:] = -1
+        self._last_t = None
+
+    def update(self, targets: Sequence[TargetLike], t_s: float) -> list[Track]:
+        """Tracks after the acquisition at ``t_s`` seconds; sets ``track_id`` on the targets
+        matched to confirmed tracks (None on the others). Confirmed tracks, by id."""
+        t = float(t_s)
+        if not math.isfinite(t):
+            raise InputError(f"tracker: acquisition time must be finite, got {t_s!r}")
+        dt = self._advance(t)
+        used = targets[:MAX_TARGETS]
+        z, r = _measurements(used)
+        target_ids = _step(
+            self._x,
+            self._p,
+            self._status,
+            self._ids,
+            self._age,
+            self._hits,
+            self._misses,
+            self._next_id,
+            z,
+            r,
+            dt,
+            self._params,
+            self._counts,
+        )
+        for target, track_id in zip(used, target_ids.tolist(), strict=True):
+            target.track_id = track_id if track_id >= 0 else None
+        for target in targets[MAX_TARGETS:]:
+            target.track_id = None
+        return self.tracks()
+
+    def tracks(self) -> list[Track]:
+        """The confirmed tracks now, by id."""
+        meta, xs, ps = _snapshot(
+            self._status, self._ids, self._age, self._hits, self._misses, self._x, self._p
+        )
+        return [Track(*row, xs, ps, k) for k, row in enumerate(meta.tolist())]
+
+    def _advance(self, t: float) -> float:
+        last, self._last_t = self._last_t, t
+        if last is None:
+            return 0.0
+        dt = t - last
+        if dt < 0 or dt > self.spec.max_gap_s:
+            if self._status.any():
+                log.info("tracker restarts: %s (%.3f s)", "time went back" if dt < 0 else "gap", dt)
+            self.restarts += 1
+            self.reset()
+            self._last_t = t
+            return 0.0
+        return dt
+
+
+def _measurements(targets: Sequence[TargetLike]) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (m, 3) and covariances (m, 3, 3); a malformed one becomes NaN (the step
+    then skips the position, or uses the fallback covariance)."""
+    m = len(targets)
+    try:  # the usual case in one go
+        z = np.array([t.position_mm for t in targets], dtype=np.float64).reshape(m, 3)
+        r = np.array([t.covariance_mm2 for t in targets], dtype=np.float64).reshape(m, 3, 3)
+        return z, r
+    except (TypeError, ValueError):
+        pass
+    z = np.empty((m, 3))
+    r = np.empty((m, 3, 3))
+    for j, target in enumerate(targets):
+        try:
+            z[j] = target.position_mm
+        except (TypeError, ValueError):
+            z[j] = np.nan
+        try:
+            r[j] = target.covariance_mm2
+        except (TypeError, ValueError):
+            r[j] = np.nan
+    return z, r

@@ -1,0 +1,124 @@
+"""Tracking around the tracker: replay/evaluate --track, time order, the scene view, scores."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from spiel_edge.cli import main
+from spiel_edge.io.spiel_csv import Recording
+from spiel_edge.measure.track_scene import MoverScore
+from spiel_edge.outputs.scene_view import CHI2_3DOF_95, Trails, ellipsoid
+from spiel_edge.runtime.tracking import NOMINAL_PERIOD_S, time_ordered
+from spiel_edge.track import Track
+from tests.core.spiel_csv_fixture import write_spiel_csv
+
+
+@pytest.fixture(scope="module")
+def folders(subset, tmp_path_factory):
+    names = np.array(subset.names)
+    keep = [i for i, n in enumerate(names) if n.startswith(("-40.0mm_-40.0mm_", "0.0mm_0.0mm_"))]
+    return write_spiel_csv(subset, tmp_path_factory.mktemp("rec"), keep)
+
+
+def test_replay_track_runs_each_recording_in_time_order(folders, tmp_path):
+    frames_dir, bg_dir = folders
+    out = tmp_path / "out.ndjson"
+    args = ["replay", str(frames_dir), "--background", str(bg_dir), "--track", "-o", str(out)]
+    assert main([*args, "--association", "geometric"]) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(records) >= 9
+    confirmed = 0
+    for r in records:
+        run_index = int(r["source"].rsplit("_", 2)[1])
+        assert "tracks" in r and "targets" in r
+        if run_index == 0:
+            assert r["tracks"] == []  # every recording restarts the tracker
+        for track in r["tracks"]:  # confirmed on a third hit, never more than one per target
+            assert run_index >= 2 and len(r["tracks"]) == 1
+            assert 3 <= track["hits"] <= track["age"] <= run_index + 1
+            assert np.linalg.norm(np.subtract(track["position_mm"], r["position_mm"])) < 30
+            confirmed += 1
+    assert confirmed >= len(records) // 4  # static targets: nearly every recording
+
+
+def test_evaluate_track_reports_the_tracked_error(folders, capsys):
+    frames_dir, bg_dir = folders
+    args = ["evaluate", str(frames_dir), "--background", str(bg_dir), "--track", "--json"]
+    assert main([*args, "--association", "geometric"]) == 0
+    tracked = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["tracked"]
+    assert tracked["fixes"] > 0 and 0 < tracked["on_track_share"] < 1
+    assert tracked["tracked_mean_mm"] > 0 and tracked["per_acquisition_mean_mm"] > 0
+
+
+def test_time_order_is_numeric_within_a_recording():
+    names = ["a_1_10_frames.csv", "a_1_2_frames.csv", "b_1_0_frames.csv", "a_1_0_frames.csv"]
+    timed = list(time_ordered(Recording(n, None, None) for n in names))
+    assert [t.recording.source for t in timed] == [
+        "a_1_0_frames.csv",
+        "a_1_2_frames.csv",
+        "a_1_10_frames.csv",
+        "b_1_0_frames.csv",
+    ]
+    assert [t.new_run for t in timed] == [True, False, False, True]
+    assert timed[2].t_s == pytest.approx(10 * NOMINAL_PERIOD_S)
+
+
+def test_ellipsoid_axes_and_orientation(rng):
+    rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    sigmas = np.array([2.0, 5.0, 9.0])
+    cov = rotation @ np.diag(sigmas**2) @ rotation.T
+    diameters, q = ellipsoid(cov.tolist())
+    np.testing.assert_allclose(np.sort(diameters), 2 * sigmas * np.sqrt(CHI2_3DOF_95))
+    x, y, z, w = q  # the quaternion's rotation maps each local axis onto a principal axis
+    r = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    for axis, diameter in zip(r.T, diameters, strict=True):
+        assert axis @ cov @ axis == pytest.approx((diameter / 2) ** 2 / CHI2_3DOF_95, rel=1e-6)
+    size, _ = ellipsoid([[np.nan] * 3] * 3)
+    assert np.all(np.isfinite(size))
+
+
+def test_trails_keep_recent_positions_of_live_tracks():
+    trails = Trails(length=3)
+    for k in range(5):
+        shown = trails.update([{"track_id": 1, "position_mm": [k, 0, 0]}])
+    assert shown == {1: [[2, 0, 0], [3, 0, 0], [4, 0, 0]]}
+    assert trails.update([{"track_id": 2, "position_mm": [0, 0, 1]}]) == {2: [[0, 0, 1]]}
+
+
+def _track(track_id, pos):
+    return Track(track_id, 5, 5, 0, np.r_[pos, 0, 0, 0][None], np.eye(6)[None], 0)
+
+
+def test_mover_score_counts_coverage_and_id_switches():
+    score = MoverScore(warmup=1)
+    truth = np.array([[0.0, 0, 200], [100.0, 0, 200]])
+    for k in range(5):
+        ids = (1, 2) if k < 3 else (2, 1)  # the tracks swap targets at k = 3
+        tracks = [_track(ids[0], truth[0] + 3), _track(ids[1], truth[1] - 3)]
+        tracks = tracks if k != 4 else tracks[:1]
+        score.add(k, truth, tracks, truth + 10)
+    s = score.summary()
+    assert s["acquisitions_scored"] == 4
+    assert s["coverage_per_target"] == [1.0, 0.75] and s["id_switches"] == 2
+    assert s["tracked_mean_mm"] == pytest.approx(np.sqrt(27), abs=0.01)
+    assert s["per_acquisition_mean_mm"] == pytest.approx(np.sqrt(300), abs=0.01)
+
+
+def test_movers_tracked_with_oracle_targets(profile):
+    from spiel_edge.measure.track_scene import run_movers
+    from spiel_edge.pipeline.factory import build_pipeline
+
+    pipeline = build_pipeline(profile, "geometric")
+    out = run_movers(pipeline, "sim://?scene=model&movers=2&seed=2", 80, oracle_sigma_mm=5.0)
+    assert out["acquisitions_scored"] == 60
+    assert out["min_coverage"] >= 0.95 and out["id_switches"] == 0
+    assert out["tracked_mean_mm"] < out["per_acquisition_mean_mm"]
