@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from spiel_edge.profile.schema import MAX_TARGETS_LIMIT
+from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 
 PORT_ENV = "SPIEL_PORT"
 

@@ -22,7 +22,8 @@ from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
 from spiel_edge.pipeline.static_scene import load_static_model
 from spiel_edge.pipeline.uncertainty import _covariance_kernel
-from spiel_edge.profile.schema import MAX_TARGETS_LIMIT, Profile
+from spiel_edge.profile.schema import Profile
+from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 
 log = logging.getLogger(__name__)
 

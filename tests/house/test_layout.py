@@ -28,6 +28,15 @@ def test_cycle_finder_finds_a_planted_cycle():
     assert cycles(graph) == [["a", "b", "c"]]
 
 
+def test_no_module_over_400_lines():
+    long = {
+        name: n
+        for name, path in module_files().items()
+        if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert long == {}
+
+
 def test_every_package_says_what_it_owns():
     for name, path in module_files().items():
         if path.name == "__init__.py":
