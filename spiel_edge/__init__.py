@@ -1,9 +1,10 @@
 """spiel-edge: 3-D ultrasonic echolocation (PaCE) for robots.
 
 Data flow, mirrored by the package layout:
-bytes (link/) -> frames (firmware_protocol) -> acquisitions (device.py, io/) ->
+bytes (link/) -> frames (firmware_protocol) -> acquisitions (device/, io/) ->
 echoes (pipeline/preprocess, detect, memg) -> features (pipeline/features) ->
-associations (pipeline/associate) -> positions (pipeline/locate) -> outputs (outputs/).
+associations (pipeline/associate, scene) -> positions (pipeline/echo_timing, locate) ->
+tracks (track/) -> outputs (outputs/); runtime/ runs it, cli/ is the command line.
 """
 
 from spiel_edge.errors import SpielError
