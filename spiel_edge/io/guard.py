@@ -203,23 +203,36 @@ def read_config_text(path: str | Path, what: str) -> str:
     """A small text file (profile, calibration, config): regular, at most MAX_CONFIG_BYTES,
     UTF-8; ConfigError naming the file otherwise (never blocks on a FIFO)."""
     path = Path(path)
-    shown = shorten(path)
+    name = f"{shorten(path)}: {what}"
+    return read_text_bounded(path, MAX_CONFIG_BYTES, ConfigError, name, f"a {what} file")
+
+
+def read_text_bounded(
+    path: Path, max_bytes: int, error: type[Exception], name: str, limit: str
+) -> str:
+    """The UTF-8 text of a regular file of at most ``max_bytes`` (what ``limit`` can take),
+    else ``error`` naming ``name``.
+    Opened non-blocking and checked with fstat, so a FIFO or a device never hangs the read,
+    and a file too large is refused by its size, unread."""
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
-        raise ConfigError(f"{shown}: {what} file not found") from None
+        raise error(f"{name}: file not found") from None
     except OSError as exc:
-        raise ConfigError(f"{shown}: cannot read {what}: {exc.strerror}") from None
+        raise error(f"{name}: cannot read: {exc.strerror}") from None
     with os.fdopen(fd, "rb") as fh:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise ConfigError(f"{shown}: {what} is not a regular file")
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise error(f"{name}: not a regular file")
+        if st.st_size > max_bytes:
+            raise error(f"{name}: {st.st_size} bytes, more than {limit} can take ({max_bytes})")
         try:
-            data = fh.read(MAX_CONFIG_BYTES + 1)
+            data = fh.read(max_bytes + 1)
         except OSError as exc:
-            raise ConfigError(f"{shown}: cannot read {what}: {exc.strerror}") from None
-    if len(data) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{shown}: {what} larger than {MAX_CONFIG_BYTES} bytes")
+            raise error(f"{name}: cannot read: {exc.strerror}") from None
+    if len(data) > max_bytes:
+        raise error(f"{name}: grew beyond {max_bytes} bytes while read")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
-        raise ConfigError(f"{shown}: {what} is not UTF-8 text") from None
+        raise error(f"{name}: not text (bytes that are not UTF-8)") from None

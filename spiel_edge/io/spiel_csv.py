@@ -8,9 +8,7 @@ frames under the same names.
 
 from __future__ import annotations
 
-import os
 import re
-import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +17,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import shorten
+from spiel_edge.io.guard import read_text_bounded, shorten
 from spiel_edge.io.limits import InputLimits
 
 FRAMES_SUFFIX = "_frames.csv"
@@ -137,32 +135,10 @@ def _scan_integers(buf, values, rows):
 
 
 def _read_bounded(path: Path, max_bytes: int) -> str:
-    """The text of a regular file of at most ``max_bytes`` (never blocks on a FIFO)."""
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except FileNotFoundError:
-        raise InputError(f"{path.name}: file not found") from None
-    except OSError as exc:
-        raise InputError(f"{path.name}: cannot read: {exc.strerror}") from None
-    with os.fdopen(fd, "rb") as fh:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise InputError(f"{path.name}: not a regular file")
-        if st.st_size > max_bytes:
-            raise InputError(
-                f"{path.name}: {st.st_size} bytes, more than a frame of the profile's shape "
-                f"can take ({max_bytes})"
-            )
-        try:
-            data = fh.read(max_bytes + 1)
-        except OSError as exc:
-            raise InputError(f"{path.name}: cannot read: {exc.strerror}") from None
-    if len(data) > max_bytes:
-        raise InputError(f"{path.name}: grew beyond {max_bytes} bytes while read")
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise InputError(f"{path.name}: not text (bytes that are not UTF-8)") from None
+    """The text of a regular file of at most ``max_bytes``: a frame of the profile's shape."""
+    return read_text_bounded(
+        path, max_bytes, InputError, path.name, "a frame of the profile's shape"
+    )
 
 
 def iter_recordings(

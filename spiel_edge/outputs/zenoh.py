@@ -40,27 +40,42 @@ def load_config(config: Any = None):
         raise ConfigError(f"Zenoh config {path}: {exc}") from exc
 
 
+def open_publishers(keys: dict[str, str], encoding: str, config: Any = None):
+    """(session, {name: publisher}) for the key expressions ``keys``; ``encoding`` names a
+    ``zenoh.Encoding`` attribute. Bad keys or an unreachable network: ConfigError."""
+    zenoh = _import_zenoh()
+    exprs = {}
+    for name, key in keys.items():
+        try:
+            exprs[name] = zenoh.KeyExpr(key)
+        except Exception as exc:
+            raise ConfigError(f"--zenoh {key!r} is not a valid key expression: {exc}") from exc
+    try:
+        session = zenoh.open(load_config(config))
+    except ConfigError:
+        raise
+    except Exception as exc:
+        raise ConfigError(f"--zenoh: cannot open a Zenoh session: {exc}") from exc
+    publishers = {
+        name: session.declare_publisher(
+            expr,
+            encoding=getattr(zenoh.Encoding, encoding),
+            congestion_control=zenoh.CongestionControl.DROP,  # drop, never block the run loop
+        )
+        for name, expr in exprs.items()
+    }
+    return session, publishers
+
+
 class ZenohSink:
     """Publish each record on ``key_expr`` (e.g. ``robots/r1/spiel/position``)."""
 
     def __init__(self, key_expr: str, config: Any = None):
-        zenoh = _import_zenoh()
-        try:
-            key = zenoh.KeyExpr(key_expr)
-        except Exception as exc:
-            raise ConfigError(f"--zenoh {key_expr!r} is not a valid key expression: {exc}") from exc
-        try:
-            self._session = zenoh.open(load_config(config))
-        except ConfigError:
-            raise
-        except Exception as exc:
-            raise ConfigError(f"--zenoh: cannot open a Zenoh session: {exc}") from exc
-        self._publisher = self._session.declare_publisher(
-            key,
-            encoding=zenoh.Encoding.APPLICATION_JSON,
-            congestion_control=zenoh.CongestionControl.DROP,
+        self._session, publishers = open_publishers(
+            {"record": key_expr}, "APPLICATION_JSON", config
         )
-        self.key_expr = str(key)
+        self._publisher = publishers["record"]
+        self.key_expr = key_expr
         self.failed = 0
         log.info("publishing records on Zenoh key %s", self.key_expr)
 

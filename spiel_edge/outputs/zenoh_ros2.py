@@ -17,10 +17,9 @@ import logging
 import time
 from typing import Any
 
-from spiel_edge.errors import ConfigError
 from spiel_edge.io.cdr import Ros2Encoder
 from spiel_edge.outputs.ros2 import Ros2Settings
-from spiel_edge.outputs.zenoh import _import_zenoh, load_config
+from spiel_edge.outputs.zenoh import open_publishers
 
 log = logging.getLogger(__name__)
 
@@ -31,35 +30,15 @@ class ZenohRos2Sink:
     """Publish CDR PointStamped and PointCloud2 under the key prefix ``key_expr``."""
 
     def __init__(self, key_expr: str, ros2: Ros2Settings | None = None, config: Any = None):
-        zenoh = _import_zenoh()
         ros2 = ros2 or Ros2Settings()
         self.encoder = Ros2Encoder(ros2.frame_id)
         self.transforms = list(ros2.transforms)
         prefix = key_expr.strip("/")
-        try:
-            keys = {
-                "point": zenoh.KeyExpr(f"{prefix}/point"),
-                "targets": zenoh.KeyExpr(f"{prefix}/targets"),
-                "tf_static": zenoh.KeyExpr("tf_static"),
-            }
-        except Exception as exc:
-            raise ConfigError(f"--zenoh {key_expr!r} is not a valid key expression: {exc}") from exc
-        try:
-            self._session = zenoh.open(load_config(config))
-        except ConfigError:
-            raise
-        except Exception as exc:
-            raise ConfigError(f"--zenoh: cannot open a Zenoh session: {exc}") from exc
-        self._publishers = {
-            name: self._session.declare_publisher(
-                key,
-                encoding=zenoh.Encoding.APPLICATION_CDR,
-                congestion_control=zenoh.CongestionControl.DROP,
-            )
-            for name, key in keys.items()
-            if name != "tf_static" or self.transforms
-        }
-        self.keys = {name: str(key) for name, key in keys.items() if name in self._publishers}
+        keys = {"point": f"{prefix}/point", "targets": f"{prefix}/targets"}
+        if self.transforms:
+            keys["tf_static"] = "tf_static"
+        self._session, self._publishers = open_publishers(keys, "APPLICATION_CDR", config)
+        self.keys = keys
         self.failed = 0
         self._tf_sent = -float("inf")
         self._send_tf()
