@@ -120,6 +120,6 @@ register_binfmt
 make_root
 if [ "${SPIEL_SMOKE_ROOT_ONLY:-0}" = 1 ]; then step "arm64 root ready"; exit 0; fi
 install_checkout
-run_tests
 compare_positions
+run_tests
 step "aarch64 smoke test passed"

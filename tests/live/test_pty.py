@@ -61,7 +61,9 @@ def stop(proc: subprocess.Popen) -> tuple[int, str]:
 
 
 def test_run_over_a_pty_gets_every_acquisition(simulator, tmp_path):
-    proc, path, link = simulator()
+    # a transmit buffer of 4 s at 300 Hz: a loaded CI machine may stall the host for longer
+    # than the default 64 KB lasts (0.3 s); the test is about losing nothing, not about speed
+    proc, path, link = simulator("sim://?fifo=1048576")
     assert path.startswith("/dev/pts/") and os.path.realpath(link) == path
     out = tmp_path / "out.ndjson"
     assert main(["run", "--port", path, "--frames", "300", "--rate", "300", "-o", str(out)]) == 0
@@ -74,7 +76,7 @@ def test_run_over_a_pty_gets_every_acquisition(simulator, tmp_path):
 
 
 def test_run_over_a_pty_survives_unplugs(simulator, tmp_path, capsys):
-    proc, path, link = simulator("sim://?scene=model&unplug_after=60&unplug_ms=300&unplug_count=2")
+    proc, path, link = simulator("sim://?scene=model&fifo=1048576&unplug_after=60&unplug_ms=300&unplug_count=2")
     out = tmp_path / "out.ndjson"
     assert main(["run", "--port", link, "--frames", "200", "--rate", "300", "-o", str(out)]) == 0
     recs = [json.loads(line) for line in out.read_text().splitlines()]
@@ -99,7 +101,8 @@ def test_signals_stop_run_cleanly(sig, tmp_path):
         sent = time.monotonic()
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=5)
-        assert time.monotonic() - sent < 1.0
+        # promptly, not within a deadline: a loaded 2-core CI machine gets slack
+        assert time.monotonic() - sent < 3.0
     finally:
         if proc.poll() is None:
             proc.kill()
