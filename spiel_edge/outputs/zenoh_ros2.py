@@ -5,8 +5,12 @@ that zenoh-bridge-ros2dds maps to ROS 2 topics (topic name without its leading s
 
 * ``KEY/point``: geometry_msgs/msg/PointStamped (the best target, metres) -> ``/KEY/point``;
 * ``KEY/targets``: sensor_msgs/msg/PointCloud2 (every target) -> ``/KEY/targets``;
-* ``tf_static``: tf2_msgs/msg/TFMessage (``--static-tf``) -> ``/tf_static``, sent at start and
-  then every TF_PERIOD_S, since a Zenoh subscriber that joins later has no latched copy.
+* ``tf_static``: tf2_msgs/msg/TFMessage (the profile's ``[frame]``, ``--parent-frame``,
+  ``--static-tf``) -> ``/tf_static``, sent at start and then every TF_PERIOD_S, since a plain
+  Zenoh publisher keeps no latched copy for a subscriber that joins later. The last one is also
+  answered to queries on ``@ros2_pub_cache/<session id>/tf_static``, where
+  zenoh-bridge-ros2dds (1.0 to 1.4) asks for the history of a transient-local topic when a ROS
+  reader of it appears (docs/ros2.md: untested against a real bridge).
 
 docs/ros2.md shows how to see them with ``ros2 topic echo`` through the bridge.
 """
@@ -24,6 +28,7 @@ from spiel_edge.outputs.zenoh import open_publishers
 log = logging.getLogger(__name__)
 
 TF_PERIOD_S = 1.0
+PUB_CACHE_PREFIX = "@ros2_pub_cache"  # zenoh-bridge-ros2dds's publication caches
 
 
 class ZenohRos2Sink:
@@ -41,6 +46,7 @@ class ZenohRos2Sink:
         self.keys = keys
         self.failed = 0
         self._tf_sent = -float("inf")
+        self._queryable = self._declare_tf_cache() if self.transforms else None
         self._send_tf()
         log.info("publishing ROS 2 CDR on Zenoh keys %s", ", ".join(self.keys.values()))
 
@@ -53,6 +59,19 @@ class ZenohRos2Sink:
                 log.warning(
                     "Zenoh put on %s failed (%d so far): %s", self.keys[name], self.failed, exc
                 )
+
+    def _declare_tf_cache(self):
+        """A queryable holding /tf_static, as the bridge's publication caches do."""
+        import zenoh
+
+        key = f"{PUB_CACHE_PREFIX}/{self._session.zid()}/tf_static"
+
+        def answer(query) -> None:
+            payload = self.encoder.tf_message(self.transforms, time.time())
+            query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_CDR)
+
+        self.keys["tf_static_cache"] = key
+        return self._session.declare_queryable(key, answer)
 
     def _send_tf(self) -> None:
         now = time.monotonic()
@@ -70,6 +89,8 @@ class ZenohRos2Sink:
 
     def close(self) -> None:
         try:
+            if self._queryable is not None:
+                self._queryable.undeclare()
             for publisher in self._publishers.values():
                 publisher.undeclare()
         finally:
