@@ -190,3 +190,20 @@ def test_a_signal_finalizes_the_recording(recorded, tmp_path, monkeypatch, capsy
     recs = list(iter_mcap_recordings(out))
     assert len(recs) == 11 and all(r.error is None for r in recs)
     assert "stopped by a signal" in capsys.readouterr().err
+
+
+def test_a_file_that_appears_during_the_replay_is_not_replaced(tmp_path):
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.outputs.replay_output import ReplayMcap
+
+    target = tmp_path / "late.mcap"
+    out = ReplayMcap(target, force=False)
+    target.write_bytes(b"someone else's")  # after the command's checks, before the move
+    with pytest.raises(ConfigError, match="appeared during the replay"):
+        out.close()
+    assert target.read_bytes() == b"someone else's"
+    assert [p.name for p in tmp_path.iterdir()] == ["late.mcap"]  # no temporary left
+    forced = ReplayMcap(target, force=True)
+    forced.discard()  # a failed replay: the target stays as it was
+    assert target.read_bytes() == b"someone else's"
+    assert [p.name for p in tmp_path.iterdir()] == ["late.mcap"]
