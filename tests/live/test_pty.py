@@ -76,7 +76,9 @@ def test_run_over_a_pty_gets_every_acquisition(simulator, tmp_path):
 
 
 def test_run_over_a_pty_survives_unplugs(simulator, tmp_path, capsys):
-    proc, path, link = simulator("sim://?scene=model&fifo=1048576&unplug_after=60&unplug_ms=300&unplug_count=2")
+    proc, path, link = simulator(
+        "sim://?scene=model&fifo=1048576&unplug_after=60&unplug_ms=300&unplug_count=2"
+    )
     out = tmp_path / "out.ndjson"
     assert main(["run", "--port", link, "--frames", "200", "--rate", "300", "-o", str(out)]) == 0
     recs = [json.loads(line) for line in out.read_text().splitlines()]
