@@ -1,59 +1,115 @@
-"""The ROS 2 options of `spiel-edge run` (one decorator; values go to open_outputs)."""
+"""The ROS 2 options of `spiel-edge run` and `replay` (decorators; values go to the sinks).
+
+The sensor frame and its static transform come from the profile's ``[frame]`` section; each
+option given here overrides its key (profile/frame_section.py, docs/ros2.md).
+"""
 
 from __future__ import annotations
 
 import click
 
 from spiel_edge.outputs.ros2 import (
-    DEFAULT_FRAME_ID,
     RECORD_PROFILES,
     ZENOH_ENCODINGS,
-    settings,
+    Ros2Settings,
+    frame_settings,
+    parse_numbers,
+)
+
+_RECORD_PROFILE = click.option(
+    "--record-profile",
+    type=click.Choice(RECORD_PROFILES),
+    default="json",
+    show_default=True,
+    help="MCAP message encoding: json (Foxglove, schemas in JSON) or ros2 (CDR: PointStamped, "
+    "PointCloud2, /tf_static; read by rosbags, ros2 bag).",
+)
+_FRAME = [
+    click.option(
+        "--frame-id",
+        default=None,
+        help="header.frame_id of the ROS 2 messages, the sensor frame (default: the profile's "
+        "[frame] frame_id, 'spiel').",
+    ),
+    click.option(
+        "--parent-frame",
+        default=None,
+        metavar="FRAME",
+        help="Robot frame the sensor is mounted on: publishes FRAME -> frame id on /tf_static "
+        "(default: the profile's [frame] parent).",
+    ),
+    click.option(
+        "--translation-m",
+        default=None,
+        metavar="X,Y,Z",
+        help="Sensor origin in the parent frame, metres (default: the profile's).",
+    ),
+    click.option(
+        "--rotation-rpy-deg",
+        default=None,
+        metavar="R,P,Y",
+        help="Sensor axes in the parent frame: roll about X, pitch about Y, yaw about Z "
+        "(fixed axes, tf2 setRPY), degrees.",
+    ),
+    click.option(
+        "--rotation-xyzw",
+        default=None,
+        metavar="X,Y,Z,W",
+        help="Sensor axes in the parent frame as a unit quaternion (instead of the angles).",
+    ),
+    click.option(
+        "--static-tf",
+        multiple=True,
+        metavar="PARENT:X,Y,Z[,R,P,Y]",
+        help="A further pose of the sensor frame in a robot frame (metres, radians), also on "
+        "/tf_static (repeatable).",
+    ),
+]
+_ZENOH_ENCODING = click.option(
+    "--zenoh-encoding",
+    type=click.Choice(ZENOH_ENCODINGS),
+    default="json",
+    show_default=True,
+    help="json: each record on KEY; cdr: ROS 2 messages on KEY/point, KEY/targets "
+    "and tf_static (the keys zenoh-bridge-ros2dds maps to /KEY/point, ...).",
 )
 
 
-def ros2_options(command):
-    for option in reversed(
-        [
-            click.option(
-                "--record-profile",
-                type=click.Choice(RECORD_PROFILES),
-                default="json",
-                show_default=True,
-                help="MCAP message encoding of --record: json (Foxglove, schemas in JSON) or "
-                "ros2 (CDR: PointStamped, PointCloud2, /tf_static; read by rosbags, ros2 bag).",
-            ),
-            click.option(
-                "--frame-id",
-                default=DEFAULT_FRAME_ID,
-                show_default=True,
-                help="header.frame_id of the ROS 2 messages (the sensor frame).",
-            ),
-            click.option(
-                "--static-tf",
-                multiple=True,
-                metavar="PARENT:X,Y,Z[,R,P,Y]",
-                help="Pose of the sensor frame in a robot frame (metres, radians), published on "
-                "/tf_static by the ros2 recording and Zenoh cdr (repeatable).",
-            ),
-            click.option(
-                "--zenoh-encoding",
-                type=click.Choice(ZENOH_ENCODINGS),
-                default="json",
-                show_default=True,
-                help="json: each record on KEY; cdr: ROS 2 messages on KEY/point, KEY/targets "
-                "and tf_static (the keys zenoh-bridge-ros2dds maps to /KEY/point, ...).",
-            ),
-        ]
-    ):
+def _apply(command, options: list):
+    for option in reversed(options):
         command = option(command)
     return command
 
 
-def ros2_output_options(values: dict) -> dict:
+def ros2_options(command):
+    """`run`: the recording's profile, the frame options and the Zenoh encoding."""
+    return _apply(command, [_RECORD_PROFILE, *_FRAME, _ZENOH_ENCODING])
+
+
+def ros2_record_options(command):
+    """`replay`: the MCAP output's profile and the frame options."""
+    return _apply(command, [_RECORD_PROFILE, *_FRAME])
+
+
+def ros2_settings(values: dict, profile) -> Ros2Settings:
+    """The frame id and static transforms: the profile's [frame] with the options over it
+    (ConfigError naming the option or key that is wrong)."""
+    return frame_settings(
+        profile.frame,
+        tuple(values["static_tf"]),
+        origin=profile.name,
+        frame_id=values["frame_id"],
+        parent=values["parent_frame"],
+        translation_m=parse_numbers(values["translation_m"], 3, "--translation-m"),
+        rotation_rpy_deg=parse_numbers(values["rotation_rpy_deg"], 3, "--rotation-rpy-deg"),
+        rotation_xyzw=parse_numbers(values["rotation_xyzw"], 4, "--rotation-xyzw"),
+    )
+
+
+def ros2_output_options(values: dict, profile) -> dict:
     """open_outputs keyword arguments from the options' values (ConfigError when bad)."""
     return {
         "record_profile": values["record_profile"],
-        "zenoh_encoding": values["zenoh_encoding"],
-        "ros2": settings(values["frame_id"], tuple(values["static_tf"])),
+        "zenoh_encoding": values.get("zenoh_encoding", "json"),
+        "ros2": ros2_settings(values, profile),
     }

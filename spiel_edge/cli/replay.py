@@ -15,11 +15,12 @@ from spiel_edge.cli._options import (
     profile_option,
     toa_correction_option,
 )
+from spiel_edge.cli._ros2 import ros2_record_options, ros2_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.errors import OutputError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.outputs.ndjson import NdjsonSink
+from spiel_edge.outputs.replay_output import open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
@@ -47,8 +48,13 @@ from spiel_edge.runtime.tracking import replay_tracked
 @max_targets_option
 @toa_correction_option
 @click.option(
-    "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
+    "--output",
+    "-o",
+    default="-",
+    show_default=True,
+    help="NDJSON file, - for stdout, or FILE.mcap: a recording as `run --record` writes it.",
 )
+@ros2_record_options
 @force_option
 @click.option(
     "--track",
@@ -68,8 +74,10 @@ def command(
     output,
     force,
     track,
+    **ros2,
 ) -> int:
-    """Run the pipeline over recorded frames; one NDJSON record per acquisition.
+    """Run the pipeline over recorded frames; one record per acquisition (NDJSON, or an MCAP
+    recording that replays again, JSON or --record-profile ros2: docs/ros2.md).
 
     Label files are never read. Exit status 1 when some inputs could not be processed. An
     output file appears only complete (written beside it, then renamed into place).
@@ -82,13 +90,17 @@ def command(
         plan.input_file(calibration, "--calibration")
     plan.output(output, "--output")
     profile = resolve_profile(profile_name, calibration)
+    frame = ros2_settings(ros2, profile)  # bad frame options: before any work
     pipeline = build_pipeline(profile, association, toa_correction)
     sources = iter_sources(path, fmt, background, InputLimits.for_profile(profile))
     if max_targets:
         pipeline.set_max_targets(max_targets)
     failed = total = 0
     stop = threading.Event()
-    sink = NdjsonSink(output, atomic=True)
+    meta = {"command": "replay", "source": path, "profile": profile.name}
+    sink = open_replay_output(
+        output, force=force, record_profile=ros2["record_profile"], ros2=frame, metadata=meta
+    )
     finalizers = Finalizers(exit_status=EXIT_PARTIAL)  # stuck on a blocked stdout: keep the
     if sink.owns_file:  # complete lines written so far; the replay is incomplete (1)
         finalizers.add(sink.close)
@@ -96,7 +108,7 @@ def command(
         with stop_on_signals(stop, finalizers):
             items = replay_tracked(pipeline, sources) if track else replay(pipeline, sources)
             for item in items:
-                sink.write(item.record())
+                sink.write(item)
                 total += 1
                 failed += item.error is not None
                 if stop.is_set():

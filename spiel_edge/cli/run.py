@@ -140,7 +140,8 @@ def command(
         if path:
             plan.input_file(path, option)
     record = check_outputs(plan, output, record)
-    resolve_profile(profile_name, calibration)  # a bad profile or calibration: before the board
+    # a bad profile, calibration or frame option: before the board
+    ros2_kwargs = ros2_output_options(ros2, resolve_profile(profile_name, calibration))
     fixed_background = load_background(background) if background else None
     port = board_port(port)
     if show_status is None:
@@ -173,7 +174,7 @@ def command(
                 receivers_mm=profile.geometry.channels_mm,
                 metadata={"port": port, "profile": profile.name, "geometry": source},
                 force=force,
-                **ros2_output_options(ros2),
+                **ros2_kwargs,
             )
             finalizers.add(sink.close_files)
             tracker = ResultTracker(profile.track) if track else None

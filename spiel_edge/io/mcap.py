@@ -176,7 +176,8 @@ def _recording(
             None,
             f"{source}: background shape {background.shape} differs from frames {frames.shape}",
         )
-    return Recording(source, frames, background)
+    stamp = msg.publish_time  # the acquisition's host time, as McapSink writes it
+    return Recording(source, frames, background, time_s=stamp / 1e9 if stamp > 0 else None)
 
 
 def frames_of(payload: dict, limits: InputLimits | None = None) -> np.ndarray:

@@ -32,6 +32,7 @@ class Recording:
     frames: np.ndarray | None
     background: np.ndarray | None
     error: str | None = None  # why frames (or the required background) could not be read
+    time_s: float | None = None  # capture time (Unix s) when the recording has it (MCAP)
 
 
 def frame_files(folder: str | Path) -> list[Path]:

@@ -3,7 +3,11 @@
 Per record: the PointStamped of the best target plus the PointCloud2 of its targets (what the
 ros2 MCAP recording and Zenoh cdr add), with 1 and 3 targets; beside it, in the same run, the
 JSON encoding of the same record that every record already costs (a ratio that stays
-meaningful on a busy machine). Target: <= 5 us per acquisition.
+meaningful on a busy machine). With a static transform (the profile's ``[frame]``): the
+Zenoh cdr path's messages per record (outputs/zenoh_ros2.CdrMessages: point, cloud and the
+check whether /tf_static is due) plus one TFMessage encoding spread over the acquisitions of
+its period (TF_PERIOD_S at 50 Hz; a ros2 MCAP writes it once per file). Target: <= 5 us per
+acquisition.
 """
 
 from __future__ import annotations
@@ -14,6 +18,11 @@ import time
 import numpy as np
 
 from spiel_edge.io.cdr import Ros2Encoder
+from spiel_edge.outputs.ros2 import frame_settings
+from spiel_edge.outputs.zenoh_ros2 import TF_PERIOD_S, CdrMessages
+from spiel_edge.profile.frame_section import FrameSpec
+
+RATE_HZ = 50.0  # `run --rate`'s default
 
 
 def _records(count: int, n_targets: int, seed: int = 0) -> list[dict]:
@@ -70,10 +79,18 @@ def ros2_encoding_us(count: int = 2000, repeat: int = 5) -> dict:
         json.dumps(record, separators=(",", ":"), allow_nan=False)
 
     one, three = _records(count, 1), _records(count, 3)
+    mount = FrameSpec(parent="base_link", translation_m=(0.1, 0.0, 0.25))
+    messages = CdrMessages(frame_settings(mount, rotation_rpy_deg=(0.0, 0.0, 90.0)))
+    messages.of_record(three[0])  # the transform just sent: the check is what each record pays
+    with_tf = _best_us(messages.of_record, three, repeat)
+    tf_us = _best_us(lambda _record: messages.tf_message(), three, repeat)
     return {
         "point_stamped_us": _best_us(point_only, one, repeat),
         "point_and_cloud_1_target_us": _best_us(ros2, one, repeat),
         "point_and_cloud_3_targets_us": _best_us(ros2, three, repeat),
         "json_record_3_targets_us": _best_us(as_json, three, repeat),
+        "cdr_messages_3_targets_with_tf_us": with_tf,
+        "tf_static_message_us": tf_us,
+        "with_tf_per_acquisition_3_targets_us": round(with_tf + tf_us / (TF_PERIOD_S * RATE_HZ), 2),
         "target_us": 5.0,
     }

@@ -139,6 +139,8 @@ class McapSink:
         self._since_background = 0
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}
+        # a replay's recording: log times are the capture times, so `ros2 bag play` paces it
+        self.log_time_from_stamp = False
 
     profile = MCAP_PROFILE  # subclasses (outputs/ros2_mcap.py) change the encoding
 
@@ -198,7 +200,7 @@ class McapSink:
         if self.closed:
             raise ValueError(f"{self.path}: recording already closed")
         data = payload if isinstance(payload, bytes) else _dumps(payload)
-        now = time.time_ns()
+        now = stamp if self.log_time_from_stamp and stamp else time.time_ns()
         with self._lock:  # close() may run in the signal watchdog meanwhile
             if self.closed:
                 raise ValueError(f"{self.path}: recording already closed")

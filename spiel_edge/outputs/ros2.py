@@ -1,9 +1,11 @@
 """ROS 2 output settings shared by the sinks: the sensor frame id and static transforms.
 
-A static transform is given as ``PARENT:X,Y,Z[,ROLL,PITCH,YAW]``: the pose of the sensor frame
+The profile's ``[frame]`` section (profile/frame_section.py) gives the frame id and one static
+transform; the command line overrides it key by key (:func:`frame_settings`). ``--static-tf``
+adds further transforms, each ``PARENT:X,Y,Z[,ROLL,PITCH,YAW]``: the pose of the sensor frame
 (``--frame-id``, default ``spiel``) in the robot frame PARENT, metres and radians (fixed axes
-X, then Y, then Z, as tf2's ``setRPY``). It goes to ``/tf_static`` in a ros2 MCAP recording and
-on Zenoh with ``--zenoh-encoding cdr``.
+X, then Y, then Z, as tf2's ``setRPY``). They go to ``/tf_static`` in a ros2 MCAP recording
+and on Zenoh with ``--zenoh-encoding cdr``.
 """
 
 from __future__ import annotations
@@ -13,8 +15,16 @@ from dataclasses import dataclass
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.cdr import StaticTransform
+from spiel_edge.profile.frame_section import (
+    DEFAULT_FRAME_ID,
+    FrameSpec,
+    frame_id_problem,
+    frame_rotation,
+    quaternion_from_rpy,
+    validate_frame,
+    with_overrides,
+)
 
-DEFAULT_FRAME_ID = "spiel"
 RECORD_PROFILES = ("json", "ros2")
 ZENOH_ENCODINGS = ("json", "cdr")
 
@@ -23,19 +33,6 @@ ZENOH_ENCODINGS = ("json", "cdr")
 class Ros2Settings:
     frame_id: str = DEFAULT_FRAME_ID
     transforms: tuple[StaticTransform, ...] = ()
-
-
-def quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of the rotation roll about X, then pitch about Y, then yaw about Z."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
 
 
 def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform:
@@ -59,6 +56,52 @@ def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform
 
 def settings(frame_id: str = DEFAULT_FRAME_ID, static_tf: tuple[str, ...] = ()) -> Ros2Settings:
     """Ros2Settings from the command-line values; ConfigError on a bad frame id or transform."""
-    if not frame_id or "\x00" in frame_id or frame_id.startswith("/"):
-        raise ConfigError(f"--frame-id {frame_id!r}: a non-empty tf2 frame id without leading /")
+    problem = frame_id_problem(frame_id)
+    if problem:
+        raise ConfigError(f"--frame-id {frame_id!r}: {problem}")
     return Ros2Settings(frame_id, tuple(parse_static_tf(t, frame_id) for t in static_tf))
+
+
+# command-line option -> [frame] key (cli/_ros2.py)
+FRAME_OPTIONS = {
+    "frame_id": "--frame-id",
+    "parent": "--parent-frame",
+    "translation_m": "--translation-m",
+    "rotation_rpy_deg": "--rotation-rpy-deg",
+    "rotation_xyzw": "--rotation-xyzw",
+}
+
+
+def frame_settings(
+    profile_frame: FrameSpec | None,
+    static_tf: tuple[str, ...] = (),
+    origin: str = "profile",
+    **given: object,
+) -> Ros2Settings:
+    """Ros2Settings from the profile's ``[frame]`` with the options ``given`` (keys of
+    FRAME_OPTIONS, None when not given) over it, plus the ``--static-tf`` transforms."""
+    spec = with_overrides(profile_frame or FrameSpec(), **given)
+    labels = {key: FRAME_OPTIONS[key] for key, value in given.items() if value is not None}
+    validate_frame(spec, origin, labels)
+    transforms = [frame_transform(spec)] if spec.parent else []
+    transforms += [parse_static_tf(t, spec.frame_id) for t in static_tf]
+    return Ros2Settings(spec.frame_id, tuple(transforms))
+
+
+def frame_transform(spec: FrameSpec) -> StaticTransform:
+    """The static transform parent -> frame_id of a validated spec with a parent."""
+    translation = tuple(float(v) for v in spec.translation_m)
+    return StaticTransform(spec.parent, spec.frame_id, translation, frame_rotation(spec))  # type: ignore[arg-type]
+
+
+def parse_numbers(text: str | None, count: int, option: str) -> tuple[float, ...] | None:
+    """``"X,Y,Z"`` -> floats (None passes through); ConfigError naming the option."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count or not all(map(math.isfinite, values)):
+        raise ConfigError(f"{option} {text[:80]!r}: expected {count} numbers separated by commas")
+    return values

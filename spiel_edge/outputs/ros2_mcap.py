@@ -65,9 +65,12 @@ class Ros2McapSink(McapSink):
         self.encoder = cdr.Ros2Encoder(frame_id)
         super().__init__(path, metadata={**(metadata or {}), "frame_id": frame_id}, **options)
         if transforms:
-            now = time.time()
-            message = self.encoder.tf_message(list(transforms), now)
-            self._add(TF_STATIC_TOPIC, message, int(now * 1e9))
+            self.write_transforms(transforms, time.time())
+
+    def write_transforms(self, transforms, stamp_s: float) -> None:
+        """The static transforms, once, on /tf_static (latched by its QoS metadata)."""
+        message = self.encoder.tf_message(list(transforms), stamp_s)
+        self._add(TF_STATIC_TOPIC, message, int(stamp_s * 1e9))
 
     def _register_channels(self) -> dict[str, int]:
         schemas = {

@@ -35,6 +35,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "track.max_misses": (1, 1000),
     "track.max_tracks": (1, 64),
     "track.max_gap_s": (0.001, 3600.0),
+    "frame.translation_m": (-100.0, 100.0),  # each coordinate
+    "frame.rotation_rpy_deg": (-360.0, 360.0),  # each angle
 }
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from spiel_edge.compat import tomllib
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import read_config_text
+from spiel_edge.profile.frame_section import FrameSpec, validate_frame
 from spiel_edge.profile.geometry_checks import check_geometry
 from spiel_edge.profile.ranges import check_range
 from spiel_edge.profile.specs import (
@@ -50,6 +51,7 @@ _SECTIONS = {
     "scene": SceneSpec,
     "echo_timing": EchoTimingSpec,
     "track": TrackSpec,
+    "frame": FrameSpec,
 }
 _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
@@ -282,6 +284,7 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     _validate_scene(p.scene, origin)
     _validate_echo_timing(p.echo_timing, g.n_channels, need, origin)
     validate_track(p.track, origin)
+    validate_frame(p.frame, origin)
 
 
 def _validate_scene(sc: SceneSpec, origin: str) -> None:

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from spiel_edge.profile.frame_section import FrameSpec
 from spiel_edge.profile.track_section import TrackSpec
 
 TOA_METHODS = ("mode", "mu", "half", "peak")
@@ -143,6 +144,7 @@ class Profile:
     scene: SceneSpec = SceneSpec()
     echo_timing: EchoTimingSpec = EchoTimingSpec()
     track: TrackSpec = TrackSpec()
+    frame: FrameSpec = FrameSpec()
     description: str = ""
 
     @property

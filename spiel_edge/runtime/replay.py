@@ -24,6 +24,7 @@ class Replayed:
     result: Result | None
     error: str | None
     tracks: list[dict] | None = None  # with tracking (runtime/tracking.py)
+    recording: Recording | None = None  # its frames, for outputs that keep them (MCAP)
 
     def record(self) -> dict:
         out = self._record()
@@ -66,13 +67,13 @@ def replay(pipeline: Pipeline, recordings: Iterator[Recording]) -> Iterator[Repl
     for rec in recordings:
         if rec.error is not None:
             log.error("%s", rec.error)
-            yield Replayed(rec.source, None, rec.error)
+            yield Replayed(rec.source, None, rec.error, recording=rec)
             continue
         try:
             result = pipeline.process(rec.frames, rec.background)
         except SpielError as exc:
             message = f"{rec.source}: {exc}"
             log.error("%s", message)
-            yield Replayed(rec.source, None, message)
+            yield Replayed(rec.source, None, message, recording=rec)
             continue
-        yield Replayed(rec.source, result, None)
+        yield Replayed(rec.source, result, None, recording=rec)

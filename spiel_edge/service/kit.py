@@ -133,7 +133,8 @@ SPIEL_PORT=/dev/spiel-0
 #   --record /var/lib/spiel-edge/spiel-%Y%m%d-%H%M%S.mcap   (strftime: one file per start)
 #   --udp HOST:PORT   --foxglove 127.0.0.1:8765   --zenoh robots/r1/spiel
 #   ROS 2 (docs/ros2.md): --record-profile ros2   --zenoh-encoding cdr   --frame-id spiel
-#   --static-tf base_link:0.10,0,0.25   (the sensor's pose on the robot: metres, radians)
+#   the sensor's pose on the robot: [frame] in the profile, or --parent-frame base_link
+#   --translation-m 0.10,0,0.25 --rotation-rpy-deg 0,0,90   (metres, degrees)
 # NDJSON goes to /dev/null here: on stdout it would fill the journal at the frame rate.
 SPIEL_RUN_OPTIONS=--profile spiel-icra23 --output /dev/null --udp 127.0.0.1:9870
 

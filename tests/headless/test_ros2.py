@@ -17,8 +17,9 @@ from spiel_edge.data import load_subset  # noqa: E402
 from spiel_edge.errors import ConfigError  # noqa: E402
 from spiel_edge.io import cdr  # noqa: E402
 from spiel_edge.io.mcap import iter_mcap_recordings  # noqa: E402
-from spiel_edge.outputs.ros2 import parse_static_tf, settings  # noqa: E402
+from spiel_edge.outputs.ros2 import frame_settings, parse_static_tf, settings  # noqa: E402
 from spiel_edge.outputs.ros2_mcap import Ros2McapSink  # noqa: E402
+from spiel_edge.profile.frame_section import FrameSpec  # noqa: E402
 
 STAMP = 1_796_097_713.156419
 TARGETS = [
@@ -161,7 +162,8 @@ def test_run_records_ros2_profile(tmp_path):
         str(tmp_path / "o.ndjson"),
     ]
     args += ["--record", str(path), "--record-profile", "ros2", "--frame-id", "sonar"]
-    assert main(args + ["--static-tf", "base_link:0,0,0.3"]) == 0
+    mount = ["--parent-frame", "base_link", "--translation-m", "0,0,0.3"]
+    assert main([*args, *mount, "--static-tf", "odom:1,0,0"]) == 0
     fixes = sum(
         json.loads(line)["position_mm"] is not None
         for line in (tmp_path / "o.ndjson").read_text().splitlines()
@@ -169,6 +171,12 @@ def test_run_records_ros2_profile(tmp_path):
     with AnyReader([path]) as reader:
         points = [c for c in reader.connections if c.topic == "/spiel/point"]
         assert sum(c.msgcount for c in points) == fixes > 0
+        statics = [c for c in reader.connections if c.topic == "/tf_static"]
+        (tf,) = [reader.deserialize(r, c.msgtype) for c, _t, r in reader.messages(statics)]
+        assert [(t.header.frame_id, t.child_frame_id) for t in tf.transforms] == [
+            ("base_link", "sonar"),
+            ("odom", "sonar"),
+        ]
     assert main(["replay", str(path), "-o", str(tmp_path / "replayed.ndjson")]) == 0
 
 
@@ -189,7 +197,8 @@ def test_zenoh_cdr_publishes_ros2_messages_on_bridge_keys(typestore):
     sub = zenoh.Config.from_json5(
         json.dumps({**quiet, "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
     )
-    ros2 = settings("spiel", ("base_link:0,0,0.3",))
+    mount = FrameSpec(parent="base_link", translation_m=(0.0, 0.0, 0.3))
+    ros2 = frame_settings(mount, rotation_rpy_deg=(0.0, 90.0, 0.0))  # as --rotation-rpy-deg
     sink = ZenohRos2Sink("robot1/spiel", ros2, pub)
     received: dict[str, bytes] = {}
     session = zenoh.open(sub)
@@ -199,13 +208,25 @@ def test_zenoh_cdr_publishes_ros2_messages_on_bridge_keys(typestore):
         )
         record = {"host_time": STAMP, "position_mm": [1.0, 2.0, 3.0], "targets": TARGETS}
         deadline = time.monotonic() + 10
-        while len(received) < 2 and time.monotonic() < deadline:
+        while len(received) < 3 and time.monotonic() < deadline:  # tf_static: within 1 s
             sink.write(record)  # until the subscriber's declaration has reached the publisher
             time.sleep(0.02)
         point = typestore.deserialize_cdr(received["robot1/spiel/point"], cdr.POINT_STAMPED)
         assert (point.point.z, point.header.frame_id) == (0.003, "spiel")
         cloud = typestore.deserialize_cdr(received["robot1/spiel/targets"], cdr.POINT_CLOUD2)
         assert cloud.width == 2
+        _check_mount(typestore.deserialize_cdr(received["tf_static"], cdr.TF_MESSAGE))
+        # the bridge's history query for a transient-local reader gets it at once
+        (reply,) = session.get("@ros2_pub_cache/*/tf_static", timeout=10)
+        _check_mount(typestore.deserialize_cdr(reply.ok.payload.to_bytes(), cdr.TF_MESSAGE))
     finally:
         session.close()
         sink.close()
+
+
+def _check_mount(message):
+    (tf,) = message.transforms
+    assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", "spiel")
+    assert tf.transform.translation.z == 0.3
+    q = tf.transform.rotation
+    np.testing.assert_allclose([q.x, q.y, q.z, q.w], [0, math.sqrt(0.5), 0, math.sqrt(0.5)])
