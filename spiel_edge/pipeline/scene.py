@@ -80,6 +80,8 @@ class SceneAssociator:
         bonus = None if reference_mode else self._bonus(features, counts)
         if reference_mode:
             hyps = [(np.asarray(self.associator(features, counts)), math.nan)]
+        elif self.joint and self.max_targets > 1:
+            return self._joint(features, counts, bonus)  # its cheapest is the K = 1 pick
         else:
             hyps = [self.first(features, counts, bonus)]
         if (
@@ -88,8 +90,6 @@ class SceneAssociator:
             or not hasattr(self.geometric, "candidates")
         ):
             return hyps
-        if self.joint:
-            return self._joint(features, counts, bonus, hyps)
         used = np.zeros(np.shape(features)[:2], dtype=np.bool_)
         _mark(used, hyps[0][0])
         base = np.zeros(used.shape) if bonus is None else bonus
@@ -114,10 +114,14 @@ class SceneAssociator:
             _mark(used, matched)
         return hyps
 
-    def _joint(self, features, counts, bonus, hyps):
+    def _joint(self, features, counts, bonus):
         """The subset of the cheapest combinations chosen jointly (module joint); the K = 1
-        pick alone when no combination is worth its birth cost."""
+        pick (the cheapest, found by the same search) alone when no combination is worth its
+        birth cost."""
         choices, costs = combination_pool(self.geometric, features, counts, bonus)
+        if len(costs) == 0:
+            return [(np.full(len(counts), -1, dtype=np.int64), math.inf)]
+        hyps = [(choices[0].copy(), float(costs[0]))]
         n_used = (choices >= 0).sum(axis=1)
         # the joint choice's own cost of a channel left out: one wrong echo should not buy a
         # target its fourth channel

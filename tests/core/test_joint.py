@@ -156,3 +156,17 @@ def test_selection_key_checked(profile):
     bad = {**data, "scene": {**data["scene"], "selection": "best"}}
     with pytest.raises(ConfigError, match="scene.selection"):
         profile_from_dict(bad)
+
+
+def test_no_background_covariance_scale(profile, subset):
+    frames, background = subset.frames[0], subset.backgrounds[0]
+    base = with_scene(profile, covariance_floor_mm=0.0, covariance_scale_no_background=1.0)
+    wide = with_scene(base, covariance_scale_no_background=2.0)
+    a, b = Pipeline(base).process(frames, None), Pipeline(wide).process(frames, None)
+    np.testing.assert_allclose(b.targets[0].covariance_mm2, 4.0 * a.targets[0].covariance_mm2)
+    a, b = Pipeline(base).process(frames, background), Pipeline(wide).process(frames, background)
+    np.testing.assert_array_equal(b.targets[0].covariance_mm2, a.targets[0].covariance_mm2)
+    data = profile_to_dict(profile)
+    bad = {**data, "scene": {**data["scene"], "covariance_scale_no_background": 0.0}}
+    with pytest.raises(ConfigError, match="scene.covariance_scale_no_background"):
+        profile_from_dict(bad)
