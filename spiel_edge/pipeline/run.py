@@ -130,6 +130,9 @@ class Pipeline:
             sc.max_cost_mm,
             sc.share_penalty_mm,
             sc.extra_min_channels,
+            sc.selection,
+            sc.missing_penalty_mm,
+            sc.keep_best,
         )
 
     def check_shape(self, frames: np.ndarray, what: str = "frames") -> None:
@@ -286,6 +289,7 @@ class Pipeline:
         sigma_mm = self.profile.mm_per_sample / weights
         cov = np.empty((3, 3))  # arrays checked above: the kernel directly (hot path)
         sc = self.profile.scene
+        captured = background is not None and background is not self.static_model
         _covariance_kernel(
             pos,
             paths,
@@ -293,7 +297,7 @@ class Pipeline:
             use & np.isfinite(paths),
             self._channels,
             self._emitter,
-            sc.covariance_scale,
+            sc.covariance_scale if captured else sc.covariance_scale_no_background,
             sc.covariance_floor_mm,
             cov,
         )

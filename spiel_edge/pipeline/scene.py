@@ -1,6 +1,9 @@
 """Scene stage: up to K targets per acquisition from one multi-hypothesis association.
 
-Greedy hypothesise-and-verify over all channels' echoes (docs/scene.md):
+``[scene] selection = "joint"`` (default): the set of targets is chosen jointly among the
+cheapest consistent echo combinations (:mod:`spiel_edge.pipeline.joint`). ``"greedy"``, and
+the cases the joint search does not cover (more than 6 listening channels, the learned
+associator's ``reference`` mode), hypothesise-and-verify greedily (docs/scene.md):
 
 1. The best consistent echo combination (the associator's own search: geometric cost with the
    learned score prior when the model is loaded) is the first target, exactly as with K = 1.
@@ -26,6 +29,9 @@ import math
 
 import numpy as np
 
+from spiel_edge.pipeline.associate import EXHAUSTIVE_MAX_CHANNELS
+from spiel_edge.pipeline.joint import combination_pool, drop_variants, select_subset
+
 
 class SceneAssociator:
     """``(features, counts) -> [(matched, cost), ...]``: best first, at most ``max_targets``."""
@@ -37,6 +43,9 @@ class SceneAssociator:
         max_cost_mm: float,
         share_penalty_mm: float = 40.0,
         extra_min_channels: int = 3,
+        selection: str = "joint",
+        missing_penalty_mm: float | None = None,
+        keep_best: bool = True,
     ):
         self.associator = associator
         self.geometric = getattr(associator, "geometric", associator)
@@ -46,6 +55,14 @@ class SceneAssociator:
         listening = getattr(self.geometric, "listening", None)
         n_listening = 3 if listening is None else int(np.sum(listening))
         self.extra_min_channels = max(3, min(int(extra_min_channels), n_listening))
+        own = getattr(self.geometric, "missing_penalty_mm", 0.0)
+        self.missing_shift_mm = 0.0 if missing_penalty_mm is None else missing_penalty_mm - own
+        self.keep_best = bool(keep_best)
+        self.joint = (
+            selection == "joint"
+            and hasattr(self.geometric, "candidates")
+            and n_listening <= EXHAUSTIVE_MAX_CHANNELS
+        )
 
     def _bonus(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
         """The learned score prior as a per-echo cost bonus (None for geometric association)."""
@@ -63,6 +80,8 @@ class SceneAssociator:
         bonus = None if reference_mode else self._bonus(features, counts)
         if reference_mode:
             hyps = [(np.asarray(self.associator(features, counts)), math.nan)]
+        elif self.joint and self.max_targets > 1:
+            return self._joint(features, counts, bonus)  # its cheapest is the K = 1 pick
         else:
             hyps = [self.first(features, counts, bonus)]
         if (
@@ -94,6 +113,32 @@ class SceneAssociator:
             hyps.append((matched, cost))
             _mark(used, matched)
         return hyps
+
+    def _joint(self, features, counts, bonus):
+        """The subset of the cheapest combinations chosen jointly (module joint); the K = 1
+        pick (the cheapest, found by the same search) alone when no combination is worth its
+        birth cost."""
+        choices, costs = combination_pool(self.geometric, features, counts, bonus)
+        if len(costs) == 0:
+            return [(np.full(len(counts), -1, dtype=np.int64), math.inf)]
+        hyps = [(choices[0].copy(), float(costs[0]))]
+        n_used = (choices >= 0).sum(axis=1)
+        # the joint choice's own cost of a channel left out: one wrong echo should not buy a
+        # target its fourth channel
+        costs = costs + self.missing_shift_mm * (len(counts) - n_used)
+        first = 1 if self.keep_best else 0  # the K = 1 pick stays first
+        order = np.concatenate([np.arange(first), first + np.argsort(costs[first:], kind="stable")])
+        choices, costs, n_used = choices[order], costs[order], n_used[order]
+        keep = (n_used >= self.extra_min_channels) & drop_variants(choices)
+        keep[:1] = True  # the K = 1 pick may use fewer channels, as before
+        choices, costs = choices[keep], costs[keep]
+        gains = self.max_cost_mm - costs
+        if self.keep_best:
+            gains[0] = max(gains[0], 0.0) + 1e6  # always chosen
+        chosen = select_subset(choices, gains, self.max_targets, self.share_penalty_mm)
+        if chosen.size == 0:
+            return hyps
+        return [(choices[i].copy(), float(costs[i])) for i in chosen]
 
 
 def _mark(used: np.ndarray, matched: np.ndarray) -> None:

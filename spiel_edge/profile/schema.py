@@ -24,6 +24,7 @@ from spiel_edge.profile.ranges import check_range
 from spiel_edge.profile.specs import (
     ASSOCIATION_METHODS,
     ECHO_TIMING_ESTIMATORS,
+    SCENE_SELECTIONS,
     TOA_CORRECTIONS,
     TOA_METHODS,
     AcquisitionSpec,
@@ -288,8 +289,12 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
 
 
 def _validate_scene(sc: SceneSpec, origin: str) -> None:
+    if sc.selection not in SCENE_SELECTIONS:
+        raise ConfigError(
+            f"{origin}: scene.selection must be one of {SCENE_SELECTIONS}, got {sc.selection!r}"
+        )
     for f in dataclasses.fields(SceneSpec):
-        if f.name != "static_model":
+        if f.name not in ("static_model", "selection", "keep_best"):
             check_range(f"scene.{f.name}", getattr(sc, f.name), origin)
 
 

@@ -16,6 +16,7 @@ TOA_METHODS = ("mode", "mu", "half", "peak")
 ASSOCIATION_METHODS = ("auto", "onnx", "geometric")
 ECHO_TIMING_ESTIMATORS = ("none", "parabola", "log_parabola")
 TOA_CORRECTIONS = ("auto", "onnx", "none")
+SCENE_SELECTIONS = ("joint", "greedy")  # [scene] selection (pipeline/scene.py)
 
 
 @dataclass(frozen=True)
@@ -104,14 +105,18 @@ class SceneSpec:
     """Several targets per acquisition and their uncertainty; see docs/scene.md."""
 
     max_targets: int = 1
-    max_cost_mm: float = 0.0  # a further target needs an association cost <= this
+    selection: str = "joint"  # "joint" (pipeline/joint.py) or "greedy" choice of the targets
+    max_cost_mm: float = 0.0  # a further target needs an association cost <= this (joint: birth)
     share_penalty_mm: float = 40.0  # cost of reusing an echo another target took
+    missing_penalty_mm: float = 10.0  # joint: cost of a channel left out (replaces associate's)
+    keep_best: bool = True  # joint: the K = 1 pick is always the first target
     extra_min_channels: int = 3  # channels a further target must use (capped at the listening)
     share_tolerance_mm: float = 6.0  # two targets share an echo within this of the prediction
     min_separation_mm: float = 25.0  # a target nearer than this to a better one is dropped
     double_tolerance_mm: float = 20.0  # target -> board -> target paths within this are dropped
     covariance_scale: float = 1.0  # scales the linearised covariance's standard deviations
     covariance_floor_mm: float = 0.0  # std added in every direction (unmodelled errors)
+    covariance_scale_no_background: float = 1.0  # covariance_scale when no background is given
     static_model: str = ""  # file in spiel_edge/models (or a path): used without a background
     static_mad_factor: float = 0.0  # stand-in background = median + this x MAD of the model
 

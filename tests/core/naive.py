@@ -28,9 +28,23 @@ def brute_force_association(
     paths_mm, counts, channels, emitter, facing, weights, strength, min_ch, max_diff, locate_fn
 ):
     """Every combination of one echo (or none) per channel, the same cost as the kernel."""
+    best, best_cost = None, np.inf
+    costs = brute_force_costs(
+        paths_mm, counts, channels, emitter, facing, weights, strength, min_ch, max_diff, locate_fn
+    )
+    for choice, cost in costs.items():
+        if cost < best_cost:
+            best, best_cost = choice, cost
+    return best, best_cost
+
+
+def brute_force_costs(
+    paths_mm, counts, channels, emitter, facing, weights, strength, min_ch, max_diff, locate_fn
+):
+    """{choice: cost} of every feasible combination, in the kernel's search order."""
     max_res, penalty, sw, rw = weights
     n_ch = len(counts)
-    best, best_cost = None, np.inf
+    out = {}
     for choice in itertools.product(*[range(-1, int(k)) for k in counts]):
         used = [c for c in range(n_ch) if choice[c] >= 0]
         if len(used) < min_ch:
@@ -47,15 +61,13 @@ def brute_force_association(
         pos, rms, ok = locate_fn(d, channels, emitter, facing, use)
         if not ok or rms > max_res:
             continue
-        cost = (
+        out[choice] = (
             rms
             + penalty * (n_ch - len(used))
             - sw * np.mean([strength[c, choice[c]] for c in used])
             + rw * np.linalg.norm(pos - emitter)
         )
-        if cost < best_cost:
-            best, best_cost = choice, cost
-    return best, best_cost
+    return out
 
 
 def position_covariance(position, paths_mm, sigma_mm, use, channels, emitter, scale, floor_mm):
@@ -130,3 +142,24 @@ def toa_features(frames, background, clean, toa, half_width=6):
             np.concatenate([frames[c, sl] / p, bg, clean[c, sl] / p, scalars, np.eye(n_ch)[c]])
         )
     return np.array(rows)
+
+
+def joint_selection_value(choices, gains, max_targets, share_penalty):
+    """Best objective of the scene's joint choice by trying every subset of at most
+    ``max_targets`` combinations: sum of gains minus ``share_penalty`` per extra use of an
+    echo; a subset where one combination uses only echoes of the others is not allowed."""
+    best = 0.0
+    for size in range(1, max_targets + 1):
+        for subset in itertools.combinations(range(len(gains)), size):
+            uses: dict = {}
+            for i in subset:
+                for c, k in enumerate(choices[i]):
+                    if k >= 0:
+                        uses[(c, k)] = uses.get((c, k), 0) + 1
+            if any(
+                all(uses[(c, k)] >= 2 for c, k in enumerate(choices[i]) if k >= 0) for i in subset
+            ):
+                continue
+            extra = sum(u - 1 for u in uses.values())
+            best = max(best, sum(gains[i] for i in subset) - share_penalty * extra)
+    return best
