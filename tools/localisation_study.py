@@ -1,6 +1,6 @@
 """Where the per-target localisation error comes from, and what generalises (docs/localisation.md).
 
-    python -m tools.localisation_study [--data DIR] [--cache FILE] [--trees]
+    python -m tools.localisation_study [--data DIR] [--cache FILE] [--trees] [--recipe]
 
 Workstation tool (needs the ``train`` extra: scipy, and scikit-learn for ``--trees``).
 Collects the shipped pipeline's per-channel ToAs (``tools.localisation_data``), then prints
@@ -9,7 +9,9 @@ outliers, by height; between- and within-pose parts), the 3-D error by echo cate
 geometry's dilution, and every variant's 3-D error **out of fold** on the training positions
 (3 folds by (x, y) position: everything fitted on two, scored on the third) and on the
 validation positions (fitted on all training positions). ``--trees`` also retrains the
-learned ToA correction per fold (slow: minutes), which is what shows whether it overfits.
+learned ToA correction per fold (slow: minutes), which is what shows whether it overfits;
+``--recipe`` retrains it as shipped (its own rows, ``tools.toa_correction_data``) on all
+training positions, without and with a path scale, and scores it on the same rows.
 """
 
 from __future__ import annotations
@@ -184,6 +186,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--cache", type=Path, default=Path("localisation_cases.npz"))
     ap.add_argument("--trees", action="store_true", help="retrain the ToA correction per fold")
+    ap.add_argument(
+        "--recipe", action="store_true", help="retrain it as shipped, without and with a path scale"
+    )
     args = ap.parse_args(argv)
     profile = load_profile("spiel-icra23")
     c = load_or_collect(args.data, profile, args.cache)
@@ -196,6 +201,12 @@ def main(argv: list[str] | None = None) -> None:
     print(HEADER)
     print(table_row("shipped pipeline (training: in sample)", metrics(c, c["pos"])))
     w = c["weights"]
+    memg = out_of_fold(c, delays_variant(c, "memg", False))
+    print(
+        table_row(
+            "MEMG mode (no echo timing), delays refitted", metrics(c, solve_all(profile, memg, w))
+        )
+    )
     base = out_of_fold(c, delays_variant(c, "refined", False))
     print(table_row("estimator, delays refitted", metrics(c, solve_all(profile, base, w))))
     scaled = out_of_fold(c, delays_variant(c, "refined", True))
@@ -213,6 +224,9 @@ def main(argv: list[str] | None = None) -> None:
         print(table_row("estimator + path scale + trees", metrics(c, solve_all(profile, both, w))))
     for name, pos in lv.solve_variants(c, profile, base):
         print(table_row(name, metrics(c, pos)))
+    if args.recipe:
+        for name, pos in lv.shipped_recipe(c, profile, args.data, TREES):
+            print(table_row(name, metrics(c, pos)))
 
 
 if __name__ == "__main__":

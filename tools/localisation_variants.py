@@ -167,3 +167,42 @@ def solve_variants(c, profile, toa):
             f"  same ToA, drop least trusted channel above {thr:g} mm",
             drop_least_trusted(c, profile, toa, thr),
         )
+
+
+def shipped_recipe(c, profile, data, trees: dict):
+    """The shipped correction's own recipe (``tools.toa_correction_data``: rows with and
+    without a true background, delays + shift) retrained on all training positions, without and
+    with a path scale fitted before the trees; (name, positions) on the study's rows."""
+    from pathlib import Path
+
+    from sklearn.ensemble import GradientBoostingRegressor
+
+    from spiel_edge.measure.localisation import fit_delays_and_scale
+    from tools import toa_correction_data as tcd
+    from tools.localisation_data import solve_all
+
+    base = np.asarray(profile.geometry.delays(), float)
+    train, _ = tcd.split(tcd.load_cases(Path(data), profile, "log_parabola", 2))
+    shift = tcd.fit_delay_shift(train, base)
+    with_bg = [k for k in train if k.has_background]
+    ref = np.array([k.refined for k in with_bg])
+    ideal = np.array([k.ideal for k in with_bg])
+    inl = np.abs(ref - base - shift - ideal) < INLIER
+    scaled = fit_delays_and_scale(ref, ideal, inl, scale=True)
+    feats = c["feats"]
+    rows = np.all(np.isfinite(feats), 2)
+    for name, (delay, k) in (("", (base + shift, 1.0)), (" + path scale", scaled)):
+        x, y = [], []
+        for case in train:
+            res = case.refined - (delay + k * case.ideal)
+            ok = np.isfinite(res) & (np.abs(res) < INLIER) & np.all(np.isfinite(case.features), 1)
+            x.append(case.features[ok])
+            y.append(res[ok])
+        model = GradientBoostingRegressor(**trees).fit(np.vstack(x), np.concatenate(y))
+        corr = np.zeros(rows.shape)
+        corr[rows] = np.clip(model.predict(feats[rows]), -1.5, 1.5)
+        toa = (c["refined"] - corr - delay) / k
+        yield (
+            f"shipped recipe retrained{name} (training: in sample)",
+            solve_all(profile, toa, c["weights"]),
+        )
