@@ -204,7 +204,8 @@ def main(argv: list[str] | None = None) -> None:
     memg = out_of_fold(c, delays_variant(c, "memg", False))
     print(
         table_row(
-            "MEMG mode (no echo timing), delays refitted", metrics(c, solve_all(profile, memg, w))
+            "MEMG mode (no echo timing, no echo-quality shift), delays refitted",
+            metrics(c, solve_all(profile, memg, w)),
         )
     )
     base = out_of_fold(c, delays_variant(c, "refined", False))
