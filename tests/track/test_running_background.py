@@ -92,8 +92,11 @@ def test_replay_track_without_background_feeds_the_running_estimate(subset, tmp_
     profile_file = tmp_path / "running.toml"
     builtin = Path(__file__).parents[2] / "spiel_edge/profile/builtin/spiel-icra23.toml"
     profile_file.write_text(
-        builtin.read_text().replace("[track]\n", "[track]\nrunning_background_window = 4\n")
+        builtin.read_text().replace(
+            "running_background_window = 0", "running_background_window = 4"
+        )
     )
+    assert "running_background_window = 4" in profile_file.read_text()
     out = tmp_path / "out.ndjson"
     args = ["replay", str(frames_dir), "--profile", str(profile_file), "--track", "-o", str(out)]
     assert main([*args, "--association", "geometric"]) == 0
