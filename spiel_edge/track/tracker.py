@@ -154,7 +154,7 @@ class Tracker:
         if not math.isfinite(t):
             raise InputError(f"tracker: acquisition time must be finite, got {t_s!r}")
         dt = self._advance(t)
-        used = targets[:MAX_TARGETS]
+        used = targets[:MAX_TARGETS]  # the step's scratch holds SLOTS (= MAX_TARGETS) targets
         z, r = _measurements(used)
         snapshot = _step(*self._arrays, z, r, dt)
         for target, track_id in zip(used, target_ids(self._arrays[1], len(used)), strict=True):
