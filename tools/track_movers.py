@@ -1,6 +1,7 @@
 """Tracking figures on the virtual board's moving targets (docs/tracking.md).
 
     python -m tools.track_movers [--movers 3] [--seed 0] [--acquisitions 1000] [--max-targets 4]
+        [--background scene|none|running]
 
 Prints one JSON object: per true target the share of acquisitions (after the first 20) with a
 confirmed track within 40 mm, id switches, tracked vs per-acquisition error.
@@ -31,13 +32,27 @@ def main(argv: list[str] | None = None) -> None:
         metavar="SIGMA_MM",
         help="targets = truth + noise of this std (5 %% missed): the tracker alone",
     )
+    parser.add_argument(
+        "--background",
+        choices=["scene", "none", "running"],
+        default="scene",
+        help="the scene's target-free background, none (the profile's stand-in), or the "
+        "running estimate",
+    )
     args = parser.parse_args(argv)
     pipeline = build_pipeline(load_profile(args.profile))
     pipeline.set_max_targets(args.max_targets)
     url = f"sim://?scene=model&movers={args.movers}&seed={args.seed}"
     print(
         json.dumps(
-            run_movers(pipeline, url, args.acquisitions, args.rate, oracle_sigma_mm=args.oracle)
+            run_movers(
+                pipeline,
+                url,
+                args.acquisitions,
+                args.rate,
+                oracle_sigma_mm=args.oracle,
+                background=args.background,
+            )
         )
     )
 

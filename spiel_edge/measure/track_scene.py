@@ -9,11 +9,12 @@ switch is a covered target whose track id differs from the one it last had.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from spiel_edge.pipeline.run import Pipeline, Target
+from spiel_edge.runtime.running_background import RunningBackground
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
@@ -83,26 +84,36 @@ def run_movers(
     rate_hz: float = 50.0,
     warmup: int = 20,
     oracle_sigma_mm: float | None = None,
+    background: str = "scene",
 ) -> dict:
     """Replay the virtual board's scene of ``url`` (model scene with movers) at ``rate_hz``.
     With ``oracle_sigma_mm`` the targets are the truths plus Gaussian noise of that std (each
-    missed with probability 0.05) instead of the pipeline's: the tracker alone."""
+    missed with probability 0.05) instead of the pipeline's: the tracker alone.
+    ``background``: "scene" (the scene's own target-free background, as a capture), "none"
+    (the profile's stand-in) or "running" (runtime/running_background.py, with the profile's
+    window, 16 when it is off)."""
     rng = np.random.default_rng(0)
     options = SimOptions.from_url(url)
     scene = build_scene(options)
     tracker = ResultTracker(pipeline.profile.track)
     score = MoverScore(warmup=warmup)
     n_samples = pipeline.profile.acquisition.n_samples
+    running = _running(pipeline.profile) if background == "running" else None
     targets_seen = 0
     for k in range(acquisitions):
         t = k / rate_hz
         frame = scene.frame(k, n_samples, t)
-        result = pipeline.process(
-            frame.samples.astype(np.float64), frame.background.astype(np.float64)
-        )
+        samples = frame.samples.astype(np.float64)
+        if background == "scene":
+            used = frame.background.astype(np.float64)
+        else:
+            used = running.background() if running is not None else None
+        result = pipeline.process(samples, used)
         if oracle_sigma_mm is not None:
             result.targets = _oracle_targets(frame.truth_targets_mm, oracle_sigma_mm, rng)
         tracks = tracker.update(result, t)
+        if running is not None:
+            running.update(samples, tracks)
         positions = np.array([tg.position_mm for tg in tracker.last_targets]).reshape(-1, 3)
         targets_seen += len(positions)
         score.add(k, frame.truth_targets_mm, tracks, positions)
@@ -111,9 +122,17 @@ def run_movers(
         "acquisitions": acquisitions,
         "rate_hz": rate_hz,
         "targets": "pipeline" if oracle_sigma_mm is None else f"truth + {oracle_sigma_mm} mm noise",
+        "background": background,
         "mean_targets_per_acquisition": round(targets_seen / max(acquisitions, 1), 3),
         **score.summary(),
     }
+
+
+def _running(profile) -> RunningBackground:
+    spec = profile.track
+    if spec.running_background_window <= 0:
+        profile = profile.replace(track=replace(spec, running_background_window=16))
+    return RunningBackground.from_profile(profile)
 
 
 def _oracle_targets(truth: np.ndarray, sigma: float, rng: np.random.Generator) -> list[Target]:

@@ -39,6 +39,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "track.max_gap_s": (0.001, 3600.0),
     "frame.translation_m": (-100.0, 100.0),  # each coordinate
     "frame.rotation_rpy_deg": (-360.0, 360.0),  # each angle
+    "track.running_background_window": (0, 256),
+    "track.running_background_guard_samples": (0.0, 64.0),
 }
 
 

@@ -24,6 +24,10 @@ class TrackSpec:
     max_misses: int = 10  # a confirmed track is deleted after this many misses in a row
     max_tracks: int = 16  # tentative and confirmed tracks at once (births beyond are dropped)
     max_gap_s: float = 1.0  # a longer gap between acquisitions (or time going back) restarts
+    # without a background capture: per-sample median of this many recent acquisitions, not
+    # updated at confirmed tracks' echoes (runtime/running_background.py); 0 = off
+    running_background_window: int = 0
+    running_background_guard_samples: float = 4.0  # half width kept out around a track's echo
 
 
 def validate_track(spec: TrackSpec, origin: str) -> None:

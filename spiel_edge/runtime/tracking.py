@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from spiel_edge.io.spiel_csv import Recording
 from spiel_edge.pipeline.run import Result, Target
 from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.runtime.replay import Replayed, replay
+from spiel_edge.runtime.running_background import RunningBackground
 from spiel_edge.track import Track, Tracker
 
 NOMINAL_PERIOD_S = 0.02  # between recorded acquisitions (50 Hz, `run --rate`'s default)
@@ -102,10 +103,17 @@ def replay_tracked(
 ) -> Iterator[Replayed]:
     """:func:`spiel_edge.runtime.replay.replay` in time order, each record with ``tracks``."""
     tracker = ResultTracker(spec or pipeline.profile.track)
+    running = RunningBackground.from_profile(pipeline.profile)  # None unless the profile asks
     for item in time_ordered(recordings):
         if item.new_run:
             tracker.reset()
-        (replayed,) = replay(pipeline, [item.recording])
+        rec = item.recording
+        stand_in = running is not None and rec.background is None and rec.frames is not None
+        if stand_in:
+            rec = replace(rec, background=running.background())
+        (replayed,) = replay(pipeline, [rec])
         tracks = tracker.update(replayed.result, item.t_s)
+        if stand_in:
+            running.update(rec.frames, tracks)
         replayed.tracks = track_records(tracks)
         yield replayed

@@ -1,9 +1,13 @@
-"""The tracker's compiled step: predict, gate, assign, update, confirm/delete, birth.
+"""The tracker's compiled step on preallocated arrays: predict, gate, assign, update,
+confirm/delete, birth, and the snapshot of the confirmed tracks, in one call.
 
-Track slots are rows of fixed arrays (the cap is their length): ``status`` 0 free,
-1 tentative, 2 confirmed. Confirmed tracks are matched first, tentative ones get the targets
-left over, and targets nobody took start tentative tracks (not inside a confirmed track's
-gate, where they are more likely a split detection of that track than a new object).
+Track slots are rows of fixed arrays (the cap is their length); ``meta`` holds per slot the
+status (0 free, 1 tentative, 2 confirmed), id, age, hits and misses. Confirmed tracks are
+matched first, tentative ones get the targets left over, and targets nobody took start
+tentative tracks (not inside a confirmed track's gate, where they are more likely a split
+detection of that track than a new object). Nothing is allocated per acquisition except the
+snapshot the Track objects keep; state and scratch come from :func:`allocate`. The
+reference for every result is tests/track/reference_step.py (the step before this one).
 """
 
 from __future__ import annotations
@@ -11,10 +15,36 @@ from __future__ import annotations
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.track.assign import INFEASIBLE, _assign
-from spiel_edge.track.kalman import _gate, _predict, _sym_inv3, _update
+from spiel_edge.track.assign import INFEASIBLE, _assign_into
+from spiel_edge.track.kalman import _predict, _sym_inv3, _update
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
+STATUS, ID, AGE, HITS, MISSES = 0, 1, 2, 3, 4  # rows of ``meta``
+NEXT_ID, DROPPED, CAP = 0, 1, 2  # entries of ``counters``
+
+
+def allocate(cap: int, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tracker's float, int and bool arrays for ``cap`` (<= SLOTS) tracks: the state,
+    the parameters (see :func:`_step`) and every scratch the step needs, so that the step
+    allocates nothing but its snapshot and takes few arguments (each one costs time)."""
+    if not 1 <= cap <= SLOTS:
+        raise ValueError(f"cap must be 1..{SLOTS}, got {cap}")
+    floats = np.zeros(_F_SCRATCH + _FLOATS)
+    floats[_F_PARAMS : _F_PARAMS + len(params)] = params
+    ints = np.zeros(_I_SCRATCH + _INTS, np.int64)
+    ints[_I_META + ID * SLOTS : _I_META + (ID + 1) * SLOTS] = -1
+    ints[_I_COUNTS + CAP] = cap
+    return floats, ints, np.zeros(_BOOLS, np.bool_)
+
+
+def state_views(floats: np.ndarray, ints: np.ndarray):
+    """(x (cap, 6), P (cap, 6, 6), meta (5, cap), counters (3,)): views of :func:`allocate`'s
+    arrays."""
+    cap = int(ints[_I_COUNTS + CAP])
+    x = floats[: SLOTS * 6].reshape(SLOTS, 6)[:cap]
+    p = floats[SLOTS * 6 : _F_PARAMS].reshape(SLOTS, 6, 6)[:cap]
+    meta = ints[_I_META:_I_COUNTS].reshape(5, SLOTS)[:, :cap]
+    return x, p, meta, ints[_I_COUNTS:_I_SCRATCH]
 
 
 @jit
@@ -40,119 +70,250 @@ def _measurement_noise(r: np.ndarray, out: np.ndarray, floor2: float, fallback2:
 
 
 @jit
-def _finite(a: np.ndarray) -> bool:
+def _finite_slot(x: np.ndarray, p: np.ndarray) -> bool:
     total = 0.0
-    for v in a.ravel():
-        total += v * 0.0  # NaN or inf make it NaN
+    for i in range(6):
+        total += x[i] * 0.0  # NaN or inf make it NaN
+        for j in range(6):
+            total += p[i, j] * 0.0
     return total == 0.0
 
 
 @jit
-def _match(x, p, slots, z, r, usable, gate, gated):
-    """Global assignment of ``slots`` to the usable targets; per slot a target or -1."""
-    n, m = len(slots), len(z)
-    cost = np.full((n, m), INFEASIBLE)
+def _match(x, p, meta, kind, z, r, usable, gated, gate, views) -> int:
+    """Global assignment of the slots of status ``kind`` to the usable targets: fills
+    ``slots`` and per slot ``chosen`` (a target or -1); returns how many slots."""
+    cost, slots, chosen, fwork, owner, way, cols, used = views
+    n = 0
+    for s in range(meta.shape[1]):
+        if meta[STATUS, s] == kind:
+            slots[n] = s
+            n += 1
+    m = len(z)
     for a in range(n):
         s = slots[a]
         for j in range(m):
+            cost[a, j] = INFEASIBLE
             if usable[j]:
-                d2, logdet = _gate(x[s], p[s], z[j], r[j])
+                d2, det = _gate_at(x, p, s, z, r, j, gate)
                 if d2 <= gate:
-                    cost[a, j] = d2 + logdet
+                    cost[a, j] = d2 + np.log(det)
                     gated[j] = True
-    return _assign(cost)
+    _assign_into(cost, n, m, chosen, fwork, owner, way, cols, used)
+    return n
+
+
+@jit(inline="always")
+def _gate_at(x, p, s, z, r, j, gate):
+    """kalman._gate of slot ``s`` and target ``j`` (the same arithmetic) without array views
+    and without the logarithm: (squared Mahalanobis distance, det S); (inf, 0) if singular.
+    A pair far outside the gate is rejected before inverting S: for S positive definite
+    d2 >= |y|^2 / trace S, so |y|^2 > 2 gate trace S means d2 > gate (the factor 2 leaves
+    rounding no say; the same pairs are gated as with the inverse)."""
+    y0, y1, y2 = z[j, 0] - x[s, 0], z[j, 1] - x[s, 1], z[j, 2] - x[s, 2]
+    trace = p[s, 0, 0] + r[j, 0, 0] + p[s, 1, 1] + r[j, 1, 1] + p[s, 2, 2] + r[j, 2, 2]
+    if trace > 0.0 and y0 * y0 + y1 * y1 + y2 * y2 > 2.0 * gate * trace:
+        return np.inf, 0.0
+    det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
+        p[s, 0, 0] + r[j, 0, 0],
+        0.5 * (p[s, 0, 1] + p[s, 1, 0] + r[j, 0, 1] + r[j, 1, 0]),
+        0.5 * (p[s, 0, 2] + p[s, 2, 0] + r[j, 0, 2] + r[j, 2, 0]),
+        p[s, 1, 1] + r[j, 1, 1],
+        0.5 * (p[s, 1, 2] + p[s, 2, 1] + r[j, 1, 2] + r[j, 2, 1]),
+        p[s, 2, 2] + r[j, 2, 2],
+    )
+    if not det > 0.0:
+        return np.inf, 0.0
+    d2 = (
+        i00 * y0 * y0
+        + i11 * y1 * y1
+        + i22 * y2 * y2
+        + 2.0 * (i01 * y0 * y1 + i02 * y0 * y2 + i12 * y1 * y2)
+    )
+    return d2, det
 
 
 @jit
-def _step(x, p, status, ids, age, hits, misses, next_id, z, r_in, dt, params, counts) -> np.ndarray:
-    """One acquisition. params: acceleration, gate, floor^2, fallback^2, v0^2, confirm_hits,
-    confirm_window, max_misses. Returns per target the id of the confirmed track it went to,
-    or -1."""
-    acceleration, gate, floor2, fallback2, v02 = (
-        params[0],
-        params[1],
-        params[2],
-        params[3],
-        params[4],
-    )
+def _step(floats, ints, bools, z, r_in, dt):
+    """One acquisition on :func:`allocate`'s arrays. The parameters: acceleration, gate,
+    floor^2, fallback^2, v0^2, confirm_hits, confirm_window, max_misses. Leaves per target the
+    id of the confirmed track it went to, or -1, for :func:`target_ids`; returns the snapshot
+    of the confirmed tracks (:func:`_snapshot`)."""
+    x, p, params, wf, meta, counters, wi, wb = _unpack(floats, ints, bools)
+    acceleration, gate, floor2, fallback2 = params[0], params[1], params[2], params[3]
     confirm_hits, confirm_window, max_misses = int(params[5]), int(params[6]), int(params[7])
-    m = len(z)
-    r = np.empty((m, 3, 3))
-    usable = np.empty(m, dtype=np.bool_)
+    cap, m = meta.shape[1], len(z)
+    r, work, target_slot, usable, near, scratch, match_views = _views(wf, wi, wb, m)
     for j in range(m):
         _measurement_noise(r_in[j], r[j], floor2, fallback2)
         usable[j] = np.isfinite(z[j, 0]) and np.isfinite(z[j, 1]) and np.isfinite(z[j, 2])
-    for s in range(len(status)):
-        if status[s] != FREE:
+        target_slot[j] = -1
+        near[j] = False
+        scratch[j] = False
+    for s in range(cap):
+        if meta[STATUS, s] != FREE:
             _predict(x[s], p[s], dt, acceleration)
-            age[s] += 1
-            misses[s] += 1  # undone on a hit
-    target_slot = np.full(m, -1, dtype=np.int64)
-    near_confirmed = np.zeros(m, dtype=np.bool_)
-    scratch = np.zeros(m, dtype=np.bool_)
-    work = np.empty((6, 15))
+            meta[AGE, s] += 1
+            meta[MISSES, s] += 1  # undone on a hit
+    slots, chosen = match_views[1], match_views[2]
     for kind in (CONFIRMED, TENTATIVE):
-        slots = np.flatnonzero(status == kind)
-        gated = near_confirmed if kind == CONFIRMED else scratch
-        chosen = _match(x, p, slots, z, r, usable, gate, gated)
-        for a in range(len(slots)):
-            j = chosen[a]
-            s = slots[a]
+        gated = near if kind == CONFIRMED else scratch
+        n = _match(x, p, meta, kind, z, r, usable, gated, gate, match_views)
+        for a in range(n):
+            j, s = chosen[a], slots[a]
             if j >= 0 and _update(x[s], p[s], z[j], r[j], work):
-                hits[s] += 1
-                misses[s] = 0
+                meta[HITS, s] += 1
+                meta[MISSES, s] = 0
                 target_slot[j] = s
                 usable[j] = False
-    for s in range(len(status)):
-        finite = _finite(x[s]) and _finite(p[s])
-        if status[s] == TENTATIVE and finite and hits[s] >= confirm_hits:
-            status[s] = CONFIRMED
-            ids[s] = next_id[0]
-            next_id[0] += 1
+    _confirm_or_delete(x, p, meta, counters, confirm_hits, confirm_window, max_misses)
+    _births(x, p, meta, counters, z, r, usable, near, target_slot, params[4], confirm_hits)
+    for j in range(m):  # target_slot becomes per target the confirmed track's id or -1
+        s = target_slot[j]
+        target_slot[j] = meta[ID, s] if s >= 0 and meta[STATUS, s] == CONFIRMED else -1
+    return _snapshot(x, p, meta, wi)
+
+
+@jit
+def _confirm_or_delete(x, p, meta, counters, confirm_hits, confirm_window, max_misses):
+    for s in range(meta.shape[1]):
+        status = meta[STATUS, s]
+        finite = _finite_slot(x[s], p[s])
+        if status == TENTATIVE and finite and meta[HITS, s] >= confirm_hits:
+            _confirm(meta, counters, s)
             continue
-        expired = age[s] >= confirm_window if status[s] == TENTATIVE else misses[s] >= max_misses
-        if status[s] != FREE and (expired or not finite):
-            status[s] = FREE
-    for j in range(m):
-        if not usable[j] or near_confirmed[j]:
+        if status == TENTATIVE:
+            expired = meta[AGE, s] >= confirm_window
+        else:
+            expired = meta[MISSES, s] >= max_misses
+        if status != FREE and (expired or not finite):
+            meta[STATUS, s] = FREE
+
+
+@jit
+def _confirm(meta, counters, s):
+    meta[STATUS, s] = CONFIRMED
+    meta[ID, s] = counters[NEXT_ID]
+    counters[NEXT_ID] += 1
+
+
+@jit
+def _births(x, p, meta, counters, z, r, usable, near, target_slot, v02, confirm_hits):
+    """A tentative track (the first free slot) per target nobody took, outside confirmed
+    tracks' gates; births beyond the cap are counted."""
+    cap = meta.shape[1]
+    for j in range(len(z)):
+        if not usable[j] or near[j]:
             continue
-        free = np.flatnonzero(status == FREE)
-        if len(free) == 0:
-            counts[0] += 1  # a birth dropped at the cap
+        s = 0
+        while s < cap and meta[STATUS, s] != FREE:
+            s += 1
+        if s == cap:
+            counters[DROPPED] += 1
             continue
-        s = free[0]
         x[s, :3] = z[j]
         x[s, 3:] = 0.0
         p[s] = 0.0
         p[s, :3, :3] = r[j]
         for a in range(3, 6):
             p[s, a, a] = v02
-        status[s], ids[s], age[s], hits[s], misses[s] = TENTATIVE, -1, 1, 1, 0
+        meta[STATUS, s], meta[ID, s], meta[AGE, s], meta[HITS, s], meta[MISSES, s] = (
+            TENTATIVE,
+            -1,
+            1,
+            1,
+            0,
+        )
         if confirm_hits <= 1:
-            status[s] = CONFIRMED
-            ids[s] = next_id[0]
-            next_id[0] += 1
+            _confirm(meta, counters, s)
         target_slot[j] = s
-    target_ids = np.full(m, -1, dtype=np.int64)
-    for j in range(m):
-        s = target_slot[j]
-        if s >= 0 and status[s] == CONFIRMED:
-            target_ids[j] = ids[s]
-    return target_ids
 
 
 @jit
-def _snapshot(status, ids, age, hits, misses, x, p):
-    """The confirmed tracks by id: (id, age, hits, misses) rows, states, covariances."""
-    slots = np.flatnonzero(status == CONFIRMED)
-    slots = slots[np.argsort(ids[slots])]
-    n = len(slots)
-    meta = np.empty((n, 4), dtype=np.int64)
-    xs = np.empty((n, 6))
-    ps = np.empty((n, 6, 6))
+def _snapshot(x, p, meta, wi):
+    """The confirmed tracks by id, a row each: state (6) and covariance (36, row-major);
+    their id, age, hits and misses go to ``snapshot_meta(wi, rows)``."""
+    order = wi[:SLOTS]
+    n = 0
+    for s in range(meta.shape[1]):
+        if meta[STATUS, s] == CONFIRMED:  # insertion sort by id (ids are unique)
+            k = n
+            while k > 0 and meta[ID, order[k - 1]] > meta[ID, s]:
+                order[k] = order[k - 1]
+                k -= 1
+            order[k] = s
+            n += 1
+    out = np.empty((n, SNAPSHOT))  # one array: returning several costs microseconds
     for k in range(n):
-        s = slots[k]
-        meta[k, 0], meta[k, 1], meta[k, 2], meta[k, 3] = ids[s], age[s], hits[s], misses[s]
-        xs[k] = x[s]
-        ps[k] = p[s]
-    return meta, xs, ps
+        s = order[k]
+        for c in range(4):
+            wi[_META + 4 * k + c] = meta[ID + c, s]
+        out[k, :6] = x[s]
+        for i in range(6):
+            for j in range(6):
+                out[k, 6 + 6 * i + j] = p[s, i, j]
+    return out
+
+
+SNAPSHOT = 6 + 36  # columns of a snapshot row
+
+# the scratch layout: at most SLOTS tracks and SLOTS targets, N = SLOTS + 1 for the Hungarian
+SLOTS = 64
+_N = SLOTS + 1
+_COST, _R, _WORK = SLOTS * SLOTS, SLOTS * 9, 6 * 15
+_FLOATS = _COST + _R + _WORK + 3 * _N
+_META = 3 * SLOTS + 3 * _N  # the snapshot's ids, ages, hits, misses
+_INTS = _META + 4 * SLOTS
+_BOOLS = 3 * SLOTS + _N
+# the state before the scratch: x, P, the parameters; meta, the counters
+_F_PARAMS = SLOTS * 42
+_F_SCRATCH = _F_PARAMS + 8
+_I_META, _I_COUNTS, _I_SCRATCH = 0, 5 * SLOTS, 5 * SLOTS + 3
+
+
+@jit(inline="always")
+def _unpack(floats, ints, bools):
+    cap = ints[_I_COUNTS + CAP]
+    x = floats[: SLOTS * 6].reshape((SLOTS, 6))[:cap]
+    p = floats[SLOTS * 6 : _F_PARAMS].reshape((SLOTS, 6, 6))[:cap]
+    params = floats[_F_PARAMS:_F_SCRATCH]
+    meta = ints[_I_META:_I_COUNTS].reshape((5, SLOTS))[:, :cap]
+    counters = ints[_I_COUNTS:_I_SCRATCH]
+    return x, p, params, floats[_F_SCRATCH:], meta, counters, ints[_I_SCRATCH:], bools
+
+
+@jit(inline="always")
+def _views(wf, wi, wb, m):
+    r = wf[_COST : _COST + _R].reshape((SLOTS, 3, 3))[:m]
+    work = wf[_COST + _R : _COST + _R + _WORK].reshape((6, 15))
+    fwork = wf[_COST + _R + _WORK :].reshape((3, _N))
+    cost = wf[:_COST].reshape((SLOTS, SLOTS))
+    slots, chosen, target_slot = wi[:SLOTS], wi[SLOTS : 2 * SLOTS], wi[2 * SLOTS : 3 * SLOTS]
+    owner, way, cols = (
+        wi[3 * SLOTS : 3 * SLOTS + _N],
+        wi[3 * SLOTS + _N : 3 * SLOTS + 2 * _N],
+        wi[3 * SLOTS + 2 * _N :],
+    )
+    usable, near, scratch = wb[:SLOTS], wb[SLOTS : 2 * SLOTS], wb[2 * SLOTS : 3 * SLOTS]
+    used = wb[3 * SLOTS :]
+    views = (cost, slots, chosen, fwork, owner, way, cols, used)
+    return r, work, target_slot, usable, near, scratch, views
+
+
+def target_ids(ints: np.ndarray, m: int) -> list[int]:
+    """After :func:`_step` with ``m`` targets: per target its confirmed track's id or -1."""
+    at = _I_SCRATCH + 2 * SLOTS
+    return ints[at : at + m].tolist()
+
+
+def snapshot_meta(ints: np.ndarray, rows: int) -> list[int]:
+    """After :func:`_snapshot` of ``rows`` tracks: id, age, hits, misses of each, flat."""
+    at = _I_SCRATCH + _META
+    return ints[at : at + 4 * rows].tolist()
+
+
+@jit
+def _snapshot_now(floats, ints, bools):
+    """:func:`_snapshot` outside a step (``Tracker.tracks``)."""
+    x, p, _, _, meta, _, wi, _ = _unpack(floats, ints, bools)
+    return _snapshot(x, p, meta, wi)

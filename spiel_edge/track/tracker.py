@@ -17,17 +17,29 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
+from itertools import repeat
 from typing import Protocol
 
 import numpy as np
 
 from spiel_edge.errors import InputError
 from spiel_edge.profile.track_section import TrackSpec
-from spiel_edge.track.step import _snapshot, _step
+from spiel_edge.track.step import (
+    DROPPED,
+    ID,
+    SLOTS,
+    STATUS,
+    _snapshot_now,
+    _step,
+    allocate,
+    snapshot_meta,
+    state_views,
+    target_ids,
+)
 
 log = logging.getLogger(__name__)
 
-MAX_TARGETS = 64  # targets used per update (the first, i.e. best, ones)
+MAX_TARGETS = SLOTS  # targets used per update (the first, i.e. best, ones)
 
 
 class TargetLike(Protocol):
@@ -39,36 +51,52 @@ class TargetLike(Protocol):
 class Track:
     """A confirmed track's state after an update (a snapshot, not updated later)."""
 
-    __slots__ = ("_covs", "_row", "_states", "age", "hits", "misses", "track_id")
+    __slots__ = ("_meta", "_row", "_snapshot")
 
-    def __init__(self, track_id: int, age: int, hits: int, misses: int, states, covs, row: int):
-        self.track_id = track_id
-        self.age = age  # acquisitions since birth
-        self.hits = hits  # acquisitions with a target
-        self.misses = misses  # acquisitions without one, in a row
-        self._states, self._covs, self._row = states, covs, row  # shared by one update's tracks
+    def __init__(self, meta: list[int], snapshot: np.ndarray, row: int):
+        self._meta = meta  # per row of the snapshot: id, age, hits, misses (flat)
+        self._snapshot, self._row = snapshot, row  # row: state (6), covariance (36)
+
+    @property
+    def track_id(self) -> int:
+        return self._meta[4 * self._row]
+
+    @property
+    def age(self) -> int:
+        """Acquisitions since birth."""
+        return self._meta[4 * self._row + 1]
+
+    @property
+    def hits(self) -> int:
+        """Acquisitions with a target."""
+        return self._meta[4 * self._row + 2]
+
+    @property
+    def misses(self) -> int:
+        """Acquisitions without one, in a row."""
+        return self._meta[4 * self._row + 3]
 
     @property
     def state(self) -> np.ndarray:
         """(6,): position mm, velocity mm/s."""
-        return self._states[self._row]
+        return self._snapshot[self._row, :6]
 
     @property
     def state_covariance(self) -> np.ndarray:
         """(6, 6), symmetric."""
-        return self._covs[self._row]
+        return self._snapshot[self._row, 6:].reshape(6, 6)
 
     @property
     def position_mm(self) -> np.ndarray:
-        return self._states[self._row, :3]
+        return self._snapshot[self._row, :3]
 
     @property
     def velocity_mm_s(self) -> np.ndarray:
-        return self._states[self._row, 3:]
+        return self._snapshot[self._row, 3:6]
 
     @property
     def covariance_mm2(self) -> np.ndarray:
-        return self._covs[self._row, :3, :3]
+        return self._snapshot[self._row, 6:].reshape(6, 6)[:3, :3]
 
     def record(self) -> dict:
         return {
@@ -90,17 +118,7 @@ class Tracker:
 
     def __init__(self, spec: TrackSpec | None = None):
         self.spec = spec = spec or TrackSpec()
-        cap = spec.max_tracks
-        self._x = np.zeros((cap, 6))
-        self._p = np.zeros((cap, 6, 6))
-        self._status = np.zeros(cap, dtype=np.int8)
-        self._ids = np.full(cap, -1, dtype=np.int64)
-        self._age = np.zeros(cap, dtype=np.int64)
-        self._hits = np.zeros(cap, dtype=np.int64)
-        self._misses = np.zeros(cap, dtype=np.int64)
-        self._next_id = np.zeros(1, dtype=np.int64)
-        self._counts = np.zeros(1, dtype=np.int64)
-        self._params = np.array(
+        params = np.array(
             [
                 spec.acceleration_mm_s2,
                 spec.gate_chi2,
@@ -113,18 +131,20 @@ class Tracker:
             ],
             dtype=np.float64,
         )
+        self._arrays = allocate(spec.max_tracks, params)
+        self._x, self._p, self._meta, self._counts = state_views(*self._arrays[:2])
         self._last_t: float | None = None
         self.restarts = 0
 
     @property
     def dropped_births(self) -> int:
         """Targets that would have started a track while ``max_tracks`` were in use."""
-        return int(self._counts[0])
+        return int(self._counts[DROPPED])
 
     def reset(self) -> None:
         """Forget every track (ids keep counting, so an id never names two objects)."""
-        self._status[:] = 0
-        self._ids[:] = -1
+        self._meta[STATUS] = 0
+        self._meta[ID] = -1
         self._last_t = None
 
     def update(self, targets: Sequence[TargetLike], t_s: float) -> list[Track]:
@@ -134,35 +154,18 @@ class Tracker:
         if not math.isfinite(t):
             raise InputError(f"tracker: acquisition time must be finite, got {t_s!r}")
         dt = self._advance(t)
-        used = targets[:MAX_TARGETS]
+        used = targets[:MAX_TARGETS]  # the step's scratch holds SLOTS (= MAX_TARGETS) targets
         z, r = _measurements(used)
-        target_ids = _step(
-            self._x,
-            self._p,
-            self._status,
-            self._ids,
-            self._age,
-            self._hits,
-            self._misses,
-            self._next_id,
-            z,
-            r,
-            dt,
-            self._params,
-            self._counts,
-        )
-        for target, track_id in zip(used, target_ids.tolist(), strict=True):
+        snapshot = _step(*self._arrays, z, r, dt)
+        for target, track_id in zip(used, target_ids(self._arrays[1], len(used)), strict=True):
             target.track_id = track_id if track_id >= 0 else None
         for target in targets[MAX_TARGETS:]:
             target.track_id = None
-        return self.tracks()
+        return _tracks(snapshot, self._arrays[1])
 
     def tracks(self) -> list[Track]:
         """The confirmed tracks now, by id."""
-        meta, xs, ps = _snapshot(
-            self._status, self._ids, self._age, self._hits, self._misses, self._x, self._p
-        )
-        return [Track(*row, xs, ps, k) for k, row in enumerate(meta.tolist())]
+        return _tracks(_snapshot_now(*self._arrays), self._arrays[1])
 
     def _advance(self, t: float) -> float:
         last, self._last_t = self._last_t, t
@@ -170,13 +173,19 @@ class Tracker:
             return 0.0
         dt = t - last
         if dt < 0 or dt > self.spec.max_gap_s:
-            if self._status.any():
+            if self._meta[STATUS].any():
                 log.info("tracker restarts: %s (%.3f s)", "time went back" if dt < 0 else "gap", dt)
             self.restarts += 1
             self.reset()
             self._last_t = t
             return 0.0
         return dt
+
+
+def _tracks(snapshot: np.ndarray, ints: np.ndarray) -> list[Track]:
+    """Track objects on one snapshot (a row per track: state, covariance)."""
+    n = len(snapshot)
+    return list(map(Track, repeat(snapshot_meta(ints, n), n), repeat(snapshot, n), range(n)))
 
 
 def _measurements(targets: Sequence[TargetLike]) -> tuple[np.ndarray, np.ndarray]:

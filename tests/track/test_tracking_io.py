@@ -95,7 +95,7 @@ def test_trails_keep_recent_positions_of_live_tracks():
 
 
 def _track(track_id, pos):
-    return Track(track_id, 5, 5, 0, np.r_[pos, 0, 0, 0][None], np.eye(6)[None], 0)
+    return Track([track_id, 5, 5, 0], np.r_[pos, 0, 0, 0, np.eye(6).ravel()][None], 0)
 
 
 def test_mover_score_counts_coverage_and_id_switches():
