@@ -23,7 +23,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import run
+from spiel_edge.pipeline import back, run
 from spiel_edge.pipeline.detect import _detect_kernel
 from spiel_edge.pipeline.features import TOA_CODES, TOA_COLUMN, _features_kernel
 from spiel_edge.pipeline.memg import _memg_kernel
@@ -91,6 +91,7 @@ class FusedPipeline:
         if self.fallback:
             log.info("fused path falls back to the staged one for %s", ", ".join(self.fallback))
         self._back = [BACK_STEPS[s] for s in run.STAGES[len(FRONT_STAGES) :] if s in BACK_STEPS]
+        self._scene, self._back_config = None, None  # the back kernel's, per scene (K)
         self._workspaces = ThreadWorkspaces(
             p.geometry.n_channels, p.acquisition.n_samples, p.detect.max_echoes
         )
@@ -131,10 +132,30 @@ class FusedPipeline:
             raise InputError("frames contains NaN or infinite samples")
         if status == BACKGROUND_NOT_FINITE:
             raise InputError("background contains NaN or infinite samples")
-        state = BackState(np.asarray(frames), background, ws.features.copy(), ws.counts.copy())
+        features, counts = ws.features.copy(), ws.counts.copy()
+        config = self._kernel_config()
+        if config is not None:
+            prior = config[0][back.I_PRIOR]
+            given = (
+                self.pipeline.scene._bonus(features, counts) if prior == back.PRIOR_GIVEN else None
+            )
+            raw = np.asarray(frames)
+            return back.run_back(
+                self.pipeline, config, ws, features, counts, y, bg, raw, background, given
+            )
+        state = BackState(np.asarray(frames), background, features, counts)
         for step in self._back:
             step(self.pipeline, state)
         return state.result
+
+    def _kernel_config(self) -> tuple | None:
+        """The back kernel's arguments while the pipeline's scene stays the one they were
+        built for (``set_max_targets`` replaces it), else None: the staged back steps."""
+        if self.pipeline.scene is not self._scene:
+            self._scene = self.pipeline.scene
+            self._back_config = back.back_config(self.pipeline)
+            log.debug("back kernel %s", "on" if self._back_config is not None else "off")
+        return self._back_config
 
 
 def _numeric(arr: np.ndarray, name: str) -> np.ndarray:
