@@ -1,7 +1,11 @@
-"""Learned echo association (PaCE paper, section IV) run by onnxruntime, with a geometric guard.
+"""Learned echo association (PaCE paper, section IV) with a geometric guard.
 
 The model (``spiel_edge/models/association.onnx``, card beside it) maps each echo's 8 features
-to a target score and a 4-D embedding; one ``run`` call per acquisition scores every echo.
+to a target score and a 4-D embedding; one call per acquisition scores every echo. The MLP
+runs in numba (:mod:`spiel_edge.pipeline.mlp`) when its graph has the known shape and agreed
+with onnxruntime on a probe batch (checked once per model file, then stored by its hash:
+:mod:`spiel_edge.pipeline.verified_models`; such a load never imports onnxruntime), else in
+onnxruntime (``engine``).
 Two ways to use it (``mode``):
 
 - ``prior`` (default): the geometric search over all combinations, with each echo's score as a

@@ -59,7 +59,7 @@ def load(model_path: Path, sha256: str, names: tuple[str, ...]) -> tuple[tuple, 
             with np.load(path, allow_pickle=False) as z:
                 if str(z["sha256"]) != sha256:
                     continue
-                arrays = tuple(np.ascontiguousarray(z[n]) for n in names)
+                arrays = tuple(_contiguous(z[n]) for n in names)
                 metadata = json.loads(str(z["metadata"]))
         except (OSError, ValueError, KeyError) as exc:
             log.info("ignoring %s (%s)", path, exc)
@@ -100,3 +100,7 @@ def store(
             Path(tmp).unlink(missing_ok=True)
         return None
     return path
+
+
+def _contiguous(a: np.ndarray) -> np.ndarray:
+    return a if a.ndim == 0 else np.ascontiguousarray(a)  # (ascontiguousarray makes 0-d 1-d)
