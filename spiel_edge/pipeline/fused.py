@@ -6,7 +6,10 @@ data) with less Python around the kernels: shapes are validated once at the boun
 the staged path's messages), and one kernel runs the finite check, preprocess (with the RF
 envelope), detect, memg, features and their ToA ordering on a per-thread Workspace.
 
-The back steps run after it, one function per stage name in BACK_STEPS. The staged path stays
+For one target the back stages (associate, echo timing, echo quality, locate, covariance) are
+a second compiled call, :mod:`spiel_edge.pipeline.back`, when ``back.back_config`` accepts the
+pipeline (looked up again whenever ``set_max_targets`` replaces its scene). Otherwise the back
+steps run after the front kernel, one function per stage name in BACK_STEPS. The staged path stays
 the reference: whenever the pipeline has a stage this module does not implement (a stage name
 in ``run.STAGES`` missing from FRONT_STAGES + BACK_STEPS, or a Pipeline subclass overriding
 ``process``), or per-stage timings are asked for, ``process`` runs the staged path for the
