@@ -155,26 +155,10 @@ def run_back(pipeline, config, ws, features, counts, y, bg, raw, background, bon
     counts; ``y``/``bg`` the float64 frames and background (empty rows when none)."""
     if bonus_given is not None:
         ws.bonus[:, :] = bonus_given
-    cost, found, rms = _back_kernel(
-        features,
-        counts,
-        y,
-        bg,
-        *config,
-        ws.bonus,
-        ws.matched,
-        ws.picked,
-        ws.weights,
-        ws.shift,
-        ws.paths,
-        ws.use,
-        ws.clean,
-        ws.position,
-        ws.covariance,
-    )
-    toa = features[:, :, TOA_COLUMN]
-    echoes = [[float(v) for v in toa[c, : counts[c]]] for c in range(len(counts))]
-    match_list = [int(m) if m >= 0 else None for m in ws.matched]
+    cost, found, rms = _back_kernel(features, counts, y, bg, *config, *ws.back_buffers)
+    toa = features[:, :, TOA_COLUMN]  # tolist: Python floats and ints, as the staged lists
+    echoes = [toa[c, :n].tolist() for c, n in enumerate(counts.tolist())]
+    match_list = [m if m >= 0 else None for m in ws.matched.tolist()]
     base = {"features": features, "counts": counts}
     if not found:
         used = sum(m is not None for m in match_list)

@@ -31,7 +31,7 @@ from spiel_edge.pipeline.detect import _detect_kernel
 from spiel_edge.pipeline.features import TOA_CODES, TOA_COLUMN, _features_kernel
 from spiel_edge.pipeline.memg import _memg_kernel
 from spiel_edge.pipeline.preprocess import _envelope_kernel, _preprocess_kernel
-from spiel_edge.pipeline.workspace import ThreadWorkspaces, Workspace
+from spiel_edge.pipeline.workspace import ThreadWorkspaces
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +130,7 @@ class FusedPipeline:
         ws = self._workspaces.get()
         y = _numeric(frames, "frames")
         bg = _numeric(background, "background") if background is not None else ws.background[:0]
-        status = _front_kernel(y, bg, *self._scalars, *_buffers(ws))
+        status = _front_kernel(y, bg, *self._scalars, *ws.front_buffers)
         if status == FRAMES_NOT_FINITE:
             raise InputError("frames contains NaN or infinite samples")
         if status == BACKGROUND_NOT_FINITE:
@@ -167,20 +167,6 @@ def _numeric(arr: np.ndarray, name: str) -> np.ndarray:
     if not np.issubdtype(a.dtype, np.number):
         raise InputError(f"{name} must be numeric, got dtype {a.dtype}")
     return np.ascontiguousarray(a, dtype=np.float64)
-
-
-def _buffers(ws: Workspace) -> tuple:
-    return (
-        ws.envelope,
-        ws.background,
-        ws.cleaned,
-        ws.peaks,
-        ws.counts,
-        ws.params,
-        ws.iterations,
-        ws.unsorted,
-        ws.features,
-    )
 
 
 @jit

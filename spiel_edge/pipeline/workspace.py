@@ -38,6 +38,8 @@ class Workspace:
     use: np.ndarray = field(init=False, repr=False)
     position: np.ndarray = field(init=False, repr=False)
     covariance: np.ndarray = field(init=False, repr=False)
+    front_buffers: tuple = field(init=False, repr=False)
+    back_buffers: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         shape = (self.n_channels, self.n_samples)
@@ -61,6 +63,30 @@ class Workspace:
         self.use = np.empty(self.n_channels, dtype=np.bool_)
         self.position = np.empty(3)
         self.covariance = np.empty((3, 3))
+        # the kernels' buffer arguments, in their order (built once: the calls are hot)
+        self.front_buffers = (
+            self.envelope,
+            self.background,
+            self.cleaned,
+            self.peaks,
+            self.counts,
+            self.params,
+            self.iterations,
+            self.unsorted,
+            self.features,
+        )
+        self.back_buffers = (
+            self.bonus,
+            self.matched,
+            self.picked,
+            self.weights,
+            self.shift,
+            self.paths,
+            self.use,
+            self.clean,
+            self.position,
+            self.covariance,
+        )
 
 
 class ThreadWorkspaces:
