@@ -52,7 +52,7 @@ TIMING_NONE, TIMING_REFINE, TIMING_TREES = 0, 1, 2
 # ints[] slots
 I_MIN_CHANNELS, I_EXHAUSTIVE, I_PRIOR, I_TIMING, I_BLIND, I_HALF_WINDOW, I_LOG = range(7)
 # floats[] slots
-F_MM_PER_SAMPLE, F_STRENGTH, F_SCORE_WEIGHT, F_LIMIT, F_COV_SCALE, F_COV_FLOOR = range(6)
+F_MM_PER_SAMPLE, F_STRENGTH, F_SCORE_WEIGHT, F_LIMIT, F_COV_FLOOR = range(5)
 _NO_TREES = (np.zeros((1, 1), np.int64), np.zeros((1, 1), np.float32), np.zeros((1, 1)), 0.0)
 _NO_MLP = tuple(np.zeros((1,) * n, np.float32) for n in (1, 1, 2, 1, 2, 1, 2, 1, 2, 1))
 
@@ -97,7 +97,6 @@ def back_config(pipeline: run.Pipeline) -> tuple | None:
             geo.strength_weight_mm,
             score_weight,
             float(getattr(timing.correction, "max_correction", 0.0)),
-            sc.covariance_scale,
             sc.covariance_floor_mm,
         ]
     )
@@ -155,7 +154,12 @@ def run_back(pipeline, config, ws, features, counts, y, bg, raw, background, bon
     counts; ``y``/``bg`` the float64 frames and background (empty rows when none)."""
     if bonus_given is not None:
         ws.bonus[:, :] = bonus_given
-    cost, found, rms = _back_kernel(features, counts, y, bg, *config, *ws.back_buffers)
+    sc = pipeline.profile.scene  # as Pipeline._target: a captured background or not
+    captured = background is not None and background is not pipeline.static_model
+    scale = sc.covariance_scale if captured else sc.covariance_scale_no_background
+    cost, found, rms = _back_kernel(
+        features, counts, y, bg, float(scale), *config, *ws.back_buffers
+    )
     toa = features[:, :, TOA_COLUMN]  # tolist: Python floats and ints, as the staged lists
     echoes = [toa[c, :n].tolist() for c, n in enumerate(counts.tolist())]
     match_list = [m if m >= 0 else None for m in ws.matched.tolist()]
@@ -175,6 +179,7 @@ def _back_kernel(
     counts,
     y,
     bg,
+    cov_scale,
     ints,
     floats,
     quality,
@@ -297,7 +302,7 @@ def _back_kernel(
         mask,
         channels,
         emitter,
-        floats[F_COV_SCALE],
+        cov_scale,
         floats[F_COV_FLOOR],
         covariance,
     )
