@@ -19,3 +19,11 @@ def subset():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _model_cache(tmp_path_factory):
+    """Verified model weights go to a temporary folder, not the user's cache."""
+    import os
+
+    os.environ["SPIEL_EDGE_MODEL_CACHE"] = str(tmp_path_factory.mktemp("verified-models"))

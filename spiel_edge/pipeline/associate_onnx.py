@@ -1,7 +1,11 @@
-"""Learned echo association (PaCE paper, section IV) run by onnxruntime, with a geometric guard.
+"""Learned echo association (PaCE paper, section IV) with a geometric guard.
 
 The model (``spiel_edge/models/association.onnx``, card beside it) maps each echo's 8 features
-to a target score and a 4-D embedding; one ``run`` call per acquisition scores every echo.
+to a target score and a 4-D embedding; one call per acquisition scores every echo. The MLP
+runs in numba (:mod:`spiel_edge.pipeline.mlp`) when its graph has the known shape and agreed
+with onnxruntime on a probe batch (checked once per model file, then stored by its hash:
+:mod:`spiel_edge.pipeline.verified_models`; such a load never imports onnxruntime), else in
+onnxruntime (``engine``).
 Two ways to use it (``mode``):
 
 - ``prior`` (default): the geometric search over all combinations, with each echo's score as a
@@ -30,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError, ModelError
+from spiel_edge.pipeline import mlp, verified_models
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
 from spiel_edge.profile.schema import Profile
@@ -74,6 +79,48 @@ def load_session(path: str | Path):
         raise ModelError(f"association model {path} cannot be loaded: {exc}") from exc
     _check_interface(session, path)
     return session
+
+
+def load_model(path: Path) -> tuple:
+    """``(session or None, MLP weights or None, metadata)``: the weights verified earlier for
+    this file's hash without onnxruntime; else a session, and the weights when the graph has
+    the known shape and agrees with onnxruntime on a probe batch (then stored for next time)."""
+    if not path.is_file():
+        raise ModelError(f"association model {path} not found")
+    blob = path.read_bytes()
+    sha256 = verified_models.digest(blob)
+    stored = verified_models.load(path, sha256, mlp.WEIGHT_NAMES)
+    if stored is not None:
+        return None, stored[0], stored[1]
+    session = load_session(path)
+    metadata = dict(session.get_modelmeta().custom_metadata_map)
+    weights = verify_mlp(session, blob, path)
+    if weights is not None:
+        verified_models.store(path, sha256, mlp.WEIGHT_NAMES, weights, metadata)
+    return session, weights, metadata
+
+
+def verify_mlp(session, blob: bytes, path: Path) -> tuple | None:
+    """The MLP weights when the graph has the known shape and numba agrees with onnxruntime
+    within mlp.AGREEMENT on a probe batch around the training statistics; else None."""
+    try:
+        weights = mlp.read_mlp(blob)
+    except (ModelError, ValueError, IndexError) as exc:
+        log.info("association model %s runs in onnxruntime (%s)", path, exc)
+        return None
+    mean, std = weights[0].astype(np.float64), np.abs(weights[1].astype(np.float64))
+    probe = mean + std * np.random.default_rng(0).normal(0.0, 1.5, (256, N_FEATURES))
+    x = np.ascontiguousarray(probe, dtype=np.float32)
+    score, embedding = mlp.evaluate(x, weights)
+    ref_score, ref_embedding = session.run(list(OUTPUTS), {INPUT_NAME: x})
+    gap = max(
+        float(np.max(np.abs(score - ref_score[:, 0]))),
+        float(np.max(np.abs(embedding - ref_embedding))),
+    )
+    if not gap <= mlp.AGREEMENT:
+        log.info("association model %s runs in onnxruntime (numba differs by %.2g)", path, gap)
+        return None
+    return weights
 
 
 def _check_interface(session, path: Path) -> None:
@@ -171,11 +218,11 @@ class OnnxAssociator:
             raise InputError(f"mode must be one of {MODES}, got {mode!r}")
         self.mode = mode
         self.model_path = Path(model_path) if model_path is not None else default_model_path()
-        self.session = load_session(self.model_path)
+        self.session, self.mlp, meta = load_model(self.model_path)
+        self.engine = "onnxruntime" if self.mlp is None else "numba"
         self.geometric = GeometricAssociator(profile)
         self.listening = np.asarray(profile.geometry.listening_mask(), dtype=np.bool_)
         self.n_channels = profile.geometry.n_channels
-        meta = self.session.get_modelmeta().custom_metadata_map
         if distance_threshold is None:
             distance_threshold = float(
                 meta.get("spiel.distance_threshold", DEFAULT_DISTANCE_THRESHOLD)
@@ -187,8 +234,9 @@ class OnnxAssociator:
         self.distance_threshold, self.cost_slack_mm = distance_threshold, cost_slack_mm
         self.score_weight_mm = score_weight_mm
         log.debug(
-            "association model %s loaded (threshold %.3g, slack %.3g mm)",
+            "association model %s loaded (%s; threshold %.3g, slack %.3g mm)",
             self.model_path,
+            self.engine,
             distance_threshold,
             cost_slack_mm,
         )
@@ -209,6 +257,9 @@ class OnnxAssociator:
         x = np.ascontiguousarray(features[rows], dtype=np.float32)
         if x.shape[0] == 0:
             return rows, np.zeros(0, np.float32), np.zeros((0, 4), np.float32)
+        if self.mlp is not None:
+            score, embedding = mlp.evaluate(x, self.mlp)
+            return rows, score, embedding
         score, embedding = self.session.run(list(OUTPUTS), {INPUT_NAME: x})
         return rows, score[:, 0], embedding
 

@@ -6,7 +6,10 @@ data) with less Python around the kernels: shapes are validated once at the boun
 the staged path's messages), and one kernel runs the finite check, preprocess (with the RF
 envelope), detect, memg, features and their ToA ordering on a per-thread Workspace.
 
-The back steps run after it, one function per stage name in BACK_STEPS. The staged path stays
+For one target the back stages (associate, echo timing, echo quality, locate, covariance) are
+a second compiled call, :mod:`spiel_edge.pipeline.back`, when ``back.back_config`` accepts the
+pipeline (looked up again whenever ``set_max_targets`` replaces its scene). Otherwise the back
+steps run after the front kernel, one function per stage name in BACK_STEPS. The staged path stays
 the reference: whenever the pipeline has a stage this module does not implement (a stage name
 in ``run.STAGES`` missing from FRONT_STAGES + BACK_STEPS, or a Pipeline subclass overriding
 ``process``), or per-stage timings are asked for, ``process`` runs the staged path for the
@@ -23,12 +26,12 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import run
+from spiel_edge.pipeline import back, run
 from spiel_edge.pipeline.detect import _detect_kernel
 from spiel_edge.pipeline.features import TOA_CODES, TOA_COLUMN, _features_kernel
 from spiel_edge.pipeline.memg import _memg_kernel
 from spiel_edge.pipeline.preprocess import _envelope_kernel, _preprocess_kernel
-from spiel_edge.pipeline.workspace import ThreadWorkspaces, Workspace
+from spiel_edge.pipeline.workspace import ThreadWorkspaces
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +94,7 @@ class FusedPipeline:
         if self.fallback:
             log.info("fused path falls back to the staged one for %s", ", ".join(self.fallback))
         self._back = [BACK_STEPS[s] for s in run.STAGES[len(FRONT_STAGES) :] if s in BACK_STEPS]
+        self._scene, self._back_config = None, None  # the back kernel's, per scene (K)
         self._workspaces = ThreadWorkspaces(
             p.geometry.n_channels, p.acquisition.n_samples, p.detect.max_echoes
         )
@@ -126,15 +130,35 @@ class FusedPipeline:
         ws = self._workspaces.get()
         y = _numeric(frames, "frames")
         bg = _numeric(background, "background") if background is not None else ws.background[:0]
-        status = _front_kernel(y, bg, *self._scalars, *_buffers(ws))
+        status = _front_kernel(y, bg, *self._scalars, *ws.front_buffers)
         if status == FRAMES_NOT_FINITE:
             raise InputError("frames contains NaN or infinite samples")
         if status == BACKGROUND_NOT_FINITE:
             raise InputError("background contains NaN or infinite samples")
-        state = BackState(np.asarray(frames), background, ws.features.copy(), ws.counts.copy())
+        features, counts = ws.features.copy(), ws.counts.copy()
+        config = self._kernel_config()
+        if config is not None:
+            prior = config[0][back.I_PRIOR]
+            given = (
+                self.pipeline.scene._bonus(features, counts) if prior == back.PRIOR_GIVEN else None
+            )
+            raw = np.asarray(frames)
+            return back.run_back(
+                self.pipeline, config, ws, features, counts, y, bg, raw, background, given
+            )
+        state = BackState(np.asarray(frames), background, features, counts)
         for step in self._back:
             step(self.pipeline, state)
         return state.result
+
+    def _kernel_config(self) -> tuple | None:
+        """The back kernel's arguments while the pipeline's scene stays the one they were
+        built for (``set_max_targets`` replaces it), else None: the staged back steps."""
+        if self.pipeline.scene is not self._scene:
+            self._scene = self.pipeline.scene
+            self._back_config = back.back_config(self.pipeline)
+            log.debug("back kernel %s", "on" if self._back_config is not None else "off")
+        return self._back_config
 
 
 def _numeric(arr: np.ndarray, name: str) -> np.ndarray:
@@ -143,20 +167,6 @@ def _numeric(arr: np.ndarray, name: str) -> np.ndarray:
     if not np.issubdtype(a.dtype, np.number):
         raise InputError(f"{name} must be numeric, got dtype {a.dtype}")
     return np.ascontiguousarray(a, dtype=np.float64)
-
-
-def _buffers(ws: Workspace) -> tuple:
-    return (
-        ws.envelope,
-        ws.background,
-        ws.cleaned,
-        ws.peaks,
-        ws.counts,
-        ws.params,
-        ws.iterations,
-        ws.unsorted,
-        ws.features,
-    )
 
 
 @jit

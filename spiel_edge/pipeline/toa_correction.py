@@ -1,10 +1,11 @@
-"""The learned ToA correction (gradient-boosted trees in ONNX), run by onnxruntime.
+"""The learned ToA correction (gradient-boosted trees in ONNX), run in numba or onnxruntime.
 
 Input ``features`` (batch, n_toa_features) float32 from
 :func:`spiel_edge.pipeline.echo_timing.toa_features`; output ``correction`` (batch, 1): the
 ToA error in samples (refined ToA minus delay minus the true ToA) to subtract; the trees are
-evaluated in numba (:mod:`spiel_edge.pipeline.tree_ensemble`, checked against onnxruntime on
-load), else by onnxruntime. Model card:
+evaluated in numba (:mod:`spiel_edge.pipeline.tree_ensemble`, checked against onnxruntime
+once per model file and then stored by its hash, :mod:`spiel_edge.pipeline.verified_models`, so
+later loads do not import onnxruntime), else by onnxruntime. Model card:
 ``spiel_edge/models/toa_correction.md``; trained by ``python -m tools.train_toa_correction``.
 
 A missing, corrupt or mismatched model raises ModelError in :func:`load_correction`, which
@@ -22,8 +23,9 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
-from spiel_edge.pipeline import tree_ensemble
+from spiel_edge.pipeline import tree_ensemble, verified_models
 from spiel_edge.pipeline.echo_timing import n_toa_features
+from spiel_edge.pipeline.mlp import read_metadata
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +34,7 @@ OUTPUT_NAME = "correction"
 MAX_CORRECTION = 1.5  # samples: the model was trained on residuals within this bound
 CHOICES = ("auto", "onnx", "none")
 AGREEMENT = 1e-4  # samples: numba and onnxruntime must agree this well on the probe rows
+VERIFIED_NAMES = ("feature", "threshold", "value", "base", "n_inputs")  # verified_models
 
 
 def default_model_path() -> Path:
@@ -71,6 +74,15 @@ class ToaCorrection:
         else:
             self._dense = None
             log.info("ToA correction runs in onnxruntime (numba trees disagree)")
+
+    @classmethod
+    def verified(cls, path: Path, blob: bytes, dense: tuple) -> ToaCorrection:
+        """The numba trees stored after an earlier check (verified_models): no onnxruntime."""
+        self = cls.__new__(cls)
+        self._session, self.path, self.engine = None, path, "numba"
+        self.metadata = read_metadata(blob)
+        self._dense = dense
+        return self
 
     def _onnxruntime(self, features: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(features, dtype=np.float32)
@@ -117,17 +129,33 @@ def _correct_kernel(feature, threshold, value, base, x, toa, max_correction, out
 
 
 def load_correction(n_channels: int, path: str | Path | None = None) -> ToaCorrection:
-    """Load and check the model for a board with ``n_channels`` channels."""
-    import onnxruntime as ort
-
+    """Load and check the model for a board with ``n_channels`` channels: the trees stored
+    for this file's hash after an earlier check (no onnxruntime import), else onnxruntime,
+    and the trees stored when numba agrees with it."""
     path = Path(path) if path is not None else default_model_path()
     if not path.is_file():
         raise ModelError(f"ToA correction model {path} not found")
+    blob = path.read_bytes()
+    sha256 = verified_models.digest(blob)
+    want = n_toa_features(n_channels)
+    stored = verified_models.load(path, sha256, VERIFIED_NAMES)
+    if stored is not None and int(stored[0][-1]) == want:
+        feature, threshold, value, base, _ = stored[0]
+        return ToaCorrection.verified(path, blob, (feature, threshold, value, float(base)))
+    corr = _load_with_onnxruntime(n_channels, path, blob)
+    if corr.trees is not None:
+        arrays = (*corr.trees[:3], np.float64(corr.trees[3]), np.int64(want))
+        verified_models.store(path, sha256, VERIFIED_NAMES, arrays, corr.metadata)
+    return corr
+
+
+def _load_with_onnxruntime(n_channels: int, path: Path, blob: bytes) -> ToaCorrection:
+    import onnxruntime as ort
+
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
     opts.inter_op_num_threads = 1
     opts.log_severity_level = 3
-    blob = path.read_bytes()
     try:
         session = ort.InferenceSession(blob, sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime's own errors: corrupt file, unsupported opset

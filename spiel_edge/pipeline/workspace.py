@@ -27,6 +27,19 @@ class Workspace:
     iterations: np.ndarray = field(init=False, repr=False)
     unsorted: np.ndarray = field(init=False, repr=False)  # features in detection order
     features: np.ndarray = field(init=False, repr=False)  # features in ToA order
+    # the back kernel's (pipeline/back.py)
+    bonus: np.ndarray = field(init=False, repr=False)  # (channels, max_echoes) score prior, mm
+    clean: np.ndarray = field(init=False, repr=False)  # echo timing's background-free envelope
+    matched: np.ndarray = field(init=False, repr=False)
+    picked: np.ndarray = field(init=False, repr=False)  # the matched echoes' ToA
+    weights: np.ndarray = field(init=False, repr=False)
+    shift: np.ndarray = field(init=False, repr=False)
+    paths: np.ndarray = field(init=False, repr=False)
+    use: np.ndarray = field(init=False, repr=False)
+    position: np.ndarray = field(init=False, repr=False)
+    covariance: np.ndarray = field(init=False, repr=False)
+    front_buffers: tuple = field(init=False, repr=False)
+    back_buffers: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         shape = (self.n_channels, self.n_samples)
@@ -40,6 +53,40 @@ class Workspace:
         self.iterations = np.empty(echoes, dtype=np.int64)
         self.unsorted = np.empty(echoes + (N_FEATURES,))
         self.features = np.empty(echoes + (N_FEATURES,))
+        self.bonus = np.empty(echoes)
+        self.clean = np.empty(shape)
+        self.matched = np.empty(self.n_channels, dtype=np.int64)
+        self.picked = np.empty(self.n_channels)
+        self.weights = np.empty(self.n_channels)
+        self.shift = np.empty(self.n_channels)
+        self.paths = np.empty(self.n_channels)
+        self.use = np.empty(self.n_channels, dtype=np.bool_)
+        self.position = np.empty(3)
+        self.covariance = np.empty((3, 3))
+        # the kernels' buffer arguments, in their order (built once: the calls are hot)
+        self.front_buffers = (
+            self.envelope,
+            self.background,
+            self.cleaned,
+            self.peaks,
+            self.counts,
+            self.params,
+            self.iterations,
+            self.unsorted,
+            self.features,
+        )
+        self.back_buffers = (
+            self.bonus,
+            self.matched,
+            self.picked,
+            self.weights,
+            self.shift,
+            self.paths,
+            self.use,
+            self.clean,
+            self.position,
+            self.covariance,
+        )
 
 
 class ThreadWorkspaces:

@@ -1,0 +1,360 @@
+"""The fused path's back kernel: associate, echo timing, echo quality, locate and covariance
+of one target (K = 1) in one compiled call on a Workspace's buffers.
+
+It computes what ``Pipeline.scene`` + ``Pipeline._locate`` compute for one target, bit for bit
+(tests/core/test_back.py), by calling the same kernels in the same order:
+
+1. the learned score prior (``prior``): the association MLP in numba per echo
+   (:func:`spiel_edge.pipeline.mlp.mlp_row`, as ``OnnxAssociator.score``), or a bonus the
+   caller computed with onnxruntime between the front and the back kernel (a model that is
+   not the known MLP), or none (geometric association);
+2. the associator's search (``associate._exhaustive_kernel`` / ``_hypothesis_kernel``) with
+   the strength and the bonus as ``GeometricAssociator.candidates`` builds them;
+3. echo timing (``echo_timing._fused_kernel`` with the numba trees, or clean + refine without
+   a correction), ``echo_quality._echo_quality_kernel``, ``locate.locate_kernel`` and
+   ``uncertainty._covariance_kernel`` as ``Pipeline._target``.
+
+:func:`back_config` says whether a pipeline can use it (one target, the geometric or the
+learned associator in prior mode, echo timing without an onnxruntime correction, no
+overridden back methods); otherwise the fused path runs the staged back steps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from spiel_edge._jit import jit
+from spiel_edge.pipeline import run
+from spiel_edge.pipeline.associate import (
+    GeometricAssociator,
+    _exhaustive_kernel,
+    _hypothesis_kernel,
+)
+from spiel_edge.pipeline.echo_quality import _echo_quality_kernel
+from spiel_edge.pipeline.echo_timing import (
+    ESTIMATORS,
+    EchoTiming,
+    _clean_kernel,
+    _fused_kernel,
+    _refine_kernel,
+)
+from spiel_edge.pipeline.features import TOA_COLUMN
+from spiel_edge.pipeline.locate import locate_kernel
+from spiel_edge.pipeline.mlp import mlp_row
+from spiel_edge.pipeline.scene import SceneAssociator
+from spiel_edge.pipeline.uncertainty import _covariance_kernel
+
+BACK_STAGES = ("associate", "echo_timing", "locate")
+PRIOR_NONE, PRIOR_MLP, PRIOR_GIVEN = 0, 1, 2
+TIMING_NONE, TIMING_REFINE, TIMING_TREES = 0, 1, 2
+# ints[] slots
+I_MIN_CHANNELS, I_EXHAUSTIVE, I_PRIOR, I_TIMING, I_BLIND, I_HALF_WINDOW, I_LOG = range(7)
+# floats[] slots
+F_MM_PER_SAMPLE, F_STRENGTH, F_SCORE_WEIGHT, F_LIMIT, F_COV_FLOOR = range(5)
+_NO_TREES = (np.zeros((1, 1), np.int64), np.zeros((1, 1), np.float32), np.zeros((1, 1)), 0.0)
+_NO_MLP = tuple(np.zeros((1,) * n, np.float32) for n in (1, 1, 2, 1, 2, 1, 2, 1, 2, 1))
+
+
+def back_config(pipeline: run.Pipeline) -> tuple | None:
+    """The back kernel's constant arguments for this pipeline, or None when it must run the
+    staged back steps (then the reason is logged by the caller)."""
+    scene, assoc, timing = pipeline.scene, pipeline.associator, pipeline.echo_timing
+    methods = ("_locate", "_targets", "_target")
+    if (
+        tuple(run.STAGES[-3:]) != BACK_STAGES
+        or any(getattr(type(pipeline), m) is not getattr(run.Pipeline, m) for m in methods)
+        or type(scene) is not SceneAssociator
+        or scene.max_targets != 1
+        or type(scene.geometric) is not GeometricAssociator
+        or type(timing) is not EchoTiming
+    ):
+        return None
+    prior, mlp, score_weight = _prior(assoc)
+    if prior is None:
+        return None
+    timing_mode, trees = _timing(timing)
+    if timing_mode is None:
+        return None
+    geo, p = scene.geometric, pipeline.profile
+    loc, sc = p.locate, p.scene
+    ints = np.array(
+        [
+            geo.min_channels,
+            geo.anchors is None,
+            prior,
+            timing_mode,
+            timing.blind_zone,
+            timing.half_window,
+            ESTIMATORS[timing.estimator] == ESTIMATORS["log_parabola"],
+        ],
+        dtype=np.int64,
+    )
+    floats = np.array(
+        [
+            geo.mm_per_sample,
+            geo.strength_weight_mm,
+            score_weight,
+            float(getattr(timing.correction, "max_correction", 0.0)),
+            sc.covariance_floor_mm,
+        ]
+    )
+    anchors = geo.anchors if geo.anchors is not None else np.zeros((0, 3), np.int64)
+    cost_weights = np.array(
+        [geo.max_residual_mm, geo.missing_penalty_mm, 1.0, geo.range_weight], dtype=np.float64
+    )
+    quality = np.array(
+        [
+            loc.toa_sigma_samples,
+            loc.toa_sigma_per_background,
+            loc.toa_sigma_alpha_counts,
+            loc.toa_shift_background_after,
+            loc.toa_shift_background_before,
+        ]
+    )
+    geometry = (
+        geo.delays,
+        geo.listening,
+        geo.max_path_diff,
+        anchors,
+        cost_weights,
+        pipeline._delays,
+        pipeline._channels,
+        pipeline._emitter,
+        pipeline._facing,
+    )
+    return (ints, floats, quality, *geometry, *mlp, *trees)
+
+
+def _prior(assoc) -> tuple:
+    """(prior mode or None when unsupported, MLP weights, score weight)."""
+    if type(assoc) is GeometricAssociator:
+        return PRIOR_NONE, _NO_MLP, 0.0
+    from spiel_edge.pipeline.associate_onnx import OnnxAssociator  # only when it is in use
+
+    if type(assoc) is not OnnxAssociator or assoc.mode != "prior":
+        return None, _NO_MLP, 0.0
+    if assoc.mlp is None:
+        return PRIOR_GIVEN, _NO_MLP, assoc.score_weight_mm
+    return PRIOR_MLP, assoc.mlp, assoc.score_weight_mm
+
+
+def _timing(timing: EchoTiming) -> tuple:
+    if not timing.active:
+        return TIMING_NONE, _NO_TREES
+    if timing.correction is None:
+        return TIMING_REFINE, _NO_TREES
+    trees = getattr(timing.correction, "trees", None)
+    return (None, _NO_TREES) if trees is None else (TIMING_TREES, trees)
+
+
+def run_back(pipeline, config, ws, features, counts, y, bg, raw, background, bonus_given):
+    """The Result of one acquisition from the front kernel's features (a fresh copy) and
+    counts; ``y``/``bg`` the float64 frames and background (empty rows when none)."""
+    if bonus_given is not None:
+        ws.bonus[:, :] = bonus_given
+    sc = pipeline.profile.scene  # as Pipeline._target: a captured background or not
+    captured = background is not None and background is not pipeline.static_model
+    scale = sc.covariance_scale if captured else sc.covariance_scale_no_background
+    cost, found, rms = _back_kernel(
+        features, counts, y, bg, float(scale), *config, *ws.back_buffers
+    )
+    toa = features[:, :, TOA_COLUMN]  # tolist: Python floats and ints, as the staged lists
+    echoes = [toa[c, :n].tolist() for c, n in enumerate(counts.tolist())]
+    match_list = [m if m >= 0 else None for m in ws.matched.tolist()]
+    base = {"features": features, "counts": counts}
+    if not found:
+        used = sum(m is not None for m in match_list)
+        reason = run.REASON_SOLVE_FAILED if used >= 3 else pipeline._why_empty(raw, counts)
+        return run.Result(None, reason, None, echoes, match_list, **base)
+    score = -cost if math.isfinite(cost) else 0.0
+    target = run.Target(ws.position.copy(), ws.covariance.copy(), rms, match_list, score)
+    return run.Result(target.position_mm, None, rms, echoes, match_list, targets=[target], **base)
+
+
+@jit
+def _back_kernel(
+    features,
+    counts,
+    y,
+    bg,
+    cov_scale,
+    ints,
+    floats,
+    quality,
+    assoc_delays,
+    listening,
+    max_path_diff,
+    anchors,
+    cost_weights,
+    delays,
+    channels,
+    emitter,
+    facing,
+    mean,
+    std,
+    w0,
+    b0,
+    w1,
+    b1,
+    w2,
+    b2,
+    wh,
+    bh,
+    feature,
+    threshold,
+    value,
+    base,
+    bonus,
+    matched,
+    picked,
+    weights,
+    shift,
+    paths,
+    use,
+    clean,
+    position,
+    covariance,
+):
+    """(association cost, target found, rms mm); matched, position and covariance filled."""
+    n_ch, k_max = features.shape[0], features.shape[1]
+    mm = floats[F_MM_PER_SAMPLE]
+    if ints[I_PRIOR] == PRIOR_MLP:
+        _score_bonus(
+            features,
+            counts,
+            listening,
+            floats[F_SCORE_WEIGHT],
+            mean,
+            std,
+            w0,
+            b0,
+            w1,
+            b1,
+            w2,
+            b2,
+            wh,
+            bh,
+            bonus,
+        )
+    elif ints[I_PRIOR] == PRIOR_NONE:
+        bonus[:, :] = 0.0
+    all_paths = np.empty((n_ch, k_max))
+    allowed = np.empty((n_ch, k_max), dtype=np.bool_)
+    strength = np.empty((n_ch, k_max))
+    for c in range(n_ch):
+        for k in range(k_max):
+            all_paths[c, k] = (features[c, k, TOA_COLUMN] - assoc_delays[c]) * mm
+            allowed[c, k] = math.isfinite(all_paths[c, k])
+            alpha = features[c, k, 0]
+            a = alpha if math.isfinite(alpha) and alpha > 1.0 else 1.0
+            strength[c, k] = floats[F_STRENGTH] * np.log(a)
+            if ints[I_PRIOR] != PRIOR_NONE:
+                strength[c, k] = strength[c, k] + (
+                    bonus[c, k] if math.isfinite(bonus[c, k]) else 0.0
+                )
+    matched[:] = -1
+    args = (
+        all_paths,
+        strength,
+        counts,
+        allowed,
+        listening,
+        channels,
+        emitter,
+        facing,
+        max_path_diff,
+        cost_weights,
+        ints[I_MIN_CHANNELS],
+        matched,
+    )
+    exhaustive = ints[I_EXHAUSTIVE] != 0
+    cost = _exhaustive_kernel(*args) if exhaustive else _hypothesis_kernel(*args, anchors)
+    n_use = 0
+    for c in range(n_ch):
+        use[c] = matched[c] >= 0
+        n_use += use[c]
+        picked[c] = features[c, max(matched[c], 0), TOA_COLUMN] if use[c] else np.nan
+    if n_use < 3:
+        return cost, False, math.inf
+    timed = _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, clean)
+    alpha_matched = np.empty(n_ch)
+    for c in range(n_ch):
+        alpha_matched[c] = features[c, max(matched[c], 0), 0]
+    _echo_quality_kernel(y, bg, timed, alpha_matched, quality, weights, shift)
+    for c in range(n_ch):
+        s = 0.0 if ints[I_TIMING] != TIMING_NONE else shift[c]
+        paths[c] = (timed[c] + s - delays[c]) * mm
+    mask = np.empty(n_ch, dtype=np.bool_)
+    for c in range(n_ch):
+        mask[c] = use[c] and math.isfinite(paths[c])
+    ok, rms = locate_kernel(paths, mask, weights, emitter, channels, facing, 30, position)
+    if not ok:
+        return cost, False, rms
+    sigma = np.empty(n_ch)
+    for c in range(n_ch):
+        sigma[c] = mm / weights[c]
+    _covariance_kernel(
+        position,
+        paths,
+        sigma,
+        mask,
+        channels,
+        emitter,
+        cov_scale,
+        floats[F_COV_FLOOR],
+        covariance,
+    )
+    return cost, True, rms
+
+
+@jit
+def _score_bonus(
+    features, counts, listening, weight, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, bonus
+):
+    """As OnnxAssociator.bonus: weight * logit(score) per present, listening, finite echo."""
+    n_ch, k_max, n_f = features.shape
+    x = np.empty(n_f, dtype=np.float32)
+    z = np.empty(n_f)
+    h0 = np.empty(w0.shape[0])
+    h1 = np.empty(w1.shape[0])
+    emb = np.empty(w2.shape[0])
+    for c in range(n_ch):
+        for k in range(k_max):
+            bonus[c, k] = 0.0
+            if k >= counts[c] or not listening[c] or not math.isfinite(features[c, k, TOA_COLUMN]):
+                continue
+            for j in range(n_f):
+                x[j] = features[c, k, j]
+            p = np.float64(mlp_row(x, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, z, h0, h1, emb))
+            p = min(max(p, 1e-4), 1.0 - 1e-4)
+            bonus[c, k] = weight * np.log(p / (1.0 - p))
+
+
+@jit
+def _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, clean):
+    """As EchoTiming.__call__ for one target's picked ToAs."""
+    if ints[I_TIMING] == TIMING_NONE:
+        return picked.copy()
+    if ints[I_TIMING] == TIMING_TREES:
+        out = np.empty(y.shape[0])
+        _fused_kernel(
+            y,
+            bg,
+            ints[I_BLIND],
+            picked,
+            ints[I_HALF_WINDOW],
+            ints[I_LOG] != 0,
+            feature,
+            threshold,
+            value,
+            base,
+            floats[F_LIMIT],
+            out,
+        )
+        return out
+    _clean_kernel(y, bg, ints[I_BLIND], clean)
+    out = picked.copy()
+    _refine_kernel(clean, picked, ints[I_HALF_WINDOW], ints[I_LOG] != 0, out)
+    return out
