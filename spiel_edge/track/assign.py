@@ -24,84 +24,28 @@ def assign(cost: np.ndarray) -> np.ndarray:
     if c.ndim != 2:
         raise ValueError(f"cost must be a 2-D matrix, got shape {c.shape}")
     c = np.where(np.isfinite(c), np.minimum(c, INFEASIBLE), INFEASIBLE)
-    return _assign(np.ascontiguousarray(c))
-
-
-@jit
-def _assign(cost: np.ndarray) -> np.ndarray:
-    n, m = cost.shape
-    out = np.full(n, -1, dtype=np.int64)
-    if n == 0 or m == 0:
-        return out
-    if n <= m:
-        cols = _hungarian(cost)
-        for i in range(n):
-            if cols[i] >= 0 and cost[i, cols[i]] < INFEASIBLE:
-                out[i] = cols[i]
-        return out
-    rows = _hungarian(cost.T.copy())
-    for j in range(m):
-        if rows[j] >= 0 and cost[rows[j], j] < INFEASIBLE:
-            out[rows[j]] = j
-    return out
-
-
-@jit
-def _hungarian(cost: np.ndarray) -> np.ndarray:
-    """Rows n <= columns m; every row gets a column (0-based), minimum total cost."""
-    n, m = cost.shape
-    u = np.zeros(n + 1)
-    v = np.zeros(m + 1)
-    owner = np.zeros(m + 1, dtype=np.int64)  # owner[j]: 1-based row holding column j
-    way = np.zeros(m + 1, dtype=np.int64)
-    minv = np.empty(m + 1)
-    used = np.empty(m + 1, dtype=np.bool_)
-    for i in range(1, n + 1):
-        owner[0] = i
-        j0 = 0
-        minv[:] = np.inf
-        used[:] = False
-        while True:
-            used[j0] = True
-            i0 = owner[j0]
-            delta = np.inf
-            j1 = 0
-            for j in range(1, m + 1):
-                if not used[j]:
-                    cur = cost[i0 - 1, j - 1] - u[i0] - v[j]
-                    if cur < minv[j]:
-                        minv[j] = cur
-                        way[j] = j0
-                    if minv[j] < delta:
-                        delta = minv[j]
-                        j1 = j
-            for j in range(m + 1):
-                if used[j]:
-                    u[owner[j]] += delta
-                    v[j] -= delta
-                else:
-                    minv[j] -= delta
-            j0 = j1
-            if owner[j0] == 0:
-                break
-        while True:  # flip the augmenting path
-            j1 = way[j0]
-            owner[j0] = owner[j1]
-            j0 = j1
-            if j0 == 0:
-                break
-    cols = np.full(n, -1, dtype=np.int64)
-    for j in range(1, m + 1):
-        if owner[j] > 0:
-            cols[owner[j] - 1] = j - 1
-    return cols
+    n, m = c.shape
+    size = max(n, m) + 1
+    out, owner, way, cols = np.zeros((4, size), dtype=np.int64)
+    _assign_into(
+        np.ascontiguousarray(c),
+        n,
+        m,
+        out,
+        np.zeros((3, size)),
+        owner,
+        way,
+        cols,
+        np.zeros(size, dtype=np.bool_),
+    )
+    return out[:n].copy()
 
 
 @jit
 def _assign_into(cost, n, m, out, fwork, owner, way, cols, used) -> None:
-    """:func:`_assign` on the top-left ``n`` x ``m`` block of ``cost`` with preallocated
+    """The matching of the top-left ``n`` x ``m`` block of ``cost`` with preallocated
     scratch (``fwork`` (3, >= max(n, m) + 1); ``owner``, ``way``, ``cols``, ``used`` of at
-    least that length): the same arithmetic, so the same matching. ``out[:n]``: per row the
+    least that length). ``out[:n]``: per row the
     column or -1."""
     for i in range(n):
         out[i] = -1
@@ -121,7 +65,8 @@ def _assign_into(cost, n, m, out, fwork, owner, way, cols, used) -> None:
 
 @jit
 def _hungarian_into(cost, flip, n, m, fwork, owner, way, cols, used) -> None:
-    """:func:`_hungarian` on ``cost[:n, :m]`` (or its transpose when ``flip``) into ``cols``."""
+    """Rows n <= columns m of ``cost[:n, :m]`` (or of its transpose when ``flip``): every
+    row gets a column (0-based) in ``cols``, minimum total cost."""
     u, v, minv = fwork[0], fwork[1], fwork[2]
     for j in range(m + 1):
         v[j] = 0.0

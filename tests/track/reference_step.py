@@ -13,10 +13,80 @@ from __future__ import annotations
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.track.assign import INFEASIBLE, _assign
+from spiel_edge.track.assign import INFEASIBLE
 from spiel_edge.track.kalman import _gate, _predict, _sym_inv3, _update
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
+
+
+@jit
+def _assign(cost: np.ndarray) -> np.ndarray:
+    n, m = cost.shape
+    out = np.full(n, -1, dtype=np.int64)
+    if n == 0 or m == 0:
+        return out
+    if n <= m:
+        cols = _hungarian(cost)
+        for i in range(n):
+            if cols[i] >= 0 and cost[i, cols[i]] < INFEASIBLE:
+                out[i] = cols[i]
+        return out
+    rows = _hungarian(cost.T.copy())
+    for j in range(m):
+        if rows[j] >= 0 and cost[rows[j], j] < INFEASIBLE:
+            out[rows[j]] = j
+    return out
+
+
+@jit
+def _hungarian(cost: np.ndarray) -> np.ndarray:
+    """Rows n <= columns m; every row gets a column (0-based), minimum total cost."""
+    n, m = cost.shape
+    u = np.zeros(n + 1)
+    v = np.zeros(m + 1)
+    owner = np.zeros(m + 1, dtype=np.int64)  # owner[j]: 1-based row holding column j
+    way = np.zeros(m + 1, dtype=np.int64)
+    minv = np.empty(m + 1)
+    used = np.empty(m + 1, dtype=np.bool_)
+    for i in range(1, n + 1):
+        owner[0] = i
+        j0 = 0
+        minv[:] = np.inf
+        used[:] = False
+        while True:
+            used[j0] = True
+            i0 = owner[j0]
+            delta = np.inf
+            j1 = 0
+            for j in range(1, m + 1):
+                if not used[j]:
+                    cur = cost[i0 - 1, j - 1] - u[i0] - v[j]
+                    if cur < minv[j]:
+                        minv[j] = cur
+                        way[j] = j0
+                    if minv[j] < delta:
+                        delta = minv[j]
+                        j1 = j
+            for j in range(m + 1):
+                if used[j]:
+                    u[owner[j]] += delta
+                    v[j] -= delta
+                else:
+                    minv[j] -= delta
+            j0 = j1
+            if owner[j0] == 0:
+                break
+        while True:  # flip the augmenting path
+            j1 = way[j0]
+            owner[j0] = owner[j1]
+            j0 = j1
+            if j0 == 0:
+                break
+    cols = np.full(n, -1, dtype=np.int64)
+    for j in range(1, m + 1):
+        if owner[j] > 0:
+            cols[owner[j] - 1] = j - 1
+    return cols
 
 
 @jit

@@ -75,4 +75,5 @@ def test_assignment_into_scratch_equals_the_allocating_one(rng, shape):
         block[rng.random(shape) < 0.3] = INFEASIBLE
         cost[: shape[0], : shape[1]] = block
         _assign_into(cost, shape[0], shape[1], ints[0], fwork, *ints[1:], used)
+        assert np.array_equal(ints[0, : shape[0]], reference_step._assign(block))
         assert np.array_equal(ints[0, : shape[0]], assign(block))
