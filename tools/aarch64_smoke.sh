@@ -114,6 +114,7 @@ run_tests() {
 compare_positions() {
     step "spiel-edge run --port sim:// ($FRAMES acquisitions) on arm64 and on the host"
     local url='sim://smoke?scene=replay'
+    rm -f "$ROOT/tmp/arm64.ndjson" "$WORK/host.ndjson"  # outputs never overwrite: a rerun starts clean
     in_root sh -c "cd /tmp && spiel-edge run --port '$url' --frames $FRAMES --rate 0 -o /tmp/arm64.ndjson"
     local host_py=${SPIEL_HOST_PYTHON:-$REPO/.venv/bin/python}
     (cd "$REPO" && "$(dirname "$host_py")/spiel-edge" run --port "$url" --frames "$FRAMES" --rate 0 \
