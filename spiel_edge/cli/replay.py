@@ -119,6 +119,7 @@ def command(
                     profile_name, calibration, association, toa_correction, max_targets
                 )
                 items = replay_files(
+                    pipeline,
                     recipe,
                     files,
                     jobs,

@@ -127,7 +127,7 @@ def evaluate_folder(
     chosen = _labelled_files(folder, positions, set(exclude_z))
     if jobs > 1 and recipe is not None and chosen:
         paths = [path for path, _ in chosen]
-        items = replay_files(recipe, paths, jobs, background=background, limits=limits)
+        items = replay_files(pipeline, recipe, paths, jobs, background=background, limits=limits)
         for item, (_, truth) in zip(items, chosen, strict=True):
             if item.error is not None:
                 ev.failed.append(item.error)

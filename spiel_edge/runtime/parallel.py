@@ -19,10 +19,8 @@ import math
 import multiprocessing
 import os
 import signal
-from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +33,7 @@ log = logging.getLogger(__name__)
 
 MAX_TASK_FILES = 32  # per task: few enough to spread a small folder, many enough to amortise
 POLL_S = 0.2  # how often the parent looks at its stop flag while it waits
+LOOKAHEAD_TASKS = 8  # per job: how far this process runs ahead of a late task (memory)
 
 
 @dataclass(frozen=True)
@@ -94,6 +93,7 @@ def plan_tasks(files: Sequence[Path], jobs: int, track: bool) -> list[tuple[Path
 
 
 def replay_files(
+    pipeline,
     recipe: PipelineRecipe,
     files: Sequence[Path],
     jobs: int,
@@ -104,45 +104,54 @@ def replay_files(
     keep_frames: bool = False,
     stopped: Callable[[], bool] = lambda: False,
 ) -> Iterator[Replayed]:
-    """:func:`~spiel_edge.runtime.replay.replay` (or ``replay_tracked``) over ``files`` on
-    ``jobs`` workers, in the order one job gives. Ends early once ``stopped()`` is true."""
+    """:func:`~spiel_edge.runtime.replay.replay` (or ``replay_tracked``) over ``files`` with
+    ``jobs`` processes, in the order one job gives; ends early once ``stopped()`` is true.
+
+    This process is one of the jobs: with its ``pipeline`` (built from ``recipe``) it runs
+    the tasks in order until a worker has started (imports, kernels from the cache: a second
+    or more), then keeps the workers fed and runs the next task whenever the one due is not
+    back yet."""
     bg = None if background is None else str(background)
     tasks = [Task(t, bg, limits, track, keep_frames) for t in plan_tasks(files, jobs, track)]
-    context = multiprocessing.get_context("forkserver")
+    if len(tasks) < 2:  # nothing to share
+        for task in tasks:
+            yield from run_task(pipeline, task)[0]
+        return
+    workers = max(1, min(jobs - 1, len(tasks) - 1))
     pool = ProcessPoolExecutor(
-        min(jobs, len(tasks)) or 1, context, initializer=_init_worker, initargs=_init_args(recipe)
+        workers, multiprocessing.get_context("forkserver"), _init_worker, _init_args(recipe)
     )
-    pending: deque[Future] = deque()
-    ids_before = 0
+    done: dict[int, tuple[list[Replayed], int]] = {}
+    sent: dict[int, Future] = {}
+    due = queued = ids_before = 0
+    started = pool.submit(_started)  # no task waits on a worker that is still starting
     try:
-        queued = iter(tasks)
-        for task in queued:  # a bounded window: memory stays flat on a large folder
-            pending.append(pool.submit(_run_task, task))
-            if len(pending) >= 2 * jobs:
-                break
-        while pending:
-            items, ids_issued = _wait(pending.popleft(), stopped)
-            if items is None:
+        while due < len(tasks):
+            if stopped():
                 return
-            for task in queued:
-                pending.append(pool.submit(_run_task, task))
-                break
-            for item in items:
-                _shift_track_ids(item, ids_before)
-                yield item
-            ids_before += ids_issued
+            while started.done() and queued < len(tasks) and len(sent) < workers + 1:
+                sent[queued] = pool.submit(_run_task, tasks[queued])
+                queued += 1
+            if due in sent and sent[due].done():
+                done[due] = sent.pop(due).result()
+            if due in done:
+                items, issued = done.pop(due)
+                for item in items:
+                    _shift_track_ids(item, ids_before)
+                    yield item
+                ids_before += issued
+                due += 1
+            elif queued < len(tasks) and queued - due < LOOKAHEAD_TASKS * jobs:
+                done[queued] = run_task(pipeline, tasks[queued])  # meanwhile, here
+                queued += 1
+            else:
+                _wait(sent[due])
     finally:
         _stop_pool(pool)
 
 
-def _wait(future: Future, stopped: Callable[[], bool]):
-    while True:
-        if stopped():
-            return None, 0
-        try:
-            return future.result(timeout=POLL_S)
-        except FutureTimeout:
-            continue
+def _wait(future: Future) -> None:
+    wait([future], timeout=POLL_S)
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
@@ -188,14 +197,23 @@ def _init_worker(recipe: PipelineRecipe, level: int, fmt: str | None) -> None:
     _pipeline = recipe.build()
 
 
+def _started() -> bool:
+    return True
+
+
 def _run_task(task: Task) -> tuple[list[Replayed], int]:
+    return run_task(_pipeline, task)
+
+
+def run_task(pipeline, task: Task) -> tuple[list[Replayed], int]:
+    """A task's items and the track ids its tracker issued (0 without tracking)."""
     recordings = [read_recording(path, task.background, task.limits) for path in task.files]
     if task.track:
-        tracker = ResultTracker(_pipeline.profile.track)
-        items = list(replay_tracked(_pipeline, recordings, tracker=tracker))
+        tracker = ResultTracker(pipeline.profile.track)
+        items = list(replay_tracked(pipeline, recordings, tracker=tracker))
         issued = tracker.tracker.ids_issued
     else:
-        items, issued = list(replay(_pipeline, recordings)), 0
+        items, issued = list(replay(pipeline, recordings)), 0
     if not task.keep_frames:
         for item in items:
             item.recording = None

@@ -123,7 +123,7 @@ def test_a_signal_stops_the_workers_and_finalizes_the_output(folders, tmp_path, 
         bufsize=0,  # unbuffered: communicate() below reads the pipe, not a reader's buffer
     )
     first = proc.stdout.readline()  # the workers are busy now
-    workers = _descendants(proc.pid)  # the fork server and 2 workers
+    workers = _descendants(proc.pid)  # the fork server, its worker, a resource tracker
     proc.send_signal(sig)
     rest, err = proc.communicate(timeout=10)
     assert proc.returncode == 1 and b"stopped by a signal" in err and b"Traceback" not in err
@@ -131,7 +131,7 @@ def test_a_signal_stops_the_workers_and_finalizes_the_output(folders, tmp_path, 
     while any(map(_alive, workers)) and time.monotonic() < deadline:
         time.sleep(0.05)
     left = [p for p in workers if _alive(p)]
-    assert len(workers) >= 3 and left == []
+    assert len(workers) >= 2 and left == []
     lines = (first + rest).decode().splitlines()  # complete lines, in file order
     names = sorted(p.name for p in big.glob("*_frames.csv"))
     assert 0 < len(lines) < len(names)
