@@ -64,3 +64,11 @@ toa_correction_option = click.option(
     default=None,
     help="Learned ToA correction (default: the profile's; auto/onnx = the model when it loads).",
 )
+jobs_option = click.option(
+    "--jobs",
+    "-j",
+    type=click.IntRange(min=0, max=256),
+    default=1,
+    show_default=True,
+    help="Worker processes over a spiel-csv folder's files (0: one per CPU; records as with 1).",
+)

@@ -11,6 +11,7 @@ from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
     calibration_option,
+    jobs_option,
     max_targets_option,
     profile_option,
     toa_correction_option,
@@ -23,6 +24,7 @@ from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.measure.track_eval import evaluate_tracked
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
 
 
 @click.command("evaluate")
@@ -72,6 +74,7 @@ from spiel_edge.profile.schema import resolve_profile
     help="Also track each recording in time order and report the tracked error "
     "(`tracked`; docs/tracking.md).",
 )
+@jobs_option
 def command(
     folder,
     background,
@@ -86,6 +89,7 @@ def command(
     max_z,
     as_json,
     track,
+    jobs,
 ) -> int:
     """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings.
 
@@ -104,7 +108,16 @@ def command(
         train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
         positions = train if split == "train" else val
     skip = exclude_z or EXCLUDED_Z_MM
-    ev = evaluate_folder(pipeline, folder, background, positions=positions, exclude_z=skip)
+    recipe = PipelineRecipe(profile_name, calibration, association, toa_correction, max_targets)
+    ev = evaluate_folder(
+        pipeline,
+        folder,
+        background,
+        positions=positions,
+        exclude_z=skip,
+        jobs=resolve_jobs(jobs),
+        recipe=recipe,
+    )
     summary = {
         "split": split,
         "max_z": max_z,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from contextlib import closing
 
 import click
 
@@ -11,6 +12,7 @@ from spiel_edge.cli._options import (
     association_option,
     calibration_option,
     force_option,
+    jobs_option,
     max_targets_option,
     profile_option,
     toa_correction_option,
@@ -20,9 +22,11 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.errors import OutputError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.outputs.replay_output import open_replay_output
+from spiel_edge.io.spiel_csv import frame_files
+from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
 from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
 from spiel_edge.runtime.tracking import replay_tracked
 
@@ -62,6 +66,7 @@ from spiel_edge.runtime.tracking import replay_tracked
     help="Track targets over the recordings in time order; records gain `tracks` "
     "(docs/tracking.md).",
 )
+@jobs_option
 def command(
     path,
     fmt,
@@ -74,6 +79,7 @@ def command(
     output,
     force,
     track,
+    jobs,
     **ros2,
 ) -> int:
     """Run the pipeline over recorded frames; one record per acquisition (NDJSON, or an MCAP
@@ -92,7 +98,9 @@ def command(
     profile = resolve_profile(profile_name, calibration)
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work
     pipeline = build_pipeline(profile, association, toa_correction)
-    sources = iter_sources(path, fmt, background, InputLimits.for_profile(profile))
+    limits = InputLimits.for_profile(profile)
+    jobs = usable_jobs(jobs, path, fmt, track, profile)
+    files = frame_files(path) if jobs > 1 else None
     if max_targets:
         pipeline.set_max_targets(max_targets)
     failed = total = 0
@@ -106,15 +114,34 @@ def command(
         finalizers.add(sink.close)
     try:
         with stop_on_signals(stop, finalizers):
-            items = replay_tracked(pipeline, sources) if track else replay(pipeline, sources)
-            for item in items:
-                sink.write(item)
-                total += 1
-                failed += item.error is not None
-                if stop.is_set():
-                    click.echo(f"stopped by a signal after {total} acquisitions", err=True)
-                    failed += 1
-                    break
+            if files is not None:
+                recipe = PipelineRecipe(
+                    profile_name, calibration, association, toa_correction, max_targets
+                )
+                items = replay_files(
+                    pipeline,
+                    recipe,
+                    files,
+                    jobs,
+                    background=background,
+                    limits=limits,
+                    track=track,
+                    keep_frames=is_mcap_output(output),
+                    stopped=stop.is_set,
+                )
+            else:
+                sources = iter_sources(path, fmt, background, limits)
+                items = replay_tracked(pipeline, sources) if track else replay(pipeline, sources)
+            with closing(items):
+                for item in items:
+                    sink.write(item)
+                    total += 1
+                    failed += item.error is not None
+                    if stop.is_set():
+                        break
+            if stop.is_set():
+                click.echo(f"stopped by a signal after {total} acquisitions", err=True)
+                failed += 1
     except BaseException:
         sink.discard()
         raise

@@ -146,23 +146,29 @@ def iter_recordings(
     folder: str | Path, background: str | Path | None = None, limits: InputLimits | None = None
 ) -> Iterator[Recording]:
     """Each frames file with its background; read errors become Recording.error, never raise."""
-    bg_folder = Path(background) if background is not None else None
     for path in frame_files(folder):
-        try:
-            frames = read_frames(path, limits)
-            bg = None
-            if bg_folder is not None:
-                bg_path = bg_folder / path.name
-                if not bg_path.exists():
-                    raise InputError(f"{path.name}: no background file {bg_path}")
-                bg = read_frames(bg_path, limits)
-                if bg.shape != frames.shape:
-                    raise InputError(
-                        f"{path.name}: background shape {bg.shape} differs from frames {frames.shape}"
-                    )
-            yield Recording(path.name, frames, bg)
-        except InputError as exc:
-            yield Recording(path.name, None, None, str(exc))
+        yield read_recording(path, background, limits)
+
+
+def read_recording(
+    path: Path, background: str | Path | None = None, limits: InputLimits | None = None
+) -> Recording:
+    """One frames file with its background (same name in ``background``); never raises."""
+    try:
+        frames = read_frames(path, limits)
+        bg = None
+        if background is not None:
+            bg_path = Path(background) / path.name
+            if not bg_path.exists():
+                raise InputError(f"{path.name}: no background file {bg_path}")
+            bg = read_frames(bg_path, limits)
+            if bg.shape != frames.shape:
+                raise InputError(
+                    f"{path.name}: background shape {bg.shape} differs from frames {frames.shape}"
+                )
+        return Recording(path.name, frames, bg)
+    except InputError as exc:
+        return Recording(path.name, None, None, str(exc))
 
 
 def read_truth(frames_path: str | Path) -> np.ndarray | None:

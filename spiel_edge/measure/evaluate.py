@@ -17,7 +17,7 @@ import numpy as np
 
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
+from spiel_edge.io.spiel_csv import frame_files, position_key, read_recording, read_truth
 from spiel_edge.measure.scenes import SceneTally
 from spiel_edge.pipeline.echo_labels import (
     AssociationScore,
@@ -27,6 +27,7 @@ from spiel_edge.pipeline.echo_labels import (
 )
 from spiel_edge.pipeline.run import Pipeline, Result
 from spiel_edge.profile.schema import Profile
+from spiel_edge.runtime.parallel import PipelineRecipe, replay_files
 
 
 @dataclass
@@ -114,21 +115,45 @@ def evaluate_folder(
     *,
     positions: set | None = None,
     exclude_z: Iterable[float] = EXCLUDED_Z_MM,
+    jobs: int = 1,
+    recipe: PipelineRecipe | None = None,
 ) -> Evaluation:
     """Replay a labelled spiel-csv folder; ``positions`` keeps only those (x, y) positions;
-    heights in ``exclude_z`` (default: spiel-icra23's mislabelled z = 90 mm) are left out."""
+    heights in ``exclude_z`` (default: spiel-icra23's mislabelled z = 90 mm) are left out.
+    With ``jobs`` > 1 and the pipeline's ``recipe``, the files go to worker processes
+    (:mod:`spiel_edge.runtime.parallel`); the figures are the same."""
     ev = Evaluation()
-    skip_z = set(exclude_z)
     limits = InputLimits.for_profile(pipeline.profile)
-    for rec in iter_recordings(folder, background, limits):
-        key = position_key(rec.source)
-        if positions is not None and (key is None or key[:2] not in positions):
-            continue
-        truth = read_truth(Path(folder) / rec.source)
-        if truth is None or float(truth[2]) in skip_z:
-            continue
+    chosen = _labelled_files(folder, positions, set(exclude_z))
+    if jobs > 1 and recipe is not None and chosen:
+        paths = [path for path, _ in chosen]
+        items = replay_files(pipeline, recipe, paths, jobs, background=background, limits=limits)
+        for item, (_, truth) in zip(items, chosen, strict=True):
+            if item.error is not None:
+                ev.failed.append(item.error)
+            else:
+                ev.add(pipeline.profile, item.result, truth)
+        return ev
+    for path, truth in chosen:
+        rec = read_recording(path, background, limits)
         if rec.error is not None:
             ev.failed.append(rec.error)
             continue
         ev.add(pipeline.profile, pipeline.process(rec.frames, rec.background), truth)
     return ev
+
+
+def _labelled_files(
+    folder: str | Path, positions: set | None, skip_z: set
+) -> list[tuple[Path, np.ndarray]]:
+    """The frames files to evaluate, in file order, with their ground truth."""
+    chosen = []
+    for path in frame_files(folder):
+        key = position_key(path.name)
+        if positions is not None and (key is None or key[:2] not in positions):
+            continue
+        truth = read_truth(path)
+        if truth is None or float(truth[2]) in skip_z:
+            continue
+        chosen.append((path, truth))
+    return chosen

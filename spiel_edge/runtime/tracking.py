@@ -99,10 +99,13 @@ def _run_and_index(source: str) -> tuple[str, int, int]:
 
 
 def replay_tracked(
-    pipeline, recordings: Iterable[Recording], spec: TrackSpec | None = None
+    pipeline,
+    recordings: Iterable[Recording],
+    spec: TrackSpec | None = None,
+    tracker: ResultTracker | None = None,
 ) -> Iterator[Replayed]:
     """:func:`spiel_edge.runtime.replay.replay` in time order, each record with ``tracks``."""
-    tracker = ResultTracker(spec or pipeline.profile.track)
+    tracker = tracker or ResultTracker(spec or pipeline.profile.track)
     running = RunningBackground.from_profile(pipeline.profile)  # None unless the profile asks
     for item in time_ordered(recordings):
         if item.new_run:

@@ -27,6 +27,7 @@ from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.track.step import (
     DROPPED,
     ID,
+    NEXT_ID,
     SLOTS,
     STATUS,
     _snapshot_now,
@@ -140,6 +141,11 @@ class Tracker:
     def dropped_births(self) -> int:
         """Targets that would have started a track while ``max_tracks`` were in use."""
         return int(self._counts[DROPPED])
+
+    @property
+    def ids_issued(self) -> int:
+        """Track ids handed out so far (the next new track gets this id)."""
+        return int(self._counts[NEXT_ID])
 
     def reset(self) -> None:
         """Forget every track (ids keep counting, so an id never names two objects)."""
