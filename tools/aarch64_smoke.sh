@@ -100,11 +100,11 @@ install_checkout() {
 
 run_tests() {
     step "core and framing tests under emulation, on the installed package"
-    # The tests run from a copy of tests/ alone, so they import the installed package and
+    # The tests run from a copy of tests/ and tools/ (no package), so they import the installed package and
     # reuse the kernels `run` compiled into its cache (a checkout on sys.path would compile
     # them all again: about 30 min under emulation). The cold-cache test is left out: it
     # compiles every kernel twice in a subprocess with a 600 s limit, which emulation exceeds.
-    in_root sh -c 'rm -rf /srctests && mkdir /srctests && cp -r /src/tests /src/pyproject.toml /srctests/ &&
+    in_root sh -c 'rm -rf /srctests && mkdir /srctests && cp -r /src/tests /src/tools /src/pyproject.toml /srctests/ &&
         cd /srctests && python -m pytest -q -p no:cacheprovider tests/core tests/protocol/test_proto_vectors.py \
         tests/protocol/test_proto_cobs.py tests/protocol/test_proto_framing.py \
         --deselect tests/core/test_numba_cache.py::test_second_start_loads_every_kernel_from_the_cache' \
