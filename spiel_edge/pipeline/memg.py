@@ -27,10 +27,6 @@ SQRT2 = math.sqrt(2.0)
 SQRT_2_OVER_PI = math.sqrt(2.0 / math.pi)
 LAMBDA_START, LAMBDA_DOWN = 1e-2, 1.0 / 3.0
 REL_TOL = 1e-3  # stop when an accepted step lowers the cost by less than this share
-# stop when a step cannot move any component's mode (the ToA) by more than this many samples:
-# the mode is mu + sigma * u(eta) with |u| <= 0.55 and |du/deta| <= 0.8 inside the bounds
-TOA_STEP_TOL = 0.05
-MODE_PER_SIGMA, MODE_PER_ETA = 0.55, 0.8
 
 
 def fit_memg(
@@ -105,20 +101,6 @@ def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
 
 
 @jit
-def _mode_shift_bound(trial, p, n_comp):
-    """First-order bound, in samples, on how far the step p -> trial moves any mode."""
-    moved = 0.0
-    for k in range(n_comp):
-        q = 4 * k
-        d_mu = abs(trial[q + 1] - p[q + 1])
-        d_sigma = abs(trial[q + 2] - p[q + 2])
-        d_eta = abs(trial[q + 3] - p[q + 3])
-        sigma = max(trial[q + 2], p[q + 2])
-        moved = max(moved, d_mu + MODE_PER_SIGMA * d_sigma + MODE_PER_ETA * sigma * d_eta)
-    return moved
-
-
-@jit
 def solve_spd(a, b, n, x):
     """Solve a x = b for the leading n x n block of a symmetric positive definite a
     (Cholesky, in place on a). Returns False when a is not positive definite."""
@@ -181,9 +163,9 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     Each trial evaluates the residuals and the Jacobian in one pass, so an accepted step
     already holds the next normal equations (one pass per trial instead of a cost pass per
     trial plus a Jacobian pass per iteration). Stops when an accepted step lowers the cost by
-    less than REL_TOL of itself (the fits that ran to the cap were weakly identified shapes
-    creeping along a flat valley), or when a step, accepted or rejected, cannot move any
-    mode by TOA_STEP_TOL samples (docs/performance.md, "MEMG stopping rule").
+    less than REL_TOL of itself: the fits that ran to the cap were weakly identified shapes
+    (eta or sigma at a bound, wide flat echoes) creeping along a flat valley with no effect on
+    the ToA (docs/performance.md).
     ``work`` is a scratch buffer (>= 6 * 4K + 3 * (4K)^2 floats for K components) so the
     hot loop allocates nothing. Returns the number of iterations."""
     n_par = 4 * n_comp
@@ -230,19 +212,16 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
             for i in range(n_par):
                 trial[i] = p[i] + step[i]
             _clamp(trial, n_comp, lower_mu, upper_mu, alpha_max)
-            small = _mode_shift_bound(trial, p, n_comp) < TOA_STEP_TOL
             new_cost = _normal_equations(y, lo, hi, trial, n_comp, jac_row, a_trial, b_trial)
             if new_cost < cost:
-                converged = small or cost - new_cost <= REL_TOL * cost
-                lam = max(lam * LAMBDA_DOWN, 1e-7)
+                converged = cost - new_cost <= REL_TOL * cost
                 p[:n_par] = trial[:n_par]
                 a[:, :] = a_trial
                 b[:] = b_trial
                 cost = new_cost
+                lam = max(lam * LAMBDA_DOWN, 1e-7)
                 improved = not converged
                 break
-            if small:
-                break  # at a minimum as far as the ToA can tell: more damping would not help
             lam *= 4.0
         if not improved:
             break
