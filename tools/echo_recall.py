@@ -38,6 +38,7 @@ from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.pipeline.run import Pipeline
 from spiel_edge.profile.schema import load_profile
+from tools.tune_scene import parse_value
 
 TOLS = (0.5, 1.0)
 
@@ -181,7 +182,7 @@ def main(argv=None) -> int:
     offset = fit_offset(collect(pipe, singles if singles is not None else scenes))
     print(json.dumps({"offset_samples": [round(float(v), 3) for v in offset]}), flush=True)
     keys = [g.split("=")[0] for g in args.grid]
-    values = [[_parse(v) for v in g.split("=")[1].split(",")] for g in args.grid]
+    values = [[parse_value(v) for v in g.split("=")[1].split(",")] for g in args.grid]
     for setting in itertools.product(*values):
         profile = base
         for key, value in zip(keys, setting, strict=True):
@@ -197,15 +198,6 @@ def main(argv=None) -> int:
             flush=True,
         )
     return 0
-
-
-def _parse(text: str):
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    return text
 
 
 if __name__ == "__main__":

@@ -74,7 +74,7 @@ def main(argv=None) -> int:
         scenes = {k: v[keep] if k != "split" else v for k, v in scenes.items()}
     cached = cache_front(pipeline, scenes)
     keys = [g.split("=")[0] for g in args.grid]
-    values = [[_parse(v) for v in g.split("=")[1].split(",")] for g in args.grid]
+    values = [[parse_value(v) for v in g.split("=")[1].split(",")] for g in args.grid]
     for setting in itertools.product(*values):
         kw = dict(zip(keys, setting, strict=True))
         pipeline.profile = profile.replace(scene=dataclasses.replace(profile.scene, **kw))
@@ -83,7 +83,8 @@ def main(argv=None) -> int:
     return 0
 
 
-def _parse(text: str):
+def parse_value(text: str):
+    """A grid value from the command line: bool, int, float or the text."""
     if text in ("true", "false"):
         return text == "true"
     for cast in (int, float):
