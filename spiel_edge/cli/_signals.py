@@ -92,7 +92,16 @@ def _watchdog(done: threading.Event, finalizers: Finalizers) -> None:
     if done.is_set():  # the command got unstuck meanwhile and ends by itself
         hard.cancel()
         return
+    _say(b"stopped by a signal: outputs finalized by the watchdog\n")
     os._exit(finalizers.exit_status if ok else 2)
+
+
+def _say(message: bytes) -> None:
+    """One line on stderr without the stream's lock (the stuck thread may hold it)."""
+    try:
+        os.write(2, message)
+    except OSError:
+        pass
 
 
 @contextmanager

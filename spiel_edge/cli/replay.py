@@ -128,6 +128,7 @@ def command(
                     track=track,
                     keep_frames=is_mcap_output(output),
                     stopped=stop.is_set,
+                    on_workers=finalizers.add,  # a watchdog's exit stops them too
                 )
             else:
                 sources = iter_sources(path, fmt, background, limits)

@@ -103,6 +103,7 @@ def replay_files(
     track: bool = False,
     keep_frames: bool = False,
     stopped: Callable[[], bool] = lambda: False,
+    on_workers: Callable[[Callable[[], None]], None] | None = None,
 ) -> Iterator[Replayed]:
     """:func:`~spiel_edge.runtime.replay.replay` (or ``replay_tracked``) over ``files`` with
     ``jobs`` processes, in the order one job gives; ends early once ``stopped()`` is true.
@@ -110,12 +111,14 @@ def replay_files(
     This process is one of the jobs: with its ``pipeline`` (built from ``recipe``) it runs
     the tasks in order until a worker has started (imports, kernels from the cache: a second
     or more), then keeps the workers fed and runs the next task whenever the one due is not
-    back yet."""
+    back yet; its own task ends between two files once ``stopped()`` is true.
+    ``on_workers`` receives a callable that terminates the workers at once, for a caller
+    that may end the process without closing this iterator (the signal watchdog)."""
     bg = None if background is None else str(background)
     tasks = [Task(t, bg, limits, track, keep_frames) for t in plan_tasks(files, jobs, track)]
     if len(tasks) < 2:  # nothing to share
         for task in tasks:
-            yield from run_task(pipeline, task)[0]
+            yield from run_task(pipeline, task, stopped)[0]
         return
     workers = max(1, min(jobs - 1, len(tasks) - 1))
     pool = ProcessPoolExecutor(
@@ -125,6 +128,8 @@ def replay_files(
     sent: dict[int, Future] = {}
     due = queued = ids_before = 0
     started = pool.submit(_started)  # no task waits on a worker that is still starting
+    if on_workers is not None:
+        on_workers(lambda: _terminate_workers(pool))
     try:
         while due < len(tasks):
             if stopped():
@@ -142,7 +147,7 @@ def replay_files(
                 ids_before += issued
                 due += 1
             elif queued < len(tasks) and queued - due < LOOKAHEAD_TASKS * jobs:
-                done[queued] = run_task(pipeline, tasks[queued])  # meanwhile, here
+                done[queued] = run_task(pipeline, tasks[queued], stopped)  # meanwhile, here
                 queued += 1
             else:
                 _wait(sent[due])
@@ -155,16 +160,22 @@ def _wait(future: Future) -> None:
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    processes = list((pool._processes or {}).values())  # no public way before Python 3.14
+    processes = _terminate_workers(pool)
     pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        if process.is_alive():
-            process.terminate()
     for process in processes:
         process.join(timeout=2.0)
         if process.is_alive():
             process.kill()
             process.join()
+
+
+def _terminate_workers(pool: ProcessPoolExecutor) -> list:
+    """SIGTERM to every worker still alive (they do not ignore it); no waiting."""
+    processes = list((pool._processes or {}).values())  # no public way before Python 3.14
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    return processes
 
 
 def _shift_track_ids(item: Replayed, offset: int) -> None:
@@ -205,9 +216,12 @@ def _run_task(task: Task) -> tuple[list[Replayed], int]:
     return run_task(_pipeline, task)
 
 
-def run_task(pipeline, task: Task) -> tuple[list[Replayed], int]:
-    """A task's items and the track ids its tracker issued (0 without tracking)."""
-    recordings = [read_recording(path, task.background, task.limits) for path in task.files]
+def run_task(
+    pipeline, task: Task, stopped: Callable[[], bool] = lambda: False
+) -> tuple[list[Replayed], int]:
+    """A task's items and the track ids its tracker issued (0 without tracking); it ends
+    early, between two files, once ``stopped()`` is true (the caller then drops it)."""
+    recordings = _read_until_stopped(task, stopped)
     if task.track:
         tracker = ResultTracker(pipeline.profile.track)
         items = list(replay_tracked(pipeline, recordings, tracker=tracker))
@@ -218,6 +232,13 @@ def run_task(pipeline, task: Task) -> tuple[list[Replayed], int]:
         for item in items:
             item.recording = None
     return items, issued
+
+
+def _read_until_stopped(task: Task, stopped: Callable[[], bool]):
+    for path in task.files:
+        if stopped():
+            return
+        yield read_recording(path, task.background, task.limits)
 
 
 def usable_jobs(jobs: int, path: str | Path, fmt: str | None, track: bool, profile) -> int:

@@ -3,11 +3,13 @@ signals handled, no worker left behind."""
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import signal
 import subprocess
 import sys
+import termios
 import time
 from pathlib import Path
 
@@ -84,6 +86,18 @@ def test_jobs_option_is_range_checked_and_mcap_runs_one_job(tmp_path, profile, c
     assert resolve_jobs(0) == (os.cpu_count() or 1)
 
 
+def _many_files(folders, tmp_path) -> tuple[Path, Path]:
+    """12 links to each file: enough to still be running when the signal comes."""
+    frames, bg = folders
+    big, big_bg = tmp_path / "f", tmp_path / "b"
+    big.mkdir(), big_bg.mkdir()
+    for copy in range(12):
+        for path in frames.glob("*_frames.csv"):
+            os.link(path, big / f"c{copy:02d}{path.name}")
+            os.link(bg / path.name, big_bg / f"c{copy:02d}{path.name}")
+    return big, big_bg
+
+
 def _descendants(pid: int) -> set[int]:
     parents = {}
     for entry in Path("/proc").iterdir():
@@ -109,13 +123,7 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=str)
 def test_a_signal_stops_the_workers_and_finalizes_the_output(folders, tmp_path, sig):
-    frames, bg = folders
-    big, big_bg = tmp_path / "f", tmp_path / "b"  # enough files to still be running
-    big.mkdir(), big_bg.mkdir()
-    for copy in range(12):
-        for path in frames.glob("*_frames.csv"):
-            os.link(path, big / f"c{copy:02d}{path.name}")
-            os.link(bg / path.name, big_bg / f"c{copy:02d}{path.name}")
+    big, big_bg = _many_files(folders, tmp_path)
     proc = subprocess.Popen(
         [*CLI, "replay", str(big), "--background", str(big_bg), "-j", "2"],
         stdout=subprocess.PIPE,
@@ -137,3 +145,43 @@ def test_a_signal_stops_the_workers_and_finalizes_the_output(folders, tmp_path, 
     names = sorted(p.name for p in big.glob("*_frames.csv"))
     assert 0 < len(lines) < len(names)
     assert [json.loads(line)["source"] for line in lines] == names[: len(lines)]
+
+
+def _wait_until_stdout_is_full(proc, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    last, since = -1, time.monotonic()
+    while time.monotonic() < deadline and proc.poll() is None:
+        pending = int.from_bytes(
+            fcntl.ioctl(proc.stdout.fileno(), termios.FIONREAD, b"\0\0\0\0"), "little"
+        )
+        if pending != last:
+            last, since = pending, time.monotonic()
+        elif pending > 30_000 and time.monotonic() - since > 0.5:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"the replay did not stall on its stdout ({last} bytes pending)")
+
+
+def test_a_signal_with_stdout_blocked_ends_the_workers_too(folders, tmp_path):
+    """The loop cannot stop (its write blocks): the watchdog finalizes, terminates the workers
+    and exits; nothing is left running."""
+    big, big_bg = _many_files(folders, tmp_path)
+    proc = subprocess.Popen(
+        [*CLI, "replay", str(big), "--background", str(big_bg), "-j", "2"],
+        stdout=subprocess.PIPE,  # not read until the end: the pipe fills and the write blocks
+        stderr=subprocess.PIPE,
+    )
+    _wait_until_stdout_is_full(proc)
+    workers = _descendants(proc.pid)
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=90)
+    deadline = time.monotonic() + 30
+    while any(map(_alive, workers)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [p for p in workers if _alive(p)]
+    for pid in left:  # a worker left behind holds the pipes open: end it, then report it
+        os.kill(pid, signal.SIGKILL)
+    assert len(workers) >= 2 and left == []
+    err = proc.stderr.read()
+    assert proc.returncode == 1 and b"stopped by a signal" in err and b"Traceback" not in err
+    proc.stdout.close()
