@@ -14,7 +14,7 @@ import os
 import signal
 import threading
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 log = logging.getLogger(__name__)
 
@@ -98,10 +98,8 @@ def _watchdog(done: threading.Event, finalizers: Finalizers) -> None:
 
 def _say(message: bytes) -> None:
     """One line on stderr without the stream's lock (the stuck thread may hold it)."""
-    try:
+    with suppress(OSError):
         os.write(2, message)
-    except OSError:
-        pass
 
 
 @contextmanager
