@@ -90,7 +90,9 @@ install_checkout() {
     rm -rf "$ROOT/src" && mkdir -p "$ROOT/src"
     tar -C "$REPO" --exclude=.git --exclude=.venv --exclude='__pycache__' --exclude='*.egg-info' \
         --exclude=build -cf - . | tar -C "$ROOT/src" -xf -
-    [ -x "$ROOT/opt/venv/bin/python" ] || in_root python3 -m venv /opt/venv
+    # pip, not python: a venv whose ensurepip failed has python but no pip (seen once)
+    [ -e "$ROOT/opt/venv/bin/pip" ] || { rm -rf "$ROOT/opt/venv" && in_root python3 -m venv /opt/venv; }
+    [ -e "$ROOT/opt/venv/bin/pip" ] || die "python3 -m venv /opt/venv made no pip in the arm64 root"
     # --only-binary for the dependencies: a missing aarch64 wheel fails here instead of
     # silently building from source (the project itself is built from the checkout)
     in_root sh -c 'cd /src && pip install -q --only-binary=:all: --no-binary=spiel-edge ".[test]"'
