@@ -4,9 +4,10 @@ numba caches compiled kernels beside the sources, or, when the install is read-o
 NUMBA_CACHE_DIR (the service kit sets it) or the user's cache folder. A warm start then loads
 machine code instead of compiling. ``warmup()`` runs inputs that reach every kernel: the
 vendored real acquisitions through the staged and the fused path (the geometric and, when it
-loads, the learned associator), an RF variant of the profile (envelope kernel) and a
-closed-form 8-channel acquisition (the hypothesise-and-verify associator); it never imports
-the simulator. ``pipeline_kernels()`` is the one kernel finder (warm-up, doctor and bench).
+loads, the learned associator; one target and four; with and without a background), the
+tracker on those results, the stream decoder's COBS kernels, an RF variant of the profile
+(envelope kernel) and a closed-form 8-channel acquisition (the hypothesise-and-verify
+associator); it never imports the simulator. ``pipeline_kernels()`` is the one kernel finder (warm-up, doctor and bench).
 """
 
 from __future__ import annotations
@@ -23,12 +24,12 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-KERNEL_PACKAGES = ("spiel_edge.pipeline", "spiel_edge.io")
+KERNEL_PACKAGES = ("spiel_edge.pipeline", "spiel_edge.io", "spiel_edge.track", "firmware_protocol")
 
 
 def pipeline_kernels() -> dict[str, object]:
-    """Every cached numba dispatcher defined in the pipeline and io modules, by qualified
-    name (modules whose optional dependency is missing are skipped)."""
+    """Every cached numba dispatcher defined in the pipeline, io, tracker and stream-decoder
+    modules, by qualified name (modules whose optional dependency is missing are skipped)."""
     found = {}
     for package_name in KERNEL_PACKAGES:
         package = importlib.import_module(package_name)
@@ -85,11 +86,17 @@ def _exercise() -> None:
     subset = load_subset()
     profile = load_profile()
     pairs = list(zip(subset.frames[:4], subset.backgrounds[:4], strict=True))
+    results = []
     for association in ("geometric", "auto"):
         for fused in (True, False):
             pipeline = build_pipeline(profile, association, fused=fused)
-            for f, b in pairs:
-                pipeline.process(f, b)
+            for k in (1, 4):  # one target (the back kernel) and several (the scene's choice)
+                pipeline.set_max_targets(k)
+                for f, b in pairs:
+                    results.append(pipeline.process(f, b))
+                results.append(pipeline.process(pairs[0][0], None))  # the static-scene stand-in
+    _exercise_tracker(profile, results)
+    _exercise_stream()
     rf = profile.replace(
         acquisition=dataclasses.replace(profile.acquisition, signal="rf", carrier_hz=5000.0)
     )
@@ -98,6 +105,22 @@ def _exercise() -> None:
     ring, frames, background = _ring_input()
     for fused in (True, False):
         build_pipeline(ring, "geometric", fused=fused).process(frames, background)
+
+
+def _exercise_tracker(profile, results) -> None:
+    """The tracker's kernels (``run`` tracks by default), fed the results above in turn."""
+    from spiel_edge.runtime.tracking import ResultTracker
+
+    tracker = ResultTracker(profile.track)
+    for i, result in enumerate(results):
+        tracker.update(result, 0.02 * i)
+
+
+def _exercise_stream() -> None:
+    """The stream decoder's COBS kernels (a live board, the virtual one included)."""
+    from firmware_protocol import cobs
+
+    cobs.warm_up()
 
 
 def warmup() -> dict:
