@@ -65,6 +65,12 @@ def command(
         click.echo(
             f"onnx scoring: median {result['onnx_scoring']['scoring_us']['median']:.1f} us per acquisition"
         )
+    scene = result.get("scene_4_tracked")
+    if scene:
+        click.echo(
+            f"fused, {scene['k']} targets, no background, tracked: median {scene['median_us']:.0f} us, "
+            f"p95 {scene['p95_us']:.0f} us per acquisition"
+        )
     tracker = result.get("tracker_8_tracks")
     if tracker:
         click.echo(

@@ -36,3 +36,6 @@ def test_bench_json_is_the_last_line_with_stage_timings(capsys):
         assert block["staged_over_fused"] > 0
     ref = result["reference_4x64"]
     assert ref["available"] and ref["acquisitions"] == 1 and ref["reference_over_fused"] > 1
+    scene = result["scene_4_tracked"]
+    assert scene["k"] == 4 and scene["acquisitions"] > 0
+    assert 0 < scene["median_us"] <= scene["p95_us"]
