@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from spiel_edge.cli import main
-from spiel_edge.runtime.parallel import plan_tasks, resolve_jobs, usable_jobs
+from spiel_edge.runtime.parallel import Task, plan_tasks, resolve_jobs, run_task, usable_jobs
 from tests.core.spiel_csv_fixture import write_spiel_csv
 
 CLI = [sys.executable, "-m", "spiel_edge.cli"]
@@ -96,6 +96,24 @@ def _many_files(folders, tmp_path) -> tuple[Path, Path]:
             os.link(path, big / f"c{copy:02d}{path.name}")
             os.link(bg / path.name, big_bg / f"c{copy:02d}{path.name}")
     return big, big_bg
+
+
+def test_a_task_stops_between_two_files_once_stopped(folders, profile):
+    from spiel_edge.pipeline.factory import build_pipeline
+
+    frames, bg = folders
+    files = tuple(sorted(frames.glob("*_frames.csv"))[:5])
+    pipeline = build_pipeline(profile, "geometric")
+    asked = []
+
+    def stopped() -> bool:  # true once two files were read
+        asked.append(1)
+        return len(asked) > 2
+
+    items, _ = run_task(pipeline, Task(files, str(bg), None, False, False), stopped)
+    assert [item.source for item in items] == [f.name for f in files[:2]]
+    items, _ = run_task(pipeline, Task(files, str(bg), None, False, False))
+    assert len(items) == 5
 
 
 def _descendants(pid: int) -> set[int]:
