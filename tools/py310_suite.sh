@@ -28,7 +28,7 @@ command -v debootstrap >/dev/null || { step "installing debootstrap"; apt-get in
 mkdir -p "$WORK"
 
 cleanup() {
-    for m in "$ROOT/proc" "$ROOT/dev"; do mountpoint -q "$m" && umount -l "$m"; done
+    for m in "$ROOT/proc" "$ROOT/dev/pts" "$ROOT/dev"; do mountpoint -q "$m" && umount -l "$m"; done
     return 0
 }
 trap cleanup EXIT
@@ -43,9 +43,12 @@ if [ ! -e "$ROOT/.spiel-root-done" ]; then
         --include=python3,python3-venv,ca-certificates jammy "$ROOT" "$MIRROR" >"$WORK/debootstrap.log"
     touch "$ROOT/.spiel-root-done"
 fi
+# the tests open pseudo-terminals (the serial link) and resolve localhost (UDP output)
 mountpoint -q "$ROOT/proc" || mount -t proc proc "$ROOT/proc"
 mountpoint -q "$ROOT/dev" || mount --bind /dev "$ROOT/dev"
+mountpoint -q "$ROOT/dev/pts" || mount --bind /dev/pts "$ROOT/dev/pts"
 cp /etc/resolv.conf "$ROOT/etc/resolv.conf"
+[ -s "$ROOT/etc/hosts" ] || printf '127.0.0.1 localhost\n::1 localhost ip6-localhost\n' >"$ROOT/etc/hosts"
 cp "$HOST_CA" "$ROOT/etc/ssl/host-ca.crt"
 
 step "copying the checkout and installing it with [test]"

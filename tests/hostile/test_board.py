@@ -29,12 +29,13 @@ class HostileBoard:
         self.path = os.ttyname(slave)
         self._slave = slave
         self._answer = answer
+        self._decoder = FrameDecoder()  # loads the COBS kernels before the host says Hello
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, daemon=True)
         self._thread.start()
 
     def _serve(self) -> None:
-        decoder = FrameDecoder()
+        decoder = self._decoder
         while not self._stop.is_set():
             ready, _, _ = select.select([self.master], [], [], 0.02)
             if not ready:
