@@ -77,7 +77,7 @@ class MemgSpec:
     toa: str = "mode"
     split_merged: bool = False  # split merged two-echo humps (pipeline/split.py)
     split_min_sigma: float = 2.0  # only components at least this wide (samples) are tried
-    split_max_cost_ratio: float = 0.5  # keep two when they leave at most this share of one's
+    split_max_cost_ratio: float = 1.0  # keep two when they leave at most this share of one's
 
 
 @dataclass(frozen=True)
