@@ -37,6 +37,7 @@ from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.split import split_merged
 from spiel_edge.profile.schema import load_profile
 from tools.tune_scene import parse_value
 
@@ -58,9 +59,19 @@ def front_end(pipe: Pipeline, frames: np.ndarray, background: np.ndarray | None)
         max_echoes=d.max_echoes,
         first_sample=p.preprocess.blind_zone_samples,
     )
-    params = fit_memg(
-        y, peaks, counts, mu_window=p.memg.mu_window, max_iterations=p.memg.max_iterations
-    )
+    m = p.memg
+    params = fit_memg(y, peaks, counts, mu_window=m.mu_window, max_iterations=m.max_iterations)
+    if m.split_merged:
+        peaks, counts, params = split_merged(
+            y,
+            peaks,
+            counts,
+            params,
+            min_sigma=m.split_min_sigma,
+            max_cost_ratio=m.split_max_cost_ratio,
+            mu_window=m.mu_window,
+            max_iterations=m.max_iterations,
+        )
     toa = echo_features(y, params, peaks, p.memg.toa)[:, :, TOA_COLUMN]
     return toa, np.where(peaks >= 0, peaks, np.nan).astype(np.float64), counts
 

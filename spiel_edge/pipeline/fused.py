@@ -31,6 +31,7 @@ from spiel_edge.pipeline.detect import _detect_kernel
 from spiel_edge.pipeline.features import TOA_CODES, TOA_COLUMN, _features_kernel
 from spiel_edge.pipeline.memg import _memg_kernel
 from spiel_edge.pipeline.preprocess import _envelope_kernel, _preprocess_kernel
+from spiel_edge.pipeline.split import _split_kernel
 from spiel_edge.pipeline.workspace import ThreadWorkspaces
 
 log = logging.getLogger(__name__)
@@ -109,6 +110,9 @@ class FusedPipeline:
             float(d.min_amplitude),
             float(p.memg.mu_window),
             int(p.memg.max_iterations),
+            bool(p.memg.split_merged),
+            float(p.memg.split_min_sigma),
+            float(p.memg.split_max_cost_ratio),
             TOA_CODES[p.memg.toa],
         )
 
@@ -191,6 +195,9 @@ def _front_kernel(
     min_amp,
     mu_window,
     max_iter,
+    split,
+    split_min_sigma,
+    split_max_ratio,
     toa_code,
     env,
     bg_env,
@@ -202,7 +209,7 @@ def _front_kernel(
     unsorted,
     features,
 ):
-    """Finite check, preprocess, detect, memg, features and the ToA ordering; 0 when done,
+    """Finite check, preprocess, detect, memg (and the merged-echo split), features and the ToA ordering; 0 when done,
     else FRAMES_NOT_FINITE or BACKGROUND_NOT_FINITE."""
     if not _all_finite(y):
         return FRAMES_NOT_FINITE
@@ -221,6 +228,18 @@ def _front_kernel(
     params[:, :, :] = np.nan
     iterations[:, :] = 0
     _memg_kernel(cleaned, peaks, counts, mu_window, max_iter, params, iterations)
+    if split:
+        _split_kernel(
+            cleaned,
+            peaks,
+            counts,
+            params,
+            iterations,
+            split_min_sigma,
+            split_max_ratio,
+            mu_window,
+            max_iter,
+        )
     unsorted[:, :, :] = np.nan
     _features_kernel(cleaned, params, peaks, toa_code, unsorted)
     _order_by_toa(unsorted, features)

@@ -20,6 +20,7 @@ from spiel_edge.pipeline.locate import locate
 from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
+from spiel_edge.pipeline.split import split_merged
 from spiel_edge.pipeline.static_scene import load_static_model
 from spiel_edge.pipeline.uncertainty import _covariance_kernel
 from spiel_edge.profile.schema import Profile
@@ -175,9 +176,19 @@ class Pipeline:
             first_sample=p.preprocess.blind_zone_samples,
         )
         t2 = clock()
-        params = fit_memg(
-            y, peaks, counts, mu_window=p.memg.mu_window, max_iterations=p.memg.max_iterations
-        )
+        m = p.memg
+        params = fit_memg(y, peaks, counts, mu_window=m.mu_window, max_iterations=m.max_iterations)
+        if m.split_merged:
+            peaks, counts, params = split_merged(
+                y,
+                peaks,
+                counts,
+                params,
+                min_sigma=m.split_min_sigma,
+                max_cost_ratio=m.split_max_cost_ratio,
+                mu_window=m.mu_window,
+                max_iterations=m.max_iterations,
+            )
         t3 = clock()
         feats = echo_features(y, params, peaks, p.memg.toa)
         t4 = clock()

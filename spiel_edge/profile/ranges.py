@@ -14,6 +14,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "detect.max_echoes": (1, 16),
     "memg.max_iterations": (1, 200),
     "memg.mu_window": (0.5, 20.0),
+    "memg.split_min_sigma": (0.4, 6.0),
+    "memg.split_max_cost_ratio": (0.01, 1.0),
     "scene.max_targets": (1, 16),
     "scene.max_cost_mm": (-1000.0, 1000.0),
     "scene.share_penalty_mm": (0.0, 1000.0),

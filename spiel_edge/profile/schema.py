@@ -255,6 +255,8 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     m = p.memg
     check_range("memg.max_iterations", m.max_iterations, origin)
     check_range("memg.mu_window", m.mu_window, origin)
+    check_range("memg.split_min_sigma", m.split_min_sigma, origin)
+    check_range("memg.split_max_cost_ratio", m.split_max_cost_ratio, origin)
     need(m.toa in TOA_METHODS, f"memg.toa must be one of {TOA_METHODS}, got {m.toa!r}")
     s = p.associate
     need(

@@ -75,6 +75,9 @@ class MemgSpec:
     max_iterations: int = 30
     mu_window: float = 3.0
     toa: str = "mode"
+    split_merged: bool = False  # split merged two-echo humps (pipeline/split.py)
+    split_min_sigma: float = 2.0  # only components at least this wide (samples) are tried
+    split_max_cost_ratio: float = 1.0  # keep two when they leave at most this share of one's
 
 
 @dataclass(frozen=True)

@@ -102,6 +102,9 @@ def _exercise() -> None:
     )
     for fused in (True, False):
         build_pipeline(rf, "geometric", fused=fused).process(*pairs[0])
+    split = profile.replace(memg=dataclasses.replace(profile.memg, split_merged=True))
+    for fused in (True, False):
+        build_pipeline(split, "geometric", fused=fused).process(pairs[0][0])  # off by default
     ring, frames, background = _ring_input()
     for fused in (True, False):
         build_pipeline(ring, "geometric", fused=fused).process(frames, background)

@@ -51,6 +51,9 @@ def test_other_hardware_any_receivers(tmp_path, profile):
     [
         (lambda d: d["detect"].update(threshold=-1.0), "detect.threshold"),
         (lambda d: d["memg"].update(toa="median"), "memg.toa"),
+        (lambda d: d["memg"].update(split_min_sigma=0.1), "memg.split_min_sigma"),
+        (lambda d: d["memg"].update(split_max_cost_ratio=1.5), "memg.split_max_cost_ratio"),
+        (lambda d: d["memg"].update(split_merged="yes"), "memg.split_merged"),
         (
             lambda d: d["geometry"].update(listening=[True, False, False, True]),
             "at least 3 listening",

@@ -8,7 +8,8 @@ from spiel_edge.service import kit
 
 def test_one_kernel_finder_sees_the_fused_and_staged_kernels():
     names = set(warmup.pipeline_kernels())
-    for kernel in ("fused._front_kernel", "memg._memg_kernel", "associate._hypothesis_kernel"):
+    kernels = ("fused._front_kernel", "memg._memg_kernel", "split._split_kernel")
+    for kernel in (*kernels, "associate._hypothesis_kernel"):
         assert f"spiel_edge.pipeline.{kernel}" in names
 
 
