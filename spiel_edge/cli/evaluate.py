@@ -126,7 +126,7 @@ def command(
     }
     if track:
         summary["tracked"] = evaluate_tracked(
-            pipeline, folder, background, positions=positions, exclude_z=exclude_z, max_z=max_z
+            pipeline, folder, background, positions=positions, exclude_z=skip, max_z=max_z
         )
     if as_json:
         click.echo(json.dumps(summary))

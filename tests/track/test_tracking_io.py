@@ -48,7 +48,9 @@ def test_evaluate_track_reports_the_tracked_error(folders, capsys):
     frames_dir, bg_dir = folders
     args = ["evaluate", str(frames_dir), "--background", str(bg_dir), "--track", "--json"]
     assert main([*args, "--association", "geometric"]) == 0
-    tracked = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["tracked"]
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    tracked = summary["tracked"]
+    assert tracked["acquisitions"] == summary["frames"]  # the same acquisitions (z = 90 left out)
     assert tracked["fixes"] > 0 and 0 < tracked["on_track_share"] < 1
     assert tracked["tracked_mean_mm"] > 0 and tracked["per_acquisition_mean_mm"] > 0
 
