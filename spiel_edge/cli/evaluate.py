@@ -196,5 +196,6 @@ def _print_table(summary: dict) -> None:
         click.echo(
             f"tracked: mean {tracked['tracked_mean_mm']:.1f} mm vs per acquisition "
             f"{tracked['per_acquisition_mean_mm']:.1f} mm over {tracked['fixes']} fixes "
-            f"({tracked['on_track_share']:.0%} on a confirmed track)"
+            f"({tracked['on_track_share']:.0%} on a confirmed track); the static target's "
+            f"track {tracked['static_track_mean_mm']:.1f} mm"
         )
