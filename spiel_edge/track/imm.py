@@ -77,9 +77,11 @@ def _mix_predict(xm, pm, mu, x, p, dt, acceleration, static_q2, switch, v02, wx,
             wx[j, a] = w0 * xm[0, a] + w1 * xm[1, a]
         for a in range(6):
             d0a, d1a = xm[0, a] - wx[j, a], xm[1, a] - wx[j, a]
-            for b in range(6):
+            for b in range(a + 1):  # symmetric: the lower triangle, mirrored
                 d0b, d1b = xm[0, b] - wx[j, b], xm[1, b] - wx[j, b]
-                wp[j, a, b] = w0 * (pm[0, a, b] + d0a * d0b) + w1 * (pm[1, a, b] + d1a * d1b)
+                v = w0 * (pm[0, a, b] + d0a * d0b) + w1 * (pm[1, a, b] + d1a * d1b)
+                wp[j, a, b] = v
+                wp[j, b, a] = v
     xm[:, :] = wx
     pm[:, :, :] = wp
     mu[0], mu[1] = c0, c1
