@@ -126,7 +126,7 @@ def command(
     }
     if track:
         summary["tracked"] = evaluate_tracked(
-            pipeline, folder, background, positions=positions, exclude_z=exclude_z, max_z=max_z
+            pipeline, folder, background, positions=positions, exclude_z=skip, max_z=max_z
         )
     if as_json:
         click.echo(json.dumps(summary))
@@ -196,5 +196,6 @@ def _print_table(summary: dict) -> None:
         click.echo(
             f"tracked: mean {tracked['tracked_mean_mm']:.1f} mm vs per acquisition "
             f"{tracked['per_acquisition_mean_mm']:.1f} mm over {tracked['fixes']} fixes "
-            f"({tracked['on_track_share']:.0%} on a confirmed track)"
+            f"({tracked['on_track_share']:.0%} on a confirmed track); the static target's "
+            f"track {tracked['static_track_mean_mm']:.1f} mm"
         )

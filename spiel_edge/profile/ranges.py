@@ -39,6 +39,9 @@ RANGES: dict[str, tuple[float, float]] = {
     "track.max_misses": (1, 1000),
     "track.max_tracks": (1, 64),
     "track.max_gap_s": (0.001, 3600.0),
+    "track.imm_static_noise_mm": (0.0, 1e4),
+    "track.imm_switch_probability": (0.0, 0.5),
+    "track.imm_static_share": (0.0, 1.0),
     "frame.translation_m": (-100.0, 100.0),  # each coordinate
     "frame.rotation_rpy_deg": (-360.0, 360.0),  # each angle
     "track.running_background_window": (0, 256),

@@ -24,6 +24,11 @@ class TrackSpec:
     max_misses: int = 10  # a confirmed track is deleted after this many misses in a row
     max_tracks: int = 16  # tentative and confirmed tracks at once (births beyond are dropped)
     max_gap_s: float = 1.0  # a longer gap between acquisitions (or time going back) restarts
+    # interacting multiple model (track/imm.py): a near-static model beside the constant-velocity
+    # one; both imm_switch_probability and imm_static_share at 0 turn it off (CV filter alone)
+    imm_static_noise_mm: float = 1.0  # static model: position random walk, mm per sqrt(s)
+    imm_switch_probability: float = 0.3  # per acquisition, static <-> moving (chosen on training)
+    imm_static_share: float = 0.5  # the static model's probability at a track's birth
     # without a background capture: per-sample median of this many recent acquisitions, not
     # updated at confirmed tracks' echoes (runtime/running_background.py); 0 = off
     running_background_window: int = 0

@@ -1,6 +1,10 @@
 """The tracker's compiled step on preallocated arrays: predict, gate, assign, update,
 confirm/delete, birth, and the snapshot of the confirmed tracks, in one call.
 
+Each track is an IMM of a near-static and a constant-velocity model (imm.py): ``x``, ``P`` hold
+its combined estimate (gated, assigned, reported), the model states and weights sit beside
+them; with the IMM off it is the constant-velocity filter alone (kalman.py).
+
 Track slots are rows of fixed arrays (the cap is their length); ``meta`` holds per slot the
 status (0 free, 1 tentative, 2 confirmed), id, age, hits and misses. Confirmed tracks are
 matched first, tentative ones get the targets left over, and targets nobody took start
@@ -16,6 +20,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.track.assign import INFEASIBLE, _assign_into
+from spiel_edge.track.imm import _combine, _imm_update, _mix_predict
 from spiel_edge.track.kalman import _predict, _sym_inv3, _update
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
@@ -29,8 +34,10 @@ def allocate(cap: int, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     allocates nothing but its snapshot and takes few arguments (each one costs time)."""
     if not 1 <= cap <= SLOTS:
         raise ValueError(f"cap must be 1..{SLOTS}, got {cap}")
+    if len(params) != N_PARAMS:
+        raise ValueError(f"params must have {N_PARAMS} entries, got {len(params)}")
     floats = np.zeros(_F_SCRATCH + _FLOATS)
-    floats[_F_PARAMS : _F_PARAMS + len(params)] = params
+    floats[_F_PARAMS:_F_SCRATCH] = params
     ints = np.zeros(_I_SCRATCH + _INTS, np.int64)
     ints[_I_META + ID * SLOTS : _I_META + (ID + 1) * SLOTS] = -1
     ints[_I_COUNTS + CAP] = cap
@@ -42,9 +49,17 @@ def state_views(floats: np.ndarray, ints: np.ndarray):
     arrays."""
     cap = int(ints[_I_COUNTS + CAP])
     x = floats[: SLOTS * 6].reshape(SLOTS, 6)[:cap]
-    p = floats[SLOTS * 6 : _F_PARAMS].reshape(SLOTS, 6, 6)[:cap]
+    p = floats[SLOTS * 6 : _F_MODELS].reshape(SLOTS, 6, 6)[:cap]
     meta = ints[_I_META:_I_COUNTS].reshape(5, SLOTS)[:, :cap]
     return x, p, meta, ints[_I_COUNTS:_I_SCRATCH]
+
+
+def model_views(floats: np.ndarray, cap: int):
+    """(xm (cap, 2, 6), pm (cap, 2, 6, 6), mu (cap, 2)): the IMM's model states (imm.py),
+    meaningful while the IMM is on (:func:`_imm_on`)."""
+    xm = floats[_F_MODELS : _F_MODELS + SLOTS * 12].reshape(SLOTS, 2, 6)[:cap]
+    pm = floats[_F_MODELS + SLOTS * 12 : _F_MU].reshape(SLOTS, 2, 6, 6)[:cap]
+    return xm, pm, floats[_F_MU:_F_PARAMS].reshape(SLOTS, 2)[:cap]
 
 
 @jit
@@ -136,14 +151,17 @@ def _gate_at(x, p, s, z, r, j, gate):
 @jit
 def _step(floats, ints, bools, z, r_in, dt):
     """One acquisition on :func:`allocate`'s arrays. The parameters: acceleration, gate,
-    floor^2, fallback^2, v0^2, confirm_hits, confirm_window, max_misses. Leaves per target the
+    floor^2, fallback^2, v0^2, confirm_hits, confirm_window, max_misses, and the IMM's
+    static_q2 (mm^2/s), switch probability and static share at birth (imm.py; both of the
+    last two 0: the constant-velocity filter alone, as before the IMM). Leaves per target the
     id of the confirmed track it went to, or -1, for :func:`target_ids`; returns the snapshot
     of the confirmed tracks (:func:`_snapshot`)."""
-    x, p, params, wf, meta, counters, wi, wb = _unpack(floats, ints, bools)
-    acceleration, gate, floor2, fallback2 = params[0], params[1], params[2], params[3]
+    x, p, models, params, wf, meta, counters, wi, wb = _unpack(floats, ints, bools)
+    gate, floor2, fallback2 = params[1], params[2], params[3]
     confirm_hits, confirm_window, max_misses = int(params[5]), int(params[6]), int(params[7])
+    imm = _imm_on(params)
     cap, m = meta.shape[1], len(z)
-    r, work, target_slot, usable, near, scratch, match_views = _views(wf, wi, wb, m)
+    r, work, mixing, target_slot, usable, near, scratch, match_views = _views(wf, wi, wb, m)
     for j in range(m):
         _measurement_noise(r_in[j], r[j], floor2, fallback2)
         usable[j] = np.isfinite(z[j, 0]) and np.isfinite(z[j, 1]) and np.isfinite(z[j, 2])
@@ -152,7 +170,7 @@ def _step(floats, ints, bools, z, r_in, dt):
         scratch[j] = False
     for s in range(cap):
         if meta[STATUS, s] != FREE:
-            _predict(x[s], p[s], dt, acceleration)
+            _predict_slot(x, p, models, mixing, s, dt, params, imm)
             meta[AGE, s] += 1
             meta[MISSES, s] += 1  # undone on a hit
     slots, chosen = match_views[1], match_views[2]
@@ -161,17 +179,59 @@ def _step(floats, ints, bools, z, r_in, dt):
         n = _match(x, p, meta, kind, z, r, usable, gated, gate, match_views)
         for a in range(n):
             j, s = chosen[a], slots[a]
-            if j >= 0 and _update(x[s], p[s], z[j], r[j], work):
+            if j >= 0 and _update_slot(x, p, models, s, z[j], r[j], work, imm):
                 meta[HITS, s] += 1
                 meta[MISSES, s] = 0
                 target_slot[j] = s
                 usable[j] = False
     _confirm_or_delete(x, p, meta, counters, confirm_hits, confirm_window, max_misses)
     _births(x, p, meta, counters, z, r, usable, near, target_slot, params[4], confirm_hits)
+    if imm:  # a new track starts both models on its target
+        for j in range(m):
+            s = target_slot[j]
+            if s >= 0 and meta[HITS, s] == 1 and meta[AGE, s] == 1:
+                _start_models(x, p, models, s, params[10])
     for j in range(m):  # target_slot becomes per target the confirmed track's id or -1
         s = target_slot[j]
         target_slot[j] = meta[ID, s] if s >= 0 and meta[STATUS, s] == CONFIRMED else -1
     return _snapshot(x, p, meta, wi)
+
+
+@jit(inline="always")
+def _imm_on(params) -> bool:
+    """The static model is in use: a switch probability or a static share at birth."""
+    return params[9] > 0.0 or params[10] > 0.0
+
+
+@jit(inline="always")
+def _predict_slot(x, p, models, mixing, s, dt, params, imm):
+    if imm:
+        xm, pm, mu = models
+        mix_x, mix_p = mixing
+        _mix_predict(
+            xm[s], pm[s], mu[s], x[s], p[s], dt, params[0], params[8], params[9], params[4],
+            mix_x, mix_p,
+        )  # fmt: skip
+    else:
+        _predict(x[s], p[s], dt, params[0])
+
+
+@jit(inline="always")
+def _update_slot(x, p, models, s, z, r, work, imm) -> bool:
+    if imm:
+        xm, pm, mu = models
+        return _imm_update(xm[s], pm[s], mu[s], x[s], p[s], z, r, work)
+    return _update(x[s], p[s], z, r, work)
+
+
+@jit
+def _start_models(x, p, models, s, static_share):
+    xm, pm, mu = models
+    for k in range(2):
+        xm[s, k] = x[s]
+        pm[s, k] = p[s]
+    mu[s, 0], mu[s, 1] = static_share, 1.0 - static_share
+    _combine(xm[s], pm[s], mu[s], x[s], p[s])
 
 
 @jit
@@ -256,18 +316,22 @@ def _snapshot(x, p, meta, wi):
 
 
 SNAPSHOT = 6 + 36  # columns of a snapshot row
+N_PARAMS = 11  # see Tracker: the CV filter's 8, then static_q2, switch, static share at birth
 
 # the scratch layout: at most SLOTS tracks and SLOTS targets, N = SLOTS + 1 for the Hungarian
 SLOTS = 64
 _N = SLOTS + 1
-_COST, _R, _WORK = SLOTS * SLOTS, SLOTS * 9, 6 * 15
-_FLOATS = _COST + _R + _WORK + 3 * _N
+_COST, _R, _WORK, _MIX = SLOTS * SLOTS, SLOTS * 9, 6 * 15, 2 * 42
+_FLOATS = _COST + _R + _WORK + 3 * _N + _MIX
 _META = 3 * SLOTS + 3 * _N  # the snapshot's ids, ages, hits, misses
 _INTS = _META + 4 * SLOTS
 _BOOLS = 3 * SLOTS + _N
-# the state before the scratch: x, P, the parameters; meta, the counters
-_F_PARAMS = SLOTS * 42
-_F_SCRATCH = _F_PARAMS + 8
+# the state before the scratch: x, P (the track's estimate), the IMM's model states and
+# probabilities, the parameters; meta, the counters
+_F_MODELS = SLOTS * 42
+_F_MU = _F_MODELS + SLOTS * 84
+_F_PARAMS = _F_MU + SLOTS * 2
+_F_SCRATCH = _F_PARAMS + N_PARAMS
 _I_META, _I_COUNTS, _I_SCRATCH = 0, 5 * SLOTS, 5 * SLOTS + 3
 
 
@@ -275,18 +339,26 @@ _I_META, _I_COUNTS, _I_SCRATCH = 0, 5 * SLOTS, 5 * SLOTS + 3
 def _unpack(floats, ints, bools):
     cap = ints[_I_COUNTS + CAP]
     x = floats[: SLOTS * 6].reshape((SLOTS, 6))[:cap]
-    p = floats[SLOTS * 6 : _F_PARAMS].reshape((SLOTS, 6, 6))[:cap]
+    p = floats[SLOTS * 6 : _F_MODELS].reshape((SLOTS, 6, 6))[:cap]
+    xm = floats[_F_MODELS : _F_MODELS + SLOTS * 12].reshape((SLOTS, 2, 6))[:cap]
+    pm = floats[_F_MODELS + SLOTS * 12 : _F_MU].reshape((SLOTS, 2, 6, 6))[:cap]
+    mu = floats[_F_MU:_F_PARAMS].reshape((SLOTS, 2))[:cap]
     params = floats[_F_PARAMS:_F_SCRATCH]
     meta = ints[_I_META:_I_COUNTS].reshape((5, SLOTS))[:, :cap]
     counters = ints[_I_COUNTS:_I_SCRATCH]
-    return x, p, params, floats[_F_SCRATCH:], meta, counters, ints[_I_SCRATCH:], bools
+    models = (xm, pm, mu)
+    return x, p, models, params, floats[_F_SCRATCH:], meta, counters, ints[_I_SCRATCH:], bools
 
 
 @jit(inline="always")
 def _views(wf, wi, wb, m):
     r = wf[_COST : _COST + _R].reshape((SLOTS, 3, 3))[:m]
-    work = wf[_COST + _R : _COST + _R + _WORK].reshape((6, 15))
-    fwork = wf[_COST + _R + _WORK :].reshape((3, _N))
+    at = _COST + _R
+    work = wf[at : at + _WORK].reshape((6, 15))
+    at += _WORK
+    fwork = wf[at : at + 3 * _N].reshape((3, _N))
+    at += 3 * _N
+    mixing = (wf[at : at + 12].reshape((2, 6)), wf[at + 12 : at + _MIX].reshape((2, 6, 6)))
     cost = wf[:_COST].reshape((SLOTS, SLOTS))
     slots, chosen, target_slot = wi[:SLOTS], wi[SLOTS : 2 * SLOTS], wi[2 * SLOTS : 3 * SLOTS]
     owner, way, cols = (
@@ -297,7 +369,7 @@ def _views(wf, wi, wb, m):
     usable, near, scratch = wb[:SLOTS], wb[SLOTS : 2 * SLOTS], wb[2 * SLOTS : 3 * SLOTS]
     used = wb[3 * SLOTS :]
     views = (cost, slots, chosen, fwork, owner, way, cols, used)
-    return r, work, target_slot, usable, near, scratch, views
+    return r, work, mixing, target_slot, usable, near, scratch, views
 
 
 def target_ids(ints: np.ndarray, m: int) -> list[int]:
@@ -315,5 +387,5 @@ def snapshot_meta(ints: np.ndarray, rows: int) -> list[int]:
 @jit
 def _snapshot_now(floats, ints, bools):
     """:func:`_snapshot` outside a step (``Tracker.tracks``)."""
-    x, p, _, _, meta, _, wi, _ = _unpack(floats, ints, bools)
+    x, p, _, _, _, meta, _, wi, _ = _unpack(floats, ints, bools)
     return _snapshot(x, p, meta, wi)

@@ -1,6 +1,7 @@
 """Multi-target tracker: ``Tracker(spec).update(targets, t_s) -> list[Track]``.
 
-Per acquisition: every track is predicted to ``t_s`` (constant velocity), targets are gated
+Per acquisition: every track is predicted to ``t_s`` (an IMM of a near-static and a
+constant-velocity model, imm.py; the latter alone with the IMM off), targets are gated
 on the squared Mahalanobis distance with the predicted and the target's covariance, matched
 by one global assignment (confirmed tracks first), and the matched tracks updated. A track is
 born tentative from a target no track took and confirmed after ``confirm_hits`` hits within
@@ -129,6 +130,9 @@ class Tracker:
                 spec.confirm_hits,
                 spec.confirm_window,
                 spec.max_misses,
+                spec.imm_static_noise_mm**2,
+                spec.imm_switch_probability,
+                spec.imm_static_share,
             ],
             dtype=np.float64,
         )

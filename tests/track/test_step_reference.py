@@ -17,7 +17,8 @@ from spiel_edge.track.step import (
 )
 from tests.track import reference_step
 
-PARAMS = np.array([1000.0, 16.27, 9.0, 400.0, 300.0**2, 3, 5, 10])
+# the IMM off (switch probability and static share 0): the CV filter alone, as the reference
+PARAMS = np.array([1000.0, 16.27, 9.0, 400.0, 300.0**2, 3, 5, 10, 1.0, 0.0, 0.0])
 
 
 def _scene(rng, movers, k):

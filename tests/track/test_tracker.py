@@ -39,7 +39,10 @@ def _check_tracks(tracks):
 
 
 def test_single_target_follows_a_numpy_kalman_filter(rng):
-    spec = replace(SPEC, confirm_hits=2, confirm_window=3)
+    """With the IMM off (no static model) a track is the constant-velocity filter."""
+    spec = replace(
+        SPEC, confirm_hits=2, confirm_window=3, imm_switch_probability=0.0, imm_static_share=0.0
+    )
     tracker = Tracker(spec)
     floor2 = spec.measurement_floor_mm**2
     x = p = None
@@ -64,6 +67,32 @@ def test_single_target_follows_a_numpy_kalman_filter(rng):
     assert track.track_id == 0 and track.age == 30 and track.hits == 30
     assert track.velocity_mm_s[0] == pytest.approx(200, abs=40)
     _check_tracks(tracks)
+
+
+def test_a_static_target_is_averaged_like_a_running_mean(rng):
+    """Static target, 10 acquisitions of equal noise: with persistent models (switch 0.05) the
+    track is about the running mean (the static model wins); with the default (0.3, chosen for
+    movers) it still averages far more than the CV filter alone, whose velocity follows the
+    noise."""
+    truth = np.array([20.0, -30.0, 150.0])
+    cv_only = replace(SPEC, imm_switch_probability=0.0, imm_static_share=0.0)
+    persistent = replace(SPEC, imm_switch_probability=0.05)
+    errors = {"imm": [], "default": [], "cv": [], "mean": []}
+    for _ in range(40):  # recordings
+        trackers = {"imm": Tracker(persistent), "default": Tracker(SPEC), "cv": Tracker(cv_only)}
+        seen = []
+        for k in range(10):
+            z = truth + rng.normal(0, 10, 3)
+            seen.append(z)
+            for name, tracker in trackers.items():
+                tracks = tracker.update([_target(z, sigma=10.0)], 0.02 * k)
+                if k >= SPEC.confirm_hits:
+                    errors[name].append(np.linalg.norm(tracks[0].position_mm - truth))
+            if k >= SPEC.confirm_hits:
+                errors["mean"].append(np.linalg.norm(np.mean(seen, axis=0) - truth))
+    imm, default, cv, mean = (np.mean(errors[k]) for k in ("imm", "default", "cv", "mean"))
+    assert imm < 1.1 * mean
+    assert imm < default < 0.85 * cv
 
 
 def test_birth_needs_m_of_n_and_sets_track_ids():
@@ -169,6 +198,9 @@ def test_track_section_is_validated():
         ("max_tracks", 65),
         ("gate_chi2", 0.5),
         ("max_gap_s", -1.0),
+        ("imm_static_noise_mm", -1.0),
+        ("imm_switch_probability", 0.6),
+        ("imm_static_share", 1.5),
     ]:
         bad = {**data, "track": {**data["track"], key: value}}
         with pytest.raises(ConfigError, match=f"track.{key}"):

@@ -48,7 +48,9 @@ def test_evaluate_track_reports_the_tracked_error(folders, capsys):
     frames_dir, bg_dir = folders
     args = ["evaluate", str(frames_dir), "--background", str(bg_dir), "--track", "--json"]
     assert main([*args, "--association", "geometric"]) == 0
-    tracked = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["tracked"]
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    tracked = summary["tracked"]
+    assert tracked["acquisitions"] == summary["frames"]  # the same acquisitions (z = 90 left out)
     assert tracked["fixes"] > 0 and 0 < tracked["on_track_share"] < 1
     assert tracked["tracked_mean_mm"] > 0 and tracked["per_acquisition_mean_mm"] > 0
 
@@ -122,3 +124,24 @@ def test_movers_tracked_with_oracle_targets(profile):
     assert out["acquisitions_scored"] == 60
     assert out["min_coverage"] >= 0.95 and out["id_switches"] == 0
     assert out["tracked_mean_mm"] < out["per_acquisition_mean_mm"]
+
+
+def test_tracked_errors_keep_the_static_track_when_one_acquisition_goes_astray():
+    """An outlier outside the track's gate counts at its own error in ``tracked`` (the best
+    target is on no track) but at the static target's track's in ``static_track``."""
+    from types import SimpleNamespace
+
+    from spiel_edge.measure.track_eval import TrackedErrors
+
+    truth = np.zeros(3)
+    track = SimpleNamespace(position_mm=np.array([2.0, 0, 0]), hits=5, track_id=0)
+    newer = SimpleNamespace(position_mm=np.array([9.0, 0, 0]), hits=1, track_id=1)
+    errors = TrackedErrors()
+    errors.add(truth, np.array([0, 6.0, 0]), None, [])  # no track yet: the position
+    errors.add(truth, np.array([0, 3.0, 0]), track, [track])
+    errors.add(truth, np.array([0, 0, 200.0]), None, [newer, track])  # gated out
+    got = errors.summary()
+    assert got["per_acquisition_mean_mm"] == pytest.approx((6 + 3 + 200) / 3, abs=0.01)
+    assert got["tracked_mean_mm"] == pytest.approx((6 + 2 + 200) / 3, abs=0.01)
+    assert got["static_track_mean_mm"] == pytest.approx((6 + 2 + 2) / 3, abs=0.01)
+    assert got["on_track_share"] == pytest.approx(1 / 3, abs=1e-3)
