@@ -60,13 +60,21 @@ _NO_MLP = tuple(np.zeros((1,) * n, np.float32) for n in (1, 1, 2, 1, 2, 1, 2, 1,
 def back_config(pipeline: run.Pipeline) -> tuple | None:
     """The back kernel's constant arguments for this pipeline, or None when it must run the
     staged back steps (then the reason is logged by the caller)."""
+    if pipeline.scene.max_targets != 1:
+        return None
+    return kernel_arguments(pipeline)
+
+
+def kernel_arguments(pipeline: run.Pipeline) -> tuple | None:
+    """The constant arguments of a back kernel for one target (the several-target kernel,
+    pipeline/back_scene.py, takes them too), whatever ``max_targets``; None when the
+    pipeline has a step they do not describe."""
     scene, assoc, timing = pipeline.scene, pipeline.associator, pipeline.echo_timing
     methods = ("_locate", "_targets", "_target")
     if (
         tuple(run.STAGES[-3:]) != BACK_STAGES
         or any(getattr(type(pipeline), m) is not getattr(run.Pipeline, m) for m in methods)
         or type(scene) is not SceneAssociator
-        or scene.max_targets != 1
         or type(scene.geometric) is not GeometricAssociator
         or type(timing) is not EchoTiming
     ):

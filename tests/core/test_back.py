@@ -11,7 +11,7 @@ import onnx
 import pytest
 from onnx import helper
 
-from spiel_edge.pipeline import back, mlp, verified_models
+from spiel_edge.pipeline import back, back_scene, mlp, verified_models
 from spiel_edge.pipeline.associate_onnx import OnnxAssociator, default_model_path, load_session
 from spiel_edge.pipeline.echo_timing import EchoTiming
 from spiel_edge.pipeline.fused import FusedPipeline
@@ -71,15 +71,21 @@ def test_back_kernel_hypothesis_search_equals_staged(rng):
     _same_on(Pipeline(prof), frames, backgrounds, back.PRIOR_NONE)
 
 
-def test_several_targets_keep_the_staged_back_steps(profile, subset):
+def test_several_targets_use_the_scene_kernel_greedy_keeps_the_staged_steps(profile, subset):
     staged = Pipeline(profile, max_targets=3)
     fast = FusedPipeline(staged)
     for f, b in zip(subset.frames[:20], subset.backgrounds[:20], strict=True):
         assert_same(fast.process(f, b), staged.process(f, b))
-    assert fast._back_config is None
-    staged.set_max_targets(1)  # a new scene: the kernel comes back
+    assert fast._back_config is not None and fast._run_back is back_scene.run_scene
+    staged.set_max_targets(1)  # a new scene: the one-target kernel
     fast.process(subset.frames[0], subset.backgrounds[0])
-    assert fast._back_config is not None
+    assert fast._back_config is not None and fast._run_back is back.run_back
+    greedy = profile.replace(scene=dataclasses.replace(profile.scene, selection="greedy"))
+    staged = Pipeline(greedy, max_targets=3)
+    fast = FusedPipeline(staged)
+    for f, b in zip(subset.frames[:20], subset.backgrounds[:20], strict=True):
+        assert_same(fast.process(f, b), staged.process(f, b))
+    assert fast._back_config is None
 
 
 def test_numba_mlp_matches_onnxruntime(profile, subset):
