@@ -172,6 +172,8 @@ class FusedPipeline:
 
 def _numeric(arr: np.ndarray, name: str) -> np.ndarray:
     """float64 C-contiguous view (a copy only when needed); dtype checked as the staged path."""
+    if type(arr) is np.ndarray and arr.dtype == np.float64 and arr.flags.c_contiguous:
+        return arr  # the usual case, without numpy's dtype lookups
     a = np.asarray(arr)
     if not np.issubdtype(a.dtype, np.number):
         raise InputError(f"{name} must be numeric, got dtype {a.dtype}")
