@@ -1,4 +1,4 @@
-"""The several-target kernel's pieces (pipeline/back_scene.py, scene_geometry.py) against the
+"""The several-target kernel's pieces (pipeline/scene_steps.py, scene_geometry.py) against the
 staged functions they replace, and the fixed-order sums against plain numpy."""
 
 import math
@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from spiel_edge.pipeline import back_scene, scene
+from spiel_edge.pipeline import scene
+from spiel_edge.pipeline import scene_steps as back_scene
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
 from spiel_edge.pipeline.scene_geometry import distance3, dot3, height3, predicted_paths_into
