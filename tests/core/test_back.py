@@ -106,6 +106,24 @@ def test_numba_mlp_matches_onnxruntime(profile, subset):
         assert np.max(np.abs(emb - ref_emb)) <= 1e-5
 
 
+def test_mlp_scores_equal_mlp_row_bit_for_bit(profile, subset):
+    """The echoes scored side by side (the back kernels' prior) == one row at a time."""
+    weights = mlp.read_mlp(default_model_path().read_bytes())
+    staged = Pipeline(profile)
+    rows = np.concatenate(
+        [staged.process(f).features[:, :, :] for f in subset.frames[:40]]
+    ).reshape(-1, mlp.N_INPUT)
+    probe = np.random.default_rng(3).normal(size=(300, 8)) * weights[1] * 3 + weights[0]
+    for x in (rows[np.isfinite(rows).all(axis=1)], probe, probe[:1], probe[:0]):
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        out = np.empty(len(x), np.float32)
+        mlp.mlp_scores(x, len(x), *weights, out)
+        z, h0, h1 = np.empty(8), np.empty(weights[2].shape[0]), np.empty(weights[4].shape[0])
+        emb = np.empty(weights[6].shape[0])
+        one = [mlp.mlp_row(r, *weights, z, h0, h1, emb) for r in x]
+        assert np.array_equal(out, np.array(one, np.float32))
+
+
 def test_unknown_graph_stays_on_onnxruntime(profile, tmp_path):
     model = onnx.load(str(default_model_path()))
     sigmoid = model.graph.node[-1]
