@@ -4,8 +4,9 @@ of one target (K = 1) in one compiled call on a Workspace's buffers.
 It computes what ``Pipeline.scene`` + ``Pipeline._locate`` compute for one target, bit for bit
 (tests/core/test_back.py), by calling the same kernels in the same order:
 
-1. the learned score prior (``prior``): the association MLP in numba per echo
-   (:func:`spiel_edge.pipeline.mlp.mlp_row`, as ``OnnxAssociator.score``), or a bonus the
+1. the learned score prior (``prior``): the association MLP in numba on every echo at once
+   (:func:`spiel_edge.pipeline.mlp.mlp_scores`, bit for bit ``OnnxAssociator.score``'s
+   per-row :func:`~spiel_edge.pipeline.mlp.mlp_row`), or a bonus the
    caller computed with onnxruntime between the front and the back kernel (a model that is
    not the known MLP), or none (geometric association);
 2. the associator's search (``associate._exhaustive_kernel`` / ``_hypothesis_kernel``) with
@@ -42,7 +43,7 @@ from spiel_edge.pipeline.echo_timing import (
 )
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.locate import locate_kernel
-from spiel_edge.pipeline.mlp import mlp_row
+from spiel_edge.pipeline.mlp import mlp_scores
 from spiel_edge.pipeline.scene import SceneAssociator
 from spiel_edge.pipeline.uncertainty import _covariance_kernel
 
@@ -60,13 +61,21 @@ _NO_MLP = tuple(np.zeros((1,) * n, np.float32) for n in (1, 1, 2, 1, 2, 1, 2, 1,
 def back_config(pipeline: run.Pipeline) -> tuple | None:
     """The back kernel's constant arguments for this pipeline, or None when it must run the
     staged back steps (then the reason is logged by the caller)."""
+    if pipeline.scene.max_targets != 1:
+        return None
+    return kernel_arguments(pipeline)
+
+
+def kernel_arguments(pipeline: run.Pipeline) -> tuple | None:
+    """The constant arguments of a back kernel for one target (the several-target kernel,
+    pipeline/back_scene.py, takes them too), whatever ``max_targets``; None when the
+    pipeline has a step they do not describe."""
     scene, assoc, timing = pipeline.scene, pipeline.associator, pipeline.echo_timing
     methods = ("_locate", "_targets", "_target")
     if (
         tuple(run.STAGES[-3:]) != BACK_STAGES
         or any(getattr(type(pipeline), m) is not getattr(run.Pipeline, m) for m in methods)
         or type(scene) is not SceneAssociator
-        or scene.max_targets != 1
         or type(scene.geometric) is not GeometricAssociator
         or type(timing) is not EchoTiming
     ):
@@ -313,23 +322,27 @@ def _back_kernel(
 def _score_bonus(
     features, counts, listening, weight, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, bonus
 ):
-    """As OnnxAssociator.bonus: weight * logit(score) per present, listening, finite echo."""
+    """As OnnxAssociator.bonus: weight * logit(score) per present, listening, finite echo
+    (the echoes scored together by :func:`spiel_edge.pipeline.mlp.mlp_scores`)."""
     n_ch, k_max, n_f = features.shape
-    x = np.empty(n_f, dtype=np.float32)
-    z = np.empty(n_f)
-    h0 = np.empty(w0.shape[0])
-    h1 = np.empty(w1.shape[0])
-    emb = np.empty(w2.shape[0])
+    x = np.empty((n_ch * k_max, n_f), dtype=np.float32)
+    at = np.empty(n_ch * k_max, dtype=np.int64)
+    n = 0
     for c in range(n_ch):
         for k in range(k_max):
             bonus[c, k] = 0.0
             if k >= counts[c] or not listening[c] or not math.isfinite(features[c, k, TOA_COLUMN]):
                 continue
             for j in range(n_f):
-                x[j] = features[c, k, j]
-            p = np.float64(mlp_row(x, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, z, h0, h1, emb))
-            p = min(max(p, 1e-4), 1.0 - 1e-4)
-            bonus[c, k] = weight * np.log(p / (1.0 - p))
+                x[n, j] = features[c, k, j]
+            at[n] = c * k_max + k
+            n += 1
+    scores = np.empty(n, dtype=np.float32)
+    mlp_scores(x, n, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, scores)
+    for r in range(n):
+        p = np.float64(scores[r])
+        p = min(max(p, 1e-4), 1.0 - 1e-4)
+        bonus[at[r] // k_max, at[r] % k_max] = weight * np.log(p / (1.0 - p))
 
 
 @jit

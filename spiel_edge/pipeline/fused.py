@@ -26,7 +26,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import back, run
+from spiel_edge.pipeline import back, back_scene, run
 from spiel_edge.pipeline.detect import _detect_kernel
 from spiel_edge.pipeline.features import TOA_CODES, TOA_COLUMN, _features_kernel
 from spiel_edge.pipeline.memg import _memg_kernel
@@ -96,6 +96,7 @@ class FusedPipeline:
             log.info("fused path falls back to the staged one for %s", ", ".join(self.fallback))
         self._back = [BACK_STEPS[s] for s in run.STAGES[len(FRONT_STAGES) :] if s in BACK_STEPS]
         self._scene, self._back_config = None, None  # the back kernel's, per scene (K)
+        self._run_back = back.run_back  # or back_scene.run_scene for several targets
         self._workspaces = ThreadWorkspaces(
             p.geometry.n_channels, p.acquisition.n_samples, p.detect.max_echoes
         )
@@ -147,7 +148,7 @@ class FusedPipeline:
                 self.pipeline.scene._bonus(features, counts) if prior == back.PRIOR_GIVEN else None
             )
             raw = np.asarray(frames)
-            return back.run_back(
+            return self._run_back(
                 self.pipeline, config, ws, features, counts, y, bg, raw, background, given
             )
         state = BackState(np.asarray(frames), background, features, counts)
@@ -161,12 +162,18 @@ class FusedPipeline:
         if self.pipeline.scene is not self._scene:
             self._scene = self.pipeline.scene
             self._back_config = back.back_config(self.pipeline)
+            self._run_back = back.run_back
+            if self._back_config is None:
+                self._back_config = back_scene.scene_config(self.pipeline)
+                self._run_back = back_scene.run_scene
             log.debug("back kernel %s", "on" if self._back_config is not None else "off")
         return self._back_config
 
 
 def _numeric(arr: np.ndarray, name: str) -> np.ndarray:
     """float64 C-contiguous view (a copy only when needed); dtype checked as the staged path."""
+    if type(arr) is np.ndarray and arr.dtype == np.float64 and arr.flags.c_contiguous:
+        return arr  # the usual case, without numpy's dtype lookups
     a = np.asarray(arr)
     if not np.issubdtype(a.dtype, np.number):
         raise InputError(f"{name} must be numeric, got dtype {a.dtype}")

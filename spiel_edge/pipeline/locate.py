@@ -81,10 +81,12 @@ def _initial_guess(d, use, e, ch, facing, q):
     # |q| = R and |q - s|^2 = (d - R)^2  =>  q . s = (R^2 + |s|^2 - (d - R)^2) / 2 (linear in q)
     a = np.zeros((3, 3))
     b = np.zeros(3)
+    s = np.empty(3)
     for n in range(d.shape[0]):
         if not use[n]:
             continue
-        s = ch[n] - e
+        for i in range(3):
+            s[i] = ch[n, i] - e[i]
         s2 = s[0] * s[0] + s[1] * s[1] + s[2] * s[2]
         if s2 < MONOSTATIC_MM**2:
             continue
@@ -129,7 +131,10 @@ def _cost(d, use, w, e, ch, p):
 
 @jit
 def _gauss_newton(d, use, w, e, ch, p, max_iter):
+    # scalars and buffers made once, not per channel or try: the same arithmetic, no
+    # allocations in the loop (the association solves this for every candidate combination)
     a = np.empty((3, 3))
+    damped = np.empty((3, 3))
     b = np.empty(3)
     step = np.empty(3)
     trial = np.empty(3)
@@ -141,14 +146,14 @@ def _gauss_newton(d, use, w, e, ch, p, max_iter):
         for n in range(d.shape[0]):
             if not use[n]:
                 continue
-            ue = p - e
-            ur = p - ch[n]
-            le = max(math.sqrt(ue[0] ** 2 + ue[1] ** 2 + ue[2] ** 2), 1e-9)
-            lr = max(math.sqrt(ur[0] ** 2 + ur[1] ** 2 + ur[2] ** 2), 1e-9)
+            ue0, ue1, ue2 = p[0] - e[0], p[1] - e[1], p[2] - e[2]
+            ur0, ur1, ur2 = p[0] - ch[n, 0], p[1] - ch[n, 1], p[2] - ch[n, 2]
+            le = max(math.sqrt(ue0**2 + ue1**2 + ue2**2), 1e-9)
+            lr = max(math.sqrt(ur0**2 + ur1**2 + ur2**2), 1e-9)
             r = w[n] * (le + lr - d[n])
-            g0 = w[n] * (ue[0] / le + ur[0] / lr)
-            g1 = w[n] * (ue[1] / le + ur[1] / lr)
-            g2 = w[n] * (ue[2] / le + ur[2] / lr)
+            g0 = w[n] * (ue0 / le + ur0 / lr)
+            g1 = w[n] * (ue1 / le + ur1 / lr)
+            g2 = w[n] * (ue2 / le + ur2 / lr)
             b[0] -= g0 * r
             b[1] -= g1 * r
             b[2] -= g2 * r
@@ -163,7 +168,7 @@ def _gauss_newton(d, use, w, e, ch, p, max_iter):
         a[1, 2] = a[2, 1]
         accepted = False
         for _try in range(6):
-            damped = a.copy()
+            damped[:, :] = a
             for i in range(3):
                 damped[i, i] += lam * (a[i, i] + 1e-9)
             if not solve_spd(damped, b, 3, step):

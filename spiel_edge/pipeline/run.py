@@ -20,6 +20,7 @@ from spiel_edge.pipeline.locate import locate
 from spiel_edge.pipeline.memg import fit_memg
 from spiel_edge.pipeline.preprocess import preprocess
 from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
+from spiel_edge.pipeline.scene_geometry import distance3
 from spiel_edge.pipeline.split import split_merged
 from spiel_edge.pipeline.static_scene import load_static_model
 from spiel_edge.pipeline.uncertainty import _covariance_kernel
@@ -255,7 +256,7 @@ class Pipeline:
                     located = self._target(feats, more, cost, raw, background) or located
             target, paths = located
             if any(
-                np.linalg.norm(target.position_mm - other.position_mm) < sc.min_separation_mm
+                distance3(target.position_mm, other.position_mm) < sc.min_separation_mm
                 for other, _ in out
             ):
                 continue  # the same target again, from a partly different echo combination

@@ -31,6 +31,7 @@ import numpy as np
 
 from spiel_edge.pipeline.associate import EXHAUSTIVE_MAX_CHANNELS
 from spiel_edge.pipeline.joint import combination_pool, drop_variants, select_subset
+from spiel_edge.pipeline.scene_geometry import _predicted_paths, height3
 
 
 class SceneAssociator:
@@ -148,9 +149,10 @@ def _mark(used: np.ndarray, matched: np.ndarray) -> None:
 
 
 def predicted_paths(position_mm: np.ndarray, channels_mm: np.ndarray, emitter_mm: np.ndarray):
-    """Echo path (mm) per channel of a point target."""
-    p = np.asarray(position_mm, dtype=np.float64)
-    return np.linalg.norm(p - emitter_mm) + np.linalg.norm(p - channels_mm, axis=1)
+    """Echo path (mm) per channel of a point target (summed in a fixed order: scene_geometry)."""
+    p = np.ascontiguousarray(position_mm, dtype=np.float64)
+    ch = np.ascontiguousarray(channels_mm, dtype=np.float64)
+    return _predicted_paths(p, ch, np.ascontiguousarray(emitter_mm, dtype=np.float64))
 
 
 def shared_echoes(
@@ -185,7 +187,13 @@ def is_double_reflection(
 ) -> bool:
     """True when every used path (finite entries of ``paths_mm``) is the other target's path
     plus twice its distance from the board plane, within ``tolerance_mm``."""
-    height = float(np.dot(np.asarray(other_position_mm) - emitter_mm, facing))
+    height = float(
+        height3(
+            np.asarray(other_position_mm, dtype=np.float64),
+            np.asarray(emitter_mm, dtype=np.float64),
+            np.asarray(facing, dtype=np.float64),
+        )
+    )
     used = np.isfinite(paths_mm) & np.isfinite(other_paths_mm)
     if used.sum() < 3 or height <= 0:
         return False

@@ -11,7 +11,7 @@ import onnx
 import pytest
 from onnx import helper
 
-from spiel_edge.pipeline import back, mlp, verified_models
+from spiel_edge.pipeline import back, back_scene, mlp, verified_models
 from spiel_edge.pipeline.associate_onnx import OnnxAssociator, default_model_path, load_session
 from spiel_edge.pipeline.echo_timing import EchoTiming
 from spiel_edge.pipeline.fused import FusedPipeline
@@ -71,15 +71,21 @@ def test_back_kernel_hypothesis_search_equals_staged(rng):
     _same_on(Pipeline(prof), frames, backgrounds, back.PRIOR_NONE)
 
 
-def test_several_targets_keep_the_staged_back_steps(profile, subset):
+def test_several_targets_use_the_scene_kernel_greedy_keeps_the_staged_steps(profile, subset):
     staged = Pipeline(profile, max_targets=3)
     fast = FusedPipeline(staged)
     for f, b in zip(subset.frames[:20], subset.backgrounds[:20], strict=True):
         assert_same(fast.process(f, b), staged.process(f, b))
-    assert fast._back_config is None
-    staged.set_max_targets(1)  # a new scene: the kernel comes back
+    assert fast._back_config is not None and fast._run_back is back_scene.run_scene
+    staged.set_max_targets(1)  # a new scene: the one-target kernel
     fast.process(subset.frames[0], subset.backgrounds[0])
-    assert fast._back_config is not None
+    assert fast._back_config is not None and fast._run_back is back.run_back
+    greedy = profile.replace(scene=dataclasses.replace(profile.scene, selection="greedy"))
+    staged = Pipeline(greedy, max_targets=3)
+    fast = FusedPipeline(staged)
+    for f, b in zip(subset.frames[:20], subset.backgrounds[:20], strict=True):
+        assert_same(fast.process(f, b), staged.process(f, b))
+    assert fast._back_config is None
 
 
 def test_numba_mlp_matches_onnxruntime(profile, subset):
@@ -98,6 +104,24 @@ def test_numba_mlp_matches_onnxruntime(profile, subset):
         ref_score, ref_emb = session.run(["score", "embedding"], {"features": x})
         assert np.max(np.abs(score - ref_score[:, 0])) <= 1e-5
         assert np.max(np.abs(emb - ref_emb)) <= 1e-5
+
+
+def test_mlp_scores_equal_mlp_row_bit_for_bit(profile, subset):
+    """The echoes scored side by side (the back kernels' prior) == one row at a time."""
+    weights = mlp.read_mlp(default_model_path().read_bytes())
+    staged = Pipeline(profile)
+    rows = np.concatenate(
+        [staged.process(f).features[:, :, :] for f in subset.frames[:40]]
+    ).reshape(-1, mlp.N_INPUT)
+    probe = np.random.default_rng(3).normal(size=(300, 8)) * weights[1] * 3 + weights[0]
+    for x in (rows[np.isfinite(rows).all(axis=1)], probe, probe[:1], probe[:0]):
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        out = np.empty(len(x), np.float32)
+        mlp.mlp_scores(x, len(x), *weights, out)
+        z, h0, h1 = np.empty(8), np.empty(weights[2].shape[0]), np.empty(weights[4].shape[0])
+        emb = np.empty(weights[6].shape[0])
+        one = [mlp.mlp_row(r, *weights, z, h0, h1, emb) for r in x]
+        assert np.array_equal(out, np.array(one, np.float32))
 
 
 def test_unknown_graph_stays_on_onnxruntime(profile, tmp_path):

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import fused, run
+from spiel_edge.pipeline import back, back_scene, fused, run
+from spiel_edge.pipeline.associate import GeometricAssociator
+from spiel_edge.pipeline.associate_onnx import OnnxAssociator, load_session
 from spiel_edge.pipeline.fused import FusedPipeline, unsupported_stages
 from spiel_edge.pipeline.run import Pipeline
 from spiel_edge.sim.synthetic import ring_profile, synthesize
@@ -107,3 +109,73 @@ def test_unknown_stage_or_subclass_falls_back_to_staged(profile, subset, monkeyp
     assert FusedPipeline(staged).process(subset.frames[0]) == "staged" and seen == [1]
     monkeypatch.setitem(fused.BACK_STEPS, "timing", lambda pipeline, state: None)
     assert unsupported_stages(Pipeline(profile)) == []
+
+
+def assert_same_targets(a: run.Result, b: run.Result) -> None:
+    """Exact, unrounded: every target's position, covariance, rms, matched echoes and score."""
+    assert a.reason == b.reason and a.matched == b.matched and a.residual_mm == b.residual_mm
+    assert len(a.targets) == len(b.targets)
+    for s, t in zip(a.targets, b.targets, strict=True):
+        assert np.array_equal(s.position_mm, t.position_mm)
+        assert np.array_equal(s.covariance_mm2, t.covariance_mm2)
+        assert s.residual_mm == t.residual_mm and s.matched == t.matched and s.score == t.score
+
+
+def _several_same(staged: Pipeline, frames, backgrounds) -> int:
+    """fused == staged on every acquisition with and without its background, through the
+    several-target kernel; the number of acquisitions with more than one target."""
+    fast = FusedPipeline(staged)
+    several = 0
+    for f, b in zip(frames, backgrounds, strict=True):
+        for bg in (b, None):  # None: the static model stands in
+            a = fast.process(f, bg)
+            s = staged.process(f, bg)
+            assert_same(a, s)
+            assert_same_targets(a, s)
+            several += len(a.targets) > 1
+    assert fast._back_config is not None and fast._run_back is back_scene.run_scene
+    return several
+
+
+@pytest.mark.parametrize("k", [2, 4, 8])
+@pytest.mark.parametrize("association", ["geometric", "numba_mlp"])
+def test_fused_equals_staged_with_several_targets(profile, subset, k, association):
+    assoc = GeometricAssociator(profile) if association == "geometric" else OnnxAssociator(profile)
+    staged = Pipeline(profile, assoc, max_targets=k)
+    assert _several_same(staged, subset.frames, subset.backgrounds) > 0
+
+
+def test_fused_equals_staged_with_several_targets_and_other_scene_settings(profile, subset):
+    """No K = 1 pick kept first, a dearer birth, wide share / double / separation tolerances
+    (shared echoes and double reflections are frequent here), and the prior computed by
+    onnxruntime between the two kernels."""
+    scene = dataclasses.replace(
+        profile.scene,
+        keep_best=False,
+        max_cost_mm=30.0,
+        share_tolerance_mm=15.0,
+        double_tolerance_mm=40.0,
+        min_separation_mm=60.0,
+    )
+    prof = profile.replace(scene=scene)
+    assert _several_same(Pipeline(prof, max_targets=4), subset.frames, subset.backgrounds) > 0
+    assoc = OnnxAssociator(prof)
+    assoc.mlp, assoc.engine, assoc.session = None, "onnxruntime", load_session(assoc.model_path)
+    staged = Pipeline(prof, assoc, max_targets=3)
+    _several_same(staged, subset.frames[:60], subset.backgrounds[:60])
+    assert FusedPipeline(staged)._kernel_config()[0][back.I_PRIOR] == back.PRIOR_GIVEN
+
+
+def test_fused_equals_staged_with_several_synthetic_targets(rng):
+    prof = ring_profile(6, 256)  # 6 channels: still the joint selection
+    staged = Pipeline(prof, max_targets=4)
+    frames, backgrounds = [], []
+    for i in range(6):
+        near = rng.uniform(150, 250)
+        targets = np.array([[0.0, 40.0, near], [0.0, -40.0, near + 1.0], [30.0, 0.0, near + 60]])
+        f, b = synthesize(prof, targets, seed=i)
+        frames.append(f)
+        backgrounds.append(b)
+    frames.append(np.zeros((6, 256)))  # nothing to find: the reason, as staged
+    backgrounds.append(np.zeros((6, 256)))
+    _several_same(staged, frames, backgrounds)

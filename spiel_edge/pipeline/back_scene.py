@@ -1,0 +1,346 @@
+"""The fused path's back kernel for several targets (``max_targets`` > 1, joint selection):
+the score prior, the combination pool, the joint subset choice, and per chosen combination
+echo timing, echo quality, locate, covariance and the after-locating checks (shared echoes,
+minimum separation, double reflections), in one compiled call on a Workspace's buffers.
+
+It computes what ``Pipeline.scene`` (``SceneAssociator._joint``) + ``Pipeline._locate``
+compute, bit for bit (tests/core/test_fused.py, K = 2, 4, 8 with and without a background),
+by calling the same kernels in the same order:
+
+1. the score prior and the strength as :mod:`spiel_edge.pipeline.back` (K = 1);
+2. ``joint._pool_kernel`` (as ``joint.combination_pool``), then the joint choice's glue in
+   numba (``scene_steps._hypotheses``: the missing-channel shift, the stable order by cost
+   with the K = 1 pick first, ``drop_variants``, the birth gains) and
+   ``joint._select_kernel``;
+3. per hypothesis ``scene_steps._one_target`` (as ``Pipeline._target``), ``_share`` (as
+   ``scene.shared_echoes``), the separation and the double-reflection test (as
+   ``Pipeline._targets`` with ``scene.is_double_reflection``), using the fixed-order sums of
+   :mod:`spiel_edge.pipeline.scene_geometry` that the staged path uses too.
+
+Only the Target and Result objects are built in Python, once per acquisition. The staged
+path stays the reference: :func:`scene_config` returns None (staged back steps) for greedy
+selection, the learned associator's reference mode, more than 6 listening channels, or
+anything :func:`spiel_edge.pipeline.back.kernel_arguments` does not cover.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from spiel_edge._jit import jit
+from spiel_edge.pipeline import back, run
+from spiel_edge.pipeline.back import (
+    F_MM_PER_SAMPLE,
+    F_SCORE_WEIGHT,
+    F_STRENGTH,
+    I_MIN_CHANNELS,
+    I_PRIOR,
+    PRIOR_MLP,
+    PRIOR_NONE,
+    _score_bonus,
+)
+from spiel_edge.pipeline.features import TOA_COLUMN
+from spiel_edge.pipeline.joint import MAX_POOL, _pool_kernel
+from spiel_edge.pipeline.scene_geometry import distance3, predicted_paths_into
+from spiel_edge.pipeline.scene_steps import (
+    S_DOUBLE_TOL,
+    S_MAX_TARGETS,
+    S_MIN_SEPARATION,
+    S_SHARE_TOL,
+    _double_reflection,
+    _hypotheses,
+    _one_target,
+    _share,
+)
+from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
+
+
+def scene_config(pipeline: run.Pipeline) -> tuple | None:
+    """The several-target kernel's constant arguments, or None when the pipeline must run
+    the staged back steps."""
+    scene = pipeline.scene
+    if scene.max_targets < 2 or not scene.joint:
+        return None
+    base = back.kernel_arguments(pipeline)
+    if base is None:
+        return None
+    sc, g = pipeline.profile.scene, pipeline.profile.geometry
+    ints = np.array([scene.max_targets, scene.extra_min_channels, scene.keep_best], dtype=np.int64)
+    floats = np.array(
+        [
+            scene.max_cost_mm,
+            scene.share_penalty_mm,
+            scene.missing_shift_mm,
+            sc.share_tolerance_mm,
+            sc.min_separation_mm,
+            sc.double_tolerance_mm,
+        ]
+    )
+    listening = np.ascontiguousarray(g.listening_mask(), dtype=np.bool_)
+    return (*base, ints, floats, listening)
+
+
+class SceneBuffers:
+    """The several-target kernel's outputs and pool for one Workspace shape."""
+
+    def __init__(self, n_channels: int):
+        self.pool_choices = np.full((MAX_POOL, n_channels), -1, dtype=np.int64)
+        self.pool_costs = np.full(MAX_POOL, np.inf)
+        self.first = np.empty(n_channels, dtype=np.int64)
+        self.matched = np.empty((MAX_TARGETS_LIMIT, n_channels), dtype=np.int64)
+        self.position = np.empty((MAX_TARGETS_LIMIT, 3))
+        self.covariance = np.empty((MAX_TARGETS_LIMIT, 3, 3))
+        self.rms = np.empty(MAX_TARGETS_LIMIT)
+        self.score = np.empty(MAX_TARGETS_LIMIT)
+        self.paths = np.empty((MAX_TARGETS_LIMIT, n_channels))
+        self.buffers = (
+            self.pool_choices,
+            self.pool_costs,
+            self.first,
+            self.matched,
+            self.position,
+            self.covariance,
+            self.rms,
+            self.score,
+            self.paths,
+        )
+
+
+def run_scene(pipeline, config, ws, features, counts, y, bg, raw, background, bonus_given):
+    """The Result of one acquisition with up to ``max_targets`` targets, from the front
+    kernel's features (a fresh copy) and counts (as :func:`spiel_edge.pipeline.back.run_back`)."""
+    if bonus_given is not None:
+        ws.bonus[:, :] = bonus_given
+    sc = pipeline.profile.scene  # as Pipeline._target: a captured background or not
+    captured = background is not None and background is not pipeline.static_model
+    scale = sc.covariance_scale if captured else sc.covariance_scale_no_background
+    buffers = getattr(ws, "scene", None)
+    if buffers is None:  # made once per thread's Workspace
+        buffers = ws.scene = SceneBuffers(ws.n_channels)
+    n = _scene_kernel(
+        features, counts, y, bg, float(scale), *config, ws.bonus, ws.clean, *buffers.buffers
+    )
+    toa = features[:, :, TOA_COLUMN]  # tolist: Python floats and ints, as the staged lists
+    echoes = [toa[c, :k].tolist() for c, k in enumerate(counts.tolist())]
+    base = {"features": features, "counts": counts}
+    if n == 0:
+        match_list = [m if m >= 0 else None for m in buffers.first.tolist()]
+        used = sum(m is not None for m in match_list)
+        reason = run.REASON_SOLVE_FAILED if used >= 3 else pipeline._why_empty(raw, counts)
+        return run.Result(None, reason, None, echoes, match_list, **base)
+    positions = buffers.position[:n].copy()
+    covariances = buffers.covariance[:n].copy()
+    rms, score = buffers.rms[:n].tolist(), buffers.score[:n].tolist()
+    targets = [
+        run.Target(
+            positions[i],
+            covariances[i],
+            rms[i],
+            [m if m >= 0 else None for m in row],
+            score[i],
+        )
+        for i, row in enumerate(buffers.matched[:n].tolist())
+    ]
+    best = targets[0]
+    return run.Result(
+        best.position_mm, None, best.residual_mm, echoes, best.matched, targets=targets, **base
+    )
+
+
+@jit
+def _scene_kernel(
+    features,
+    counts,
+    y,
+    bg,
+    cov_scale,
+    ints,
+    floats,
+    quality,
+    assoc_delays,
+    listening,
+    max_path_diff,
+    anchors,
+    cost_weights,
+    delays,
+    channels,
+    emitter,
+    facing,
+    mean,
+    std,
+    w0,
+    b0,
+    w1,
+    b1,
+    w2,
+    b2,
+    wh,
+    bh,
+    feature,
+    threshold,
+    value,
+    base,
+    scene_ints,
+    scene_floats,
+    share_listening,
+    bonus,
+    clean,
+    pool_choices,
+    pool_costs,
+    first,
+    out_matched,
+    out_position,
+    out_covariance,
+    out_rms,
+    out_score,
+    out_paths,
+):
+    """The number of targets found; their matched echoes, positions, covariances, rms,
+    scores and paths in ``out_*`` (best first); ``first`` the first hypothesis's echoes."""
+    n_ch, k_max = features.shape[0], features.shape[1]
+    mm = floats[F_MM_PER_SAMPLE]
+    if ints[I_PRIOR] == PRIOR_MLP:
+        _score_bonus(
+            features,
+            counts,
+            listening,
+            floats[F_SCORE_WEIGHT],
+            mean,
+            std,
+            w0,
+            b0,
+            w1,
+            b1,
+            w2,
+            b2,
+            wh,
+            bh,
+            bonus,
+        )
+    elif ints[I_PRIOR] == PRIOR_NONE:
+        bonus[:, :] = 0.0
+    all_paths = np.empty((n_ch, k_max))
+    allowed = np.empty((n_ch, k_max), dtype=np.bool_)
+    strength = np.empty((n_ch, k_max))
+    for c in range(n_ch):
+        for k in range(k_max):
+            all_paths[c, k] = (features[c, k, TOA_COLUMN] - assoc_delays[c]) * mm
+            allowed[c, k] = math.isfinite(all_paths[c, k])
+            alpha = features[c, k, 0]
+            a = alpha if math.isfinite(alpha) and alpha > 1.0 else 1.0
+            strength[c, k] = floats[F_STRENGTH] * np.log(a)
+            if ints[I_PRIOR] != PRIOR_NONE:
+                strength[c, k] = strength[c, k] + (
+                    bonus[c, k] if math.isfinite(bonus[c, k]) else 0.0
+                )
+    pool_choices[:, :] = -1
+    pool_costs[:] = np.inf
+    n_pool = _pool_kernel(
+        all_paths,
+        strength,
+        counts,
+        allowed,
+        listening,
+        channels,
+        emitter,
+        facing,
+        max_path_diff,
+        cost_weights,
+        ints[I_MIN_CHANNELS],
+        pool_choices,
+        pool_costs,
+    )
+    if n_pool == 0:
+        first[:] = -1
+        return 0
+    hyp_matched = np.empty((scene_ints[S_MAX_TARGETS], n_ch), dtype=np.int64)
+    hyp_cost = np.empty(scene_ints[S_MAX_TARGETS])
+    n_hyp = _hypotheses(
+        pool_choices[:n_pool],
+        pool_costs[:n_pool],
+        k_max,
+        scene_ints,
+        scene_floats,
+        hyp_matched,
+        hyp_cost,
+    )
+    first[:] = hyp_matched[0]
+    # Pipeline._targets
+    toa_paths = np.empty((n_ch, k_max))
+    taken = np.zeros((n_ch, k_max), dtype=np.bool_)
+    for c in range(n_ch):
+        for k in range(k_max):
+            toa_paths[c, k] = (features[c, k, TOA_COLUMN] - delays[c]) * mm
+    for h in range(n_hyp):
+        for c in range(n_ch):
+            if hyp_matched[h, c] >= 0:
+                taken[c, hyp_matched[h, c]] = True
+    position = np.empty(3)
+    covariance = np.empty((3, 3))
+    paths = np.empty(n_ch)
+    position2 = np.empty(3)
+    covariance2 = np.empty((3, 3))
+    paths2 = np.empty(n_ch)
+    more = np.empty(n_ch, dtype=np.int64)
+    pred = np.empty(n_ch)
+    scratch = (np.empty(n_ch), np.empty(n_ch), np.empty(n_ch), np.empty(n_ch, dtype=np.bool_))
+    n_out = 0
+    for h in range(n_hyp):
+        matched = hyp_matched[h]
+        ok, rms = _one_target(
+            features, y, bg, matched, cov_scale, ints, floats, quality, delays, channels,
+            emitter, facing, feature, threshold, value, base, clean, *scratch, position,
+            covariance, paths,
+        )  # fmt: skip
+        if not ok:
+            continue
+        final = matched
+        missing = False
+        for c in range(n_ch):
+            missing = missing or matched[c] < 0
+        if h > 0 and missing:
+            predicted_paths_into(position, channels, emitter, pred)
+            changed = _share(
+                matched, pred, toa_paths, taken, share_listening, scene_floats[S_SHARE_TOL], more
+            )
+            if changed:
+                ok2, rms2 = _one_target(
+                    features, y, bg, more, cov_scale, ints, floats, quality, delays, channels,
+                    emitter, facing, feature, threshold, value, base, clean, *scratch, position2,
+                    covariance2, paths2,
+                )  # fmt: skip
+                if ok2:
+                    final, rms = more, rms2
+                    position[:] = position2
+                    covariance[:, :] = covariance2
+                    paths[:] = paths2
+        drop = False
+        for j in range(n_out):
+            if distance3(position, out_position[j]) < scene_floats[S_MIN_SEPARATION]:
+                drop = True  # the same target again, from a partly different combination
+                break
+        if not drop:
+            for j in range(n_out):
+                if _double_reflection(
+                    paths,
+                    out_paths[j],
+                    out_position[j],
+                    emitter,
+                    facing,
+                    scene_floats[S_DOUBLE_TOL],
+                ):
+                    drop = True
+                    break
+        if drop:
+            continue
+        out_matched[n_out] = final
+        out_position[n_out] = position
+        out_covariance[n_out] = covariance
+        out_rms[n_out] = rms
+        cost = hyp_cost[h]
+        out_score[n_out] = -cost if math.isfinite(cost) else 0.0
+        out_paths[n_out] = paths
+        n_out += 1
+    return n_out
