@@ -229,40 +229,13 @@ def _back_kernel(
     """(association cost, target found, rms mm); matched, position and covariance filled."""
     n_ch, k_max = features.shape[0], features.shape[1]
     mm = floats[F_MM_PER_SAMPLE]
-    if ints[I_PRIOR] == PRIOR_MLP:
-        _score_bonus(
-            features,
-            counts,
-            listening,
-            floats[F_SCORE_WEIGHT],
-            mean,
-            std,
-            w0,
-            b0,
-            w1,
-            b1,
-            w2,
-            b2,
-            wh,
-            bh,
-            bonus,
-        )
-    elif ints[I_PRIOR] == PRIOR_NONE:
-        bonus[:, :] = 0.0
     all_paths = np.empty((n_ch, k_max))
     allowed = np.empty((n_ch, k_max), dtype=np.bool_)
     strength = np.empty((n_ch, k_max))
-    for c in range(n_ch):
-        for k in range(k_max):
-            all_paths[c, k] = (features[c, k, TOA_COLUMN] - assoc_delays[c]) * mm
-            allowed[c, k] = math.isfinite(all_paths[c, k])
-            alpha = features[c, k, 0]
-            a = alpha if math.isfinite(alpha) and alpha > 1.0 else 1.0
-            strength[c, k] = floats[F_STRENGTH] * np.log(a)
-            if ints[I_PRIOR] != PRIOR_NONE:
-                strength[c, k] = strength[c, k] + (
-                    bonus[c, k] if math.isfinite(bonus[c, k]) else 0.0
-                )
+    _association_inputs(
+        features, counts, listening, ints, floats, assoc_delays, mean, std, w0, b0, w1, b1, w2,
+        b2, wh, bh, bonus, all_paths, allowed, strength,
+    )  # fmt: skip
     matched[:] = -1
     args = (
         all_paths,
@@ -316,6 +289,49 @@ def _back_kernel(
         covariance,
     )
     return cost, True, rms
+
+
+@jit
+def _association_inputs(
+    features, counts, listening, ints, floats, assoc_delays, mean, std, w0, b0, w1, b1, w2, b2,
+    wh, bh, bonus, all_paths, allowed, strength,
+):  # fmt: skip
+    """The association search's inputs, as the staged associator builds them: the score
+    prior into ``bonus`` (the MLP's, or zeros), each echo's path (mm) into ``all_paths``,
+    whether it is finite into ``allowed``, and its strength (log amplitude plus prior)."""
+    n_ch, k_max = features.shape[0], features.shape[1]
+    mm = floats[F_MM_PER_SAMPLE]
+    if ints[I_PRIOR] == PRIOR_MLP:
+        _score_bonus(
+            features,
+            counts,
+            listening,
+            floats[F_SCORE_WEIGHT],
+            mean,
+            std,
+            w0,
+            b0,
+            w1,
+            b1,
+            w2,
+            b2,
+            wh,
+            bh,
+            bonus,
+        )
+    elif ints[I_PRIOR] == PRIOR_NONE:
+        bonus[:, :] = 0.0
+    for c in range(n_ch):
+        for k in range(k_max):
+            all_paths[c, k] = (features[c, k, TOA_COLUMN] - assoc_delays[c]) * mm
+            allowed[c, k] = math.isfinite(all_paths[c, k])
+            alpha = features[c, k, 0]
+            a = alpha if math.isfinite(alpha) and alpha > 1.0 else 1.0
+            strength[c, k] = floats[F_STRENGTH] * np.log(a)
+            if ints[I_PRIOR] != PRIOR_NONE:
+                strength[c, k] = strength[c, k] + (
+                    bonus[c, k] if math.isfinite(bonus[c, k]) else 0.0
+                )
 
 
 @jit

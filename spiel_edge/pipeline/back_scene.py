@@ -33,13 +33,8 @@ from spiel_edge._jit import jit
 from spiel_edge.pipeline import back, run
 from spiel_edge.pipeline.back import (
     F_MM_PER_SAMPLE,
-    F_SCORE_WEIGHT,
-    F_STRENGTH,
     I_MIN_CHANNELS,
-    I_PRIOR,
-    PRIOR_MLP,
-    PRIOR_NONE,
-    _score_bonus,
+    _association_inputs,
 )
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.joint import MAX_POOL, _pool_kernel
@@ -201,40 +196,13 @@ def _scene_kernel(
     scores and paths in ``out_*`` (best first); ``first`` the first hypothesis's echoes."""
     n_ch, k_max = features.shape[0], features.shape[1]
     mm = floats[F_MM_PER_SAMPLE]
-    if ints[I_PRIOR] == PRIOR_MLP:
-        _score_bonus(
-            features,
-            counts,
-            listening,
-            floats[F_SCORE_WEIGHT],
-            mean,
-            std,
-            w0,
-            b0,
-            w1,
-            b1,
-            w2,
-            b2,
-            wh,
-            bh,
-            bonus,
-        )
-    elif ints[I_PRIOR] == PRIOR_NONE:
-        bonus[:, :] = 0.0
     all_paths = np.empty((n_ch, k_max))
     allowed = np.empty((n_ch, k_max), dtype=np.bool_)
     strength = np.empty((n_ch, k_max))
-    for c in range(n_ch):
-        for k in range(k_max):
-            all_paths[c, k] = (features[c, k, TOA_COLUMN] - assoc_delays[c]) * mm
-            allowed[c, k] = math.isfinite(all_paths[c, k])
-            alpha = features[c, k, 0]
-            a = alpha if math.isfinite(alpha) and alpha > 1.0 else 1.0
-            strength[c, k] = floats[F_STRENGTH] * np.log(a)
-            if ints[I_PRIOR] != PRIOR_NONE:
-                strength[c, k] = strength[c, k] + (
-                    bonus[c, k] if math.isfinite(bonus[c, k]) else 0.0
-                )
+    _association_inputs(
+        features, counts, listening, ints, floats, assoc_delays, mean, std, w0, b0, w1, b1, w2,
+        b2, wh, bh, bonus, all_paths, allowed, strength,
+    )  # fmt: skip
     pool_choices[:, :] = -1
     pool_costs[:] = np.inf
     n_pool = _pool_kernel(
