@@ -96,6 +96,17 @@ def _innovation_inverse(p: np.ndarray, r: np.ndarray, inv: np.ndarray) -> float:
 @jit
 def _gate(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
     """(squared Mahalanobis distance, log det S) of ``z``; (inf, 0) when S is singular."""
+    d2, det = _gate_det(x, p, z, r)
+    if not det > 0.0:
+        return np.inf, 0.0
+    return d2, np.log(det)
+
+
+@jit(inline="always")
+def _gate_det(x, p, z, r, inv=None):
+    """(squared Mahalanobis distance, det S) of ``z``, (inf, 0) when S is singular; with
+    ``inv`` (3, 3) given, S^-1 goes there too (as :func:`_innovation_inverse`), so that
+    :func:`_update_inv` need not invert S again."""
     det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
         p[0, 0] + r[0, 0],
         0.5 * (p[0, 1] + p[1, 0] + r[0, 1] + r[1, 0]),
@@ -106,6 +117,10 @@ def _gate(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
     )
     if not det > 0.0:
         return np.inf, 0.0
+    if inv is not None:
+        inv[0, 0], inv[0, 1], inv[0, 2] = i00, i01, i02
+        inv[1, 0], inv[1, 1], inv[1, 2] = i01, i11, i12
+        inv[2, 0], inv[2, 1], inv[2, 2] = i02, i12, i22
     y0, y1, y2 = z[0] - x[0], z[1] - x[1], z[2] - x[2]
     d2 = (
         i00 * y0 * y0
@@ -113,7 +128,7 @@ def _gate(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
         + i22 * y2 * y2
         + 2.0 * (i01 * y0 * y1 + i02 * y0 * y2 + i12 * y1 * y2)
     )
-    return d2, np.log(det)
+    return d2, det
 
 
 @jit
@@ -124,6 +139,13 @@ def _update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, work: np
     det = _innovation_inverse(p, r, inv)
     if not det > 0.0:
         return False
+    _update_inv(x, p, z, r, work, inv)
+    return True
+
+
+@jit
+def _update_inv(x, p, z, r, work, inv) -> None:
+    """:func:`_update` with S^-1 (3, 3) already in ``inv`` (not inside ``work[:, :12]``)."""
     k = work[:, 0:3]  # K = P H^T S^-1
     for i in range(6):
         for j in range(3):
@@ -159,4 +181,3 @@ def _update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, work: np
     for i in range(6):
         for j in range(i):
             p[j, i] = p[i, j]  # exactly symmetric (the lower triangle is the one computed)
-    return True
