@@ -82,8 +82,11 @@ def _mix_predict(xm, pm, mu, x, p, dt, acceleration, static_q2, switch, v02, wx,
                 v = w0 * (pm[0, a, b] + d0a * d0b) + w1 * (pm[1, a, b] + d1a * d1b)
                 wp[j, a, b] = v
                 wp[j, b, a] = v
-    xm[:, :] = wx
-    pm[:, :, :] = wp
+    for j in range(2):  # plain loops: numba's array assignment costs more at this size
+        for a in range(6):
+            xm[j, a] = wx[j, a]
+            for b in range(6):
+                pm[j, a, b] = wp[j, a, b]
     mu[0], mu[1] = c0, c1
     _predict_static(xm[STATIC], pm[STATIC], dt, static_q2, v02)
     _predict(xm[MOVING], pm[MOVING], dt, acceleration)
