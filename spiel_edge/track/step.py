@@ -251,6 +251,8 @@ def _start_models(x, p, models, s, static_share):
 def _confirm_or_delete(x, p, meta, counters, confirm_hits, confirm_window, max_misses):
     for s in range(meta.shape[1]):
         status = meta[STATUS, s]
+        if status == FREE:  # nothing to confirm or delete
+            continue
         finite = _finite_slot(x[s], p[s])
         if status == TENTATIVE and finite and meta[HITS, s] >= confirm_hits:
             _confirm(meta, counters, s)
