@@ -159,7 +159,7 @@ def _update_inv(x, p, z, r, work, inv) -> None:
     # Joseph form P <- A P A^T + K R K^T with A = I - K H (H picks the position)
     ap = work[:, 3:9]
     for i in range(6):
-        for j in range(6):
+        for j in range(max(3, i + 1)):  # the entries used below: j <= i or j < 3
             acc = p[i, j]
             for c in range(3):
                 acc -= k[i, c] * p[c, j]
