@@ -73,9 +73,12 @@ def _mix_predict(xm, pm, mu, x, p, dt, acceleration, static_q2, switch, v02, wx,
         else:  # the model had no weight: keep its own estimate
             w0 = 1.0 if j == 0 else 0.0
         w1 = 1.0 - w0
-        for a in range(6):
+        # the static model's velocity and its covariance are set by _predict_static below:
+        # of its mixture only the position and its covariance are needed
+        n = 3 if j == STATIC else 6
+        for a in range(n):
             wx[j, a] = w0 * xm[0, a] + w1 * xm[1, a]
-        for a in range(6):
+        for a in range(n):
             d0a, d1a = xm[0, a] - wx[j, a], xm[1, a] - wx[j, a]
             for b in range(a + 1):  # symmetric: the lower triangle, mirrored
                 d0b, d1b = xm[0, b] - wx[j, b], xm[1, b] - wx[j, b]
