@@ -166,9 +166,9 @@ class Tracker:
         if not math.isfinite(t):
             raise InputError(f"tracker: acquisition time must be finite, got {t_s!r}")
         dt = self._advance(t)
-        m = len(targets)
-        used = targets if m <= MAX_TARGETS else targets[:MAX_TARGETS]  # the step holds SLOTS
-        m = min(m, MAX_TARGETS)
+        used, m = targets, len(targets)
+        if m > MAX_TARGETS:  # the step's buffers hold SLOTS (= MAX_TARGETS) targets
+            used, m = targets[:MAX_TARGETS], MAX_TARGETS
         self._write_measurements(used)
         floats, ints, bools = self._arrays
         snapshot = _step_buffered(floats, ints, bools, m, dt)
