@@ -21,7 +21,7 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.track.assign import INFEASIBLE, _assign_into
 from spiel_edge.track.imm import _combine, _imm_update, _mix_predict
-from spiel_edge.track.kalman import _predict, _sym_inv3, _update
+from spiel_edge.track.kalman import _gate_at, _predict, _sym_inv3, _update
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
 STATUS, ID, AGE, HITS, MISSES = 0, 1, 2, 3, 4  # rows of ``meta``
@@ -116,36 +116,6 @@ def _match(x, p, meta, kind, z, r, usable, gated, gate, views) -> int:
                     gated[j] = True
     _assign_into(cost, n, m, chosen, fwork, owner, way, cols, used)
     return n
-
-
-@jit(inline="always")
-def _gate_at(x, p, s, z, r, j, gate):
-    """kalman._gate of slot ``s`` and target ``j`` (the same arithmetic) without array views
-    and without the logarithm: (squared Mahalanobis distance, det S); (inf, 0) if singular.
-    A pair far outside the gate is rejected before inverting S: for S positive definite
-    d2 >= |y|^2 / trace S, so |y|^2 > 2 gate trace S means d2 > gate (the factor 2 leaves
-    rounding no say; the same pairs are gated as with the inverse)."""
-    y0, y1, y2 = z[j, 0] - x[s, 0], z[j, 1] - x[s, 1], z[j, 2] - x[s, 2]
-    trace = p[s, 0, 0] + r[j, 0, 0] + p[s, 1, 1] + r[j, 1, 1] + p[s, 2, 2] + r[j, 2, 2]
-    if trace > 0.0 and y0 * y0 + y1 * y1 + y2 * y2 > 2.0 * gate * trace:
-        return np.inf, 0.0
-    det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
-        p[s, 0, 0] + r[j, 0, 0],
-        0.5 * (p[s, 0, 1] + p[s, 1, 0] + r[j, 0, 1] + r[j, 1, 0]),
-        0.5 * (p[s, 0, 2] + p[s, 2, 0] + r[j, 0, 2] + r[j, 2, 0]),
-        p[s, 1, 1] + r[j, 1, 1],
-        0.5 * (p[s, 1, 2] + p[s, 2, 1] + r[j, 1, 2] + r[j, 2, 1]),
-        p[s, 2, 2] + r[j, 2, 2],
-    )
-    if not det > 0.0:
-        return np.inf, 0.0
-    d2 = (
-        i00 * y0 * y0
-        + i11 * y1 * y1
-        + i22 * y2 * y2
-        + 2.0 * (i01 * y0 * y1 + i02 * y0 * y2 + i12 * y1 * y2)
-    )
-    return d2, det
 
 
 @jit
