@@ -77,8 +77,9 @@ def _hungarian_into(cost, flip, n, m, fwork, owner, way, cols, used) -> None:
     for i in range(1, n + 1):
         owner[0] = i
         j0 = 0
-        minv[: m + 1] = np.inf
-        used[: m + 1] = False
+        for j in range(m + 1):  # a loop: cheaper than a slice assignment at this size
+            minv[j] = np.inf
+            used[j] = False
         while True:
             used[j0] = True
             i0 = owner[j0]

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.track.kalman import _gate, _predict, _update
+from spiel_edge.track.kalman import _gate_det, _predict, _update_inv
 
 STATIC, MOVING = 0, 1
 _TINY = 1e-300  # a model probability below this is taken as zero in the mixing
@@ -73,17 +73,23 @@ def _mix_predict(xm, pm, mu, x, p, dt, acceleration, static_q2, switch, v02, wx,
         else:  # the model had no weight: keep its own estimate
             w0 = 1.0 if j == 0 else 0.0
         w1 = 1.0 - w0
-        for a in range(6):
+        # the static model's velocity and its covariance are set by _predict_static below:
+        # of its mixture only the position and its covariance are needed
+        n = 3 if j == STATIC else 6
+        for a in range(n):
             wx[j, a] = w0 * xm[0, a] + w1 * xm[1, a]
-        for a in range(6):
+        for a in range(n):
             d0a, d1a = xm[0, a] - wx[j, a], xm[1, a] - wx[j, a]
             for b in range(a + 1):  # symmetric: the lower triangle, mirrored
                 d0b, d1b = xm[0, b] - wx[j, b], xm[1, b] - wx[j, b]
                 v = w0 * (pm[0, a, b] + d0a * d0b) + w1 * (pm[1, a, b] + d1a * d1b)
                 wp[j, a, b] = v
                 wp[j, b, a] = v
-    xm[:, :] = wx
-    pm[:, :, :] = wp
+    for j in range(2):  # plain loops: numba's array assignment costs more at this size
+        for a in range(6):
+            xm[j, a] = wx[j, a]
+            for b in range(6):
+                pm[j, a, b] = wp[j, a, b]
     mu[0], mu[1] = c0, c1
     _predict_static(xm[STATIC], pm[STATIC], dt, static_q2, v02)
     _predict(xm[MOVING], pm[MOVING], dt, acceleration)
@@ -108,18 +114,19 @@ def _predict_static(x, p, dt, static_q2, v02) -> None:
 def _imm_update(xm, pm, mu, x, p, z, r, work) -> bool:
     """Update both models with ``z`` (covariance ``r``) and reweight them by its likelihood;
     combine into ``x``, ``p``. False (nothing changed) when a model's S is singular."""
-    d0, logdet0 = _gate(xm[STATIC], pm[STATIC], z, r)
-    d1, logdet1 = _gate(xm[MOVING], pm[MOVING], z, r)
+    inv0, inv1 = work[:3, 12:15], work[3:, 12:15]  # each model's S^-1, for its update
+    d0, det0 = _gate_det(xm[STATIC], pm[STATIC], z, r, inv0)
+    d1, det1 = _gate_det(xm[MOVING], pm[MOVING], z, r, inv1)
     if not (np.isfinite(d0) and np.isfinite(d1)):
         return False
-    ll0, ll1 = -0.5 * (d0 + logdet0), -0.5 * (d1 + logdet1)
+    ll0, ll1 = -0.5 * (d0 + np.log(det0)), -0.5 * (d1 + np.log(det1))
     top = max(ll0, ll1)
     l0, l1 = mu[0] * np.exp(ll0 - top), mu[1] * np.exp(ll1 - top)
     total = l0 + l1
     if total > 0.0 and np.isfinite(total):  # else both were ~0: keep the predicted weights
         mu[0], mu[1] = l0 / total, l1 / total
-    _update(xm[STATIC], pm[STATIC], z, r, work)
-    _update(xm[MOVING], pm[MOVING], z, r, work)
+    _update_inv(xm[STATIC], pm[STATIC], z, r, work, inv0)
+    _update_inv(xm[MOVING], pm[MOVING], z, r, work, inv1)
     _combine(xm, pm, mu, x, p)
     return True
 

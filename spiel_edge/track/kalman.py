@@ -96,6 +96,17 @@ def _innovation_inverse(p: np.ndarray, r: np.ndarray, inv: np.ndarray) -> float:
 @jit
 def _gate(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
     """(squared Mahalanobis distance, log det S) of ``z``; (inf, 0) when S is singular."""
+    d2, det = _gate_det(x, p, z, r)
+    if not det > 0.0:
+        return np.inf, 0.0
+    return d2, np.log(det)
+
+
+@jit(inline="always")
+def _gate_det(x, p, z, r, inv=None):
+    """(squared Mahalanobis distance, det S) of ``z``, (inf, 0) when S is singular; with
+    ``inv`` (3, 3) given, S^-1 goes there too (as :func:`_innovation_inverse`), so that
+    :func:`_update_inv` need not invert S again."""
     det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
         p[0, 0] + r[0, 0],
         0.5 * (p[0, 1] + p[1, 0] + r[0, 1] + r[1, 0]),
@@ -106,6 +117,10 @@ def _gate(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
     )
     if not det > 0.0:
         return np.inf, 0.0
+    if inv is not None:
+        inv[0, 0], inv[0, 1], inv[0, 2] = i00, i01, i02
+        inv[1, 0], inv[1, 1], inv[1, 2] = i01, i11, i12
+        inv[2, 0], inv[2, 1], inv[2, 2] = i02, i12, i22
     y0, y1, y2 = z[0] - x[0], z[1] - x[1], z[2] - x[2]
     d2 = (
         i00 * y0 * y0
@@ -113,7 +128,7 @@ def _gate(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
         + i22 * y2 * y2
         + 2.0 * (i01 * y0 * y1 + i02 * y0 * y2 + i12 * y1 * y2)
     )
-    return d2, np.log(det)
+    return d2, det
 
 
 @jit
@@ -124,6 +139,13 @@ def _update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, work: np
     det = _innovation_inverse(p, r, inv)
     if not det > 0.0:
         return False
+    _update_inv(x, p, z, r, work, inv)
+    return True
+
+
+@jit
+def _update_inv(x, p, z, r, work, inv) -> None:
+    """:func:`_update` with S^-1 (3, 3) already in ``inv`` (not inside ``work[:, :12]``)."""
     k = work[:, 0:3]  # K = P H^T S^-1
     for i in range(6):
         for j in range(3):
@@ -137,7 +159,7 @@ def _update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, work: np
     # Joseph form P <- A P A^T + K R K^T with A = I - K H (H picks the position)
     ap = work[:, 3:9]
     for i in range(6):
-        for j in range(6):
+        for j in range(max(3, i + 1)):  # the entries used below: j <= i or j < 3
             acc = p[i, j]
             for c in range(3):
                 acc -= k[i, c] * p[c, j]
@@ -159,4 +181,33 @@ def _update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, work: np
     for i in range(6):
         for j in range(i):
             p[j, i] = p[i, j]  # exactly symmetric (the lower triangle is the one computed)
-    return True
+
+
+@jit(inline="always")
+def _gate_at(x, p, s, z, r, j, gate):
+    """_gate of the step's slot ``s`` and target ``j`` (the same arithmetic) without array views
+    and without the logarithm: (squared Mahalanobis distance, det S); (inf, 0) if singular.
+    A pair far outside the gate is rejected before inverting S: for S positive definite
+    d2 >= |y|^2 / trace S, so |y|^2 > 2 gate trace S means d2 > gate (the factor 2 leaves
+    rounding no say; the same pairs are gated as with the inverse)."""
+    y0, y1, y2 = z[j, 0] - x[s, 0], z[j, 1] - x[s, 1], z[j, 2] - x[s, 2]
+    trace = p[s, 0, 0] + r[j, 0, 0] + p[s, 1, 1] + r[j, 1, 1] + p[s, 2, 2] + r[j, 2, 2]
+    if trace > 0.0 and y0 * y0 + y1 * y1 + y2 * y2 > 2.0 * gate * trace:
+        return np.inf, 0.0
+    det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
+        p[s, 0, 0] + r[j, 0, 0],
+        0.5 * (p[s, 0, 1] + p[s, 1, 0] + r[j, 0, 1] + r[j, 1, 0]),
+        0.5 * (p[s, 0, 2] + p[s, 2, 0] + r[j, 0, 2] + r[j, 2, 0]),
+        p[s, 1, 1] + r[j, 1, 1],
+        0.5 * (p[s, 1, 2] + p[s, 2, 1] + r[j, 1, 2] + r[j, 2, 1]),
+        p[s, 2, 2] + r[j, 2, 2],
+    )
+    if not det > 0.0:
+        return np.inf, 0.0
+    d2 = (
+        i00 * y0 * y0
+        + i11 * y1 * y1
+        + i22 * y2 * y2
+        + 2.0 * (i01 * y0 * y1 + i02 * y0 * y2 + i12 * y1 * y2)
+    )
+    return d2, det

@@ -21,7 +21,7 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.track.assign import INFEASIBLE, _assign_into
 from spiel_edge.track.imm import _combine, _imm_update, _mix_predict
-from spiel_edge.track.kalman import _predict, _sym_inv3, _update
+from spiel_edge.track.kalman import _gate_at, _predict, _sym_inv3, _update
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
 STATUS, ID, AGE, HITS, MISSES = 0, 1, 2, 3, 4  # rows of ``meta``
@@ -118,36 +118,6 @@ def _match(x, p, meta, kind, z, r, usable, gated, gate, views) -> int:
     return n
 
 
-@jit(inline="always")
-def _gate_at(x, p, s, z, r, j, gate):
-    """kalman._gate of slot ``s`` and target ``j`` (the same arithmetic) without array views
-    and without the logarithm: (squared Mahalanobis distance, det S); (inf, 0) if singular.
-    A pair far outside the gate is rejected before inverting S: for S positive definite
-    d2 >= |y|^2 / trace S, so |y|^2 > 2 gate trace S means d2 > gate (the factor 2 leaves
-    rounding no say; the same pairs are gated as with the inverse)."""
-    y0, y1, y2 = z[j, 0] - x[s, 0], z[j, 1] - x[s, 1], z[j, 2] - x[s, 2]
-    trace = p[s, 0, 0] + r[j, 0, 0] + p[s, 1, 1] + r[j, 1, 1] + p[s, 2, 2] + r[j, 2, 2]
-    if trace > 0.0 and y0 * y0 + y1 * y1 + y2 * y2 > 2.0 * gate * trace:
-        return np.inf, 0.0
-    det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
-        p[s, 0, 0] + r[j, 0, 0],
-        0.5 * (p[s, 0, 1] + p[s, 1, 0] + r[j, 0, 1] + r[j, 1, 0]),
-        0.5 * (p[s, 0, 2] + p[s, 2, 0] + r[j, 0, 2] + r[j, 2, 0]),
-        p[s, 1, 1] + r[j, 1, 1],
-        0.5 * (p[s, 1, 2] + p[s, 2, 1] + r[j, 1, 2] + r[j, 2, 1]),
-        p[s, 2, 2] + r[j, 2, 2],
-    )
-    if not det > 0.0:
-        return np.inf, 0.0
-    d2 = (
-        i00 * y0 * y0
-        + i11 * y1 * y1
-        + i22 * y2 * y2
-        + 2.0 * (i01 * y0 * y1 + i02 * y0 * y2 + i12 * y1 * y2)
-    )
-    return d2, det
-
-
 @jit
 def _step(floats, ints, bools, z, r_in, dt):
     """One acquisition on :func:`allocate`'s arrays. The parameters: acceleration, gate,
@@ -156,6 +126,19 @@ def _step(floats, ints, bools, z, r_in, dt):
     last two 0: the constant-velocity filter alone, as before the IMM). Leaves per target the
     id of the confirmed track it went to, or -1, for :func:`target_ids`; returns the snapshot
     of the confirmed tracks (:func:`_snapshot`)."""
+    return _step_on(floats, ints, bools, z, r_in, dt)
+
+
+@jit
+def _step_buffered(floats, ints, bools, m, dt):
+    """:func:`_step` on the first ``m`` targets written into :func:`measurement_views`
+    beforehand (two array arguments fewer: each costs time in the call)."""
+    z, r_in = _measurement_buffers(floats)
+    return _step_on(floats, ints, bools, z[:m], r_in[:m], dt)
+
+
+@jit(inline="always")
+def _step_on(floats, ints, bools, z, r_in, dt):
     x, p, models, params, wf, meta, counters, wi, wb = _unpack(floats, ints, bools)
     gate, floor2, fallback2 = params[1], params[2], params[3]
     confirm_hits, confirm_window, max_misses = int(params[5]), int(params[6]), int(params[7])
@@ -238,6 +221,8 @@ def _start_models(x, p, models, s, static_share):
 def _confirm_or_delete(x, p, meta, counters, confirm_hits, confirm_window, max_misses):
     for s in range(meta.shape[1]):
         status = meta[STATUS, s]
+        if status == FREE:  # nothing to confirm or delete
+            continue
         finite = _finite_slot(x[s], p[s])
         if status == TENTATIVE and finite and meta[HITS, s] >= confirm_hits:
             _confirm(meta, counters, s)
@@ -322,7 +307,8 @@ N_PARAMS = 11  # see Tracker: the CV filter's 8, then static_q2, switch, static 
 SLOTS = 64
 _N = SLOTS + 1
 _COST, _R, _WORK, _MIX = SLOTS * SLOTS, SLOTS * 9, 6 * 15, 2 * 42
-_FLOATS = _COST + _R + _WORK + 3 * _N + _MIX
+_Z = _COST + _R + _WORK + 3 * _N + _MIX  # the targets' positions and covariances
+_FLOATS = _Z + SLOTS * 12
 _META = 3 * SLOTS + 3 * _N  # the snapshot's ids, ages, hits, misses
 _INTS = _META + 4 * SLOTS
 _BOOLS = 3 * SLOTS + _N
@@ -370,6 +356,21 @@ def _views(wf, wi, wb, m):
     used = wb[3 * SLOTS :]
     views = (cost, slots, chosen, fwork, owner, way, cols, used)
     return r, work, mixing, target_slot, usable, near, scratch, views
+
+
+@jit(inline="always")
+def _measurement_buffers(floats):
+    at = _F_SCRATCH + _Z
+    z = floats[at : at + SLOTS * 3].reshape((SLOTS, 3))
+    return z, floats[at + SLOTS * 3 : at + SLOTS * 12].reshape((SLOTS, 3, 3))
+
+
+def measurement_views(floats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(z (SLOTS, 3), r (SLOTS, 3, 3)): views of :func:`allocate`'s float array where
+    :func:`_step_buffered` reads the targets' positions and covariances."""
+    at = _F_SCRATCH + _Z
+    z = floats[at : at + SLOTS * 3].reshape(SLOTS, 3)
+    return z, floats[at + SLOTS * 3 : at + SLOTS * 12].reshape(SLOTS, 3, 3)
 
 
 def target_ids(ints: np.ndarray, m: int) -> list[int]:

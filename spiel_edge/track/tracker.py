@@ -32,8 +32,9 @@ from spiel_edge.track.step import (
     SLOTS,
     STATUS,
     _snapshot_now,
-    _step,
+    _step_buffered,
     allocate,
+    measurement_views,
     snapshot_meta,
     state_views,
     target_ids,
@@ -138,6 +139,7 @@ class Tracker:
         )
         self._arrays = allocate(spec.max_tracks, params)
         self._x, self._p, self._meta, self._counts = state_views(*self._arrays[:2])
+        self._z, self._r = measurement_views(self._arrays[0])
         self._last_t: float | None = None
         self.restarts = 0
 
@@ -164,14 +166,30 @@ class Tracker:
         if not math.isfinite(t):
             raise InputError(f"tracker: acquisition time must be finite, got {t_s!r}")
         dt = self._advance(t)
-        used = targets[:MAX_TARGETS]  # the step's scratch holds SLOTS (= MAX_TARGETS) targets
-        z, r = _measurements(used)
-        snapshot = _step(*self._arrays, z, r, dt)
-        for target, track_id in zip(used, target_ids(self._arrays[1], len(used)), strict=True):
-            target.track_id = track_id if track_id >= 0 else None
-        for target in targets[MAX_TARGETS:]:
-            target.track_id = None
-        return _tracks(snapshot, self._arrays[1])
+        used, m = targets, len(targets)
+        if m > MAX_TARGETS:  # the step's buffers hold SLOTS (= MAX_TARGETS) targets
+            used, m = targets[:MAX_TARGETS], MAX_TARGETS
+        self._write_measurements(used)
+        floats, ints, bools = self._arrays
+        snapshot = _step_buffered(floats, ints, bools, m, dt)
+        for target, track_id in zip(used, target_ids(ints, m), strict=True):
+            target.track_id = None if track_id < 0 else track_id
+        if used is not targets:
+            for target in targets[MAX_TARGETS:]:
+                target.track_id = None
+        return _tracks(snapshot, ints)
+
+    def _write_measurements(self, targets: Sequence[TargetLike]) -> None:
+        """:func:`_measurements` into the step's buffers: the same numbers (a target's
+        arrays are assigned as they are; anything else takes the general path)."""
+        z, r = self._z, self._r
+        try:
+            for j, target in enumerate(targets):
+                z[j] = target.position_mm
+                r[j] = target.covariance_mm2
+        except (TypeError, ValueError):
+            m = len(targets)
+            z[:m], r[:m] = _measurements(targets)
 
     def tracks(self) -> list[Track]:
         """The confirmed tracks now, by id."""
