@@ -33,27 +33,23 @@ from spiel_edge.pipeline.associate import (
     _exhaustive_kernel,
     _hypothesis_kernel,
 )
-from spiel_edge.pipeline.echo_quality import _echo_quality_kernel
-from spiel_edge.pipeline.echo_timing import (
-    ESTIMATORS,
-    EchoTiming,
-    _clean_kernel,
-    _fused_kernel,
-    _refine_kernel,
+from spiel_edge.pipeline.back_steps import (
+    I_EXHAUSTIVE,
+    I_MIN_CHANNELS,
+    PRIOR_GIVEN,
+    PRIOR_MLP,
+    PRIOR_NONE,
+    TIMING_NONE,
+    TIMING_REFINE,
+    TIMING_TREES,
+    _association_inputs,
+    _one_target,
 )
+from spiel_edge.pipeline.echo_timing import ESTIMATORS, EchoTiming
 from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.locate import locate_kernel
-from spiel_edge.pipeline.mlp import mlp_scores
 from spiel_edge.pipeline.scene import SceneAssociator
-from spiel_edge.pipeline.uncertainty import _covariance_kernel
 
 BACK_STAGES = ("associate", "echo_timing", "locate")
-PRIOR_NONE, PRIOR_MLP, PRIOR_GIVEN = 0, 1, 2
-TIMING_NONE, TIMING_REFINE, TIMING_TREES = 0, 1, 2
-# ints[] slots
-I_MIN_CHANNELS, I_EXHAUSTIVE, I_PRIOR, I_TIMING, I_BLIND, I_HALF_WINDOW, I_LOG = range(7)
-# floats[] slots
-F_MM_PER_SAMPLE, F_STRENGTH, F_SCORE_WEIGHT, F_LIMIT, F_COV_FLOOR = range(5)
 _NO_TREES = (np.zeros((1, 1), np.int64), np.zeros((1, 1), np.float32), np.zeros((1, 1)), 0.0)
 _NO_MLP = tuple(np.zeros((1,) * n, np.float32) for n in (1, 1, 2, 1, 2, 1, 2, 1, 2, 1))
 
@@ -228,7 +224,6 @@ def _back_kernel(
 ):
     """(association cost, target found, rms mm); matched, position and covariance filled."""
     n_ch, k_max = features.shape[0], features.shape[1]
-    mm = floats[F_MM_PER_SAMPLE]
     all_paths = np.empty((n_ch, k_max))
     allowed = np.empty((n_ch, k_max), dtype=np.bool_)
     strength = np.empty((n_ch, k_max))
@@ -253,137 +248,9 @@ def _back_kernel(
     )
     exhaustive = ints[I_EXHAUSTIVE] != 0
     cost = _exhaustive_kernel(*args) if exhaustive else _hypothesis_kernel(*args, anchors)
-    n_use = 0
-    for c in range(n_ch):
-        use[c] = matched[c] >= 0
-        n_use += use[c]
-        picked[c] = features[c, max(matched[c], 0), TOA_COLUMN] if use[c] else np.nan
-    if n_use < 3:
-        return cost, False, math.inf
-    timed = _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, clean)
-    alpha_matched = np.empty(n_ch)
-    for c in range(n_ch):
-        alpha_matched[c] = features[c, max(matched[c], 0), 0]
-    _echo_quality_kernel(y, bg, timed, alpha_matched, quality, weights, shift)
-    for c in range(n_ch):
-        s = 0.0 if ints[I_TIMING] != TIMING_NONE else shift[c]
-        paths[c] = (timed[c] + s - delays[c]) * mm
-    mask = np.empty(n_ch, dtype=np.bool_)
-    for c in range(n_ch):
-        mask[c] = use[c] and math.isfinite(paths[c])
-    ok, rms = locate_kernel(paths, mask, weights, emitter, channels, facing, 30, position)
-    if not ok:
-        return cost, False, rms
-    sigma = np.empty(n_ch)
-    for c in range(n_ch):
-        sigma[c] = mm / weights[c]
-    _covariance_kernel(
-        position,
-        paths,
-        sigma,
-        mask,
-        channels,
-        emitter,
-        cov_scale,
-        floats[F_COV_FLOOR],
-        covariance,
-    )
-    return cost, True, rms
-
-
-@jit
-def _association_inputs(
-    features, counts, listening, ints, floats, assoc_delays, mean, std, w0, b0, w1, b1, w2, b2,
-    wh, bh, bonus, all_paths, allowed, strength,
-):  # fmt: skip
-    """The association search's inputs, as the staged associator builds them: the score
-    prior into ``bonus`` (the MLP's, or zeros), each echo's path (mm) into ``all_paths``,
-    whether it is finite into ``allowed``, and its strength (log amplitude plus prior)."""
-    n_ch, k_max = features.shape[0], features.shape[1]
-    mm = floats[F_MM_PER_SAMPLE]
-    if ints[I_PRIOR] == PRIOR_MLP:
-        _score_bonus(
-            features,
-            counts,
-            listening,
-            floats[F_SCORE_WEIGHT],
-            mean,
-            std,
-            w0,
-            b0,
-            w1,
-            b1,
-            w2,
-            b2,
-            wh,
-            bh,
-            bonus,
-        )
-    elif ints[I_PRIOR] == PRIOR_NONE:
-        bonus[:, :] = 0.0
-    for c in range(n_ch):
-        for k in range(k_max):
-            all_paths[c, k] = (features[c, k, TOA_COLUMN] - assoc_delays[c]) * mm
-            allowed[c, k] = math.isfinite(all_paths[c, k])
-            alpha = features[c, k, 0]
-            a = alpha if math.isfinite(alpha) and alpha > 1.0 else 1.0
-            strength[c, k] = floats[F_STRENGTH] * np.log(a)
-            if ints[I_PRIOR] != PRIOR_NONE:
-                strength[c, k] = strength[c, k] + (
-                    bonus[c, k] if math.isfinite(bonus[c, k]) else 0.0
-                )
-
-
-@jit
-def _score_bonus(
-    features, counts, listening, weight, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, bonus
-):
-    """As OnnxAssociator.bonus: weight * logit(score) per present, listening, finite echo
-    (the echoes scored together by :func:`spiel_edge.pipeline.mlp.mlp_scores`)."""
-    n_ch, k_max, n_f = features.shape
-    x = np.empty((n_ch * k_max, n_f), dtype=np.float32)
-    at = np.empty(n_ch * k_max, dtype=np.int64)
-    n = 0
-    for c in range(n_ch):
-        for k in range(k_max):
-            bonus[c, k] = 0.0
-            if k >= counts[c] or not listening[c] or not math.isfinite(features[c, k, TOA_COLUMN]):
-                continue
-            for j in range(n_f):
-                x[n, j] = features[c, k, j]
-            at[n] = c * k_max + k
-            n += 1
-    scores = np.empty(n, dtype=np.float32)
-    mlp_scores(x, n, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, scores)
-    for r in range(n):
-        p = np.float64(scores[r])
-        p = min(max(p, 1e-4), 1.0 - 1e-4)
-        bonus[at[r] // k_max, at[r] % k_max] = weight * np.log(p / (1.0 - p))
-
-
-@jit
-def _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, clean):
-    """As EchoTiming.__call__ for one target's picked ToAs."""
-    if ints[I_TIMING] == TIMING_NONE:
-        return picked.copy()
-    if ints[I_TIMING] == TIMING_TREES:
-        out = np.empty(y.shape[0])
-        _fused_kernel(
-            y,
-            bg,
-            ints[I_BLIND],
-            picked,
-            ints[I_HALF_WINDOW],
-            ints[I_LOG] != 0,
-            feature,
-            threshold,
-            value,
-            base,
-            floats[F_LIMIT],
-            out,
-        )
-        return out
-    _clean_kernel(y, bg, ints[I_BLIND], clean)
-    out = picked.copy()
-    _refine_kernel(clean, picked, ints[I_HALF_WINDOW], ints[I_LOG] != 0, out)
-    return out
+    ok, rms = _one_target(
+        features, y, bg, matched, cov_scale, ints, floats, quality, delays, channels, emitter,
+        facing, feature, threshold, value, base, clean, picked, weights, shift, use, position,
+        covariance, paths,
+    )  # fmt: skip
+    return cost, ok, rms

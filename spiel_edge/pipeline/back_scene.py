@@ -12,7 +12,7 @@ by calling the same kernels in the same order:
    numba (``scene_steps._hypotheses``: the missing-channel shift, the stable order by cost
    with the K = 1 pick first, ``drop_variants``, the birth gains) and
    ``joint._select_kernel``;
-3. per hypothesis ``scene_steps._one_target`` (as ``Pipeline._target``), ``_share`` (as
+3. per hypothesis ``back_steps._one_target`` (as ``Pipeline._target``), ``_share`` (as
    ``scene.shared_echoes``), the separation and the double-reflection test (as
    ``Pipeline._targets`` with ``scene.is_double_reflection``), using the fixed-order sums of
    :mod:`spiel_edge.pipeline.scene_geometry` that the staged path uses too.
@@ -31,10 +31,11 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.pipeline import back, run
-from spiel_edge.pipeline.back import (
+from spiel_edge.pipeline.back_steps import (
     F_MM_PER_SAMPLE,
     I_MIN_CHANNELS,
     _association_inputs,
+    _one_target,
 )
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.joint import MAX_POOL, _pool_kernel
@@ -46,7 +47,6 @@ from spiel_edge.pipeline.scene_steps import (
     S_SHARE_TOL,
     _double_reflection,
     _hypotheses,
-    _one_target,
     _share,
 )
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT

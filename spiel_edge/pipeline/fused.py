@@ -26,7 +26,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import back, back_scene, run
+from spiel_edge.pipeline import back, back_scene, back_steps, run
 from spiel_edge.pipeline.detect import _detect_kernel
 from spiel_edge.pipeline.features import TOA_CODES, TOA_COLUMN, _features_kernel
 from spiel_edge.pipeline.memg import _memg_kernel
@@ -143,9 +143,11 @@ class FusedPipeline:
         features, counts = ws.features.copy(), ws.counts.copy()
         config = self._kernel_config()
         if config is not None:
-            prior = config[0][back.I_PRIOR]
+            prior = config[0][back_steps.I_PRIOR]
             given = (
-                self.pipeline.scene._bonus(features, counts) if prior == back.PRIOR_GIVEN else None
+                self.pipeline.scene._bonus(features, counts)
+                if prior == back_steps.PRIOR_GIVEN
+                else None
             )
             raw = np.asarray(frames)
             return self._run_back(

@@ -1,8 +1,8 @@
 """The several-target kernel's steps (pipeline/back_scene.py), each as the staged function it
-replaces computes it: the joint choice after the pool (``SceneAssociator._joint``), one
-target (``Pipeline._target``), the shared echoes (``scene.shared_echoes``) and the
-double-reflection test (``scene.is_double_reflection``). Tested against those in
-tests/core/test_back_scene.py."""
+replaces computes it: the joint choice after the pool (``SceneAssociator._joint``), the
+shared echoes (``scene.shared_echoes``) and the double-reflection test
+(``scene.is_double_reflection``). Tested against those in tests/core/test_back_scene.py. One
+target (``Pipeline._target``) is ``back_steps._one_target``, shared with the K = 1 kernel."""
 
 from __future__ import annotations
 
@@ -11,19 +11,8 @@ import math
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.pipeline.back import (
-    F_COV_FLOOR,
-    F_MM_PER_SAMPLE,
-    I_TIMING,
-    TIMING_NONE,
-    _echo_timing,
-)
-from spiel_edge.pipeline.echo_quality import _echo_quality_kernel
-from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.joint import MAX_NODES, _select_kernel
-from spiel_edge.pipeline.locate import locate_kernel
 from spiel_edge.pipeline.scene_geometry import height3
-from spiel_edge.pipeline.uncertainty import _covariance_kernel
 
 # scene ints[] slots
 S_MAX_TARGETS, S_EXTRA_MIN, S_KEEP_BEST = range(3)
@@ -150,63 +139,3 @@ def _double_reflection(paths, other_paths, other_position, emitter, facing, tole
         if both and not abs(paths[c] - (other_paths[c] + 2.0 * height)) <= tolerance:
             return False
     return True
-
-
-@jit
-def _one_target(
-    features,
-    y,
-    bg,
-    matched,
-    cov_scale,
-    ints,
-    floats,
-    quality,
-    delays,
-    channels,
-    emitter,
-    facing,
-    feature,
-    threshold,
-    value,
-    base,
-    clean,
-    picked,
-    weights,
-    shift,
-    mask,
-    position,
-    covariance,
-    paths,
-):
-    """As ``Pipeline._target`` (and the K = 1 back kernel after association): (ok, rms);
-    position, covariance and paths filled."""
-    n_ch = features.shape[0]
-    mm = floats[F_MM_PER_SAMPLE]
-    n_use = 0
-    for c in range(n_ch):
-        use = matched[c] >= 0
-        n_use += use
-        picked[c] = features[c, max(matched[c], 0), TOA_COLUMN] if use else np.nan
-    if n_use < 3:
-        return False, math.inf
-    timed = _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, clean)
-    alpha_matched = np.empty(n_ch)
-    for c in range(n_ch):
-        alpha_matched[c] = features[c, max(matched[c], 0), 0]
-    _echo_quality_kernel(y, bg, timed, alpha_matched, quality, weights, shift)
-    for c in range(n_ch):
-        s = 0.0 if ints[I_TIMING] != TIMING_NONE else shift[c]
-        paths[c] = (timed[c] + s - delays[c]) * mm
-    for c in range(n_ch):
-        mask[c] = matched[c] >= 0 and math.isfinite(paths[c])
-    ok, rms = locate_kernel(paths, mask, weights, emitter, channels, facing, 30, position)
-    if not ok:
-        return False, rms
-    sigma = np.empty(n_ch)
-    for c in range(n_ch):
-        sigma[c] = mm / weights[c]
-    _covariance_kernel(
-        position, paths, sigma, mask, channels, emitter, cov_scale, floats[F_COV_FLOOR], covariance
-    )
-    return True, rms

@@ -11,7 +11,7 @@ import onnx
 import pytest
 from onnx import helper
 
-from spiel_edge.pipeline import back, back_scene, mlp, verified_models
+from spiel_edge.pipeline import back, back_scene, back_steps, mlp, verified_models
 from spiel_edge.pipeline.associate_onnx import OnnxAssociator, default_model_path, load_session
 from spiel_edge.pipeline.echo_timing import EchoTiming
 from spiel_edge.pipeline.fused import FusedPipeline
@@ -30,7 +30,7 @@ def _same_on(staged: Pipeline, frames, backgrounds, prior: int | None = None) ->
         located += result.position_mm is not None
     assert fast._back_config is not None, "the back kernel was not used"
     if prior is not None:
-        assert fast._back_config[0][back.I_PRIOR] == prior
+        assert fast._back_config[0][back_steps.I_PRIOR] == prior
     return located
 
 
@@ -38,7 +38,7 @@ def test_back_kernel_with_the_numba_mlp_equals_staged(profile, subset):
     assoc = OnnxAssociator(profile)
     assert assoc.engine == "numba"
     staged = Pipeline(profile, assoc)
-    located = _same_on(staged, subset.frames, subset.backgrounds, back.PRIOR_MLP)
+    located = _same_on(staged, subset.frames, subset.backgrounds, back_steps.PRIOR_MLP)
     assert located > 0.9 * len(subset.frames)
 
 
@@ -46,7 +46,10 @@ def test_back_kernel_with_onnxruntime_between_the_kernels(profile, subset):
     assoc = OnnxAssociator(profile)
     assoc.mlp, assoc.engine, assoc.session = None, "onnxruntime", load_session(assoc.model_path)
     _same_on(
-        Pipeline(profile, assoc), subset.frames[:40], subset.backgrounds[:40], back.PRIOR_GIVEN
+        Pipeline(profile, assoc),
+        subset.frames[:40],
+        subset.backgrounds[:40],
+        back_steps.PRIOR_GIVEN,
     )
 
 
@@ -68,7 +71,7 @@ def test_back_kernel_hypothesis_search_equals_staged(rng):
         backgrounds.append(b)
     frames.append(np.zeros((8, 256)))  # nothing to find: the reason, as staged
     backgrounds.append(np.zeros((8, 256)))
-    _same_on(Pipeline(prof), frames, backgrounds, back.PRIOR_NONE)
+    _same_on(Pipeline(prof), frames, backgrounds, back_steps.PRIOR_NONE)
 
 
 def test_several_targets_use_the_scene_kernel_greedy_keeps_the_staged_steps(profile, subset):

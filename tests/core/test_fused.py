@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import back, back_scene, fused, run
+from spiel_edge.pipeline import back_scene, back_steps, fused, run
 from spiel_edge.pipeline.associate import GeometricAssociator
 from spiel_edge.pipeline.associate_onnx import OnnxAssociator, load_session
 from spiel_edge.pipeline.fused import FusedPipeline, unsupported_stages
@@ -163,7 +163,7 @@ def test_fused_equals_staged_with_several_targets_and_other_scene_settings(profi
     assoc.mlp, assoc.engine, assoc.session = None, "onnxruntime", load_session(assoc.model_path)
     staged = Pipeline(prof, assoc, max_targets=3)
     _several_same(staged, subset.frames[:60], subset.backgrounds[:60])
-    assert FusedPipeline(staged)._kernel_config()[0][back.I_PRIOR] == back.PRIOR_GIVEN
+    assert FusedPipeline(staged)._kernel_config()[0][back_steps.I_PRIOR] == back_steps.PRIOR_GIVEN
 
 
 def test_fused_equals_staged_with_several_synthetic_targets(rng):
