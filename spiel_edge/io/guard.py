@@ -196,6 +196,7 @@ class AtomicTextFile:
             os.unlink(self._tmp)
 
 
+_NONBLOCK = getattr(os, "O_NONBLOCK", 0)
 MAX_CONFIG_BYTES = 1 << 20  # a profile, calibration or board config is a few kB
 
 
@@ -210,29 +211,47 @@ def read_config_text(path: str | Path, what: str) -> str:
 def read_text_bounded(
     path: Path, max_bytes: int, error: type[Exception], name: str, limit: str
 ) -> str:
-    """The UTF-8 text of a regular file of at most ``max_bytes`` (what ``limit`` can take),
-    else ``error`` naming ``name``.
-    Opened non-blocking and checked with fstat, so a FIFO or a device never hangs the read,
-    and a file too large is refused by its size, unread."""
+    """The UTF-8 text of :func:`read_bytes_bounded`'s file, else ``error`` naming ``name``."""
+    return decode_text(read_bytes_bounded(path, max_bytes, error, name, limit), error, name)
+
+
+def decode_text(data: bytes, error: type[Exception], name: str) -> str:
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise error(f"{name}: not text (bytes that are not UTF-8)") from None
+
+
+def read_bytes_bounded(
+    path: Path, max_bytes: int, error: type[Exception], name: str, limit: str
+) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes`` (what ``limit`` can take), else
+    ``error`` naming ``name``. Opened non-blocking and checked with fstat, so a FIFO or a
+    device never hangs the read, and a file too large is refused by its size, unread; plain
+    ``os`` calls (no buffered file object): replay reads thousands of small frames."""
+    try:
+        fd = os.open(path, os.O_RDONLY | _NONBLOCK)
     except FileNotFoundError:
         raise error(f"{name}: file not found") from None
     except OSError as exc:
         raise error(f"{name}: cannot read: {exc.strerror}") from None
-    with os.fdopen(fd, "rb") as fh:
+    try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise error(f"{name}: not a regular file")
         if st.st_size > max_bytes:
             raise error(f"{name}: {st.st_size} bytes, more than {limit} can take ({max_bytes})")
-        try:
-            data = fh.read(max_bytes + 1)
-        except OSError as exc:
-            raise error(f"{name}: cannot read: {exc.strerror}") from None
-    if len(data) > max_bytes:
+        chunks, size = [], 0
+        while size <= max_bytes:  # a file may return less than asked (or grow while read)
+            chunk = os.read(fd, max_bytes + 1 - size)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    except OSError as exc:
+        raise error(f"{name}: cannot read: {exc.strerror}") from None
+    finally:
+        os.close(fd)
+    if size > max_bytes:
         raise error(f"{name}: grew beyond {max_bytes} bytes while read")
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise error(f"{name}: not text (bytes that are not UTF-8)") from None
+    return chunks[0] if len(chunks) == 1 else b"".join(chunks)

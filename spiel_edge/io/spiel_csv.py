@@ -17,7 +17,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import read_text_bounded, shorten
+from spiel_edge.io.guard import decode_text, read_bytes_bounded, shorten
 from spiel_edge.io.limits import InputLimits
 
 FRAMES_SUFFIX = "_frames.csv"
@@ -52,14 +52,17 @@ def read_frames(path: str | Path, limits: InputLimits | None = None) -> np.ndarr
     shape); its size and then its shape are checked before any sample is converted."""
     path = Path(path)
     limits = limits or InputLimits()
-    text = _read_bounded(path, limits.max_text_bytes)
-    fast = _read_integers(text.encode())  # integer samples: the compiled scanner
+    data = read_bytes_bounded(
+        path, limits.max_text_bytes, InputError, path.name, "a frame of the profile's shape"
+    )
+    fast = _read_integers(data)  # integer samples (what boards record): the compiled scanner
     if fast is not None:
         try:
             limits.check_shape(*fast.shape)
         except InputError as exc:
             raise InputError(f"{path.name}: {exc}") from None
         return fast
+    text = decode_text(data, InputError, path.name)
     rows = [line.replace(",", " ").split() for line in text.splitlines() if line.strip()]
     if not rows:
         raise InputError(f"{path.name}: empty file")
@@ -135,13 +138,6 @@ def _scan_integers(buf, values, rows):
     return n_values, n_rows
 
 
-def _read_bounded(path: Path, max_bytes: int) -> str:
-    """The text of a regular file of at most ``max_bytes``: a frame of the profile's shape."""
-    return read_text_bounded(
-        path, max_bytes, InputError, path.name, "a frame of the profile's shape"
-    )
-
-
 def iter_recordings(
     folder: str | Path, background: str | Path | None = None, limits: InputLimits | None = None
 ) -> Iterator[Recording]:
@@ -159,9 +155,12 @@ def read_recording(
         bg = None
         if background is not None:
             bg_path = Path(background) / path.name
-            if not bg_path.exists():
-                raise InputError(f"{path.name}: no background file {bg_path}")
-            bg = read_frames(bg_path, limits)
+            try:
+                bg = read_frames(bg_path, limits)
+            except InputError:
+                if not bg_path.exists():  # checked only on failure: one stat less per frame
+                    raise InputError(f"{path.name}: no background file {bg_path}") from None
+                raise
             if bg.shape != frames.shape:
                 raise InputError(
                     f"{path.name}: background shape {bg.shape} differs from frames {frames.shape}"
