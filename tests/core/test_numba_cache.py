@@ -23,6 +23,39 @@ def _cache_files(cache_dir) -> dict:
     return {str(p): (p.stat().st_size, p.stat().st_mtime_ns) for p in cache_dir.rglob("*.nb[ic]")}
 
 
+# A warm process: the vendored acquisitions through the CLI's pipeline (one target with its
+# background, four without), then what it imported and whether any LLVM optimisation ran.
+PROBE = """
+import json, sys
+from numba.core import codegen
+runs = []
+stock = codegen.CPUCodeLibrary._optimize_final_module
+def counted(self):
+    runs.append(self.name)
+    return stock(self)
+codegen.CPUCodeLibrary._optimize_final_module = counted
+from spiel_edge.data import load_subset
+from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.profile.schema import load_profile
+subset = load_subset()
+pipeline = build_pipeline(load_profile())
+out = [pipeline.process(f, b).record() for f, b in zip(subset.frames[:6], subset.backgrounds[:6])]
+pipeline.set_max_targets(4)
+out += [pipeline.process(f).record() for f in subset.frames[:6]]
+print(json.dumps({"records": out, "optimised": runs,
+                  "registries": "numba.np.arraymath" in sys.modules}))
+"""
+
+
+def _probe(cache_dir, lean=True) -> dict:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir), "SPIEL_EDGE_NUMBA_LEAN": str(int(lean))}
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def _cli(cache_dir, *args) -> None:
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
     cmd = [sys.executable, "-m", "spiel_edge.cli", *map(str, args), "-o", os.devnull]
@@ -49,3 +82,21 @@ def test_second_start_loads_every_kernel_from_the_cache(tmp_path, subset):
     assert len(second["cache_hits"]) == second["kernels"] >= 10
     assert first["kernels"] >= second["kernels"]  # cold: helpers compiled as callees count too
     assert any(cache.rglob("*.nbi"))
+    _check_lean_start(cache)
+
+
+def _check_lean_start(cache) -> None:
+    """After warm-up a start runs no LLVM optimisation and imports no lowering registry
+    (spiel_edge/_cache_load.py), with the records of numba's own loading, bit for bit; a
+    damaged runtime file is compiled again and rewritten whole."""
+    (runtime,) = cache.rglob("spiel_edge-nrt-*.nbo")
+    stock, lean = _probe(cache, lean=False), _probe(cache)
+    assert stock["optimised"] and stock["registries"]  # numba's own path, as a control
+    assert lean["optimised"] == [] and not lean["registries"]
+    assert lean["records"] == stock["records"]
+    assert any(len(r["targets"]) > 1 for r in lean["records"])  # several targets ran too
+    good = runtime.read_bytes()
+    runtime.write_bytes(good[: len(good) // 2])
+    damaged = _probe(cache)
+    assert damaged["optimised"] == ["nrt"] and damaged["records"] == stock["records"]
+    assert runtime.read_bytes() == good

@@ -1,0 +1,170 @@
+"""Start the project's kernels from numba's cache without setting up numba's compiler.
+
+When every kernel comes from the cache, numba 0.68 still pays at the first kernel call for
+two things only a compilation needs (docs/performance.md, "Fifth session"):
+
+- ``FunctionCache.load_overload`` refreshes the target context, which imports and registers
+  every lowering registry (numba.np.arraymath, linalg, the typed containers, ...);
+- the runtime (NRT) compiles its small LLVM module of atomic reference counts, which brings
+  LLVM's optimiser and code generator into the process.
+
+:func:`install` makes a cache hit of this project's kernels (``spiel_edge.*`` and
+``firmware_protocol.*``) initialise only the runtime before loading, and keeps the runtime's
+machine code in numba's cache folder beside the kernels, keyed like numba's own entries (CPU
+name and features, versions), so a warm start runs no LLVM pass at all. A cache miss compiles
+exactly as before: numba's compiler refreshes the context itself. Other packages' cached
+functions keep numba's own path. Another numba version, a damaged or foreign runtime file, or
+``SPIEL_EDGE_NUMBA_LEAN=0`` fall back to numba's own behaviour.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import struct
+import sys
+import tempfile
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+ENV_SWITCH = "SPIEL_EDGE_NUMBA_LEAN"
+SUPPORTED = ((0, 68),)  # numba versions whose internals this was checked against
+OWN_MODULES = ("spiel_edge.", "firmware_protocol.")
+RUNTIME_MAGIC = b"spiel-edge nrt 1\n"
+
+_state = {"installed": False, "folder": None}
+
+
+def install() -> bool:
+    """Patch numba's cache loading once per process; True when the lean path is active."""
+    if _state["installed"]:
+        return True
+    if os.environ.get(ENV_SWITCH, "1") == "0":
+        return False
+    try:
+        import numba
+        from numba.core import caching
+        from numba.core.runtime import nrt, nrtdynmod
+    except ImportError:
+        return False
+    if _version(numba.__version__) not in SUPPORTED:
+        log.debug("numba %s: cached kernels load the stock way", numba.__version__)
+        return False
+    stock_load = caching.FunctionCache.load_overload
+
+    def load_overload(cache, sig, target_context):
+        if not getattr(cache._py_func, "__module__", "").startswith(OWN_MODULES):
+            return stock_load(cache, sig, target_context)
+        if _state["folder"] is None:
+            _state["folder"] = runtime_folder(caching.FunctionCache) or False  # False: none
+        nrt.rtsys.initialize(target_context)
+        with cache._guard_against_spurious_io_errors():
+            return cache._load_overload(sig, target_context)
+
+    stock_compile = nrtdynmod.compile_nrt_functions
+
+    def compile_nrt_functions(ctx):
+        folder = _state["folder"]
+        if not folder:
+            return stock_compile(ctx)
+        return _runtime_library(ctx, folder, nrtdynmod.create_nrt_module)
+
+    caching.FunctionCache.load_overload = load_overload
+    nrtdynmod.compile_nrt_functions = compile_nrt_functions
+    _state["installed"] = True
+    return True
+
+
+def _version(text: str) -> tuple[int, int]:
+    try:
+        major, minor = text.split(".")[:2]
+        return int(major), int(minor)
+    except ValueError:
+        return (0, 0)
+
+
+def _anchor() -> None:
+    """Not a kernel: numba's cache locator places the runtime file as it would place a kernel
+    of this module (beside the package, in NUMBA_CACHE_DIR or in the user's cache)."""
+
+
+def runtime_folder(function_cache) -> Path | None:
+    try:
+        return Path(function_cache(_anchor)._cache_path)
+    except Exception as exc:  # no usable cache location: numba raises RuntimeError
+        log.debug("no folder for the numba runtime cache: %s", exc)
+        return None
+
+
+def runtime_file(folder: Path, codegen) -> Path:
+    """The runtime's cache file for this CPU, numba, llvmlite and Python."""
+    import llvmlite
+    import numba
+
+    key = repr((codegen.magic_tuple(), numba.__version__, llvmlite.__version__, sys.version))
+    return folder / f"spiel_edge-nrt-{hashlib.sha256(key.encode()).hexdigest()[:16]}.nbo"
+
+
+def _runtime_library(ctx, folder: Path, create_module):
+    """The NRT library from ``folder`` when it is there and intact, else compiled and saved."""
+    codegen = ctx.codegen()
+    path = runtime_file(folder, codegen)
+    try:
+        parts = _unpack(path.read_bytes())
+        library = codegen.unserialize_library((parts[0].decode(), "object", parts[1:]))
+        log.debug("numba runtime loaded from %s", path)
+        return library
+    except FileNotFoundError:
+        pass
+    except Exception as exc:  # a damaged or foreign file: compile as numba would
+        log.debug("numba runtime cache %s unusable (%s): compiling it", path, exc)
+    made = create_module(ctx)
+    ir_module, library = made if isinstance(made, tuple) else (made, None)
+    library = library or codegen.create_library("nrt")
+    library.enable_object_caching()
+    library.add_ir_module(ir_module)
+    library.finalize()
+    name, _kind, (object_code, bitcode) = library.serialize_using_object_code()
+    _save(path, _pack((name.encode(), object_code, bitcode)))
+    return library
+
+
+def _pack(parts: tuple[bytes, ...]) -> bytes:
+    body = b"".join(struct.pack("<Q", len(p)) + p for p in parts)
+    return RUNTIME_MAGIC + hashlib.sha256(body).digest() + body
+
+
+def _unpack(blob: bytes) -> tuple[bytes, ...]:
+    """The parts of a :func:`_pack` blob; ValueError when it is not one, whole."""
+    head = len(RUNTIME_MAGIC)
+    if blob[:head] != RUNTIME_MAGIC:
+        raise ValueError("not a runtime cache file")
+    digest, body = blob[head : head + 32], blob[head + 32 :]
+    if hashlib.sha256(body).digest() != digest:
+        raise ValueError("checksum mismatch")
+    parts, at = [], 0
+    while at < len(body):
+        (size,) = struct.unpack_from("<Q", body, at)
+        parts.append(bytes(body[at + 8 : at + 8 + size]))
+        at += 8 + size
+    if len(parts) != 3:
+        raise ValueError("wrong number of parts")
+    return tuple(parts)
+
+
+def _save(path: Path, blob: bytes) -> None:
+    """Write beside, then rename: readers see the whole file or none (a read-only cache
+    folder only costs the next start its compile)."""
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(blob)
+        os.chmod(tmp, 0o644)  # as numba's own cache files: a service user reads what root wrote
+        os.replace(tmp, path)
+    except OSError as exc:
+        log.debug("numba runtime cache not written to %s: %s", path, exc)
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
