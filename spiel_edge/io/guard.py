@@ -242,12 +242,13 @@ def read_bytes_bounded(
         if st.st_size > max_bytes:
             raise error(f"{name}: {st.st_size} bytes, more than {limit} can take ({max_bytes})")
         chunks, size = [], 0
-        while size <= max_bytes:  # a file may return less than asked (or grow while read)
-            chunk = os.read(fd, max_bytes + 1 - size)
-            if not chunk:
-                break
+        while size <= max_bytes:
+            wanted = max_bytes + 1 - size
+            chunk = os.read(fd, wanted)
             chunks.append(chunk)
             size += len(chunk)
+            if not chunk or (len(chunk) < wanted and size >= st.st_size):
+                break  # the end: one read when it holds all that fstat counted
     except OSError as exc:
         raise error(f"{name}: cannot read: {exc.strerror}") from None
     finally:

@@ -50,7 +50,7 @@ def read_frames(path: str | Path, limits: InputLimits | None = None) -> np.ndarr
 
     The file must be a regular file no larger than ``limits`` allow (the profile's frame
     shape); its size and then its shape are checked before any sample is converted."""
-    path = Path(path)
+    path = path if isinstance(path, Path) else Path(path)
     limits = limits or InputLimits()
     data = read_bytes_bounded(
         path, limits.max_text_bytes, InputError, path.name, "a frame of the profile's shape"
@@ -86,29 +86,31 @@ def _read_integers(data: bytes) -> np.ndarray | None:
     """(rows, columns) when every token is an integer and rows agree in length, else None."""
     if not data:
         return None
-    buf = np.frombuffer(data, dtype=np.uint8)
     values = np.empty(len(data) // 2 + 1)
-    rows = np.empty(len(data) // 2 + 1, dtype=np.int64)
-    n_values, n_rows = _scan_integers(buf, values, rows)
-    if n_rows <= 0 or n_values % n_rows or np.any(rows[:n_rows] != n_values // n_rows):
+    n_values, n_rows = _scan_integers(np.frombuffer(data, dtype=np.uint8), values)
+    if n_rows <= 0:
         return None
-    return values[:n_values].reshape(n_rows, n_values // n_rows).copy()
+    return values[:n_values].reshape(n_rows, n_values // n_rows)
 
 
 @jit
-def _scan_integers(buf, values, rows):
+def _scan_integers(buf, values):
     """Integers separated by spaces, tabs or commas, one row per line (blank lines skipped);
-    returns (values, rows) read, or (-1, -1) at the first byte that is not part of one."""
+    returns (values, rows) read, or (-1, -1) at the first byte that is not part of one or
+    when rows differ in length (the general parser reports those)."""
     n_values = 0
     n_rows = 0
     in_row = 0
+    width = -1
     i = 0
     n = buf.shape[0]
     while i < n:
         b = buf[i]
         if b == 10 or b == 13:  # a line break (CR LF gives an empty line, skipped)
             if in_row:
-                rows[n_rows] = in_row
+                if width >= 0 and in_row != width:
+                    return -1, -1
+                width = in_row
                 n_rows += 1
                 in_row = 0
             i += 1
@@ -133,7 +135,8 @@ def _scan_integers(buf, values, rows):
             n_values += 1
             in_row += 1
     if in_row:
-        rows[n_rows] = in_row
+        if width >= 0 and in_row != width:
+            return -1, -1
         n_rows += 1
     return n_values, n_rows
 
@@ -142,6 +145,7 @@ def iter_recordings(
     folder: str | Path, background: str | Path | None = None, limits: InputLimits | None = None
 ) -> Iterator[Recording]:
     """Each frames file with its background; read errors become Recording.error, never raise."""
+    background = None if background is None else Path(background)
     for path in frame_files(folder):
         yield read_recording(path, background, limits)
 
