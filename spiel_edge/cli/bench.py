@@ -17,7 +17,11 @@ from spiel_edge.measure.bench import run_bench, to_json
     help="Passes over the acquisitions.",
 )
 @click.option("--association", type=click.Choice(["auto", "onnx", "geometric"]), default=None)
-@click.option("--no-startup", is_flag=True, help="Skip the fresh-interpreter start-up timing.")
+@click.option(
+    "--no-startup",
+    is_flag=True,
+    help="Skip the fresh-interpreter start-up timing and the peak-memory run.",
+)
 @click.option(
     "--reference",
     "reference_count",
@@ -81,6 +85,8 @@ def command(
         click.echo(
             f"start-up (fresh interpreter, import + first acquisition): {result['startup_s']} s"
         )
+    if "peak_rss_mib" in result:
+        click.echo(f"peak RSS of run --port sim:// --frames 300: {result['peak_rss_mib']} MiB")
     if as_json:
         click.echo(to_json(result))
     return 0

@@ -1,4 +1,5 @@
-"""Benchmarks: microseconds per acquisition for each stage and end to end, and start-up time.
+"""Benchmarks: microseconds per acquisition for each stage and end to end, start-up time and
+peak memory of a service run.
 
 Real 4 x 64 acquisitions come from the vendored recordings; synthetic 8 x 256 and 16 x 1024
 acquisitions from the virtual board's echo model (:mod:`spiel_edge.sim.synthetic`, two targets each). Start-up is measured in
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import subprocess
 import sys
 import time
@@ -152,6 +154,31 @@ def startup_seconds(runs: int = 2) -> list[float]:
     return times
 
 
+SERVICE_RUN = ("run", "--port", "sim://", "--frames", "300", "-o", os.devnull)
+
+
+def peak_rss_mib(args: tuple[str, ...] = SERVICE_RUN, timeout_s: float = 300.0) -> float:
+    """Peak resident memory (MiB) of a fresh ``spiel-edge ARGS`` process, as the kernel
+    accounts it for that child alone (``wait4``'s ru_maxrss: KiB on Linux); a run that fails
+    or outlives ``timeout_s`` raises RuntimeError."""
+    cmd = [sys.executable, "-m", "spiel_edge.cli", *args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.monotonic() > deadline:
+            proc.kill()
+            os.wait4(proc.pid, 0)
+            raise RuntimeError(f"spiel-edge {' '.join(args)} ran longer than {timeout_s} s")
+        time.sleep(0.05)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode:
+        raise RuntimeError(f"spiel-edge {' '.join(args)} exited with {proc.returncode}")
+    return round(usage.ru_maxrss / 1024.0, 1)
+
+
 def run_bench(
     repeat: int = 5, association: str | None = None, startup: bool = True, reference_count: int = 8
 ) -> dict:
@@ -191,6 +218,7 @@ def run_bench(
     result["tracker_8_tracks"] = time_tracker()
     if startup:
         result["startup_s"] = startup_seconds()
+        result["peak_rss_mib"] = peak_rss_mib()  # issue 14: run --port sim:// --frames 300
     return result
 
 

@@ -39,3 +39,14 @@ def test_bench_json_is_the_last_line_with_stage_timings(capsys):
     scene = result["scene_4_tracked"]
     assert scene["k"] == 4 and scene["acquisitions"] > 0
     assert 0 < scene["median_us"] <= scene["p95_us"]
+
+
+def test_peak_memory_is_the_childs_own_and_failures_raise():
+    import pytest
+
+    from spiel_edge.measure.bench import peak_rss_mib
+
+    small = peak_rss_mib(("run", "--port", "sim://", "--frames", "2", "--rate", "0", "-o", "-"))
+    assert 30 < small < 2000  # an interpreter with numpy and numba, in MiB (not KiB, not bytes)
+    with pytest.raises(RuntimeError, match="exited with 2"):
+        peak_rss_mib(("run", "--no-such-option"))
