@@ -25,6 +25,7 @@ import os
 import struct
 import sys
 import tempfile
+import weakref
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -34,7 +35,7 @@ SUPPORTED = ((0, 68),)  # numba versions whose internals this was checked agains
 OWN_MODULES = ("spiel_edge.", "firmware_protocol.")
 RUNTIME_MAGIC = b"spiel-edge nrt 1\n"
 
-_state = {"installed": False, "folder": None}
+_state = {"installed": False, "folder": None, "loading": False}
 
 
 def install() -> bool:
@@ -60,8 +61,12 @@ def install() -> bool:
         if _state["folder"] is None:
             _state["folder"] = runtime_folder(caching.FunctionCache) or False  # False: none
         nrt.rtsys.initialize(target_context)
-        with cache._guard_against_spurious_io_errors():
-            return cache._load_overload(sig, target_context)
+        _state["loading"] = True  # under numba's compiler lock: one load at a time
+        try:
+            with cache._guard_against_spurious_io_errors():
+                return cache._load_overload(sig, target_context)
+        finally:
+            _state["loading"] = False
 
     stock_compile = nrtdynmod.compile_nrt_functions
 
@@ -73,8 +78,70 @@ def install() -> bool:
 
     caching.FunctionCache.load_overload = load_overload
     nrtdynmod.compile_nrt_functions = compile_nrt_functions
+    _defer_linking_bitcode()
     _state["installed"] = True
     return True
+
+
+def _defer_linking_bitcode() -> None:
+    """A cached kernel's library holds machine code and the LLVM bitcode other functions
+    would link; numba parses that bitcode at every load (tens of ms and MiB per kernel) though
+    only a compilation in this process reads it. Libraries loaded by :func:`install`'s path
+    parse it on first use instead, and all of them before any compilation starts (numba
+    refreshes its context first), so a compiling process sees numba's own state."""
+    import llvmlite.binding as ll
+    from numba.core import codegen, cpu
+
+    class LazyBitcodeLibrary(codegen.JITCodeLibrary):
+        _bitcode = None
+        _parsed = None
+
+        @property
+        def _shared_module(self):
+            self.materialize()
+            return self._parsed
+
+        @_shared_module.setter
+        def _shared_module(self, module):
+            self._parsed = module
+
+        def materialize(self) -> None:
+            if self._bitcode is not None:
+                bitcode, self._bitcode = self._bitcode, None
+                self._parsed = ll.parse_bitcode(bitcode)
+                self._codegen._engine._load_defined_symbols(self._parsed)
+
+        def get_pointer_to_function(self, name):
+            if self._bitcode is None:
+                return super().get_pointer_to_function(name)
+            self._ensure_finalized()  # the entry points numba asks for are in the machine code
+            return self._codegen._engine.get_function_address(name)
+
+    pending = weakref.WeakSet()
+    stock_unserialize = codegen.JITCPUCodegen.unserialize_library
+    stock_refresh = cpu.CPUContext.refresh
+
+    def unserialize_library(generator, serialized):
+        name, kind, data = serialized
+        if not _state["loading"] or kind != "object":
+            return stock_unserialize(generator, serialized)
+        object_code, bitcode = data
+        library = LazyBitcodeLibrary(generator, name)
+        library.enable_object_caching()
+        library._set_compiled_object(object_code)
+        library._bitcode = bitcode
+        library._finalize_final_module()
+        pending.add(library)
+        return library
+
+    def refresh(context):
+        for library in list(pending):
+            library.materialize()
+        pending.clear()
+        return stock_refresh(context)
+
+    codegen.JITCPUCodegen.unserialize_library = unserialize_library
+    cpu.CPUContext.refresh = refresh
 
 
 def _version(text: str) -> tuple[int, int]:

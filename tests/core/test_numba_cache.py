@@ -42,8 +42,17 @@ pipeline = build_pipeline(load_profile())
 out = [pipeline.process(f, b).record() for f, b in zip(subset.frames[:6], subset.backgrounds[:6])]
 pipeline.set_max_targets(4)
 out += [pipeline.process(f).record() for f in subset.frames[:6]]
-print(json.dumps({"records": out, "optimised": runs,
-                  "registries": "numba.np.arraymath" in sys.modules}))
+report = {"records": out, "optimised": list(runs), "registries": "numba.np.arraymath" in sys.modules}
+# then a compilation in the same process (a new signature of a kernel whose callees come from
+# the cache): it must link them as numba would, their bitcode parsed on demand
+import numpy as np
+from spiel_edge.pipeline import detect, memg
+y = subset.frames[0].astype(np.float32)
+peaks, counts = detect.detect(subset.frames[0] - subset.backgrounds[0], threshold=100.0)
+params = np.full((y.shape[0], peaks.shape[1], 4), np.nan)
+memg._memg_kernel(y, peaks, counts, 3.0, 30, params, np.zeros(peaks.shape, dtype=np.int64))
+report["compiled"] = np.nan_to_num(params, nan=-1.0).ravel().tolist()
+print(json.dumps(report))
 """
 
 
@@ -90,10 +99,11 @@ def _check_lean_start(cache) -> None:
     (spiel_edge/_cache_load.py), with the records of numba's own loading, bit for bit; a
     damaged runtime file is compiled again and rewritten whole."""
     (runtime,) = cache.rglob("spiel_edge-nrt-*.nbo")
-    stock, lean = _probe(cache, lean=False), _probe(cache)
+    lean, stock = _probe(cache), _probe(cache, lean=False)  # lean first: it compiles
     assert stock["optimised"] and stock["registries"]  # numba's own path, as a control
     assert lean["optimised"] == [] and not lean["registries"]
     assert lean["records"] == stock["records"]
+    assert lean["compiled"] == stock["compiled"] and max(lean["compiled"]) > 0
     assert any(len(r["targets"]) > 1 for r in lean["records"])  # several targets ran too
     good = runtime.read_bytes()
     runtime.write_bytes(good[: len(good) // 2])
