@@ -1,20 +1,22 @@
 """Start the project's kernels from numba's cache without setting up numba's compiler.
 
 When every kernel comes from the cache, numba 0.68 still pays at the first kernel call for
-two things only a compilation needs (docs/performance.md, "Fifth session"):
+three things only a compilation needs (docs/performance.md, "Fifth session"):
 
 - ``FunctionCache.load_overload`` refreshes the target context, which imports and registers
   every lowering registry (numba.np.arraymath, linalg, the typed containers, ...);
 - the runtime (NRT) compiles its small LLVM module of atomic reference counts, which brings
-  LLVM's optimiser and code generator into the process.
+  LLVM's optimiser and code generator into the process;
+- each loaded library parses the LLVM bitcode kept for linking it into other functions.
 
 :func:`install` makes a cache hit of this project's kernels (``spiel_edge.*`` and
-``firmware_protocol.*``) initialise only the runtime before loading, and keeps the runtime's
+``firmware_protocol.*``) initialise only the runtime before loading, keeps the runtime's
 machine code in numba's cache folder beside the kernels, keyed like numba's own entries (CPU
-name and features, versions), so a warm start runs no LLVM pass at all. A cache miss compiles
-exactly as before: numba's compiler refreshes the context itself. Other packages' cached
-functions keep numba's own path. Another numba version, a damaged or foreign runtime file, or
-``SPIEL_EDGE_NUMBA_LEAN=0`` fall back to numba's own behaviour.
+name and features, versions), and defers each library's bitcode until something links it,
+so a warm start runs no LLVM pass at all. A cache miss compiles exactly as before: numba's
+compiler refreshes the context itself, and every deferred bitcode is parsed first. Other
+packages' cached functions keep numba's own path. Another numba version, a damaged or
+foreign runtime file, or ``SPIEL_EDGE_NUMBA_LEAN=0`` fall back to numba's own behaviour.
 """
 
 from __future__ import annotations
