@@ -76,19 +76,24 @@ def emg_value(t, alpha, mu, sigma, eta):
     return alpha * math.exp(-0.5 * u * u) * (1.0 + math.erf(eta * u / SQRT2))
 
 
-@jit
-def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
-    """Value of one component at t; its partial derivatives go to out[col:col + 4]."""
+@jit(inline="always")
+def _emg_jacobian(t, alpha, mu, sigma, eta):
+    """(value, d/d alpha, d/d mu, d/d sigma, d/d eta) of one component at t."""
     u = (t - mu) / sigma
     g = math.exp(-0.5 * u * u)
     e = 1.0 + math.erf(eta * u / SQRT2)
     s = SQRT_2_OVER_PI * math.exp(-0.5 * eta * eta * u * u)
     dm_du = alpha * g * (-u * e + eta * s)
-    out[col] = g * e
-    out[col + 1] = -dm_du / sigma
-    out[col + 2] = -dm_du * u / sigma
-    out[col + 3] = alpha * g * s * u
-    return alpha * g * e
+    return alpha * g * e, g * e, -dm_du / sigma, -dm_du * u / sigma, alpha * g * s * u
+
+
+@jit
+def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
+    """Value of one component at t; its partial derivatives go to out[col:col + 4]."""
+    value, out[col], out[col + 1], out[col + 2], out[col + 3] = _emg_jacobian(
+        t, alpha, mu, sigma, eta
+    )
+    return value
 
 
 @jit
@@ -134,6 +139,8 @@ def solve_spd(a, b, n, x):
 def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations); returns
     the cost sum r^2 at p, so a trial step costs one pass that also yields the next system."""
+    if n_comp == 1:
+        return _normal_equations_1(y, lo, hi, p[0], p[1], p[2], p[3], a, b)
     n_par = 4 * n_comp
     a[:, :] = 0.0
     b[:] = 0.0
@@ -153,6 +160,41 @@ def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     for i in range(n_par):
         for j in range(i + 1, n_par):
             a[i, j] = a[j, i]
+    return cost
+
+
+@jit
+def _normal_equations_1(y, lo, hi, alpha, mu, sigma, eta, a, b):
+    """:func:`_normal_equations` for one component, its sums in registers: every sum takes
+    the same terms in the same order, so a, b and the cost are the general loop's bit for bit."""
+    a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
+    b0 = b1 = b2 = b3 = 0.0
+    cost = 0.0
+    for t in range(lo, hi):
+        m = 0.0
+        v, j0, j1, j2, j3 = _emg_jacobian(float(t), alpha, mu, sigma, eta)
+        m += v
+        r = y[t] - m
+        cost += r * r
+        b0 += j0 * r
+        a00 += j0 * j0
+        b1 += j1 * r
+        a10 += j1 * j0
+        a11 += j1 * j1
+        b2 += j2 * r
+        a20 += j2 * j0
+        a21 += j2 * j1
+        a22 += j2 * j2
+        b3 += j3 * r
+        a30 += j3 * j0
+        a31 += j3 * j1
+        a32 += j3 * j2
+        a33 += j3 * j3
+    b[0], b[1], b[2], b[3] = b0, b1, b2, b3
+    a[0, 0], a[0, 1], a[0, 2], a[0, 3] = a00, a10, a20, a30
+    a[1, 0], a[1, 1], a[1, 2], a[1, 3] = a10, a11, a21, a31
+    a[2, 0], a[2, 1], a[2, 2], a[2, 3] = a20, a21, a22, a32
+    a[3, 0], a[3, 1], a[3, 2], a[3, 3] = a30, a31, a32, a33
     return cost
 
 
