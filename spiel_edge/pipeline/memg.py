@@ -77,14 +77,28 @@ def emg_value(t, alpha, mu, sigma, eta):
 
 
 @jit(inline="always")
-def _emg_jacobian(t, alpha, mu, sigma, eta):
-    """(value, d/d alpha, d/d mu, d/d sigma, d/d eta) of one component at t."""
+def _emg_shape(t, mu, sigma, eta):
+    """u, the Gaussian g and the skew factor e of one component at t (its value: alpha g e)."""
     u = (t - mu) / sigma
     g = math.exp(-0.5 * u * u)
     e = 1.0 + math.erf(eta * u / SQRT2)
+    return u, g, e
+
+
+@jit(inline="always")
+def _emg_slopes(alpha, sigma, eta, u, g, e):
+    """d/d alpha, d/d mu, d/d sigma, d/d eta of one component from its :func:`_emg_shape`."""
     s = SQRT_2_OVER_PI * math.exp(-0.5 * eta * eta * u * u)
     dm_du = alpha * g * (-u * e + eta * s)
-    return alpha * g * e, g * e, -dm_du / sigma, -dm_du * u / sigma, alpha * g * s * u
+    return g * e, -dm_du / sigma, -dm_du * u / sigma, alpha * g * s * u
+
+
+@jit(inline="always")
+def _emg_jacobian(t, alpha, mu, sigma, eta):
+    """(value, d/d alpha, d/d mu, d/d sigma, d/d eta) of one component at t."""
+    u, g, e = _emg_shape(t, mu, sigma, eta)
+    j0, j1, j2, j3 = _emg_slopes(alpha, sigma, eta, u, g, e)
+    return alpha * g * e, j0, j1, j2, j3
 
 
 @jit
@@ -199,17 +213,111 @@ def _normal_equations_1(y, lo, hi, alpha, mu, sigma, eta, a, b):
 
 
 @jit
+def work_size(n_comp):
+    """Floats of :func:`_fit_cluster`'s ``work`` for up to n_comp components (the window of
+    n_comp detections, each within CLUSTER_GAP of the next, spans < window_size samples)."""
+    n_par = 4 * n_comp
+    return 2 * n_comp + 4 * n_par + 2 * n_par * n_par + (3 * n_comp + 1) * window_size(n_comp)
+
+
+@jit
+def window_size(n_comp):
+    return WINDOW_BEFORE + WINDOW_AFTER + 1 + (n_comp - 1) * (CLUSTER_GAP - 1)
+
+
+@jit
+def _trial_cost(y, lo, hi, p, n_comp, shape, resid):
+    """The cost sum r^2 at p over y[lo:hi] (the same sum as :func:`_normal_equations`); each
+    component's u, g, e go to shape[3 * (n_comp * i + k):][:3] and the residuals to resid[i]
+    (i = t - lo), from which :func:`_jacobian_sums` makes the normal equations."""
+    cost = 0.0
+    for t in range(lo, hi):
+        i = t - lo
+        m = 0.0
+        for k in range(n_comp):
+            alpha = p[4 * k]
+            u, g, e = _emg_shape(float(t), p[4 * k + 1], p[4 * k + 2], p[4 * k + 3])
+            m += alpha * g * e
+            at = 3 * (n_comp * i + k)
+            shape[at], shape[at + 1], shape[at + 2] = u, g, e
+        r = y[t] - m
+        resid[i] = r
+        cost += r * r
+    return cost
+
+
+@jit
+def _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
+    """J^T J into a and J^T r into b from :func:`_trial_cost`'s stores for the same p: the
+    terms and their order are :func:`_normal_equations`', so a and b are its bit for bit."""
+    if n_comp == 1:
+        _jacobian_sums_1(n_win, p[0], p[2], p[3], shape, resid, a, b)
+        return
+    n_par = 4 * n_comp
+    a[:, :] = 0.0
+    b[:] = 0.0
+    for i in range(n_win):
+        for k in range(n_comp):
+            at = 3 * (n_comp * i + k)
+            jac_row[4 * k], jac_row[4 * k + 1], jac_row[4 * k + 2], jac_row[4 * k + 3] = (
+                _emg_slopes(
+                    p[4 * k], p[4 * k + 2], p[4 * k + 3], shape[at], shape[at + 1], shape[at + 2]
+                )
+            )
+        r = resid[i]
+        for i2 in range(n_par):
+            b[i2] += jac_row[i2] * r
+            for j in range(i2 + 1):
+                a[i2, j] += jac_row[i2] * jac_row[j]
+    for i2 in range(n_par):
+        for j in range(i2 + 1, n_par):
+            a[i2, j] = a[j, i2]
+
+
+@jit
+def _jacobian_sums_1(n_win, alpha, sigma, eta, shape, resid, a, b):
+    """:func:`_jacobian_sums` for one component, its sums in registers."""
+    a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
+    b0 = b1 = b2 = b3 = 0.0
+    for i in range(n_win):
+        j0, j1, j2, j3 = _emg_slopes(
+            alpha, sigma, eta, shape[3 * i], shape[3 * i + 1], shape[3 * i + 2]
+        )
+        r = resid[i]
+        b0 += j0 * r
+        a00 += j0 * j0
+        b1 += j1 * r
+        a10 += j1 * j0
+        a11 += j1 * j1
+        b2 += j2 * r
+        a20 += j2 * j0
+        a21 += j2 * j1
+        a22 += j2 * j2
+        b3 += j3 * r
+        a30 += j3 * j0
+        a31 += j3 * j1
+        a32 += j3 * j2
+        a33 += j3 * j3
+    b[0], b[1], b[2], b[3] = b0, b1, b2, b3
+    a[0, 0], a[0, 1], a[0, 2], a[0, 3] = a00, a10, a20, a30
+    a[1, 0], a[1, 1], a[1, 2], a[1, 3] = a10, a11, a21, a31
+    a[2, 0], a[2, 1], a[2, 2], a[2, 3] = a20, a21, a22, a32
+    a[3, 0], a[3, 1], a[3, 2], a[3, 3] = a30, a31, a32, a33
+
+
+@jit
 def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     """LM on components fitted jointly over y[lo:hi]; p holds 4 * n_comp parameters.
 
-    Each trial evaluates the residuals and the Jacobian in one pass, so an accepted step
-    already holds the next normal equations (one pass per trial instead of a cost pass per
-    trial plus a Jacobian pass per iteration). Stops when an accepted step lowers the cost by
-    less than REL_TOL of itself: the fits that ran to the cap were weakly identified shapes
-    (eta or sigma at a bound, wide flat echoes) creeping along a flat valley with no effect on
-    the ToA (docs/performance.md).
-    ``work`` is a scratch buffer (>= 6 * 4K + 3 * (4K)^2 floats for K components) so the
-    hot loop allocates nothing. Returns the number of iterations."""
+    A trial evaluates the cost alone, keeping each sample's u, g, e and residual; only an
+    accepted step that the fit goes on from turns them into the next normal equations
+    (:func:`_jacobian_sums`), so rejected and final steps cost no Jacobian. Stops when an
+    accepted step lowers the cost by less than REL_TOL of itself: the fits that ran to the cap
+    were weakly identified shapes (eta or sigma at a bound, wide flat echoes) creeping along a
+    flat valley with no effect on the ToA (docs/performance.md).
+    ``work`` is a scratch buffer (>= work_size(K) floats for K components, whose window must
+    be at most window_size(K) samples) so the hot loop allocates nothing. Returns the number
+    of iterations."""
     n_par = 4 * n_comp
     lower_mu = work[0:n_comp]
     upper_mu = work[n_comp : 2 * n_comp]
@@ -231,16 +339,18 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     b = work[base + n_par : base + 2 * n_par]
     step = work[base + 2 * n_par : base + 3 * n_par]
     trial = work[base + 3 * n_par : base + 4 * n_par]
-    b_trial = work[base + 4 * n_par : base + 5 * n_par]
-    start = base + 5 * n_par
+    start = base + 4 * n_par
     nn = n_par * n_par
     a = work[start : start + nn].reshape((n_par, n_par))
     damped = work[start + nn : start + 2 * nn].reshape((n_par, n_par))
-    a_trial = work[start + 2 * nn : start + 3 * nn].reshape((n_par, n_par))
+    n_win = hi - lo
+    start += 2 * nn
+    shape = work[start : start + 3 * n_comp * n_win]
+    resid = work[start + 3 * n_comp * n_win : start + (3 * n_comp + 1) * n_win]
     lam = LAMBDA_START
     cost = _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b)
     iterations = 0
-    for _ in range(max_iter):
+    for it in range(max_iter):
         iterations += 1
         improved = False
         for _try in range(8):
@@ -254,12 +364,12 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
             for i in range(n_par):
                 trial[i] = p[i] + step[i]
             _clamp(trial, n_comp, lower_mu, upper_mu, alpha_max)
-            new_cost = _normal_equations(y, lo, hi, trial, n_comp, jac_row, a_trial, b_trial)
+            new_cost = _trial_cost(y, lo, hi, trial, n_comp, shape, resid)
             if new_cost < cost:
                 converged = cost - new_cost <= REL_TOL * cost
                 p[:n_par] = trial[:n_par]
-                a[:, :] = a_trial
-                b[:] = b_trial
+                if not converged and it + 1 < max_iter:  # the fit goes on from here
+                    _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
                 cost = new_cost
                 lam = max(lam * LAMBDA_DOWN, 1e-7)
                 improved = not converged
@@ -276,7 +386,7 @@ def _memg_kernel(y, peaks, counts, mu_window, max_iter, params, iterations):
     n_ch, n_t = y.shape
     n_max = 4 * peaks.shape[1]
     p = np.empty(n_max)
-    work = np.empty(7 * n_max + 3 * n_max * n_max)
+    work = np.empty(work_size(peaks.shape[1]))
     for c in range(n_ch):
         first = 0
         while first < counts[c]:
