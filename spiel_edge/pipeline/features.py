@@ -15,7 +15,7 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline._validate import as_frames
-from spiel_edge.pipeline.memg import SQRT2, SQRT_2_OVER_PI, emg_value
+from spiel_edge.pipeline.memg import SQRT2, SQRT_2_OVER_PI, _emg_arguments, emg_value
 
 FEATURE_NAMES = (
     "alpha",
@@ -136,19 +136,23 @@ LANES = 4  # channels whose whole-frame sums run side by side (independent addit
 
 
 @jit
-def _channel_model(params, c, n_t, model, out):
+def _channel_model(params, c, n_t, model, args, out):
     """The channel's fitted model into ``model`` (zeroed first) and each component's power
     (its sum over its support, the very values the model adds, in the same order) into
-    out[c, k, 5]."""
+    out[c, k, 5]. Each value is :func:`emg_value`'s arithmetic; the divisions of the whole
+    support go first (into ``args``, (2, n_t)), so they overlap instead of each waiting
+    before its exp and erf."""
     model[:] = 0.0
     for k in range(params.shape[1]):
         alpha, mu, sigma, eta = params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3]
         if math.isnan(alpha):
             continue
-        power = 0.0
         lo, hi = _support(mu, sigma, n_t)
         for t in range(lo, hi):
-            v = emg_value(float(t), alpha, mu, sigma, eta)
+            _, args[0, t], args[1, t] = _emg_arguments(float(t), mu, sigma, eta)
+        power = 0.0
+        for t in range(lo, hi):
+            v = alpha * math.exp(args[0, t]) * (1.0 + math.erf(args[1, t]))
             model[t] += v
             power += v
         out[c, k, 5] = power
@@ -167,11 +171,12 @@ def _features_kernel(y, params, peaks, toa_code, out):
     how many run side by side, not any sum's order."""
     n_ch, n_t = y.shape
     model = np.zeros((LANES, n_t))
+    args = np.empty((2, n_t))
     c0 = 0
     while c0 < n_ch:
         lanes = min(LANES, n_ch - c0)
         for i in range(lanes):
-            _channel_model(params, c0 + i, n_t, model[i], out)
+            _channel_model(params, c0 + i, n_t, model[i], args, out)
         if lanes == LANES:
             e0 = e1 = e2 = e3 = 0.0
             r0 = r1 = r2 = r3 = 0.0

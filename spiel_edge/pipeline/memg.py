@@ -71,18 +71,23 @@ def _check_peaks(peaks, counts, n_t):
 
 
 @jit(inline="always")
-def emg_value(t, alpha, mu, sigma, eta):
+def _emg_arguments(t, mu, sigma, eta):
+    """u and the arguments of the exp and the erf in :func:`_emg_shape`."""
     u = (t - mu) / sigma
-    return alpha * math.exp(-0.5 * u * u) * (1.0 + math.erf(eta * u / SQRT2))
+    return u, -0.5 * u * u, eta * u / SQRT2
+
+
+@jit(inline="always")
+def emg_value(t, alpha, mu, sigma, eta):
+    _, x_exp, x_erf = _emg_arguments(t, mu, sigma, eta)
+    return alpha * math.exp(x_exp) * (1.0 + math.erf(x_erf))
 
 
 @jit(inline="always")
 def _emg_shape(t, mu, sigma, eta):
     """u, the Gaussian g and the skew factor e of one component at t (its value: alpha g e)."""
-    u = (t - mu) / sigma
-    g = math.exp(-0.5 * u * u)
-    e = 1.0 + math.erf(eta * u / SQRT2)
-    return u, g, e
+    u, x_exp, x_erf = _emg_arguments(t, mu, sigma, eta)
+    return u, math.exp(x_exp), 1.0 + math.erf(x_erf)
 
 
 @jit(inline="always")
@@ -152,9 +157,8 @@ def solve_spd(a, b, n, x):
 @jit
 def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations); returns
-    the cost sum r^2 at p, so a trial step costs one pass that also yields the next system."""
-    if n_comp == 1:
-        return _normal_equations_1(y, lo, hi, p[0], p[1], p[2], p[3], a, b)
+    the cost sum r^2 at p. The plain one-pass form: the fit takes the same sums in the same
+    order from :func:`_trial_cost` and :func:`_jacobian_sums` (the tests hold them to it)."""
     n_par = 4 * n_comp
     a[:, :] = 0.0
     b[:] = 0.0
@@ -178,41 +182,6 @@ def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
 
 
 @jit
-def _normal_equations_1(y, lo, hi, alpha, mu, sigma, eta, a, b):
-    """:func:`_normal_equations` for one component, its sums in registers: every sum takes
-    the same terms in the same order, so a, b and the cost are the general loop's bit for bit."""
-    a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
-    b0 = b1 = b2 = b3 = 0.0
-    cost = 0.0
-    for t in range(lo, hi):
-        m = 0.0
-        v, j0, j1, j2, j3 = _emg_jacobian(float(t), alpha, mu, sigma, eta)
-        m += v
-        r = y[t] - m
-        cost += r * r
-        b0 += j0 * r
-        a00 += j0 * j0
-        b1 += j1 * r
-        a10 += j1 * j0
-        a11 += j1 * j1
-        b2 += j2 * r
-        a20 += j2 * j0
-        a21 += j2 * j1
-        a22 += j2 * j2
-        b3 += j3 * r
-        a30 += j3 * j0
-        a31 += j3 * j1
-        a32 += j3 * j2
-        a33 += j3 * j3
-    b[0], b[1], b[2], b[3] = b0, b1, b2, b3
-    a[0, 0], a[0, 1], a[0, 2], a[0, 3] = a00, a10, a20, a30
-    a[1, 0], a[1, 1], a[1, 2], a[1, 3] = a10, a11, a21, a31
-    a[2, 0], a[2, 1], a[2, 2], a[2, 3] = a20, a21, a22, a32
-    a[3, 0], a[3, 1], a[3, 2], a[3, 3] = a30, a31, a32, a33
-    return cost
-
-
-@jit
 def work_size(n_comp):
     """Floats of :func:`_fit_cluster`'s ``work`` for up to n_comp components (the window of
     n_comp detections, each within CLUSTER_GAP of the next, spans < window_size samples)."""
@@ -226,23 +195,36 @@ def window_size(n_comp):
 
 
 @jit
-def _trial_cost(y, lo, hi, p, n_comp, shape, resid):
+def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
     """The cost sum r^2 at p over y[lo:hi] (the same sum as :func:`_normal_equations`); each
     component's u, g, e go to shape[3 * (n_comp * i + k):][:3] and the residuals to resid[i]
-    (i = t - lo), from which :func:`_jacobian_sums` makes the normal equations."""
+    (i = t - lo), from which :func:`_jacobian_sums` makes the normal equations.
+
+    Stops early, returning the partial sum, once it reaches ``bound`` (the cost to beat): a
+    sum of non-negative terms never falls as terms are added (rounding is monotone), so the
+    step is rejected either way and the full cost would not be used (inf: no early stop)."""
+    # first the divisions of every sample (independent of each other, so they overlap),
+    # then the exp and erf calls on their results: _emg_shape's arithmetic, in two passes
+    for k in range(n_comp):
+        mu, sigma, eta = p[4 * k + 1], p[4 * k + 2], p[4 * k + 3]
+        for t in range(lo, hi):
+            at = 3 * (n_comp * (t - lo) + k)
+            shape[at], shape[at + 1], shape[at + 2] = _emg_arguments(float(t), mu, sigma, eta)
     cost = 0.0
     for t in range(lo, hi):
         i = t - lo
         m = 0.0
         for k in range(n_comp):
-            alpha = p[4 * k]
-            u, g, e = _emg_shape(float(t), p[4 * k + 1], p[4 * k + 2], p[4 * k + 3])
-            m += alpha * g * e
             at = 3 * (n_comp * i + k)
-            shape[at], shape[at + 1], shape[at + 2] = u, g, e
+            g = math.exp(shape[at + 1])
+            e = 1.0 + math.erf(shape[at + 2])
+            m += p[4 * k] * g * e
+            shape[at + 1], shape[at + 2] = g, e
         r = y[t] - m
         resid[i] = r
         cost += r * r
+        if cost >= bound:
+            return cost
     return cost
 
 
@@ -348,7 +330,8 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     shape = work[start : start + 3 * n_comp * n_win]
     resid = work[start + 3 * n_comp * n_win : start + (3 * n_comp + 1) * n_win]
     lam = LAMBDA_START
-    cost = _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b)
+    cost = _trial_cost(y, lo, hi, p, n_comp, shape, resid, np.inf)
+    _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
     iterations = 0
     for it in range(max_iter):
         iterations += 1
@@ -364,7 +347,7 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
             for i in range(n_par):
                 trial[i] = p[i] + step[i]
             _clamp(trial, n_comp, lower_mu, upper_mu, alpha_max)
-            new_cost = _trial_cost(y, lo, hi, trial, n_comp, shape, resid)
+            new_cost = _trial_cost(y, lo, hi, trial, n_comp, shape, resid, cost)
             if new_cost < cost:
                 converged = cost - new_cost <= REL_TOL * cost
                 p[:n_par] = trial[:n_par]
