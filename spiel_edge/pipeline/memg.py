@@ -115,7 +115,7 @@ def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
     return value
 
 
-@jit
+@jit(inline="always")
 def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
     for k in range(n_comp):
         p[4 * k] = min(max(p[4 * k], 1e-6), alpha_max)
@@ -152,6 +152,10 @@ def solve_spd(a, b, n, x):
             s -= a[k, i] * x[k]
         x[i] = s / a[i, i]
     return True
+
+
+# the fit's copy, compiled into it: a call would pay an atomic reference count per array
+_solve_spd_inline = jit(inline="always")(solve_spd.py_func)
 
 
 @jit
@@ -194,7 +198,7 @@ def window_size(n_comp):
     return WINDOW_BEFORE + WINDOW_AFTER + 1 + (n_comp - 1) * (CLUSTER_GAP - 1)
 
 
-@jit
+@jit(inline="always")
 def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
     """The cost sum r^2 at p over y[lo:hi] (the same sum as :func:`_normal_equations`); each
     component's u, g, e go to shape[3 * (n_comp * i + k):][:3] and the residuals to resid[i]
@@ -228,7 +232,7 @@ def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
     return cost
 
 
-@jit
+@jit(inline="always")
 def _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
     """J^T J into a and J^T r into b from :func:`_trial_cost`'s stores for the same p: the
     terms and their order are :func:`_normal_equations`', so a and b are its bit for bit."""
@@ -256,7 +260,7 @@ def _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
             a[i2, j] = a[j, i2]
 
 
-@jit
+@jit(inline="always")
 def _jacobian_sums_1(n_win, alpha, sigma, eta, shape, resid, a, b):
     """:func:`_jacobian_sums` for one component, its sums in registers."""
     a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
@@ -287,7 +291,10 @@ def _jacobian_sums_1(n_win, alpha, sigma, eta, shape, resid, a, b):
     a[3, 0], a[3, 1], a[3, 2], a[3, 3] = a30, a31, a32, a33
 
 
-@jit
+# _nrt=False: the fit allocates nothing (numba refuses to compile it if it did), and without
+# the runtime the views of ``work`` and the arrays handed to its steps skip their atomic
+# reference counts, which took ~20 % of its time (perf: NRT_incref / NRT_decref)
+@jit(_nrt=False)
 def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     """LM on components fitted jointly over y[lo:hi]; p holds 4 * n_comp parameters.
 
@@ -341,7 +348,7 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
                 for j in range(n_par):
                     damped[i, j] = a[i, j]
                 damped[i, i] += lam * (a[i, i] + 1e-9)
-            if not solve_spd(damped, b, n_par, step):
+            if not _solve_spd_inline(damped, b, n_par, step):
                 lam *= 10.0
                 continue
             for i in range(n_par):
@@ -350,7 +357,8 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
             new_cost = _trial_cost(y, lo, hi, trial, n_comp, shape, resid, cost)
             if new_cost < cost:
                 converged = cost - new_cost <= REL_TOL * cost
-                p[:n_par] = trial[:n_par]
+                for i in range(n_par):
+                    p[i] = trial[i]
                 if not converged and it + 1 < max_iter:  # the fit goes on from here
                     _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
                 cost = new_cost
