@@ -128,6 +128,13 @@ def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
 def solve_spd(a, b, n, x):
     """Solve a x = b for the leading n x n block of a symmetric positive definite a
     (Cholesky, in place on a). Returns False when a is not positive definite."""
+    return _solve_spd_inline(a, b, n, x)
+
+
+@jit(inline="always")
+def _solve_spd_inline(a, b, n, x):
+    """:func:`solve_spd`'s body, compiled into the fit (a call would cost an atomic reference
+    count per array)."""
     for j in range(n):
         d = a[j, j]
         for k in range(j):
@@ -152,10 +159,6 @@ def solve_spd(a, b, n, x):
             s -= a[k, i] * x[k]
         x[i] = s / a[i, i]
     return True
-
-
-# the fit's copy, compiled into it: a call would pay an atomic reference count per array
-_solve_spd_inline = jit(inline="always")(solve_spd.py_func)
 
 
 @jit
