@@ -1,7 +1,8 @@
 """Dump every front-kernel output and fused Result for a fixed input set, or compare two dumps
 bit for bit (docs/experiments/front-speed.md).
 
-    python tools/front_identity.py dump OUT.pkl [REAL.npz]   # REAL: frames/backgrounds arrays
+    python tools/front_identity.py real REAL.npz [FOLDER]   # spiel-icra23 train_val + _bg
+    python tools/front_identity.py dump OUT.pkl [REAL.npz]
     python tools/front_identity.py compare A.pkl B.pkl
 
 Inputs: the vendored 4 x 64 subset, the real acquisitions of REAL.npz (with their background,
@@ -93,6 +94,21 @@ def dump(path: str, real: str | None) -> None:
         pickle.dump(out, fh)
 
 
+def real(path: str, folder: str = "/work/shared/datasets/spiel-icra23") -> None:
+    """Every train_val recording with its train_val_bg background, as arrays."""
+    from spiel_edge.io.spiel_csv import frame_files, read_recording
+
+    frames, backgrounds = [], []
+    for p in frame_files(f"{folder}/train_val"):
+        rec = read_recording(p, f"{folder}/train_val_bg")
+        if rec.error is not None:
+            raise SystemExit(rec.error)
+        frames.append(rec.frames)
+        backgrounds.append(rec.background)
+    np.savez(path, frames=np.array(frames), backgrounds=np.array(backgrounds))
+    print(len(frames), "acquisitions")
+
+
 def compare(a_path: str, b_path: str) -> int:
     with open(a_path, "rb") as fh:
         a = pickle.load(fh)
@@ -109,7 +125,9 @@ def compare(a_path: str, b_path: str) -> int:
 
 
 if __name__ == "__main__":
-    if sys.argv[1] == "dump":
+    if sys.argv[1] == "real":
+        real(*sys.argv[2:])
+    elif sys.argv[1] == "dump":
         dump(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else None)
     else:
         sys.exit(compare(sys.argv[2], sys.argv[3]))
