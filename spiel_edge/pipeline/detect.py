@@ -47,32 +47,46 @@ def detect(
 
 @jit
 def _detect_kernel(y, hi, lo, min_amp, first, peaks, counts):
+    """One pass per channel: the gradient's rises open echoes and each echo's maximum is
+    tracked as the pass goes (sample t - 1 joins the open echo once step t has shown that no
+    new echo starts there), the first of equal maxima as an argmax from its start."""
     n_ch, n_t = y.shape
     k_max = peaks.shape[1]
-    starts = np.empty(n_t, dtype=np.int64)
     cand = np.empty(n_t, dtype=np.int64)
     amp = np.empty(n_t)
     for c in range(n_ch):
-        n_start = 0
-        rising = False
-        for t in range(max(1, first + 1), n_t):
-            g = y[c, t] - y[c, t - 1]
-            if not rising and g > hi:
-                rising = True
-                starts[n_start] = t - 1
-                n_start += 1
-            elif rising and g < lo:
-                rising = False
         n_cand = 0
-        for i in range(n_start):
-            end = starts[i + 1] if i + 1 < n_start else n_t
-            best = starts[i]
-            for t in range(starts[i], end):
-                if y[c, t] > y[c, best]:
-                    best = t
-            if y[c, best] >= min_amp:
+        t = max(1, first + 1)
+        while t < n_t and not y[c, t] - y[c, t - 1] > hi:  # before the first echo
+            t += 1
+        if t < n_t:
+            rising = True
+            best = t - 1  # the open echo's maximum so far (the first of equal ones)
+            y_best = y[c, t - 1]
+            for t in range(best + 2, n_t):
+                prev = y[c, t - 1]
+                g = y[c, t] - prev
+                if rising:
+                    if g < lo:
+                        rising = False
+                elif g > hi:  # a new echo starts at t - 1: the open one ends before it
+                    if y_best >= min_amp:
+                        cand[n_cand] = best
+                        amp[n_cand] = y_best
+                        n_cand += 1
+                    rising = True
+                    best = t - 1
+                    y_best = prev
+                    continue
+                if prev > y_best:
+                    best = t - 1
+                    y_best = prev
+            if y[c, n_t - 1] > y_best:  # the last echo runs to the frame's end
+                best = n_t - 1
+                y_best = y[c, n_t - 1]
+            if y_best >= min_amp:
                 cand[n_cand] = best
-                amp[n_cand] = y[c, best]
+                amp[n_cand] = y_best
                 n_cand += 1
         # keep the strongest k_max (the earlier of equally strong), then report in time order
         keep = min(n_cand, k_max)

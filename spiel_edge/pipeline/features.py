@@ -15,7 +15,7 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline._validate import as_frames
-from spiel_edge.pipeline.memg import SQRT2, SQRT_2_OVER_PI, emg_value
+from spiel_edge.pipeline.memg import SQRT2, SQRT_2_OVER_PI, _emg_arguments, emg_value
 
 FEATURE_NAMES = (
     "alpha",
@@ -132,64 +132,109 @@ def _support(mu, sigma, n_t):
     return lo, hi
 
 
+LANES = 4  # channels whose whole-frame sums run side by side (independent addition chains)
+
+
+@jit
+def _channel_model(params, c, n_t, model, args, out):
+    """The channel's fitted model into ``model`` (zeroed first) and each component's power
+    (its sum over its support, the very values the model adds, in the same order) into
+    out[c, k, 5]. Each value is :func:`emg_value`'s arithmetic; the divisions of the whole
+    support go first (into ``args``, (2, n_t)), so they overlap instead of each waiting
+    before its exp and erf."""
+    model[:] = 0.0
+    for k in range(params.shape[1]):
+        alpha, mu, sigma, eta = params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3]
+        if math.isnan(alpha):
+            continue
+        lo, hi = _support(mu, sigma, n_t)
+        for t in range(lo, hi):
+            _, args[0, t], args[1, t] = _emg_arguments(float(t), mu, sigma, eta)
+        power = 0.0
+        for t in range(lo, hi):
+            v = alpha * math.exp(args[0, t]) * (1.0 + math.erf(args[1, t]))
+            model[t] += v
+            power += v
+        out[c, k, 5] = power
+
+
+@jit
+def _frame_confidence(energy, resid):
+    frame_conf = 1.0 - resid / energy if energy > 0.0 else 0.0
+    return min(max(frame_conf, 0.0), 1.0)
+
+
 @jit
 def _features_kernel(y, params, peaks, toa_code, out):
+    """Each sum over the frame (energy, residual) adds its terms in time order, one channel's
+    after another's; the channels' chains run LANES at a time in one loop, which only changes
+    how many run side by side, not any sum's order."""
     n_ch, n_t = y.shape
-    k_max = params.shape[1]
-    model = np.zeros(n_t)
-    for c in range(n_ch):
-        model[:] = 0.0
-        energy = 0.0
-        for t in range(n_t):
-            energy += y[c, t] * y[c, t]
-        for k in range(k_max):
-            if math.isnan(params[c, k, 0]):
-                continue
-            lo, hi = _support(params[c, k, 1], params[c, k, 2], n_t)
-            for t in range(lo, hi):
-                model[t] += emg_value(
-                    float(t), params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3]
-                )
-        resid = 0.0
-        for t in range(n_t):
-            resid += (y[c, t] - model[t]) ** 2
-        frame_conf = 1.0 - resid / energy if energy > 0.0 else 0.0
-        frame_conf = min(max(frame_conf, 0.0), 1.0)
-        for k in range(k_max):
-            alpha, mu, sigma, eta = (
-                params[c, k, 0],
-                params[c, k, 1],
-                params[c, k, 2],
-                params[c, k, 3],
-            )
-            if math.isnan(alpha):
-                continue
-            mode = _mode(alpha, mu, sigma, eta)
-            power = 0.0
-            s_lo, s_hi = _support(mu, sigma, n_t)
-            for t in range(s_lo, s_hi):
-                power += emg_value(float(t), alpha, mu, sigma, eta)
-            lo = max(0, int(math.floor(mode - 2.0 * sigma)))
-            hi = min(n_t, int(math.ceil(mode + 2.0 * sigma)) + 1)
-            local_e = 0.0
-            local_r = 0.0
-            for t in range(lo, hi):
-                local_e += y[c, t] * y[c, t]
-                local_r += (y[c, t] - model[t]) ** 2
-            echo_conf = 1.0 - local_r / local_e if local_e > 0.0 else 0.0
-            if toa_code == 0:
-                toa = mode
-            elif toa_code == 1:
-                toa = mu
-            elif toa_code == 2:
-                toa = _leading_half_max(alpha, mu, sigma, eta, mode)
-            else:
-                toa = _interpolated_peak(y[c], peaks[c, k])
-            out[c, k, 0] = alpha
-            out[c, k, 1] = mu
-            out[c, k, 2] = sigma
-            out[c, k, 3] = eta
-            out[c, k, 4] = min(max(echo_conf, 0.0), 1.0)
-            out[c, k, 5] = power
-            out[c, k, 6] = toa
-            out[c, k, 7] = frame_conf
+    model = np.zeros((LANES, n_t))
+    args = np.empty((2, n_t))
+    c0 = 0
+    while c0 < n_ch:
+        lanes = min(LANES, n_ch - c0)
+        for i in range(lanes):
+            _channel_model(params, c0 + i, n_t, model[i], args, out)
+        if lanes == LANES:
+            e0 = e1 = e2 = e3 = 0.0
+            r0 = r1 = r2 = r3 = 0.0
+            for t in range(n_t):
+                e0 += y[c0, t] * y[c0, t]
+                r0 += (y[c0, t] - model[0, t]) ** 2
+                e1 += y[c0 + 1, t] * y[c0 + 1, t]
+                r1 += (y[c0 + 1, t] - model[1, t]) ** 2
+                e2 += y[c0 + 2, t] * y[c0 + 2, t]
+                r2 += (y[c0 + 2, t] - model[2, t]) ** 2
+                e3 += y[c0 + 3, t] * y[c0 + 3, t]
+                r3 += (y[c0 + 3, t] - model[3, t]) ** 2
+            _echo_rows(y, params, peaks, toa_code, c0, model[0], _frame_confidence(e0, r0), out)
+            _echo_rows(y, params, peaks, toa_code, c0 + 1, model[1], _frame_confidence(e1, r1), out)
+            _echo_rows(y, params, peaks, toa_code, c0 + 2, model[2], _frame_confidence(e2, r2), out)
+            _echo_rows(y, params, peaks, toa_code, c0 + 3, model[3], _frame_confidence(e3, r3), out)
+        else:
+            for i in range(lanes):
+                c = c0 + i
+                energy = 0.0
+                resid = 0.0
+                for t in range(n_t):
+                    energy += y[c, t] * y[c, t]
+                    resid += (y[c, t] - model[i, t]) ** 2
+                frame_conf = _frame_confidence(energy, resid)
+                _echo_rows(y, params, peaks, toa_code, c, model[i], frame_conf, out)
+        c0 += lanes
+
+
+@jit
+def _echo_rows(y, params, peaks, toa_code, c, model, frame_conf, out):
+    """Channel c's feature rows (its powers already in out[c, :, 5])."""
+    n_t = y.shape[1]
+    for k in range(params.shape[1]):
+        alpha, mu, sigma, eta = params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3]
+        if math.isnan(alpha):
+            continue
+        mode = _mode(alpha, mu, sigma, eta)
+        lo = max(0, int(math.floor(mode - 2.0 * sigma)))
+        hi = min(n_t, int(math.ceil(mode + 2.0 * sigma)) + 1)
+        local_e = 0.0
+        local_r = 0.0
+        for t in range(lo, hi):
+            local_e += y[c, t] * y[c, t]
+            local_r += (y[c, t] - model[t]) ** 2
+        echo_conf = 1.0 - local_r / local_e if local_e > 0.0 else 0.0
+        if toa_code == 0:
+            toa = mode
+        elif toa_code == 1:
+            toa = mu
+        elif toa_code == 2:
+            toa = _leading_half_max(alpha, mu, sigma, eta, mode)
+        else:
+            toa = _interpolated_peak(y[c], peaks[c, k])
+        out[c, k, 0] = alpha
+        out[c, k, 1] = mu
+        out[c, k, 2] = sigma
+        out[c, k, 3] = eta
+        out[c, k, 4] = min(max(echo_conf, 0.0), 1.0)
+        out[c, k, 6] = toa
+        out[c, k, 7] = frame_conf

@@ -71,27 +71,51 @@ def _check_peaks(peaks, counts, n_t):
 
 
 @jit(inline="always")
-def emg_value(t, alpha, mu, sigma, eta):
+def _emg_arguments(t, mu, sigma, eta):
+    """u and the arguments of the exp and the erf in :func:`_emg_shape`."""
     u = (t - mu) / sigma
-    return alpha * math.exp(-0.5 * u * u) * (1.0 + math.erf(eta * u / SQRT2))
+    return u, -0.5 * u * u, eta * u / SQRT2
+
+
+@jit(inline="always")
+def emg_value(t, alpha, mu, sigma, eta):
+    _, x_exp, x_erf = _emg_arguments(t, mu, sigma, eta)
+    return alpha * math.exp(x_exp) * (1.0 + math.erf(x_erf))
+
+
+@jit(inline="always")
+def _emg_shape(t, mu, sigma, eta):
+    """u, the Gaussian g and the skew factor e of one component at t (its value: alpha g e)."""
+    u, x_exp, x_erf = _emg_arguments(t, mu, sigma, eta)
+    return u, math.exp(x_exp), 1.0 + math.erf(x_erf)
+
+
+@jit(inline="always")
+def _emg_slopes(alpha, sigma, eta, u, g, e):
+    """d/d alpha, d/d mu, d/d sigma, d/d eta of one component from its :func:`_emg_shape`."""
+    s = SQRT_2_OVER_PI * math.exp(-0.5 * eta * eta * u * u)
+    dm_du = alpha * g * (-u * e + eta * s)
+    return g * e, -dm_du / sigma, -dm_du * u / sigma, alpha * g * s * u
+
+
+@jit(inline="always")
+def _emg_jacobian(t, alpha, mu, sigma, eta):
+    """(value, d/d alpha, d/d mu, d/d sigma, d/d eta) of one component at t."""
+    u, g, e = _emg_shape(t, mu, sigma, eta)
+    j0, j1, j2, j3 = _emg_slopes(alpha, sigma, eta, u, g, e)
+    return alpha * g * e, j0, j1, j2, j3
 
 
 @jit
 def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
     """Value of one component at t; its partial derivatives go to out[col:col + 4]."""
-    u = (t - mu) / sigma
-    g = math.exp(-0.5 * u * u)
-    e = 1.0 + math.erf(eta * u / SQRT2)
-    s = SQRT_2_OVER_PI * math.exp(-0.5 * eta * eta * u * u)
-    dm_du = alpha * g * (-u * e + eta * s)
-    out[col] = g * e
-    out[col + 1] = -dm_du / sigma
-    out[col + 2] = -dm_du * u / sigma
-    out[col + 3] = alpha * g * s * u
-    return alpha * g * e
+    value, out[col], out[col + 1], out[col + 2], out[col + 3] = _emg_jacobian(
+        t, alpha, mu, sigma, eta
+    )
+    return value
 
 
-@jit
+@jit(inline="always")
 def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
     for k in range(n_comp):
         p[4 * k] = min(max(p[4 * k], 1e-6), alpha_max)
@@ -104,6 +128,13 @@ def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
 def solve_spd(a, b, n, x):
     """Solve a x = b for the leading n x n block of a symmetric positive definite a
     (Cholesky, in place on a). Returns False when a is not positive definite."""
+    return _solve_spd_inline(a, b, n, x)
+
+
+@jit(inline="always")
+def _solve_spd_inline(a, b, n, x):
+    """:func:`solve_spd`'s body, compiled into the fit (a call would cost an atomic reference
+    count per array)."""
     for j in range(n):
         d = a[j, j]
         for k in range(j):
@@ -133,7 +164,8 @@ def solve_spd(a, b, n, x):
 @jit
 def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations); returns
-    the cost sum r^2 at p, so a trial step costs one pass that also yields the next system."""
+    the cost sum r^2 at p. The plain one-pass form: the fit takes the same sums in the same
+    order from :func:`_trial_cost` and :func:`_jacobian_sums` (the tests hold them to it)."""
     n_par = 4 * n_comp
     a[:, :] = 0.0
     b[:] = 0.0
@@ -157,17 +189,127 @@ def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
 
 
 @jit
+def work_size(n_comp):
+    """Floats of :func:`_fit_cluster`'s ``work`` for up to n_comp components (the window of
+    n_comp detections, each within CLUSTER_GAP of the next, spans < window_size samples)."""
+    n_par = 4 * n_comp
+    return 2 * n_comp + 4 * n_par + 2 * n_par * n_par + (3 * n_comp + 1) * window_size(n_comp)
+
+
+@jit
+def window_size(n_comp):
+    return WINDOW_BEFORE + WINDOW_AFTER + 1 + (n_comp - 1) * (CLUSTER_GAP - 1)
+
+
+@jit(inline="always")
+def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
+    """The cost sum r^2 at p over y[lo:hi] (the same sum as :func:`_normal_equations`); each
+    component's u, g, e go to shape[3 * (n_comp * i + k):][:3] and the residuals to resid[i]
+    (i = t - lo), from which :func:`_jacobian_sums` makes the normal equations.
+
+    Stops early, returning the partial sum, once it reaches ``bound`` (the cost to beat): a
+    sum of non-negative terms never falls as terms are added (rounding is monotone), so the
+    step is rejected either way and the full cost would not be used (inf: no early stop)."""
+    # first the divisions of every sample (independent of each other, so they overlap),
+    # then the exp and erf calls on their results: _emg_shape's arithmetic, in two passes
+    for k in range(n_comp):
+        mu, sigma, eta = p[4 * k + 1], p[4 * k + 2], p[4 * k + 3]
+        for t in range(lo, hi):
+            at = 3 * (n_comp * (t - lo) + k)
+            shape[at], shape[at + 1], shape[at + 2] = _emg_arguments(float(t), mu, sigma, eta)
+    cost = 0.0
+    for t in range(lo, hi):
+        i = t - lo
+        m = 0.0
+        for k in range(n_comp):
+            at = 3 * (n_comp * i + k)
+            g = math.exp(shape[at + 1])
+            e = 1.0 + math.erf(shape[at + 2])
+            m += p[4 * k] * g * e
+            shape[at + 1], shape[at + 2] = g, e
+        r = y[t] - m
+        resid[i] = r
+        cost += r * r
+        if cost >= bound:
+            return cost
+    return cost
+
+
+@jit(inline="always")
+def _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
+    """J^T J into a and J^T r into b from :func:`_trial_cost`'s stores for the same p: the
+    terms and their order are :func:`_normal_equations`', so a and b are its bit for bit."""
+    if n_comp == 1:
+        _jacobian_sums_1(n_win, p[0], p[2], p[3], shape, resid, a, b)
+        return
+    n_par = 4 * n_comp
+    a[:, :] = 0.0
+    b[:] = 0.0
+    for i in range(n_win):
+        for k in range(n_comp):
+            at = 3 * (n_comp * i + k)
+            jac_row[4 * k], jac_row[4 * k + 1], jac_row[4 * k + 2], jac_row[4 * k + 3] = (
+                _emg_slopes(
+                    p[4 * k], p[4 * k + 2], p[4 * k + 3], shape[at], shape[at + 1], shape[at + 2]
+                )
+            )
+        r = resid[i]
+        for i2 in range(n_par):
+            b[i2] += jac_row[i2] * r
+            for j in range(i2 + 1):
+                a[i2, j] += jac_row[i2] * jac_row[j]
+    for i2 in range(n_par):
+        for j in range(i2 + 1, n_par):
+            a[i2, j] = a[j, i2]
+
+
+@jit(inline="always")
+def _jacobian_sums_1(n_win, alpha, sigma, eta, shape, resid, a, b):
+    """:func:`_jacobian_sums` for one component, its sums in registers."""
+    a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
+    b0 = b1 = b2 = b3 = 0.0
+    for i in range(n_win):
+        j0, j1, j2, j3 = _emg_slopes(
+            alpha, sigma, eta, shape[3 * i], shape[3 * i + 1], shape[3 * i + 2]
+        )
+        r = resid[i]
+        b0 += j0 * r
+        a00 += j0 * j0
+        b1 += j1 * r
+        a10 += j1 * j0
+        a11 += j1 * j1
+        b2 += j2 * r
+        a20 += j2 * j0
+        a21 += j2 * j1
+        a22 += j2 * j2
+        b3 += j3 * r
+        a30 += j3 * j0
+        a31 += j3 * j1
+        a32 += j3 * j2
+        a33 += j3 * j3
+    b[0], b[1], b[2], b[3] = b0, b1, b2, b3
+    a[0, 0], a[0, 1], a[0, 2], a[0, 3] = a00, a10, a20, a30
+    a[1, 0], a[1, 1], a[1, 2], a[1, 3] = a10, a11, a21, a31
+    a[2, 0], a[2, 1], a[2, 2], a[2, 3] = a20, a21, a22, a32
+    a[3, 0], a[3, 1], a[3, 2], a[3, 3] = a30, a31, a32, a33
+
+
+# _nrt=False: the fit allocates nothing (numba refuses to compile it if it did), and without
+# the runtime the views of ``work`` and the arrays handed to its steps skip their atomic
+# reference counts, which took ~20 % of its time (perf: NRT_incref / NRT_decref)
+@jit(_nrt=False)
 def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     """LM on components fitted jointly over y[lo:hi]; p holds 4 * n_comp parameters.
 
-    Each trial evaluates the residuals and the Jacobian in one pass, so an accepted step
-    already holds the next normal equations (one pass per trial instead of a cost pass per
-    trial plus a Jacobian pass per iteration). Stops when an accepted step lowers the cost by
-    less than REL_TOL of itself: the fits that ran to the cap were weakly identified shapes
-    (eta or sigma at a bound, wide flat echoes) creeping along a flat valley with no effect on
-    the ToA (docs/performance.md).
-    ``work`` is a scratch buffer (>= 6 * 4K + 3 * (4K)^2 floats for K components) so the
-    hot loop allocates nothing. Returns the number of iterations."""
+    A trial evaluates the cost alone, keeping each sample's u, g, e and residual; only an
+    accepted step that the fit goes on from turns them into the next normal equations
+    (:func:`_jacobian_sums`), so rejected and final steps cost no Jacobian. Stops when an
+    accepted step lowers the cost by less than REL_TOL of itself: the fits that ran to the cap
+    were weakly identified shapes (eta or sigma at a bound, wide flat echoes) creeping along a
+    flat valley with no effect on the ToA (docs/performance.md).
+    ``work`` is a scratch buffer (>= work_size(K) floats for K components, whose window must
+    be at most window_size(K) samples) so the hot loop allocates nothing. Returns the number
+    of iterations."""
     n_par = 4 * n_comp
     lower_mu = work[0:n_comp]
     upper_mu = work[n_comp : 2 * n_comp]
@@ -189,16 +331,19 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     b = work[base + n_par : base + 2 * n_par]
     step = work[base + 2 * n_par : base + 3 * n_par]
     trial = work[base + 3 * n_par : base + 4 * n_par]
-    b_trial = work[base + 4 * n_par : base + 5 * n_par]
-    start = base + 5 * n_par
+    start = base + 4 * n_par
     nn = n_par * n_par
     a = work[start : start + nn].reshape((n_par, n_par))
     damped = work[start + nn : start + 2 * nn].reshape((n_par, n_par))
-    a_trial = work[start + 2 * nn : start + 3 * nn].reshape((n_par, n_par))
+    n_win = hi - lo
+    start += 2 * nn
+    shape = work[start : start + 3 * n_comp * n_win]
+    resid = work[start + 3 * n_comp * n_win : start + (3 * n_comp + 1) * n_win]
     lam = LAMBDA_START
-    cost = _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b)
+    cost = _trial_cost(y, lo, hi, p, n_comp, shape, resid, np.inf)
+    _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
     iterations = 0
-    for _ in range(max_iter):
+    for it in range(max_iter):
         iterations += 1
         improved = False
         for _try in range(8):
@@ -206,18 +351,19 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
                 for j in range(n_par):
                     damped[i, j] = a[i, j]
                 damped[i, i] += lam * (a[i, i] + 1e-9)
-            if not solve_spd(damped, b, n_par, step):
+            if not _solve_spd_inline(damped, b, n_par, step):
                 lam *= 10.0
                 continue
             for i in range(n_par):
                 trial[i] = p[i] + step[i]
             _clamp(trial, n_comp, lower_mu, upper_mu, alpha_max)
-            new_cost = _normal_equations(y, lo, hi, trial, n_comp, jac_row, a_trial, b_trial)
+            new_cost = _trial_cost(y, lo, hi, trial, n_comp, shape, resid, cost)
             if new_cost < cost:
                 converged = cost - new_cost <= REL_TOL * cost
-                p[:n_par] = trial[:n_par]
-                a[:, :] = a_trial
-                b[:] = b_trial
+                for i in range(n_par):
+                    p[i] = trial[i]
+                if not converged and it + 1 < max_iter:  # the fit goes on from here
+                    _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
                 cost = new_cost
                 lam = max(lam * LAMBDA_DOWN, 1e-7)
                 improved = not converged
@@ -234,7 +380,7 @@ def _memg_kernel(y, peaks, counts, mu_window, max_iter, params, iterations):
     n_ch, n_t = y.shape
     n_max = 4 * peaks.shape[1]
     p = np.empty(n_max)
-    work = np.empty(7 * n_max + 3 * n_max * n_max)
+    work = np.empty(work_size(peaks.shape[1]))
     for c in range(n_ch):
         first = 0
         while first < counts[c]:

@@ -25,6 +25,7 @@ from spiel_edge.pipeline.memg import (
     WINDOW_BEFORE,
     _fit_cluster,
     emg_value,
+    work_size,
 )
 
 SPLIT_OFFSET = 2  # samples either side of the detection where the two components start
@@ -123,7 +124,7 @@ def _split_kernel(y, peaks, counts, params, iterations, min_sigma, max_ratio, mu
     p = np.empty(N_PAR_2)
     one = np.empty(4)
     starts = np.empty(2, dtype=np.int64)
-    work = np.empty(7 * N_PAR_2 + 3 * N_PAR_2 * N_PAR_2)
+    work = np.empty(work_size(2))
     alone = np.empty(k_max, dtype=np.bool_)
     for c in range(n_ch):
         n0 = counts[c]

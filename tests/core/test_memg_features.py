@@ -7,7 +7,9 @@ from spiel_edge.pipeline.detect import detect
 from spiel_edge.pipeline.features import FEATURE_NAMES, echo_features
 from spiel_edge.pipeline.memg import (
     _emg_jacobian_row,
+    _jacobian_sums,
     _normal_equations,
+    _trial_cost,
     emg_value,
     fit_memg,
     solve_spd,
@@ -47,6 +49,28 @@ def test_normal_equations_match_numpy(rng):
     assert cost == pytest.approx(float(r @ r), rel=1e-12)
     np.testing.assert_allclose(a, jac.T @ jac, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(b, jac.T @ r, rtol=1e-10, atol=1e-9)
+
+
+def test_trial_cost_and_jacobian_sums_are_the_normal_equations_bit_for_bit(rng):
+    """The fit's two passes (the one-component sums in registers) against the one-pass loop."""
+    y = rng.uniform(0, 900, 64)
+    for p in (
+        [700.0, 20.3, 1.7, 1.4],
+        [50.0, 30.0, 0.4, -4.0],
+        [900.0, 12.2, 6.0, 8.0],
+        [700.0, 20.3, 1.7, 1.4, 300.0, 24.0, 2.0, -0.5],
+    ):
+        p = np.array(p)
+        n_comp, n_par = len(p) // 4, len(p)
+        a, b = np.empty((n_par, n_par)), np.empty(n_par)
+        want = _normal_equations(y, 14, 31, p, n_comp, np.empty(n_par), a, b)
+        shape, resid = np.empty(3 * n_comp * 17), np.empty(17)
+        a2, b2 = np.full((n_par, n_par), np.nan), np.full(n_par, np.nan)
+        assert _trial_cost(y, 14, 31, p, n_comp, shape, resid, np.inf) == want
+        partial = _trial_cost(y, 14, 31, p, n_comp, np.empty_like(shape), resid.copy(), 1.0)
+        assert 1.0 <= partial <= want  # stopped early: the step would be rejected anyway
+        _jacobian_sums(17, p, n_comp, shape, resid, np.empty(n_par), a2, b2)
+        assert np.array_equal(a, a2) and np.array_equal(b, b2)
 
 
 def test_solve_spd_matches_numpy(rng):
@@ -132,3 +156,22 @@ def test_mode_is_the_maximum_for_every_bounded_eta():
         t = np.linspace(18.0, 25.0, 700001)  # mu 20, sigma 1: [mu - 2 sigma, mu + 5 sigma]
         want = t[np.argmax(naive.emg(t, 500.0, 20.0, 1.0, eta))]
         assert _mode(500.0, 20.0, 1.0, eta) == pytest.approx(want, abs=2e-5)
+
+
+def test_features_of_a_channel_do_not_depend_on_the_others(rng):
+    """Channels run LANES at a time in the kernel; each one's features must be the bits it
+    gets alone (the single-channel path), for every channel count."""
+    for n_ch in (1, 3, 4, 5, 8, 9):
+        y = rng.uniform(0, 50, (n_ch, 64))
+        params = np.full((n_ch, 3, 4), np.nan)
+        peaks = np.full((n_ch, 3), -1)
+        for c in range(n_ch):
+            for k in range(c % 4):
+                mu = 10.0 + 17.0 * k + rng.uniform(0, 5)
+                params[c, k] = (rng.uniform(100, 900), mu, rng.uniform(0.4, 6), rng.uniform(-4, 8))
+                peaks[c, k] = int(mu)
+                y[c] += naive.emg(T, *params[c, k])
+        whole = echo_features(y, params, peaks)
+        for c in range(n_ch):
+            alone = echo_features(y[c : c + 1], params[c : c + 1], peaks[c : c + 1])
+            assert np.array_equal(whole[c], alone[0], equal_nan=True)

@@ -70,6 +70,27 @@ def test_detect_matches_numpy(y, threshold, hysteresis, min_amp, k, first):
     np.testing.assert_array_equal(got[0], want[0])
 
 
+@settings(max_examples=120, deadline=None)
+@given(
+    arrays(
+        np.float64,
+        st.tuples(st.integers(1, 4), st.integers(2, 40)),
+        elements=st.sampled_from([0.0, 10.0, 40.0, 80.0]),
+    ),
+    st.integers(1, 3),
+    st.integers(0, 4),
+)
+def test_detect_matches_numpy_with_ties(y, k, first):
+    """Few levels: equal maxima, rises at the first and last samples, echoes of one sample
+    (the one-pass kernel tracks each echo's maximum as it goes)."""
+    got = detect(
+        y, threshold=20.0, hysteresis=0.5, min_amplitude=10.0, max_echoes=k, first_sample=first
+    )
+    want = naive.detect(y, 20.0, 0.5, 10.0, k, first)
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_array_equal(got[0], want[0])
+
+
 def test_detect_finds_separate_echoes_and_keeps_strongest():
     t = np.arange(64.0)
     y = np.vstack(
