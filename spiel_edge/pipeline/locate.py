@@ -19,6 +19,10 @@ from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 
 MONOSTATIC_MM = 1.0  # a channel this close to the emitter is treated as the emitter itself
+# Every divisor in the compiled solve is nonzero by construction (lengths floored at 1e-9,
+# Cholesky pivots > 1e-150, channel counts >= 1), so numba's zero-division checks (the
+# default "python" error model) can never fire: "numpy" drops them, the same bits.
+_solve = jit(error_model="numpy")
 
 
 def locate(
@@ -60,7 +64,7 @@ def locate(
     return pos, float(rms), bool(ok)
 
 
-@jit
+@_solve
 def _solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2):
     """:func:`spiel_edge.pipeline.memg.solve_spd` for n = 3 on scalars (the lower triangle of
     a symmetric a): the same operations in the same order, so the same bits, without arrays.
@@ -106,7 +110,7 @@ def _solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2):
     return True, x0, x1, x2
 
 
-@jit
+@_solve
 def _initial_guess(d, use, e, ch, facing):
     """Start point q (relative to the emitter) from the linearised ellipsoid equations."""
     radius = -1.0
@@ -161,7 +165,7 @@ def _initial_guess(d, use, e, ch, facing):
     return q0 + t * facing[0], q1 + t * facing[1], q2 + t * facing[2]
 
 
-@jit
+@_solve
 def _cost(d, use, w, e, ch, p0, p1, p2):
     """Weighted and plain sums of squared path residuals at p, and the channels used."""
     weighted = 0.0
@@ -181,7 +185,7 @@ def _cost(d, use, w, e, ch, p0, p1, p2):
     return weighted, plain, n_use
 
 
-@jit
+@_solve
 def _gauss_newton(d, use, w, e, ch, p0, p1, p2, max_iter):
     """Levenberg-Marquardt from p; (rms, p0, p1, p2). Scalars only (the association solves
     this for every candidate combination): no arrays made, |p - e| once per point."""
@@ -241,7 +245,7 @@ def _gauss_newton(d, use, w, e, ch, p0, p1, p2, max_iter):
     return math.sqrt(plain / max(n_use, 1)), p0, p1, p2
 
 
-@jit
+@_solve
 def locate_kernel(d, use, w, e, ch, facing, max_iter, out):
     """The solve for other kernels (association tries candidate echo sets with it): paths
     ``d``, channel mask ``use``, weights ``w``; the position into ``out``; (ok, rms mm)."""
