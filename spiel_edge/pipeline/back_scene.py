@@ -17,7 +17,10 @@ by calling the same kernels in the same order:
    ``Pipeline._targets`` with ``scene.is_double_reflection``), using the fixed-order sums of
    :mod:`spiel_edge.pipeline.scene_geometry` that the staged path uses too.
 
-Only the Target and Result objects are built in Python, once per acquisition. The staged
+Only the Target and Result objects are built in Python, once per acquisition. The call
+takes 15 arguments, not 45 (numba's dispatch costs about 65 ns per array argument): the
+constants are packed by dtype into four buffers (:func:`pack_config`), the outputs into two
+(:class:`SceneBuffers`), and ``_scene_kernel`` hands their views to ``_scene_steps``. The staged
 path stays the reference: :func:`scene_config` returns None (staged back steps) for greedy
 selection, the learned associator's reference mode, more than 6 listening channels, or
 anything :func:`spiel_edge.pipeline.back.kernel_arguments` does not cover.
@@ -41,20 +44,59 @@ from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.joint import MAX_POOL, _pool_kernel
 from spiel_edge.pipeline.scene_geometry import distance3, predicted_paths_into
 from spiel_edge.pipeline.scene_steps import (
+    L_ANCHORS,
+    L_ASSOC_DELAYS,
+    L_B0,
+    L_B1,
+    L_B2,
+    L_BASE,
+    L_BH,
+    L_CHANNELS,
+    L_COST_WEIGHTS,
+    L_DELAYS,
+    L_EMITTER,
+    L_FACING,
+    L_FEATURE,
+    L_FLOATS,
+    L_LISTENING,
+    L_MAX_DIFF,
+    L_MEAN,
+    L_QUALITY,
+    L_SCENE_FLOATS,
+    L_SCENE_INTS,
+    L_SHARE_LISTENING,
+    L_STD,
+    L_THRESHOLD,
+    L_VALUE,
+    L_W0,
+    L_W1,
+    L_W2,
+    L_WH,
     S_DOUBLE_TOL,
     S_MAX_TARGETS,
     S_MIN_SEPARATION,
     S_SHARE_TOL,
     _double_reflection,
     _hypotheses,
+    _outputs,
     _share,
+    _v1,
+    _v2,
+    pack_config,
 )
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 
 
 def scene_config(pipeline: run.Pipeline) -> tuple | None:
-    """The several-target kernel's constant arguments, or None when the pipeline must run
-    the staged back steps."""
+    """The several-target kernel's constant arguments (packed, :func:`pack_config`), or None
+    when the pipeline must run the staged back steps."""
+    args = scene_arguments(pipeline)
+    return None if args is None else pack_config(args)
+
+
+def scene_arguments(pipeline: run.Pipeline) -> tuple | None:
+    """The kernel's constant arguments one by one: ``back.kernel_arguments``, then the
+    scene's ints, floats and listening mask (:data:`_SLOTS` after ``ints``)."""
     scene = pipeline.scene
     if scene.max_targets < 2 or not scene.joint:
         return None
@@ -78,19 +120,14 @@ def scene_config(pipeline: run.Pipeline) -> tuple | None:
 
 
 class SceneBuffers:
-    """The several-target kernel's outputs and pool for one Workspace shape."""
+    """The several-target kernel's outputs and pool for one Workspace shape: views of one
+    int64 and one float64 buffer (the kernel takes the two)."""
 
     def __init__(self, n_channels: int):
-        self.pool_choices = np.full((MAX_POOL, n_channels), -1, dtype=np.int64)
-        self.pool_costs = np.full(MAX_POOL, np.inf)
-        self.first = np.empty(n_channels, dtype=np.int64)
-        self.matched = np.empty((MAX_TARGETS_LIMIT, n_channels), dtype=np.int64)
-        self.position = np.empty((MAX_TARGETS_LIMIT, 3))
-        self.covariance = np.empty((MAX_TARGETS_LIMIT, 3, 3))
-        self.rms = np.empty(MAX_TARGETS_LIMIT)
-        self.score = np.empty(MAX_TARGETS_LIMIT)
-        self.paths = np.empty((MAX_TARGETS_LIMIT, n_channels))
-        self.buffers = (
+        k, n = MAX_TARGETS_LIMIT, n_channels
+        self.ints = np.full(MAX_POOL * n + n + k * n, -1, dtype=np.int64)
+        self.floats = np.full(MAX_POOL + k * (3 + 9 + 1 + 1 + n), np.inf)
+        (
             self.pool_choices,
             self.pool_costs,
             self.first,
@@ -100,7 +137,33 @@ class SceneBuffers:
             self.rms,
             self.score,
             self.paths,
-        )
+        ) = _outputs(self.ints, self.floats, n)
+        self.buffers = (self.ints, self.floats)
+
+
+@jit
+def _scene_kernel(
+    features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, clean,
+    out_ints, out_floats,
+):  # fmt: skip
+    """:func:`_scene_steps` on the packed constants (:func:`pack_config`) and the two output
+    buffers (:class:`SceneBuffers`); returns the number of targets."""
+    outs = _outputs(out_ints, out_floats, features.shape[0])
+    return _scene_steps(
+        features, counts, y, bg, cov_scale, ints,
+        _v1(f64, layout, L_FLOATS), _v1(f64, layout, L_QUALITY),
+        _v1(f64, layout, L_ASSOC_DELAYS), _v1(flags, layout, L_LISTENING),
+        _v2(f64, layout, L_MAX_DIFF), _v2(i64, layout, L_ANCHORS),
+        _v1(f64, layout, L_COST_WEIGHTS), _v1(f64, layout, L_DELAYS),
+        _v2(f64, layout, L_CHANNELS), _v1(f64, layout, L_EMITTER), _v1(f64, layout, L_FACING),
+        _v1(f32, layout, L_MEAN), _v1(f32, layout, L_STD), _v2(f32, layout, L_W0),
+        _v1(f32, layout, L_B0), _v2(f32, layout, L_W1), _v1(f32, layout, L_B1),
+        _v2(f32, layout, L_W2), _v1(f32, layout, L_B2), _v2(f32, layout, L_WH),
+        _v1(f32, layout, L_BH), _v2(i64, layout, L_FEATURE), _v2(f32, layout, L_THRESHOLD),
+        _v2(f64, layout, L_VALUE), f64[layout[3 * L_BASE]], _v1(i64, layout, L_SCENE_INTS),
+        _v1(f64, layout, L_SCENE_FLOATS), _v1(flags, layout, L_SHARE_LISTENING),
+        bonus, clean, *outs,
+    )  # fmt: skip
 
 
 def run_scene(pipeline, config, ws, features, counts, y, bg, raw, background, bonus_given):
@@ -145,7 +208,7 @@ def run_scene(pipeline, config, ws, features, counts, y, bg, raw, background, bo
 
 
 @jit
-def _scene_kernel(
+def _scene_steps(
     features,
     counts,
     y,
@@ -192,8 +255,9 @@ def _scene_kernel(
     out_score,
     out_paths,
 ):
-    """The number of targets found; their matched echoes, positions, covariances, rms,
-    scores and paths in ``out_*`` (best first); ``first`` the first hypothesis's echoes."""
+    """The kernel's steps on the unpacked arguments: the number of targets found; their
+    matched echoes, positions, covariances, rms, scores and paths in ``out_*`` (best
+    first); ``first`` the first hypothesis's echoes."""
     n_ch, k_max = features.shape[0], features.shape[1]
     mm = floats[F_MM_PER_SAMPLE]
     all_paths = np.empty((n_ch, k_max))

@@ -17,9 +17,12 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.memg import solve_spd
 
 MONOSTATIC_MM = 1.0  # a channel this close to the emitter is treated as the emitter itself
+# Every divisor in the compiled solve is nonzero by construction (lengths floored at 1e-9,
+# Cholesky pivots > 1e-150, channel counts >= 1), so numba's zero-division checks (the
+# default "python" error model) can never fire: "numpy" drops them, the same bits.
+_solve = jit(error_model="numpy")
 
 
 def locate(
@@ -61,8 +64,54 @@ def locate(
     return pos, float(rms), bool(ok)
 
 
-@jit
-def _initial_guess(d, use, e, ch, facing, q):
+@_solve
+def _solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2):
+    """:func:`spiel_edge.pipeline.memg.solve_spd` for n = 3 on scalars (the lower triangle of
+    a symmetric a): the same operations in the same order, so the same bits, without arrays.
+    Returns (ok, x0, x1, x2); ok False when a is not positive definite."""
+    d = a00
+    if d <= 1e-300:
+        return False, 0.0, 0.0, 0.0
+    d = math.sqrt(d)
+    l00 = d
+    l10 = a10 / d
+    l20 = a20 / d
+    d = a11
+    d -= l10 * l10
+    if d <= 1e-300:
+        return False, 0.0, 0.0, 0.0
+    d = math.sqrt(d)
+    l11 = d
+    s = a21
+    s -= l20 * l10
+    l21 = s / d
+    d = a22
+    d -= l20 * l20
+    d -= l21 * l21
+    if d <= 1e-300:
+        return False, 0.0, 0.0, 0.0
+    l22 = math.sqrt(d)
+    x0 = b0 / l00
+    s = b1
+    s -= l10 * x0
+    x1 = s / l11
+    s = b2
+    s -= l20 * x0
+    s -= l21 * x1
+    x2 = s / l22
+    x2 = x2 / l22
+    s = x1
+    s -= l21 * x2
+    x1 = s / l11
+    s = x0
+    s -= l10 * x1
+    s -= l20 * x2
+    x0 = s / l00
+    return True, x0, x1, x2
+
+
+@_solve
+def _initial_guess(d, use, e, ch, facing):
     """Start point q (relative to the emitter) from the linearised ellipsoid equations."""
     radius = -1.0
     n_use = 0
@@ -79,48 +128,55 @@ def _initial_guess(d, use, e, ch, facing, q):
     if radius <= 0.0:
         radius = 0.5 * d_sum / max(n_use, 1)
     # |q| = R and |q - s|^2 = (d - R)^2  =>  q . s = (R^2 + |s|^2 - (d - R)^2) / 2 (linear in q)
-    a = np.zeros((3, 3))
-    b = np.zeros(3)
-    s = np.empty(3)
+    # the normal equations' lower triangle and right side as scalars
+    a00 = a10 = a11 = a20 = a21 = a22 = 0.0
+    b0 = b1 = b2 = 0.0
     for n in range(d.shape[0]):
         if not use[n]:
             continue
-        for i in range(3):
-            s[i] = ch[n, i] - e[i]
-        s2 = s[0] * s[0] + s[1] * s[1] + s[2] * s[2]
+        s0 = ch[n, 0] - e[0]
+        s1 = ch[n, 1] - e[1]
+        s2_ = ch[n, 2] - e[2]
+        s2 = s0 * s0 + s1 * s1 + s2_ * s2_
         if s2 < MONOSTATIC_MM**2:
             continue
         rhs = 0.5 * (radius * radius + s2 - (d[n] - radius) ** 2)
-        for i in range(3):
-            b[i] += s[i] * rhs
-            for j in range(3):
-                a[i, j] += s[i] * s[j]
-    trace = a[0, 0] + a[1, 1] + a[2, 2]
-    for i in range(3):
-        a[i, i] += 1e-6 * trace + 1e-9  # ridge: minimum-norm answer where the array is planar
-    if not solve_spd(a, b, 3, q):
-        q[:] = 0.0
-    qf = q[0] * facing[0] + q[1] * facing[1] + q[2] * facing[2]
-    qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2]
+        b0 += s0 * rhs
+        b1 += s1 * rhs
+        b2 += s2_ * rhs
+        a00 += s0 * s0
+        a10 += s1 * s0
+        a11 += s1 * s1
+        a20 += s2_ * s0
+        a21 += s2_ * s1
+        a22 += s2_ * s2_
+    trace = a00 + a11 + a22
+    ridge = 1e-6 * trace + 1e-9  # minimum-norm answer where the array is planar
+    a00 += ridge
+    a11 += ridge
+    a22 += ridge
+    ok, q0, q1, q2 = _solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2)
+    if not ok:
+        q0 = q1 = q2 = 0.0
+    qf = q0 * facing[0] + q1 * facing[1] + q2 * facing[2]
+    qq = q0 * q0 + q1 * q1 + q2 * q2
     disc = qf * qf - (qq - radius * radius)
     t = -qf + math.sqrt(disc) if disc > 0.0 else 0.5 * radius
-    for i in range(3):
-        q[i] += t * facing[i]
+    return q0 + t * facing[0], q1 + t * facing[1], q2 + t * facing[2]
 
 
-@jit
-def _cost(d, use, w, e, ch, p):
-    """Weighted and plain sums of squared path residuals, and the channels used."""
+@_solve
+def _cost(d, use, w, e, ch, p0, p1, p2):
+    """Weighted and plain sums of squared path residuals at p, and the channels used."""
     weighted = 0.0
     plain = 0.0
     n_use = 0
+    to_emitter = math.sqrt((p0 - e[0]) ** 2 + (p1 - e[1]) ** 2 + (p2 - e[2]) ** 2)
     for n in range(d.shape[0]):
         if use[n]:
             r = (
-                math.sqrt((p[0] - e[0]) ** 2 + (p[1] - e[1]) ** 2 + (p[2] - e[2]) ** 2)
-                + math.sqrt(
-                    (p[0] - ch[n, 0]) ** 2 + (p[1] - ch[n, 1]) ** 2 + (p[2] - ch[n, 2]) ** 2
-                )
+                to_emitter
+                + math.sqrt((p0 - ch[n, 0]) ** 2 + (p1 - ch[n, 1]) ** 2 + (p2 - ch[n, 2]) ** 2)
                 - d[n]
             )
             weighted += (w[n] * r) ** 2
@@ -129,57 +185,56 @@ def _cost(d, use, w, e, ch, p):
     return weighted, plain, n_use
 
 
-@jit
-def _gauss_newton(d, use, w, e, ch, p, max_iter):
-    # scalars and buffers made once, not per channel or try: the same arithmetic, no
-    # allocations in the loop (the association solves this for every candidate combination)
-    a = np.empty((3, 3))
-    damped = np.empty((3, 3))
-    b = np.empty(3)
-    step = np.empty(3)
-    trial = np.empty(3)
+@_solve
+def _gauss_newton(d, use, w, e, ch, p0, p1, p2, max_iter):
+    """Levenberg-Marquardt from p; (rms, p0, p1, p2). Scalars only (the association solves
+    this for every candidate combination): no arrays made, |p - e| once per point."""
     lam = 1e-3
-    cost, plain, n_use = _cost(d, use, w, e, ch, p)
+    cost, plain, n_use = _cost(d, use, w, e, ch, p0, p1, p2)
     for _ in range(max_iter):
-        a[:, :] = 0.0
-        b[:] = 0.0
+        a00 = a10 = a11 = a20 = a21 = a22 = 0.0
+        b0 = b1 = b2 = 0.0
+        ue0, ue1, ue2 = p0 - e[0], p1 - e[1], p2 - e[2]
+        le = max(math.sqrt(ue0**2 + ue1**2 + ue2**2), 1e-9)
         for n in range(d.shape[0]):
             if not use[n]:
                 continue
-            ue0, ue1, ue2 = p[0] - e[0], p[1] - e[1], p[2] - e[2]
-            ur0, ur1, ur2 = p[0] - ch[n, 0], p[1] - ch[n, 1], p[2] - ch[n, 2]
-            le = max(math.sqrt(ue0**2 + ue1**2 + ue2**2), 1e-9)
+            ur0, ur1, ur2 = p0 - ch[n, 0], p1 - ch[n, 1], p2 - ch[n, 2]
             lr = max(math.sqrt(ur0**2 + ur1**2 + ur2**2), 1e-9)
             r = w[n] * (le + lr - d[n])
             g0 = w[n] * (ue0 / le + ur0 / lr)
             g1 = w[n] * (ue1 / le + ur1 / lr)
             g2 = w[n] * (ue2 / le + ur2 / lr)
-            b[0] -= g0 * r
-            b[1] -= g1 * r
-            b[2] -= g2 * r
-            a[0, 0] += g0 * g0
-            a[1, 0] += g1 * g0
-            a[1, 1] += g1 * g1
-            a[2, 0] += g2 * g0
-            a[2, 1] += g2 * g1
-            a[2, 2] += g2 * g2
-        a[0, 1] = a[1, 0]
-        a[0, 2] = a[2, 0]
-        a[1, 2] = a[2, 1]
+            b0 -= g0 * r
+            b1 -= g1 * r
+            b2 -= g2 * r
+            a00 += g0 * g0
+            a10 += g1 * g0
+            a11 += g1 * g1
+            a20 += g2 * g0
+            a21 += g2 * g1
+            a22 += g2 * g2
         accepted = False
         for _try in range(6):
-            damped[:, :] = a
-            for i in range(3):
-                damped[i, i] += lam * (a[i, i] + 1e-9)
-            if not solve_spd(damped, b, 3, step):
+            ok, s0, s1, s2 = _solve3(
+                a00 + lam * (a00 + 1e-9),
+                a10,
+                a11 + lam * (a11 + 1e-9),
+                a20,
+                a21,
+                a22 + lam * (a22 + 1e-9),
+                b0,
+                b1,
+                b2,
+            )
+            if not ok:
                 lam *= 10.0
                 continue
-            for i in range(3):
-                trial[i] = p[i] + step[i]
-            new_cost, new_plain, _ = _cost(d, use, w, e, ch, trial)
+            t0, t1, t2 = p0 + s0, p1 + s1, p2 + s2
+            new_cost, new_plain, _ = _cost(d, use, w, e, ch, t0, t1, t2)
             if new_cost <= cost:
-                small = abs(step[0]) + abs(step[1]) + abs(step[2]) < 1e-4
-                p[:] = trial
+                small = abs(s0) + abs(s1) + abs(s2) < 1e-4
+                p0, p1, p2 = t0, t1, t2
                 cost, plain = new_cost, new_plain
                 lam = max(lam * 0.3, 1e-9)
                 accepted = not small
@@ -187,10 +242,10 @@ def _gauss_newton(d, use, w, e, ch, p, max_iter):
             lam *= 10.0
         if not accepted:
             break
-    return math.sqrt(plain / max(n_use, 1))
+    return math.sqrt(plain / max(n_use, 1)), p0, p1, p2
 
 
-@jit
+@_solve
 def locate_kernel(d, use, w, e, ch, facing, max_iter, out):
     """The solve for other kernels (association tries candidate echo sets with it): paths
     ``d``, channel mask ``use``, weights ``w``; the position into ``out``; (ok, rms mm)."""
@@ -201,22 +256,20 @@ def locate_kernel(d, use, w, e, ch, facing, max_iter, out):
     out[:] = 0.0
     if n_use < 3:
         return False, math.inf
-    q = np.empty(3)
-    _initial_guess(d, use, e, ch, facing, q)
-    p = q + e
-    rms = _gauss_newton(d, use, w, e, ch, p, max_iter)
-    ahead = (p[0] - e[0]) * facing[0] + (p[1] - e[1]) * facing[1] + (p[2] - e[2]) * facing[2]
+    q0, q1, q2 = _initial_guess(d, use, e, ch, facing)
+    rms, p0, p1, p2 = _gauss_newton(d, use, w, e, ch, q0 + e[0], q1 + e[1], q2 + e[2], max_iter)
+    ahead = (p0 - e[0]) * facing[0] + (p1 - e[1]) * facing[1] + (p2 - e[2]) * facing[2]
     if ahead < 0.0:
         # the mirror image behind a (near-)planar array fits as well: take the front one
-        for i in range(3):
-            p[i] -= 2.0 * ahead * facing[i]
-        rms = _gauss_newton(d, use, w, e, ch, p, max_iter)
-        ahead = (p[0] - e[0]) * facing[0] + (p[1] - e[1]) * facing[1] + (p[2] - e[2]) * facing[2]
-    finite = (
-        math.isfinite(rms) and math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])
-    )
+        p0 -= 2.0 * ahead * facing[0]
+        p1 -= 2.0 * ahead * facing[1]
+        p2 -= 2.0 * ahead * facing[2]
+        rms, p0, p1, p2 = _gauss_newton(d, use, w, e, ch, p0, p1, p2, max_iter)
+        ahead = (p0 - e[0]) * facing[0] + (p1 - e[1]) * facing[1] + (p2 - e[2]) * facing[2]
+    finite = math.isfinite(rms) and math.isfinite(p0) and math.isfinite(p1) and math.isfinite(p2)
     if not finite:
-        out[:] = 0.0
         return False, math.inf
-    out[:] = p
+    out[0] = p0
+    out[1] = p1
+    out[2] = p2
     return ahead > 0.0, rms

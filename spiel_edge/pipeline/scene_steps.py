@@ -6,13 +6,17 @@ target (``Pipeline._target``) is ``back_steps._one_target``, shared with the K =
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.pipeline.joint import MAX_NODES, _select_kernel
+from spiel_edge.pipeline.joint import MAX_NODES, MAX_POOL, _select_kernel
 from spiel_edge.pipeline.scene_geometry import height3
+from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
+
+log = logging.getLogger(__name__)
 
 # scene ints[] slots
 S_MAX_TARGETS, S_EXTRA_MIN, S_KEEP_BEST = range(3)
@@ -139,3 +143,90 @@ def _double_reflection(paths, other_paths, other_position, emitter, facing, tole
         if both and not abs(paths[c] - (other_paths[c] + 2.0 * height)) <= tolerance:
             return False
     return True
+
+
+# The constant arguments after ``ints`` (back.kernel_arguments' order, then the scene's
+# ints, floats and listening mask), each in one of four buffers by dtype; the kernel takes
+# views of them (numba's call costs about 65 ns per array argument: 45 arguments took 3 us).
+_SLOTS = (
+    "floats", "quality", "assoc_delays", "listening", "max_path_diff", "anchors",
+    "cost_weights", "delays", "channels", "emitter", "facing", "mean", "std", "w0", "b0",
+    "w1", "b1", "w2", "b2", "wh", "bh", "feature", "threshold", "value", "base",
+    "scene_ints", "scene_floats", "share_listening",
+)  # fmt: skip
+(
+    L_FLOATS, L_QUALITY, L_ASSOC_DELAYS, L_LISTENING, L_MAX_DIFF, L_ANCHORS, L_COST_WEIGHTS,
+    L_DELAYS, L_CHANNELS, L_EMITTER, L_FACING, L_MEAN, L_STD, L_W0, L_B0, L_W1, L_B1, L_W2,
+    L_B2, L_WH, L_BH, L_FEATURE, L_THRESHOLD, L_VALUE, L_BASE, L_SCENE_INTS, L_SCENE_FLOATS,
+    L_SHARE_LISTENING,
+) = range(len(_SLOTS))  # fmt: skip
+_BUFFERS = (np.float64, np.float32, np.int64, np.bool_)
+_F64, _F32, _I64, _FLAGS = range(4)
+# the buffer (dtype) each slot's array is read from in _scene_kernel
+_KINDS = (
+    _F64, _F64, _F64, _FLAGS, _F64, _I64, _F64, _F64, _F64, _F64, _F64, _F32, _F32, _F32,
+    _F32, _F32, _F32, _F32, _F32, _F32, _F32, _I64, _F32, _F64, _F64, _I64, _F64, _FLAGS,
+)  # fmt: skip
+
+
+def pack_config(args: tuple) -> tuple | None:
+    """``(ints, f64, f32, i64, flags, layout)`` from the kernel's unpacked constant arguments
+    (``ints`` first, as the K = 1 kernel's config, then :data:`_SLOTS`): every array's
+    values in the buffer of its dtype, ``layout[3 * slot : 3 * slot + 3]`` its offset there
+    and its (at most two) dimensions. None (the staged steps) when an array does not have
+    the dtype the kernel reads it as: values are never converted."""
+    ints, rest = args[0], args[1:]
+    if len(rest) != len(_SLOTS):
+        raise ValueError(f"expected {len(_SLOTS) + 1} kernel arguments, got {len(args)}")
+    parts: list[list[np.ndarray]] = [[] for _ in _BUFFERS]
+    sizes = [0] * len(_BUFFERS)
+    layout = np.zeros(3 * len(_SLOTS), dtype=np.int64)
+    for slot, value in enumerate(rest):
+        a = np.asarray(value)
+        kind = _KINDS[slot]
+        if a.dtype != _BUFFERS[kind] or a.ndim > 2:
+            log.debug("scene kernel off: %s is %s %dd", _SLOTS[slot], a.dtype, a.ndim)
+            return None
+        shape = (*a.shape, 1, 1)[:2] if a.ndim else (1, 1)
+        layout[3 * slot : 3 * slot + 3] = (sizes[kind], *shape)
+        parts[kind].append(a.ravel())
+        sizes[kind] += a.size
+    buffers = [
+        np.ascontiguousarray(np.concatenate(p) if p else np.zeros(0), dtype=t)
+        for p, t in zip(parts, _BUFFERS, strict=True)
+    ]
+    return (ints, *buffers, layout)
+
+
+@jit
+def _outputs(ints, floats, n):
+    """Views of the two output buffers: pool choices, first, matched (ints); pool costs,
+    positions, covariances, rms, scores, paths (floats)."""
+    k = MAX_TARGETS_LIMIT
+    o = MAX_POOL * n
+    pool_choices = ints[:o].reshape((MAX_POOL, n))
+    first = ints[o : o + n]
+    matched = ints[o + n : o + n + k * n].reshape((k, n))
+    pool_costs = floats[:MAX_POOL]
+    o = MAX_POOL
+    position = floats[o : o + 3 * k].reshape((k, 3))
+    o += 3 * k
+    covariance = floats[o : o + 9 * k].reshape((k, 3, 3))
+    o += 9 * k
+    rms = floats[o : o + k]
+    score = floats[o + k : o + 2 * k]
+    o += 2 * k
+    paths = floats[o : o + k * n].reshape((k, n))
+    return pool_choices, pool_costs, first, matched, position, covariance, rms, score, paths
+
+
+@jit(inline="always")
+def _v1(buf, layout, slot):
+    o = layout[3 * slot]
+    return buf[o : o + layout[3 * slot + 1]]
+
+
+@jit(inline="always")
+def _v2(buf, layout, slot):
+    o, d0, d1 = layout[3 * slot], layout[3 * slot + 1], layout[3 * slot + 2]
+    return buf[o : o + d0 * d1].reshape((d0, d1))

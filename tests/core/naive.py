@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -163,3 +164,149 @@ def joint_selection_value(choices, gains, max_targets, share_penalty):
             extra = sum(u - 1 for u in uses.values())
             best = max(best, sum(gains[i] for i in subset) - share_penalty * extra)
     return best
+
+
+def cholesky_solve(a, b):
+    """memg.solve_spd on a copy, in plain Python: (ok, x)."""
+    a = [list(map(float, row)) for row in a]
+    n = len(b)
+    x = [0.0] * n
+    for j in range(n):
+        d = a[j][j]
+        for k in range(j):
+            d -= a[j][k] * a[j][k]
+        if d <= 1e-300:
+            return False, x
+        d = math.sqrt(d)
+        a[j][j] = d
+        for i in range(j + 1, n):
+            s = a[i][j]
+            for k in range(j):
+                s -= a[i][k] * a[j][k]
+            a[i][j] = s / d
+    for i in range(n):
+        s = float(b[i])
+        for k in range(i):
+            s -= a[i][k] * x[k]
+        x[i] = s / a[i][i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= a[k][i] * x[k]
+        x[i] = s / a[i][i]
+    return True, x
+
+
+def locate_lm(d, use, w, e, ch, facing, max_iter):
+    """locate.locate_kernel in plain Python, written as before its scalar rewrite (3 x 3
+    arrays, |p - e| per channel): (ok, rms, position)."""
+    d, w, e, ch, facing = (np.asarray(v, dtype=np.float64).tolist() for v in (d, w, e, ch, facing))
+    use = [bool(u) for u in use]
+    n_ch = len(d)
+    if sum(use) < 3:
+        return False, math.inf, [0.0, 0.0, 0.0]
+
+    def sq(v):
+        return v * v
+
+    def cost(p):
+        weighted = plain = 0.0
+        n_use = 0
+        for n in range(n_ch):
+            if use[n]:
+                r = (
+                    math.sqrt(sq(p[0] - e[0]) + sq(p[1] - e[1]) + sq(p[2] - e[2]))
+                    + math.sqrt(sq(p[0] - ch[n][0]) + sq(p[1] - ch[n][1]) + sq(p[2] - ch[n][2]))
+                    - d[n]
+                )
+                weighted += sq(w[n] * r)
+                plain += r * r
+                n_use += 1
+        return weighted, plain, n_use
+
+    def gauss_newton(p):
+        lam = 1e-3
+        c, plain, n_use = cost(p)
+        for _ in range(max_iter):
+            a = [[0.0] * 3 for _ in range(3)]
+            b = [0.0] * 3
+            for n in range(n_ch):
+                if not use[n]:
+                    continue
+                ue = [p[i] - e[i] for i in range(3)]
+                ur = [p[i] - ch[n][i] for i in range(3)]
+                le = max(math.sqrt(sq(ue[0]) + sq(ue[1]) + sq(ue[2])), 1e-9)
+                lr = max(math.sqrt(sq(ur[0]) + sq(ur[1]) + sq(ur[2])), 1e-9)
+                r = w[n] * (le + lr - d[n])
+                g = [w[n] * (ue[i] / le + ur[i] / lr) for i in range(3)]
+                for i in range(3):
+                    b[i] -= g[i] * r
+                    for j in range(i + 1):
+                        a[i][j] += g[i] * g[j]
+            accepted = False
+            for _try in range(6):
+                damped = [row[:] for row in a]
+                for i in range(3):
+                    damped[i][i] += lam * (a[i][i] + 1e-9)
+                ok, step = cholesky_solve(damped, b)
+                if not ok:
+                    lam *= 10.0
+                    continue
+                trial = [p[i] + step[i] for i in range(3)]
+                new_cost, new_plain, _ = cost(trial)
+                if new_cost <= c:
+                    small = abs(step[0]) + abs(step[1]) + abs(step[2]) < 1e-4
+                    p = trial
+                    c, plain = new_cost, new_plain
+                    lam = max(lam * 0.3, 1e-9)
+                    accepted = not small
+                    break
+                lam *= 10.0
+            if not accepted:
+                break
+        return math.sqrt(plain / max(n_use, 1)), p
+
+    # start point: the linearised ellipsoid equations
+    radius, n_use, d_sum = -1.0, 0, 0.0
+    for n in range(n_ch):
+        if use[n]:
+            n_use += 1
+            d_sum += d[n]
+            if sq(ch[n][0] - e[0]) + sq(ch[n][1] - e[1]) + sq(ch[n][2] - e[2]) < 1.0:
+                radius = 0.5 * d[n]
+    if radius <= 0.0:
+        radius = 0.5 * d_sum / max(n_use, 1)
+    a = [[0.0] * 3 for _ in range(3)]
+    b = [0.0] * 3
+    for n in range(n_ch):
+        if not use[n]:
+            continue
+        s = [ch[n][i] - e[i] for i in range(3)]
+        s2 = s[0] * s[0] + s[1] * s[1] + s[2] * s[2]
+        if s2 < 1.0:
+            continue
+        rhs = 0.5 * (radius * radius + s2 - sq(d[n] - radius))
+        for i in range(3):
+            b[i] += s[i] * rhs
+            for j in range(3):
+                a[i][j] += s[i] * s[j]
+    trace = a[0][0] + a[1][1] + a[2][2]
+    for i in range(3):
+        a[i][i] += 1e-6 * trace + 1e-9
+    ok, q = cholesky_solve(a, b)
+    if not ok:
+        q = [0.0, 0.0, 0.0]
+    qf = q[0] * facing[0] + q[1] * facing[1] + q[2] * facing[2]
+    qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2]
+    disc = qf * qf - (qq - radius * radius)
+    t = -qf + math.sqrt(disc) if disc > 0.0 else 0.5 * radius
+    p = [q[i] + t * facing[i] + e[i] for i in range(3)]
+    rms, p = gauss_newton(p)
+    ahead = sum((p[i] - e[i]) * facing[i] for i in range(3))
+    if ahead < 0.0:
+        p = [p[i] - 2.0 * ahead * facing[i] for i in range(3)]
+        rms, p = gauss_newton(p)
+        ahead = sum((p[i] - e[i]) * facing[i] for i in range(3))
+    if not (math.isfinite(rms) and all(math.isfinite(v) for v in p)):
+        return False, math.inf, [0.0, 0.0, 0.0]
+    return ahead > 0.0, rms, p

@@ -102,3 +102,32 @@ def test_fixed_order_sums_equal_numpy_sums(rng):
         assert np.array_equal(out, ref)
         assert height3(p, e, f) == np.sum((p - e) * f) == dot3(p - e, f)
         assert distance3(p, e) == math.sqrt(np.sum((p - e) ** 2))
+
+
+@pytest.mark.parametrize("association", ["geometric", "onnx"])
+def test_packed_config_holds_every_argument_exactly(profile, association):
+    """scene_config packs the kernel's constants into four buffers by dtype; the kernel's
+    views (_v1 / _v2 with _scene_kernel's slot numbers) give each array back with its
+    dtype, shape and bits; an array of another dtype turns the kernel off (staged steps)."""
+    from spiel_edge.pipeline import back_scene as kernel
+    from spiel_edge.pipeline import scene_steps as packing
+    from spiel_edge.pipeline.factory import build_pipeline
+
+    pipeline = build_pipeline(profile, association, fused=False)
+    pipeline.set_max_targets(4)
+    args = kernel.scene_arguments(pipeline)
+    config = kernel.scene_config(pipeline)
+    assert args is not None and config is not None and len(args) == len(packing._SLOTS) + 1
+    ints, f64, f32, i64, flags, layout = config
+    assert ints.dtype == np.int64 and ints.tobytes() == args[0].tobytes()
+    buffers = (f64, f32, i64, flags)
+    for slot, want in enumerate(args[1:]):
+        want = np.asarray(want)
+        buf = buffers[packing._KINDS[slot]]
+        got = packing._v2(buf, layout, slot) if want.ndim == 2 else packing._v1(buf, layout, slot)
+        assert got.dtype == want.dtype, packing._SLOTS[slot]
+        assert got.size == want.size and got.tobytes() == want.tobytes(), packing._SLOTS[slot]
+        assert got.shape == (want.shape or (1,)), packing._SLOTS[slot]
+    wrong = list(args)
+    wrong[1 + packing._SLOTS.index("w0")] = np.zeros((2, 2))  # float64 weights
+    assert packing.pack_config(tuple(wrong)) is None

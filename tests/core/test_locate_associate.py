@@ -7,7 +7,8 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.associate import GeometricAssociator, anchor_triples
 from spiel_edge.pipeline.echo_quality import echo_quality
 from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
-from spiel_edge.pipeline.locate import locate
+from spiel_edge.pipeline.locate import _solve3, locate, locate_kernel
+from spiel_edge.pipeline.memg import solve_spd
 from spiel_edge.sim.synthetic import ring_profile
 from tests.core import naive
 
@@ -103,6 +104,54 @@ def test_locate_never_nan_and_keeps_target_in_front(profile, rng):
             assert pos @ f > 0
     pos, rms, ok = locate(np.array([200.0, 200.0, np.nan, np.nan]), ch, e, f)
     assert not ok and np.all(pos == 0)  # fewer than 3 channels
+
+
+def _bits(values):
+    return np.asarray(values, dtype=np.float64).tobytes()
+
+
+def test_solve3_is_solve_spd_bit_for_bit(rng):
+    for trial in range(3000):
+        m = rng.normal(0, 10 ** rng.uniform(-6, 4), (3, 3))
+        a = m @ m.T + (0.0 if trial % 3 == 0 else rng.uniform(0, 1e-3)) * np.eye(3)
+        if trial % 7 == 0:
+            a = -a  # not positive definite
+        b = rng.normal(0, 100, 3)
+        ok, x = naive.cholesky_solve(a, b)
+        ref = np.empty(3)
+        assert solve_spd(a.copy(), b, 3, ref) == ok
+        got = _solve3(a[0, 0], a[1, 0], a[1, 1], a[2, 0], a[2, 1], a[2, 2], *b)
+        assert got[0] == ok
+        if ok:
+            assert _bits(got[1:]) == _bits(x) == _bits(ref)
+
+
+@pytest.mark.parametrize("n_channels", [4, 6, 8])
+def test_locate_kernel_is_the_array_reference_bit_for_bit(profile, n_channels, rng):
+    """The scalar solve (no arrays, |p - e| once per point) against the plain-Python copy of
+    the array version it replaced: the same position, rms and flag, bit for bit."""
+    if n_channels == 4:
+        ch, e, f = geometry(profile)
+    else:
+        ch, e, f = geometry(ring_profile(n_channels, 256))
+    n_ok = 0
+    for trial in range(400):
+        target = rng.normal(0, 120, 3)
+        target[2] = abs(target[2]) + 20 if trial % 5 else -abs(target[2])  # some behind
+        d = naive.paths(target, ch, e) + rng.normal(0, 10 ** rng.uniform(-3, 1.5), len(ch))
+        use = rng.random(len(ch)) < 0.8
+        use[:3] = trial % 11 != 0 or use[:3]  # mostly >= 3 channels
+        w = np.ones(len(ch)) if trial % 2 else rng.uniform(0.1, 3.0, len(ch))
+        if trial % 17 == 0:
+            d = rng.normal(0, 500, len(ch))  # nonsense paths
+        out = np.empty(3)
+        ok, rms = locate_kernel(d, use, w, e, ch, f, 20 + trial % 11, out)
+        ok_ref, rms_ref, pos_ref = naive.locate_lm(d, use, w, e, ch, f, 20 + trial % 11)
+        assert ok == ok_ref
+        assert _bits([rms]) == _bits([rms_ref])
+        assert _bits(out) == _bits(pos_ref)
+        n_ok += ok
+    assert n_ok > 200
 
 
 def _features_from_paths(profile, paths_by_channel, alpha=500.0):
