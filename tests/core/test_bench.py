@@ -41,7 +41,7 @@ def test_bench_json_is_the_last_line_with_stage_timings(capsys):
     assert 0 < scene["median_us"] <= scene["p95_us"]
 
 
-def test_peak_memory_is_the_childs_own_and_failures_raise():
+def test_peak_memory_of_a_fresh_run_and_failures_raise():
     import pytest
 
     from spiel_edge.measure.bench import peak_rss_mib
