@@ -90,7 +90,8 @@ def _read_integers(data: bytes) -> np.ndarray | None:
     n_values, n_rows = _scan_integers(np.frombuffer(data, dtype=np.uint8), values)
     if n_rows <= 0:
         return None
-    return values[:n_values].reshape(n_rows, n_values // n_rows)
+    # a copy: the scan buffer is about three times the frame (evaluate holds every frame)
+    return values[:n_values].reshape(n_rows, n_values // n_rows).copy()
 
 
 @jit
