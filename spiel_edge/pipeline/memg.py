@@ -99,23 +99,6 @@ def _emg_slopes(alpha, sigma, eta, u, g, e):
 
 
 @jit(inline="always")
-def _emg_jacobian(t, alpha, mu, sigma, eta):
-    """(value, d/d alpha, d/d mu, d/d sigma, d/d eta) of one component at t."""
-    u, g, e = _emg_shape(t, mu, sigma, eta)
-    j0, j1, j2, j3 = _emg_slopes(alpha, sigma, eta, u, g, e)
-    return alpha * g * e, j0, j1, j2, j3
-
-
-@jit
-def _emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
-    """Value of one component at t; its partial derivatives go to out[col:col + 4]."""
-    value, out[col], out[col + 1], out[col + 2], out[col + 3] = _emg_jacobian(
-        t, alpha, mu, sigma, eta
-    )
-    return value
-
-
-@jit(inline="always")
 def _clamp(p, n_comp, lower_mu, upper_mu, alpha_max):
     for k in range(n_comp):
         p[4 * k] = min(max(p[4 * k], 1e-6), alpha_max)
@@ -162,33 +145,6 @@ def _solve_spd_inline(a, b, n, x):
 
 
 @jit
-def _normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
-    """J^T J into a and J^T r into b over y[lo:hi] (Gauss-Newton's normal equations); returns
-    the cost sum r^2 at p. The plain one-pass form: the fit takes the same sums in the same
-    order from :func:`_trial_cost` and :func:`_jacobian_sums` (the tests hold them to it)."""
-    n_par = 4 * n_comp
-    a[:, :] = 0.0
-    b[:] = 0.0
-    cost = 0.0
-    for t in range(lo, hi):
-        m = 0.0
-        for k in range(n_comp):
-            m += _emg_jacobian_row(
-                float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3], jac_row, 4 * k
-            )
-        r = y[t] - m
-        cost += r * r
-        for i in range(n_par):
-            b[i] += jac_row[i] * r
-            for j in range(i + 1):
-                a[i, j] += jac_row[i] * jac_row[j]
-    for i in range(n_par):
-        for j in range(i + 1, n_par):
-            a[i, j] = a[j, i]
-    return cost
-
-
-@jit
 def work_size(n_comp):
     """Floats of :func:`_fit_cluster`'s ``work`` for up to n_comp components (the window of
     n_comp detections, each within CLUSTER_GAP of the next, spans < window_size samples)."""
@@ -203,7 +159,8 @@ def window_size(n_comp):
 
 @jit(inline="always")
 def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
-    """The cost sum r^2 at p over y[lo:hi] (the same sum as :func:`_normal_equations`); each
+    """The cost sum r^2 at p over y[lo:hi] (the same sum as
+    ``tests/core/naive.normal_equations``, the one-pass reference); each
     component's u, g, e go to shape[3 * (n_comp * i + k):][:3] and the residuals to resid[i]
     (i = t - lo), from which :func:`_jacobian_sums` makes the normal equations.
 
@@ -238,7 +195,8 @@ def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
 @jit(inline="always")
 def _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
     """J^T J into a and J^T r into b from :func:`_trial_cost`'s stores for the same p: the
-    terms and their order are :func:`_normal_equations`', so a and b are its bit for bit."""
+    terms and their order are ``tests/core/naive.normal_equations``, so a and b are its bit
+    for bit."""
     if n_comp == 1:
         _jacobian_sums_1(n_win, p[0], p[2], p[3], shape, resid, a, b)
         return

@@ -6,8 +6,10 @@ import itertools
 import math
 
 import numpy as np
+from numba import njit
 
 from spiel_edge.measure.reference import detect, emg, locate, paths, preprocess  # noqa: F401
+from spiel_edge.pipeline import memg
 
 
 def envelope(rf, f):
@@ -310,3 +312,41 @@ def locate_lm(d, use, w, e, ch, facing, max_iter):
     if not (math.isfinite(rms) and all(math.isfinite(v) for v in p)):
         return False, math.inf, [0.0, 0.0, 0.0]
     return ahead > 0.0, rms, p
+
+
+@njit
+def emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
+    """Value of one MEMG component at t; its partial derivatives go to out[col:col + 4]
+    (memg's own shape and slope steps, one sample at a time)."""
+    u, g, e = memg._emg_shape(t, mu, sigma, eta)
+    out[col], out[col + 1], out[col + 2], out[col + 3] = memg._emg_slopes(
+        alpha, sigma, eta, u, g, e
+    )
+    return alpha * g * e
+
+
+@njit
+def normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
+    """J^T J into a and J^T r into b over y[lo:hi], and the cost sum r^2 at p, in one plain
+    pass: the sums the fit takes, in the same order, from memg's ``_trial_cost`` and
+    ``_jacobian_sums`` (the tests hold them to it bit for bit)."""
+    n_par = 4 * n_comp
+    a[:, :] = 0.0
+    b[:] = 0.0
+    cost = 0.0
+    for t in range(lo, hi):
+        m = 0.0
+        for k in range(n_comp):
+            m += emg_jacobian_row(
+                float(t), p[4 * k], p[4 * k + 1], p[4 * k + 2], p[4 * k + 3], jac_row, 4 * k
+            )
+        r = y[t] - m
+        cost += r * r
+        for i in range(n_par):
+            b[i] += jac_row[i] * r
+            for j in range(i + 1):
+                a[i, j] += jac_row[i] * jac_row[j]
+    for i in range(n_par):
+        for j in range(i + 1, n_par):
+            a[i, j] = a[j, i]
+    return cost

@@ -6,9 +6,7 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.detect import detect
 from spiel_edge.pipeline.features import FEATURE_NAMES, echo_features
 from spiel_edge.pipeline.memg import (
-    _emg_jacobian_row,
     _jacobian_sums,
-    _normal_equations,
     _trial_cost,
     emg_value,
     fit_memg,
@@ -23,7 +21,7 @@ def test_emg_value_and_jacobian_match_numpy():
     params = (700.0, 20.3, 1.7, 1.4)
     row = np.empty(4)
     for t in (15.0, 20.0, 22.5, 30.0):
-        value = _emg_jacobian_row(t, *params, row, 0)
+        value = naive.emg_jacobian_row(t, *params, row, 0)
         assert value == pytest.approx(naive.emg(t, *params), rel=1e-12)
         assert emg_value(t, *params) == pytest.approx(value, rel=1e-12)
         for i in range(4):
@@ -39,13 +37,13 @@ def test_normal_equations_match_numpy(rng):
     p = np.array([700.0, 20.3, 1.7, 1.4, 300.0, 24.0, 2.0, -0.5])
     y = rng.uniform(0, 900, 64)
     a, b = np.empty((8, 8)), np.empty(8)
-    cost = _normal_equations(y, 14, 31, p, 2, np.empty(8), a, b)
+    cost = naive.normal_equations(y, 14, 31, p, 2, np.empty(8), a, b)
     t = np.arange(14.0, 31.0)
     r = y[14:31] - naive.emg(t, *p[:4]) - naive.emg(t, *p[4:])
     jac = np.empty((t.size, 8))
     for i, ti in enumerate(t):
-        _emg_jacobian_row(ti, *p[:4], jac[i], 0)
-        _emg_jacobian_row(ti, *p[4:], jac[i], 4)
+        naive.emg_jacobian_row(ti, *p[:4], jac[i], 0)
+        naive.emg_jacobian_row(ti, *p[4:], jac[i], 4)
     assert cost == pytest.approx(float(r @ r), rel=1e-12)
     np.testing.assert_allclose(a, jac.T @ jac, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(b, jac.T @ r, rtol=1e-10, atol=1e-9)
@@ -63,7 +61,7 @@ def test_trial_cost_and_jacobian_sums_are_the_normal_equations_bit_for_bit(rng):
         p = np.array(p)
         n_comp, n_par = len(p) // 4, len(p)
         a, b = np.empty((n_par, n_par)), np.empty(n_par)
-        want = _normal_equations(y, 14, 31, p, n_comp, np.empty(n_par), a, b)
+        want = naive.normal_equations(y, 14, 31, p, n_comp, np.empty(n_par), a, b)
         shape, resid = np.empty(3 * n_comp * 17), np.empty(17)
         a2, b2 = np.full((n_par, n_par), np.nan), np.full(n_par, np.nan)
         assert _trial_cost(y, 14, 31, p, n_comp, shape, resid, np.inf) == want
