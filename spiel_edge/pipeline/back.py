@@ -50,7 +50,12 @@ from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.scene import SceneAssociator
 
 BACK_STAGES = ("associate", "echo_timing", "locate")
-_NO_TREES = (np.zeros((1, 1), np.int64), np.zeros((1, 1), np.float32), np.zeros((1, 1)), 0.0)
+_NO_TREES = (
+    np.zeros((1, 1), np.int64),
+    np.zeros((1, 1), np.float32),
+    np.zeros((1, 1), np.float32),
+    0.0,
+)
 _NO_MLP = tuple(np.zeros((1,) * n, np.float32) for n in (1, 1, 2, 1, 2, 1, 2, 1, 2, 1))
 
 

@@ -160,7 +160,7 @@ def _scene_kernel(
         _v1(f32, layout, L_B0), _v2(f32, layout, L_W1), _v1(f32, layout, L_B1),
         _v2(f32, layout, L_W2), _v1(f32, layout, L_B2), _v2(f32, layout, L_WH),
         _v1(f32, layout, L_BH), _v2(i64, layout, L_FEATURE), _v2(f32, layout, L_THRESHOLD),
-        _v2(f64, layout, L_VALUE), f64[layout[3 * L_BASE]], _v1(i64, layout, L_SCENE_INTS),
+        _v2(f32, layout, L_VALUE), f64[layout[3 * L_BASE]], _v1(i64, layout, L_SCENE_INTS),
         _v1(f64, layout, L_SCENE_FLOATS), _v1(flags, layout, L_SHARE_LISTENING),
         bonus, clean, *outs,
     )  # fmt: skip

@@ -165,7 +165,7 @@ _F64, _F32, _I64, _FLAGS = range(4)
 # the buffer (dtype) each slot's array is read from in _scene_kernel
 _KINDS = (
     _F64, _F64, _F64, _FLAGS, _F64, _I64, _F64, _F64, _F64, _F64, _F64, _F32, _F32, _F32,
-    _F32, _F32, _F32, _F32, _F32, _F32, _F32, _I64, _F32, _F64, _F64, _I64, _F64, _FLAGS,
+    _F32, _F32, _F32, _F32, _F32, _F32, _F32, _I64, _F32, _F32, _F64, _I64, _F64, _FLAGS,
 )  # fmt: skip
 
 

@@ -141,6 +141,7 @@ def load_correction(n_channels: int, path: str | Path | None = None) -> ToaCorre
     stored = verified_models.load(path, sha256, VERIFIED_NAMES)
     if stored is not None and int(stored[0][-1]) == want:
         feature, threshold, value, base, _ = stored[0]
+        value = value.astype(np.float32, copy=False)  # stored as float64 before 2026-12
         return ToaCorrection.verified(path, blob, (feature, threshold, value, float(base)))
     corr = _load_with_onnxruntime(n_channels, path, blob)
     if corr.trees is not None:

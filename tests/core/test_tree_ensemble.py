@@ -83,3 +83,69 @@ def test_unsupported_or_broken_trees_are_refused():
         tree_ensemble.read_trees(b"\x3a\x05\x0a\x03abc")  # a graph holding a truncated node
     with pytest.raises(ModelError, match="found 0"):
         tree_ensemble.read_trees(b"")
+
+
+def _random_trees(rng, n_trees: int, max_depth: int, n_features: int) -> tree_ensemble.Trees:
+    """Uneven random trees (a leaf may stop a branch early) as read_trees builds them."""
+    feature, threshold, true_next, false_next, leaf, value, roots = [], [], [], [], [], [], []
+
+    def grow(depth: int) -> int:
+        i = len(leaf)
+        for column in (feature, threshold, true_next, false_next, leaf, value):
+            column.append(0)
+        if depth == max_depth or (depth > 0 and rng.random() < 0.2):
+            leaf[i], value[i] = True, rng.normal()
+            true_next[i] = false_next[i] = -1
+        else:
+            feature[i], threshold[i] = rng.integers(n_features), rng.normal()
+            true_next[i] = grow(depth + 1)
+            false_next[i] = grow(depth + 1)
+        return i
+
+    for _ in range(n_trees):
+        roots.append(grow(0))
+    return tree_ensemble.Trees(
+        np.array(feature, dtype=np.int64),
+        np.array(threshold, dtype=np.float32),
+        np.array(true_next, dtype=np.int64),
+        np.array(false_next, dtype=np.int64),
+        np.array(leaf),
+        np.array(value),
+        np.array(roots, dtype=np.int64),
+        float(rng.normal()),
+    )
+
+
+def _reference_predict(trees: tree_ensemble.Trees, x: np.ndarray) -> np.ndarray:
+    """Plain numpy: walk each tree's nodes, float32 compares and float32 sums in tree order."""
+    out = np.full(x.shape[0], np.nan)
+    for r, row in enumerate(np.asarray(x, dtype=np.float32)):
+        if not np.all(np.isfinite(row)):
+            continue
+        total = np.float32(trees.base)
+        for node in trees.roots:
+            while not trees.leaf[node]:
+                go_true = row[trees.feature[node]] <= trees.threshold[node]
+                node = trees.true_next[node] if go_true else trees.false_next[node]
+            total = np.float32(total + np.float32(trees.value[node]))
+        out[r] = total
+    return out
+
+
+@pytest.mark.parametrize("depth", [1, 2, 3, 4, 6])
+def test_kernel_equals_numpy_walk_bit_for_bit(rng, depth):
+    """Depth 3 takes the unrolled walk, the others the loop over levels."""
+    trees = _random_trees(rng, 57, depth, 5)
+    x = rng.normal(size=(40, 5))
+    x[3, 2] = np.nan
+    x[4, 0] = trees.threshold[trees.roots[0]]  # on a threshold: <= goes the true way
+    got = tree_ensemble.predict(trees, x)
+    np.testing.assert_array_equal(got, _reference_predict(trees, x))
+    assert np.isnan(got[3])
+
+
+def test_shipped_trees_equal_numpy_walk_bit_for_bit(rng):
+    trees = tree_ensemble.read_trees(default_model_path().read_bytes())
+    x = rng.normal(0.5, 1.0, (300, n_toa_features(4)))
+    assert tree_ensemble.dense(trees)[0].shape[1] == 7  # depth 3: the unrolled walk
+    np.testing.assert_array_equal(tree_ensemble.predict(trees, x), _reference_predict(trees, x))
