@@ -11,9 +11,10 @@ import numpy as np
 
 from spiel_edge.data import load_subset
 from spiel_edge.measure.bench import synthetic_set
-from spiel_edge.pipeline import fused as F
+from spiel_edge.pipeline import front as F
 from spiel_edge.pipeline.detect import _detect_kernel
 from spiel_edge.pipeline.features import _features_kernel
+from spiel_edge.pipeline.fused import FusedPipeline
 from spiel_edge.pipeline.memg import _memg_kernel
 from spiel_edge.pipeline.preprocess import _preprocess_kernel
 from spiel_edge.pipeline.run import Pipeline
@@ -23,7 +24,7 @@ clk = time.perf_counter_ns
 
 
 def prof(name, prof, frames, bgs, rounds):
-    fp = F.FusedPipeline(Pipeline(prof))
+    fp = FusedPipeline(Pipeline(prof))
     ws = fp._workspaces.get()
     (blind, rf, car, hw, hi, lo, mina, muw, maxit, split, sms, smr, toa) = fp._scalars
     (env, bg_env, cleaned, peaks, counts, params, iters, uns, feats) = ws.front_buffers

@@ -1,5 +1,6 @@
 """The fused path's back kernel: associate, echo timing, echo quality, locate and covariance
-of one target (K = 1) in one compiled call on a Workspace's buffers.
+of one target (K = 1) in one compiled call on a Workspace's buffers; ``_acquisition_kernel``
+runs the front kernel and it in one call.
 
 It computes what ``Pipeline.scene`` + ``Pipeline._locate`` compute for one target, bit for bit
 (tests/core/test_back.py), by calling the same kernels in the same order:
@@ -17,7 +18,9 @@ It computes what ``Pipeline.scene`` + ``Pipeline._locate`` compute for one targe
 
 :func:`back_config` says whether a pipeline can use it (one target, the geometric or the
 learned associator in prior mode, echo timing without an onnxruntime correction, no
-overridden back methods); otherwise the fused path runs the staged back steps.
+overridden back methods); otherwise the fused path runs the staged back steps. Its constants
+come packed by dtype (``scene_steps.pack_config``, as the several-target kernel's: 21
+arguments instead of 41, at about 65 ns of numba's dispatch per array).
 """
 
 from __future__ import annotations
@@ -47,7 +50,40 @@ from spiel_edge.pipeline.back_steps import (
 )
 from spiel_edge.pipeline.echo_timing import ESTIMATORS, EchoTiming
 from spiel_edge.pipeline.features import TOA_COLUMN
+from spiel_edge.pipeline.front import _packed_front, front_packed, front_scalars, raise_for
 from spiel_edge.pipeline.scene import SceneAssociator
+from spiel_edge.pipeline.scene_steps import (
+    L_ANCHORS,
+    L_ASSOC_DELAYS,
+    L_B0,
+    L_B1,
+    L_B2,
+    L_BASE,
+    L_BH,
+    L_CHANNELS,
+    L_COST_WEIGHTS,
+    L_DELAYS,
+    L_EMITTER,
+    L_FACING,
+    L_FEATURE,
+    L_FLOATS,
+    L_FRONT_FLOATS,
+    L_FRONT_INTS,
+    L_LISTENING,
+    L_MAX_DIFF,
+    L_MEAN,
+    L_QUALITY,
+    L_STD,
+    L_THRESHOLD,
+    L_VALUE,
+    L_W0,
+    L_W1,
+    L_W2,
+    L_WH,
+    _v1,
+    _v2,
+    pack_config,
+)  # fmt: skip
 
 BACK_STAGES = ("associate", "echo_timing", "locate")
 _NO_TREES = (
@@ -57,14 +93,20 @@ _NO_TREES = (
     0.0,
 )
 _NO_MLP = tuple(np.zeros((1,) * n, np.float32) for n in (1, 1, 2, 1, 2, 1, 2, 1, 2, 1))
+_NO_SCENE = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.bool_))  # its slots, K = 1
 
 
 def back_config(pipeline: run.Pipeline) -> tuple | None:
-    """The back kernel's constant arguments for this pipeline, or None when it must run the
+    """The back kernel's constant arguments for this pipeline, packed
+    (:func:`~spiel_edge.pipeline.scene_steps.pack_config`), or None when it must run the
     staged back steps (then the reason is logged by the caller)."""
     if pipeline.scene.max_targets != 1:
         return None
-    return kernel_arguments(pipeline)
+    args = kernel_arguments(pipeline)
+    if args is None:
+        return None
+    front = front_packed(front_scalars(pipeline.profile))
+    return pack_config((*args, *_NO_SCENE, *front))
 
 
 def kernel_arguments(pipeline: run.Pipeline) -> tuple | None:
@@ -164,12 +206,33 @@ def run_back(pipeline, config, ws, features, counts, y, bg, raw, background, bon
     counts; ``y``/``bg`` the float64 frames and background (empty rows when none)."""
     if bonus_given is not None:
         ws.bonus[:, :] = bonus_given
-    sc = pipeline.profile.scene  # as Pipeline._target: a captured background or not
-    captured = background is not None and background is not pipeline.static_model
-    scale = sc.covariance_scale if captured else sc.covariance_scale_no_background
-    cost, found, rms = _back_kernel(
-        features, counts, y, bg, float(scale), *config, *ws.back_buffers
+    scale = covariance_scale(pipeline, background)
+    cost, found, rms = _back_kernel(features, counts, y, bg, scale, *config, *ws.back_buffers)
+    return _result(pipeline, ws, features, counts, raw, cost, found, rms)
+
+
+def run_acquisition(pipeline, config, ws, y, bg, raw, background):
+    """The Result of one acquisition in one compiled call, front and back; the same as the
+    front kernel followed by :func:`run_back` (without a bonus)."""
+    features, counts = np.empty_like(ws.features), np.empty_like(ws.counts)
+    scale = covariance_scale(pipeline, background)
+    status, cost, found, rms = _acquisition_kernel(
+        y, bg, *ws.front_buffers, features, counts, scale, *config, *ws.back_buffers
     )
+    if status:
+        raise_for(status)
+    return _result(pipeline, ws, features, counts, raw, cost, found, rms)
+
+
+def covariance_scale(pipeline, background) -> float:
+    """As Pipeline._target: the scale for a captured background, or for none (the static
+    model standing in)."""
+    sc = pipeline.profile.scene
+    captured = background is not None and background is not pipeline.static_model
+    return float(sc.covariance_scale if captured else sc.covariance_scale_no_background)
+
+
+def _result(pipeline, ws, features, counts, raw, cost, found, rms) -> run.Result:
     toa = features[:, :, TOA_COLUMN]  # tolist: Python floats and ints, as the staged lists
     echoes = [toa[c, :n].tolist() for c, n in enumerate(counts.tolist())]
     match_list = [m if m >= 0 else None for m in ws.matched.tolist()]
@@ -184,7 +247,52 @@ def run_back(pipeline, config, ws, features, counts, y, bg, raw, background, bon
 
 
 @jit
+def _acquisition_kernel(
+    y, bg, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted, ws_features,
+    features, counts, cov_scale, ints, f64, f32, i64, flags, layout, bonus, matched, picked,
+    weights, shift, paths, use, clean, position, covariance,
+):  # fmt: skip
+    """The front kernel, its features and counts copied into ``features`` and ``counts``,
+    then :func:`_back_kernel`: (front status, cost, found, rms); status 0 when done."""
+    status = _packed_front(
+        y, bg, _v1(i64, layout, L_FRONT_INTS), _v1(f64, layout, L_FRONT_FLOATS),
+        env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted, ws_features,
+    )  # fmt: skip
+    if status != 0:
+        return status, math.inf, False, math.inf
+    features[:] = ws_features
+    counts[:] = ws_counts
+    cost, ok, rms = _back_kernel(
+        features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, matched,
+        picked, weights, shift, paths, use, clean, position, covariance,
+    )  # fmt: skip
+    return 0, cost, ok, rms
+
+
+@jit
 def _back_kernel(
+    features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, matched,
+    picked, weights, shift, paths, use, clean, position, covariance,
+):  # fmt: skip
+    """:func:`_back_steps` on the packed constants (:func:`back_config`): (cost, found, rms)."""
+    return _back_steps(
+        features, counts, y, bg, cov_scale, ints,
+        _v1(f64, layout, L_FLOATS), _v1(f64, layout, L_QUALITY),
+        _v1(f64, layout, L_ASSOC_DELAYS), _v1(flags, layout, L_LISTENING),
+        _v2(f64, layout, L_MAX_DIFF), _v2(i64, layout, L_ANCHORS),
+        _v1(f64, layout, L_COST_WEIGHTS), _v1(f64, layout, L_DELAYS),
+        _v2(f64, layout, L_CHANNELS), _v1(f64, layout, L_EMITTER), _v1(f64, layout, L_FACING),
+        _v1(f32, layout, L_MEAN), _v1(f32, layout, L_STD), _v2(f32, layout, L_W0),
+        _v1(f32, layout, L_B0), _v2(f32, layout, L_W1), _v1(f32, layout, L_B1),
+        _v2(f32, layout, L_W2), _v1(f32, layout, L_B2), _v2(f32, layout, L_WH),
+        _v1(f32, layout, L_BH), _v2(i64, layout, L_FEATURE), _v2(f32, layout, L_THRESHOLD),
+        _v2(f32, layout, L_VALUE), f64[layout[3 * L_BASE]], bonus, matched, picked, weights,
+        shift, paths, use, clean, position, covariance,
+    )  # fmt: skip
+
+
+@jit
+def _back_steps(
     features,
     counts,
     y,

@@ -41,6 +41,7 @@ from spiel_edge.pipeline.back_steps import (
     _one_target,
 )
 from spiel_edge.pipeline.features import TOA_COLUMN
+from spiel_edge.pipeline.front import _packed_front, front_packed, front_scalars, raise_for
 from spiel_edge.pipeline.joint import MAX_POOL, _pool_kernel
 from spiel_edge.pipeline.scene_geometry import distance3, predicted_paths_into
 from spiel_edge.pipeline.scene_steps import (
@@ -58,6 +59,8 @@ from spiel_edge.pipeline.scene_steps import (
     L_FACING,
     L_FEATURE,
     L_FLOATS,
+    L_FRONT_FLOATS,
+    L_FRONT_INTS,
     L_LISTENING,
     L_MAX_DIFF,
     L_MEAN,
@@ -96,7 +99,8 @@ def scene_config(pipeline: run.Pipeline) -> tuple | None:
 
 def scene_arguments(pipeline: run.Pipeline) -> tuple | None:
     """The kernel's constant arguments one by one: ``back.kernel_arguments``, then the
-    scene's ints, floats and listening mask (:data:`_SLOTS` after ``ints``)."""
+    scene's ints, floats and listening mask, then the front kernel's scalars
+    (:data:`~spiel_edge.pipeline.scene_steps._SLOTS` after ``ints``)."""
     scene = pipeline.scene
     if scene.max_targets < 2 or not scene.joint:
         return None
@@ -116,7 +120,7 @@ def scene_arguments(pipeline: run.Pipeline) -> tuple | None:
         ]
     )
     listening = np.ascontiguousarray(g.listening_mask(), dtype=np.bool_)
-    return (*base, ints, floats, listening)
+    return (*base, ints, floats, listening, *front_packed(front_scalars(pipeline.profile)))
 
 
 class SceneBuffers:
@@ -171,15 +175,35 @@ def run_scene(pipeline, config, ws, features, counts, y, bg, raw, background, bo
     kernel's features (a fresh copy) and counts (as :func:`spiel_edge.pipeline.back.run_back`)."""
     if bonus_given is not None:
         ws.bonus[:, :] = bonus_given
-    sc = pipeline.profile.scene  # as Pipeline._target: a captured background or not
-    captured = background is not None and background is not pipeline.static_model
-    scale = sc.covariance_scale if captured else sc.covariance_scale_no_background
+    scale = back.covariance_scale(pipeline, background)
+    buffers = _scene_buffers(ws)
+    n = _scene_kernel(features, counts, y, bg, scale, *config, ws.bonus, ws.clean, *buffers.buffers)
+    return _result(pipeline, buffers, features, counts, raw, n)
+
+
+def run_scene_acquisition(pipeline, config, ws, y, bg, raw, background):
+    """The Result of one acquisition in one compiled call, front and back (as the front
+    kernel followed by :func:`run_scene` without a bonus)."""
+    features, counts = np.empty_like(ws.features), np.empty_like(ws.counts)
+    scale = back.covariance_scale(pipeline, background)
+    buffers = _scene_buffers(ws)
+    n = _scene_acquisition_kernel(
+        y, bg, *ws.front_buffers, features, counts, scale, *config, ws.bonus, ws.clean,
+        *buffers.buffers,
+    )  # fmt: skip
+    if n < 0:
+        raise_for(-n)
+    return _result(pipeline, buffers, features, counts, raw, n)
+
+
+def _scene_buffers(ws) -> SceneBuffers:
     buffers = getattr(ws, "scene", None)
     if buffers is None:  # made once per thread's Workspace
         buffers = ws.scene = SceneBuffers(ws.n_channels)
-    n = _scene_kernel(
-        features, counts, y, bg, float(scale), *config, ws.bonus, ws.clean, *buffers.buffers
-    )
+    return buffers
+
+
+def _result(pipeline, buffers: SceneBuffers, features, counts, raw, n: int) -> run.Result:
     toa = features[:, :, TOA_COLUMN]  # tolist: Python floats and ints, as the staged lists
     echoes = [toa[c, :k].tolist() for c, k in enumerate(counts.tolist())]
     base = {"features": features, "counts": counts}
@@ -205,6 +229,28 @@ def run_scene(pipeline, config, ws, features, counts, y, bg, raw, background, bo
     return run.Result(
         best.position_mm, None, best.residual_mm, echoes, best.matched, targets=targets, **base
     )
+
+
+@jit
+def _scene_acquisition_kernel(
+    y, bg, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted, ws_features,
+    features, counts, cov_scale, ints, f64, f32, i64, flags, layout, bonus, clean, out_ints,
+    out_floats,
+):  # fmt: skip
+    """The front kernel, its features and counts copied into ``features`` and ``counts``,
+    then :func:`_scene_kernel`: the number of targets, or minus the front's status."""
+    status = _packed_front(
+        y, bg, _v1(i64, layout, L_FRONT_INTS), _v1(f64, layout, L_FRONT_FLOATS),
+        env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted, ws_features,
+    )  # fmt: skip
+    if status != 0:
+        return -status
+    features[:] = ws_features
+    counts[:] = ws_counts
+    return _scene_kernel(
+        features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, clean,
+        out_ints, out_floats,
+    )  # fmt: skip
 
 
 @jit

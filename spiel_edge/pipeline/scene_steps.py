@@ -146,19 +146,20 @@ def _double_reflection(paths, other_paths, other_position, emitter, facing, tole
 
 
 # The constant arguments after ``ints`` (back.kernel_arguments' order, then the scene's
-# ints, floats and listening mask), each in one of four buffers by dtype; the kernel takes
-# views of them (numba's call costs about 65 ns per array argument: 45 arguments took 3 us).
+# ints, floats and listening mask (empty for one target), then the front kernel's scalars,
+# front.front_packed), each in one of four buffers by dtype; the kernels take views of them
+# (numba's call costs about 65 ns per array argument: 45 arguments took 3 us).
 _SLOTS = (
     "floats", "quality", "assoc_delays", "listening", "max_path_diff", "anchors",
     "cost_weights", "delays", "channels", "emitter", "facing", "mean", "std", "w0", "b0",
     "w1", "b1", "w2", "b2", "wh", "bh", "feature", "threshold", "value", "base",
-    "scene_ints", "scene_floats", "share_listening",
+    "scene_ints", "scene_floats", "share_listening", "front_ints", "front_floats",
 )  # fmt: skip
 (
     L_FLOATS, L_QUALITY, L_ASSOC_DELAYS, L_LISTENING, L_MAX_DIFF, L_ANCHORS, L_COST_WEIGHTS,
     L_DELAYS, L_CHANNELS, L_EMITTER, L_FACING, L_MEAN, L_STD, L_W0, L_B0, L_W1, L_B1, L_W2,
     L_B2, L_WH, L_BH, L_FEATURE, L_THRESHOLD, L_VALUE, L_BASE, L_SCENE_INTS, L_SCENE_FLOATS,
-    L_SHARE_LISTENING,
+    L_SHARE_LISTENING, L_FRONT_INTS, L_FRONT_FLOATS,
 ) = range(len(_SLOTS))  # fmt: skip
 _BUFFERS = (np.float64, np.float32, np.int64, np.bool_)
 _F64, _F32, _I64, _FLAGS = range(4)
@@ -166,12 +167,13 @@ _F64, _F32, _I64, _FLAGS = range(4)
 _KINDS = (
     _F64, _F64, _F64, _FLAGS, _F64, _I64, _F64, _F64, _F64, _F64, _F64, _F32, _F32, _F32,
     _F32, _F32, _F32, _F32, _F32, _F32, _F32, _I64, _F32, _F32, _F64, _I64, _F64, _FLAGS,
+    _I64, _F64,
 )  # fmt: skip
 
 
 def pack_config(args: tuple) -> tuple | None:
-    """``(ints, f64, f32, i64, flags, layout)`` from the kernel's unpacked constant arguments
-    (``ints`` first, as the K = 1 kernel's config, then :data:`_SLOTS`): every array's
+    """``(ints, f64, f32, i64, flags, layout)`` from a back kernel's unpacked constant
+    arguments (``ints`` first, then :data:`_SLOTS`): every array's
     values in the buffer of its dtype, ``layout[3 * slot : 3 * slot + 3]`` its offset there
     and its (at most two) dimensions. None (the staged steps) when an array does not have
     the dtype the kernel reads it as: values are never converted."""
@@ -185,7 +187,7 @@ def pack_config(args: tuple) -> tuple | None:
         a = np.asarray(value)
         kind = _KINDS[slot]
         if a.dtype != _BUFFERS[kind] or a.ndim > 2:
-            log.debug("scene kernel off: %s is %s %dd", _SLOTS[slot], a.dtype, a.ndim)
+            log.debug("back kernel off: %s is %s %dd", _SLOTS[slot], a.dtype, a.ndim)
             return None
         shape = (*a.shape, 1, 1)[:2] if a.ndim else (1, 1)
         layout[3 * slot : 3 * slot + 3] = (sizes[kind], *shape)

@@ -11,6 +11,7 @@ import onnx
 import pytest
 from onnx import helper
 
+from spiel_edge.errors import InputError
 from spiel_edge.pipeline import back, back_scene, back_steps, mlp, verified_models
 from spiel_edge.pipeline.associate_onnx import OnnxAssociator, default_model_path, load_session
 from spiel_edge.pipeline.echo_timing import EchoTiming
@@ -45,12 +46,12 @@ def test_back_kernel_with_the_numba_mlp_equals_staged(profile, subset):
 def test_back_kernel_with_onnxruntime_between_the_kernels(profile, subset):
     assoc = OnnxAssociator(profile)
     assoc.mlp, assoc.engine, assoc.session = None, "onnxruntime", load_session(assoc.model_path)
-    _same_on(
-        Pipeline(profile, assoc),
-        subset.frames[:40],
-        subset.backgrounds[:40],
-        back_steps.PRIOR_GIVEN,
-    )
+    staged = Pipeline(profile, assoc)
+    _same_on(staged, subset.frames[:40], subset.backgrounds[:40], back_steps.PRIOR_GIVEN)
+    bad = subset.frames[0].copy()
+    bad[2, 5] = np.inf
+    with pytest.raises(InputError, match="frames contains NaN or infinite"):
+        FusedPipeline(staged).process(bad, subset.backgrounds[0])
 
 
 @pytest.mark.parametrize("estimator", ["log_parabola", "none"])

@@ -72,8 +72,10 @@ def test_fused_equals_staged_with_the_merged_echo_split(profile, subset, rng):
         assert_same(FusedPipeline(Pipeline(prof)).process(f, b), Pipeline(prof).process(f, b))
 
 
-def test_fused_validates_like_staged(profile, subset):
-    fast = FusedPipeline(Pipeline(profile))
+@pytest.mark.parametrize("max_targets", [1, 4])  # one call: back.py's or back_scene.py's
+def test_fused_validates_like_staged(profile, subset, max_targets):
+    staged = Pipeline(profile, max_targets=max_targets)
+    fast = FusedPipeline(staged)
     f, b = subset.frames[0], subset.backgrounds[0]
     bad = f.copy()
     bad[1, 3] = np.nan
@@ -86,7 +88,9 @@ def test_fused_validates_like_staged(profile, subset):
         with pytest.raises(InputError, match=match):
             fast.process(*args)
         with pytest.raises(InputError, match=match):
-            Pipeline(profile).process(*args)
+            staged.process(*args)
+        assert_same(fast.process(f, b), staged.process(f, b))  # nothing left behind
+    assert fast._back_config is not None
 
 
 def test_unknown_stage_or_subclass_falls_back_to_staged(profile, subset, monkeypatch):

@@ -8,7 +8,7 @@ from spiel_edge.service import kit
 
 def test_one_kernel_finder_sees_the_fused_and_staged_kernels():
     names = set(warmup.pipeline_kernels())
-    kernels = ("fused._front_kernel", "memg._memg_kernel", "split._split_kernel")
+    kernels = ("front._front_kernel", "memg._memg_kernel", "split._split_kernel")
     for kernel in (*kernels, "associate._hypothesis_kernel", "back_scene._scene_kernel"):
         assert f"spiel_edge.pipeline.{kernel}" in names
 
