@@ -9,8 +9,9 @@ Track slots are rows of fixed arrays (the cap is their length); ``meta`` holds p
 status (0 free, 1 tentative, 2 confirmed), id, age, hits and misses. Confirmed tracks are
 matched first, tentative ones get the targets left over, and targets nobody took start
 tentative tracks (not inside a confirmed track's gate, where they are more likely a split
-detection of that track than a new object). Nothing is allocated per acquisition except the
-snapshot the Track objects keep; state and scratch come from :func:`allocate`. The
+detection of that track than a new object). Nothing is allocated per acquisition: state,
+scratch and the snapshot of the confirmed tracks (which the Tracker copies for its Track
+objects) live in :func:`allocate`'s arrays. The
 reference for every result is tests/track/reference_step.py (the step before this one).
 """
 
@@ -30,8 +31,8 @@ NEXT_ID, DROPPED, CAP = 0, 1, 2  # entries of ``counters``
 
 def allocate(cap: int, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The tracker's float, int and bool arrays for ``cap`` (<= SLOTS) tracks: the state,
-    the parameters (see :func:`_step`) and every scratch the step needs, so that the step
-    allocates nothing but its snapshot and takes few arguments (each one costs time)."""
+    the parameters (see :func:`_step`), every scratch the step needs and its snapshot, so
+    that the step allocates nothing and takes few arguments (each one costs time)."""
     if not 1 <= cap <= SLOTS:
         raise ValueError(f"cap must be 1..{SLOTS}, got {cap}")
     if len(params) != N_PARAMS:
@@ -126,13 +127,17 @@ def _step(floats, ints, bools, z, r_in, dt):
     last two 0: the constant-velocity filter alone, as before the IMM). Leaves per target the
     id of the confirmed track it went to, or -1, for :func:`target_ids`; returns the snapshot
     of the confirmed tracks (:func:`_snapshot`)."""
-    return _step_on(floats, ints, bools, z, r_in, dt)
+    n = _step_on(floats, ints, bools, z, r_in, dt)
+    return _snapshot_buffer(floats)[:n].copy()
 
 
-@jit
+# _nrt=False: the step allocates nothing (its snapshot goes to the float array too), and
+# without numba's runtime its many views of the state skip their atomic reference counts
+@jit(_nrt=False)
 def _step_buffered(floats, ints, bools, m, dt):
     """:func:`_step` on the first ``m`` targets written into :func:`measurement_views`
-    beforehand (two array arguments fewer: each costs time in the call)."""
+    beforehand (two array arguments fewer: each costs time in the call); returns the number
+    of confirmed tracks, whose snapshot :func:`snapshot_rows` copies out."""
     z, r_in = _measurement_buffers(floats)
     return _step_on(floats, ints, bools, z[:m], r_in[:m], dt)
 
@@ -177,7 +182,7 @@ def _step_on(floats, ints, bools, z, r_in, dt):
     for j in range(m):  # target_slot becomes per target the confirmed track's id or -1
         s = target_slot[j]
         target_slot[j] = meta[ID, s] if s >= 0 and meta[STATUS, s] == CONFIRMED else -1
-    return _snapshot(x, p, meta, wi)
+    return _snapshot(x, p, meta, wi, _snapshot_buffer(floats))
 
 
 @jit(inline="always")
@@ -210,9 +215,11 @@ def _update_slot(x, p, models, s, z, r, work, imm) -> bool:
 @jit
 def _start_models(x, p, models, s, static_share):
     xm, pm, mu = models
-    for k in range(2):
-        xm[s, k] = x[s]
-        pm[s, k] = p[s]
+    for k in range(2):  # element loops: a slice copy may allocate (the step runs without NRT)
+        for a in range(6):
+            xm[s, k, a] = x[s, a]
+            for b in range(6):
+                pm[s, k, a, b] = p[s, a, b]
     mu[s, 0], mu[s, 1] = static_share, 1.0 - static_share
     _combine(xm[s], pm[s], mu[s], x[s], p[s])
 
@@ -256,10 +263,12 @@ def _births(x, p, meta, counters, z, r, usable, near, target_slot, v02, confirm_
         if s == cap:
             counters[DROPPED] += 1
             continue
-        x[s, :3] = z[j]
         x[s, 3:] = 0.0
         p[s] = 0.0
-        p[s, :3, :3] = r[j]
+        for a in range(3):  # element loops: a slice copy may allocate (no NRT in the step)
+            x[s, a] = z[j, a]
+            for b in range(3):
+                p[s, a, b] = r[j, a, b]
         for a in range(3, 6):
             p[s, a, a] = v02
         meta[STATUS, s], meta[ID, s], meta[AGE, s], meta[HITS, s], meta[MISSES, s] = (
@@ -275,9 +284,10 @@ def _births(x, p, meta, counters, z, r, usable, near, target_slot, v02, confirm_
 
 
 @jit
-def _snapshot(x, p, meta, wi):
-    """The confirmed tracks by id, a row each: state (6) and covariance (36, row-major);
-    their id, age, hits and misses go to ``snapshot_meta(wi, rows)``."""
+def _snapshot(x, p, meta, wi, out):
+    """The confirmed tracks by id into the rows of ``out``: state (6) and covariance (36,
+    row-major); their id, age, hits and misses go to ``snapshot_meta(wi, rows)``. Returns the
+    number of rows."""
     order = wi[:SLOTS]
     n = 0
     for s in range(meta.shape[1]):
@@ -288,16 +298,16 @@ def _snapshot(x, p, meta, wi):
                 k -= 1
             order[k] = s
             n += 1
-    out = np.empty((n, SNAPSHOT))  # one array: returning several costs microseconds
     for k in range(n):
         s = order[k]
         for c in range(4):
             wi[_META + 4 * k + c] = meta[ID + c, s]
-        out[k, :6] = x[s]
+        for i in range(6):
+            out[k, i] = x[s, i]
         for i in range(6):
             for j in range(6):
                 out[k, 6 + 6 * i + j] = p[s, i, j]
-    return out
+    return n
 
 
 SNAPSHOT = 6 + 36  # columns of a snapshot row
@@ -307,7 +317,8 @@ N_PARAMS = 11  # see Tracker: the CV filter's 8, then static_q2, switch, static 
 SLOTS = 64
 _N = SLOTS + 1
 _COST, _R, _WORK, _MIX = SLOTS * SLOTS, SLOTS * 9, 6 * 15, 2 * 42
-_Z = _COST + _R + _WORK + 3 * _N + _MIX  # the targets' positions and covariances
+_SNAP = _COST + _R + _WORK + 3 * _N + _MIX  # the snapshot's rows
+_Z = _SNAP + SLOTS * SNAPSHOT  # the targets' positions and covariances (last)
 _FLOATS = _Z + SLOTS * 12
 _META = 3 * SLOTS + 3 * _N  # the snapshot's ids, ages, hits, misses
 _INTS = _META + 4 * SLOTS
@@ -365,6 +376,19 @@ def _measurement_buffers(floats):
     return z, floats[at + SLOTS * 3 : at + SLOTS * 12].reshape((SLOTS, 3, 3))
 
 
+@jit(inline="always")
+def _snapshot_buffer(floats):
+    at = _F_SCRATCH + _SNAP
+    return floats[at : at + SLOTS * SNAPSHOT].reshape((SLOTS, SNAPSHOT))
+
+
+def snapshot_rows(floats: np.ndarray, rows: int) -> np.ndarray:
+    """A copy of the snapshot's first ``rows`` rows (after :func:`_step_buffered` or
+    :func:`_snapshot_now`): the Track objects keep it while the buffer is reused."""
+    at = _F_SCRATCH + _SNAP
+    return floats[at : at + rows * SNAPSHOT].reshape(rows, SNAPSHOT).copy()
+
+
 def measurement_views(floats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(z (SLOTS, 3), r (SLOTS, 3, 3)): views of :func:`allocate`'s float array where
     :func:`_step_buffered` reads the targets' positions and covariances."""
@@ -387,6 +411,6 @@ def snapshot_meta(ints: np.ndarray, rows: int) -> list[int]:
 
 @jit
 def _snapshot_now(floats, ints, bools):
-    """:func:`_snapshot` outside a step (``Tracker.tracks``)."""
+    """:func:`_snapshot` outside a step (``Tracker.tracks``): the number of rows."""
     x, p, _, _, _, meta, _, wi, _ = _unpack(floats, ints, bools)
-    return _snapshot(x, p, meta, wi)
+    return _snapshot(x, p, meta, wi, _snapshot_buffer(floats))

@@ -36,6 +36,7 @@ from spiel_edge.track.step import (
     allocate,
     measurement_views,
     snapshot_meta,
+    snapshot_rows,
     state_views,
     target_ids,
 )
@@ -171,7 +172,7 @@ class Tracker:
             used, m = targets[:MAX_TARGETS], MAX_TARGETS
         self._write_measurements(used)
         floats, ints, bools = self._arrays
-        snapshot = _step_buffered(floats, ints, bools, m, dt)
+        snapshot = snapshot_rows(floats, _step_buffered(floats, ints, bools, m, dt))
         for target, track_id in zip(used, target_ids(ints, m), strict=True):
             target.track_id = None if track_id < 0 else track_id
         if used is not targets:
@@ -193,7 +194,8 @@ class Tracker:
 
     def tracks(self) -> list[Track]:
         """The confirmed tracks now, by id."""
-        return _tracks(_snapshot_now(*self._arrays), self._arrays[1])
+        floats, ints, bools = self._arrays
+        return _tracks(snapshot_rows(floats, _snapshot_now(floats, ints, bools)), ints)
 
     def _advance(self, t: float) -> float:
         last, self._last_t = self._last_t, t
