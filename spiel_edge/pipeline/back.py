@@ -52,38 +52,7 @@ from spiel_edge.pipeline.echo_timing import ESTIMATORS, EchoTiming
 from spiel_edge.pipeline.features import TOA_COLUMN
 from spiel_edge.pipeline.front import _packed_front, front_packed, front_scalars, raise_for
 from spiel_edge.pipeline.scene import SceneAssociator
-from spiel_edge.pipeline.scene_steps import (
-    L_ANCHORS,
-    L_ASSOC_DELAYS,
-    L_B0,
-    L_B1,
-    L_B2,
-    L_BASE,
-    L_BH,
-    L_CHANNELS,
-    L_COST_WEIGHTS,
-    L_DELAYS,
-    L_EMITTER,
-    L_FACING,
-    L_FEATURE,
-    L_FLOATS,
-    L_FRONT_FLOATS,
-    L_FRONT_INTS,
-    L_LISTENING,
-    L_MAX_DIFF,
-    L_MEAN,
-    L_QUALITY,
-    L_STD,
-    L_THRESHOLD,
-    L_VALUE,
-    L_W0,
-    L_W1,
-    L_W2,
-    L_WH,
-    _v1,
-    _v2,
-    pack_config,
-)  # fmt: skip
+from spiel_edge.pipeline.scene_steps import _back_views, _front_views, pack_config
 
 BACK_STAGES = ("associate", "echo_timing", "locate")
 _NO_TREES = (
@@ -254,9 +223,10 @@ def _acquisition_kernel(
 ):  # fmt: skip
     """The front kernel, its features and counts copied into ``features`` and ``counts``,
     then :func:`_back_kernel`: (front status, cost, found, rms); status 0 when done."""
+    fi, ff = _front_views(f64, i64, layout)
     status = _packed_front(
-        y, bg, _v1(i64, layout, L_FRONT_INTS), _v1(f64, layout, L_FRONT_FLOATS),
-        env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted, ws_features,
+        y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
+        ws_features,
     )  # fmt: skip
     if status != 0:
         return status, math.inf, False, math.inf
@@ -276,18 +246,8 @@ def _back_kernel(
 ):  # fmt: skip
     """:func:`_back_steps` on the packed constants (:func:`back_config`): (cost, found, rms)."""
     return _back_steps(
-        features, counts, y, bg, cov_scale, ints,
-        _v1(f64, layout, L_FLOATS), _v1(f64, layout, L_QUALITY),
-        _v1(f64, layout, L_ASSOC_DELAYS), _v1(flags, layout, L_LISTENING),
-        _v2(f64, layout, L_MAX_DIFF), _v2(i64, layout, L_ANCHORS),
-        _v1(f64, layout, L_COST_WEIGHTS), _v1(f64, layout, L_DELAYS),
-        _v2(f64, layout, L_CHANNELS), _v1(f64, layout, L_EMITTER), _v1(f64, layout, L_FACING),
-        _v1(f32, layout, L_MEAN), _v1(f32, layout, L_STD), _v2(f32, layout, L_W0),
-        _v1(f32, layout, L_B0), _v2(f32, layout, L_W1), _v1(f32, layout, L_B1),
-        _v2(f32, layout, L_W2), _v1(f32, layout, L_B2), _v2(f32, layout, L_WH),
-        _v1(f32, layout, L_BH), _v2(i64, layout, L_FEATURE), _v2(f32, layout, L_THRESHOLD),
-        _v2(f32, layout, L_VALUE), f64[layout[3 * L_BASE]], bonus, matched, picked, weights,
-        shift, paths, use, clean, position, covariance,
+        features, counts, y, bg, cov_scale, ints, *_back_views(f64, f32, i64, flags, layout),
+        bonus, matched, picked, weights, shift, paths, use, clean, position, covariance,
     )  # fmt: skip
 
 

@@ -45,46 +45,17 @@ from spiel_edge.pipeline.front import _packed_front, front_packed, front_scalars
 from spiel_edge.pipeline.joint import MAX_POOL, _pool_kernel
 from spiel_edge.pipeline.scene_geometry import distance3, predicted_paths_into
 from spiel_edge.pipeline.scene_steps import (
-    L_ANCHORS,
-    L_ASSOC_DELAYS,
-    L_B0,
-    L_B1,
-    L_B2,
-    L_BASE,
-    L_BH,
-    L_CHANNELS,
-    L_COST_WEIGHTS,
-    L_DELAYS,
-    L_EMITTER,
-    L_FACING,
-    L_FEATURE,
-    L_FLOATS,
-    L_FRONT_FLOATS,
-    L_FRONT_INTS,
-    L_LISTENING,
-    L_MAX_DIFF,
-    L_MEAN,
-    L_QUALITY,
-    L_SCENE_FLOATS,
-    L_SCENE_INTS,
-    L_SHARE_LISTENING,
-    L_STD,
-    L_THRESHOLD,
-    L_VALUE,
-    L_W0,
-    L_W1,
-    L_W2,
-    L_WH,
     S_DOUBLE_TOL,
     S_MAX_TARGETS,
     S_MIN_SEPARATION,
     S_SHARE_TOL,
+    _back_views,
     _double_reflection,
+    _front_views,
     _hypotheses,
     _outputs,
+    _scene_views,
     _share,
-    _v1,
-    _v2,
     pack_config,
 )
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
@@ -154,19 +125,8 @@ def _scene_kernel(
     buffers (:class:`SceneBuffers`); returns the number of targets."""
     outs = _outputs(out_ints, out_floats, features.shape[0])
     return _scene_steps(
-        features, counts, y, bg, cov_scale, ints,
-        _v1(f64, layout, L_FLOATS), _v1(f64, layout, L_QUALITY),
-        _v1(f64, layout, L_ASSOC_DELAYS), _v1(flags, layout, L_LISTENING),
-        _v2(f64, layout, L_MAX_DIFF), _v2(i64, layout, L_ANCHORS),
-        _v1(f64, layout, L_COST_WEIGHTS), _v1(f64, layout, L_DELAYS),
-        _v2(f64, layout, L_CHANNELS), _v1(f64, layout, L_EMITTER), _v1(f64, layout, L_FACING),
-        _v1(f32, layout, L_MEAN), _v1(f32, layout, L_STD), _v2(f32, layout, L_W0),
-        _v1(f32, layout, L_B0), _v2(f32, layout, L_W1), _v1(f32, layout, L_B1),
-        _v2(f32, layout, L_W2), _v1(f32, layout, L_B2), _v2(f32, layout, L_WH),
-        _v1(f32, layout, L_BH), _v2(i64, layout, L_FEATURE), _v2(f32, layout, L_THRESHOLD),
-        _v2(f32, layout, L_VALUE), f64[layout[3 * L_BASE]], _v1(i64, layout, L_SCENE_INTS),
-        _v1(f64, layout, L_SCENE_FLOATS), _v1(flags, layout, L_SHARE_LISTENING),
-        bonus, clean, *outs,
+        features, counts, y, bg, cov_scale, ints, *_back_views(f64, f32, i64, flags, layout),
+        *_scene_views(f64, i64, flags, layout), bonus, clean, *outs,
     )  # fmt: skip
 
 
@@ -239,9 +199,10 @@ def _scene_acquisition_kernel(
 ):  # fmt: skip
     """The front kernel, its features and counts copied into ``features`` and ``counts``,
     then :func:`_scene_kernel`: the number of targets, or minus the front's status."""
+    fi, ff = _front_views(f64, i64, layout)
     status = _packed_front(
-        y, bg, _v1(i64, layout, L_FRONT_INTS), _v1(f64, layout, L_FRONT_FLOATS),
-        env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted, ws_features,
+        y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
+        ws_features,
     )  # fmt: skip
     if status != 0:
         return -status

@@ -232,3 +232,37 @@ def _v1(buf, layout, slot):
 def _v2(buf, layout, slot):
     o, d0, d1 = layout[3 * slot], layout[3 * slot + 1], layout[3 * slot + 2]
     return buf[o : o + d0 * d1].reshape((d0, d1))
+
+
+@jit(inline="always")
+def _back_views(f64, f32, i64, flags, layout):
+    """The packed constants one by one, in ``back._back_steps``' order (``floats`` ..
+    ``base``: :data:`_SLOTS` up to ``base``), as both back kernels pass them on."""
+    return (
+        _v1(f64, layout, L_FLOATS), _v1(f64, layout, L_QUALITY),
+        _v1(f64, layout, L_ASSOC_DELAYS), _v1(flags, layout, L_LISTENING),
+        _v2(f64, layout, L_MAX_DIFF), _v2(i64, layout, L_ANCHORS),
+        _v1(f64, layout, L_COST_WEIGHTS), _v1(f64, layout, L_DELAYS),
+        _v2(f64, layout, L_CHANNELS), _v1(f64, layout, L_EMITTER), _v1(f64, layout, L_FACING),
+        _v1(f32, layout, L_MEAN), _v1(f32, layout, L_STD), _v2(f32, layout, L_W0),
+        _v1(f32, layout, L_B0), _v2(f32, layout, L_W1), _v1(f32, layout, L_B1),
+        _v2(f32, layout, L_W2), _v1(f32, layout, L_B2), _v2(f32, layout, L_WH),
+        _v1(f32, layout, L_BH), _v2(i64, layout, L_FEATURE), _v2(f32, layout, L_THRESHOLD),
+        _v2(f32, layout, L_VALUE), f64[layout[3 * L_BASE]],
+    )  # fmt: skip
+
+
+@jit(inline="always")
+def _scene_views(f64, i64, flags, layout):
+    """The scene's ints, floats and listening mask (empty for one target)."""
+    return (
+        _v1(i64, layout, L_SCENE_INTS),
+        _v1(f64, layout, L_SCENE_FLOATS),
+        _v1(flags, layout, L_SHARE_LISTENING),
+    )
+
+
+@jit(inline="always")
+def _front_views(f64, i64, layout):
+    """The front kernel's packed scalars (``front.front_packed``): (ints, floats)."""
+    return _v1(i64, layout, L_FRONT_INTS), _v1(f64, layout, L_FRONT_FLOATS)

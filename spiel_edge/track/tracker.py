@@ -25,14 +25,12 @@ import numpy as np
 
 from spiel_edge.errors import InputError
 from spiel_edge.profile.track_section import TrackSpec
-from spiel_edge.track.step import (
+from spiel_edge.track.layout import (
     DROPPED,
     ID,
     NEXT_ID,
     SLOTS,
     STATUS,
-    _snapshot_now,
-    _step_buffered,
     allocate,
     measurement_views,
     snapshot_meta,
@@ -40,6 +38,7 @@ from spiel_edge.track.step import (
     state_views,
     target_ids,
 )
+from spiel_edge.track.step import _snapshot_now, _step_buffered
 
 log = logging.getLogger(__name__)
 

@@ -6,7 +6,8 @@ import pytest
 
 from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.track import imm
-from spiel_edge.track.step import _step, allocate, model_views, state_views
+from spiel_edge.track.layout import allocate, model_views, state_views
+from spiel_edge.track.step import _step
 from tests.track import naive
 
 ACC, Q2, V02 = 1000.0, 4.0, 300.0**2

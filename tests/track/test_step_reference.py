@@ -5,16 +5,16 @@ import numpy as np
 import pytest
 
 from spiel_edge.track.assign import INFEASIBLE, _assign_into, assign
-from spiel_edge.track.step import (
+from spiel_edge.track.layout import (
     DROPPED,
     NEXT_ID,
     STATUS,
-    _step,
     allocate,
     snapshot_meta,
     state_views,
     target_ids,
 )
+from spiel_edge.track.step import _step
 from tests.track import reference_step
 
 # the IMM off (switch probability and static share 0): the CV filter alone, as the reference

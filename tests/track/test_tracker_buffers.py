@@ -5,14 +5,8 @@ import numpy as np
 import pytest
 
 from spiel_edge.pipeline.run import Target
-from spiel_edge.track.step import (
-    _step,
-    _step_buffered,
-    allocate,
-    measurement_views,
-    snapshot_rows,
-    target_ids,
-)
+from spiel_edge.track.layout import allocate, measurement_views, snapshot_rows, target_ids
+from spiel_edge.track.step import _step, _step_buffered
 from spiel_edge.track.tracker import Tracker, _measurements
 
 PARAMS = np.array([2000.0, 16.27, 1.0, 400.0, 300.0**2, 3, 5, 10, 4.0, 0.05, 0.5])
