@@ -226,12 +226,10 @@ def _acquisition_kernel(
     fi, ff = _front_views(f64, i64, layout)
     status = _packed_front(
         y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
-        ws_features,
+        ws_features, features, counts,
     )  # fmt: skip
     if status != 0:
         return status, math.inf, False, math.inf
-    features[:] = ws_features
-    counts[:] = ws_counts
     cost, ok, rms = _back_kernel(
         features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, matched,
         picked, weights, shift, paths, use, clean, position, covariance,

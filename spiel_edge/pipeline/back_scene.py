@@ -202,12 +202,10 @@ def _scene_acquisition_kernel(
     fi, ff = _front_views(f64, i64, layout)
     status = _packed_front(
         y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
-        ws_features,
+        ws_features, features, counts,
     )  # fmt: skip
     if status != 0:
         return -status
-    features[:] = ws_features
-    counts[:] = ws_counts
     return _scene_kernel(
         features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, clean,
         out_ints, out_floats,

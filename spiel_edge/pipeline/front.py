@@ -64,14 +64,21 @@ def raise_for(status: int) -> None:
 
 @jit(inline="always")
 def _packed_front(
-    y, bg, fi, ff, env, bg_env, cleaned, peaks, counts, params, iterations, unsorted, features
-):
-    """:func:`_front_kernel` on :func:`front_packed`'s arrays ``fi`` and ``ff``."""
-    return _front_kernel(
+    y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
+    ws_features, features, counts,
+):  # fmt: skip
+    """:func:`_front_kernel` on :func:`front_packed`'s arrays ``fi`` and ``ff``, then its
+    features and counts copied into the caller's fresh ``features`` and ``counts``: the
+    front's status (0 when done)."""
+    status = _front_kernel(
         y, bg, fi[0], fi[1] != 0, ff[0], fi[2], ff[1], ff[2], ff[3], ff[4], fi[3], fi[4] != 0,
-        ff[5], ff[6], fi[5], env, bg_env, cleaned, peaks, counts, params, iterations, unsorted,
-        features,
+        ff[5], ff[6], fi[5], env, bg_env, cleaned, peaks, ws_counts, params, iterations,
+        unsorted, ws_features,
     )  # fmt: skip
+    if status == 0:
+        features[:] = ws_features
+        counts[:] = ws_counts
+    return status
 
 
 @jit
