@@ -107,6 +107,26 @@ def test_birth_needs_m_of_n_and_sets_track_ids():
     assert (track.track_id, track.age, track.hits) == (0, 4, 3)
 
 
+def test_tracks_are_snapshots_and_tracks_repeats_the_last_update(rng):
+    """Track objects keep their values while later updates reuse the step's buffers, and
+    ``tracks()`` gives what the last update returned."""
+    tracker = Tracker(replace(SPEC, confirm_hits=2))
+    kept = None
+    for k in range(12):
+        targets = [_target([10.0 * k, 0, 150]), _target([-50, 40, 250 - 3.0 * k])]
+        tracks = tracker.update(targets, 0.02 * k)
+        if k == 5:
+            kept = [(t, t.track_id, t.state.copy(), t.state_covariance.copy()) for t in tracks]
+    assert len(kept) == 2
+    for track, track_id, state, covariance in kept:  # five updates later
+        assert track.track_id == track_id
+        assert np.array_equal(track.state, state)
+        assert np.array_equal(track.state_covariance, covariance)
+    again = tracker.tracks()
+    assert [t.record() for t in again] == [t.record() for t in tracks]
+    assert [t.track_id for t in again] == [0, 1]
+
+
 def test_a_clutter_target_seen_once_never_becomes_a_track():
     tracker = Tracker()
     for k in range(20):
