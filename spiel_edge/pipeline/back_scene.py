@@ -20,7 +20,8 @@ by calling the same kernels in the same order:
 Only the Target and Result objects are built in Python, once per acquisition. The call
 takes 15 arguments, not 45 (numba's dispatch costs about 65 ns per array argument): the
 constants are packed by dtype into four buffers (:func:`pack_config`), the outputs into two
-(:class:`SceneBuffers`), and ``_scene_kernel`` hands their views to ``_scene_steps``. The staged
+(:class:`SceneBuffers`), and ``_scene_kernel`` hands their views to ``_scene_steps``;
+``_scene_acquisition_kernel`` runs the front kernel and it in one call. The staged
 path stays the reference: :func:`scene_config` returns None (staged back steps) for greedy
 selection, the learned associator's reference mode, more than 6 listening channels, or
 anything :func:`spiel_edge.pipeline.back.kernel_arguments` does not cover.

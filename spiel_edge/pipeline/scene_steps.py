@@ -163,7 +163,7 @@ _SLOTS = (
 ) = range(len(_SLOTS))  # fmt: skip
 _BUFFERS = (np.float64, np.float32, np.int64, np.bool_)
 _F64, _F32, _I64, _FLAGS = range(4)
-# the buffer (dtype) each slot's array is read from in _scene_kernel
+# the buffer (dtype) each slot's array is read from in the back kernels (_back_views, ...)
 _KINDS = (
     _F64, _F64, _F64, _FLAGS, _F64, _I64, _F64, _F64, _F64, _F64, _F64, _F32, _F32, _F32,
     _F32, _F32, _F32, _F32, _F32, _F32, _F32, _I64, _F32, _F32, _F64, _I64, _F64, _FLAGS,

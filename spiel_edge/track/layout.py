@@ -46,7 +46,7 @@ def state_views(floats: np.ndarray, ints: np.ndarray):
 
 def model_views(floats: np.ndarray, cap: int):
     """(xm (cap, 2, 6), pm (cap, 2, 6, 6), mu (cap, 2)): the IMM's model states (imm.py),
-    meaningful while the IMM is on (:func:`_imm_on`)."""
+    meaningful while the IMM is on (``step._imm_on``)."""
     xm = floats[_F_MODELS : _F_MODELS + SLOTS * 12].reshape(SLOTS, 2, 6)[:cap]
     pm = floats[_F_MODELS + SLOTS * 12 : _F_MU].reshape(SLOTS, 2, 6, 6)[:cap]
     return xm, pm, floats[_F_MU:_F_PARAMS].reshape(SLOTS, 2)[:cap]
