@@ -27,7 +27,7 @@ from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
-from spiel_edge.runtime.replay import FORMATS, iter_sources, replay
+from spiel_edge.runtime.replay import FORMATS, iter_sources, recorded_toa_correction, replay
 from spiel_edge.runtime.tracking import replay_tracked
 
 
@@ -97,6 +97,8 @@ def command(
     plan.output(output, "--output")
     profile = resolve_profile(profile_name, calibration)
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work
+    if toa_correction is None:  # as run chose when it recorded the file
+        toa_correction = recorded_toa_correction(path, fmt)
     pipeline = build_pipeline(profile, association, toa_correction)
     limits = InputLimits.for_profile(profile)
     jobs = usable_jobs(jobs, path, fmt, track, profile)
@@ -105,7 +107,12 @@ def command(
         pipeline.set_max_targets(max_targets)
     failed = total = 0
     stop = threading.Event()
-    meta = {"command": "replay", "source": path, "profile": profile.name}
+    meta = {
+        "command": "replay",
+        "source": path,
+        "profile": profile.name,
+        "toa_correction": toa_correction or profile.echo_timing.toa_correction,
+    }
     sink = open_replay_output(
         output, force=force, record_profile=ros2["record_profile"], ros2=frame, metadata=meta
     )

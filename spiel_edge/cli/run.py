@@ -26,7 +26,13 @@ from spiel_edge.errors import DeviceError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.profile.schema import resolve_profile
-from spiel_edge.runtime.loop import LiveRunner, check_stream_shape, load_background, open_pipeline
+from spiel_edge.runtime.loop import (
+    LiveRunner,
+    check_stream_shape,
+    live_toa_correction,
+    load_background,
+    open_pipeline,
+)
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier
 
@@ -144,6 +150,7 @@ def command(
     ros2_kwargs = ros2_output_options(ros2, resolve_profile(profile_name, calibration))
     fixed_background = load_background(background) if background else None
     port = board_port(port)
+    toa_correction = live_toa_correction(port, toa_correction)
     if show_status is None:
         show_status = sys.stderr.isatty()
     session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)
@@ -172,7 +179,13 @@ def command(
                 foxglove,
                 zenoh,
                 receivers_mm=profile.geometry.channels_mm,
-                metadata={"port": port, "profile": profile.name, "geometry": source},
+                metadata={
+                    "port": port,
+                    "profile": profile.name,
+                    "geometry": source,
+                    # replay reads it back (runtime/replay.py: recorded_toa_correction)
+                    "toa_correction": toa_correction or profile.echo_timing.toa_correction,
+                },
                 force=force,
                 **ros2_kwargs,
             )

@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import stat
+import struct
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +24,15 @@ from spiel_edge.errors import InputError
 from spiel_edge.io.cdr import ENCAPSULATION, decode_acquisition
 from spiel_edge.io.guard import shorten
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.mcap_scan import MAGIC, Limits, McapScanner, RawMessage
+from spiel_edge.io.mcap_scan import (
+    MAGIC,
+    OP_HEADER,
+    OP_METADATA,
+    RECORD_HEAD,
+    Limits,
+    McapScanner,
+    RawMessage,
+)
 from spiel_edge.io.spiel_csv import Recording
 
 log = logging.getLogger(__name__)
@@ -31,6 +40,8 @@ log = logging.getLogger(__name__)
 ACQUISITION_TOPIC = "/spiel/acquisition"
 BACKGROUND_TOPIC = "/spiel/background"
 POSITION_TOPIC = "/spiel/position"
+METADATA_NAME = "spiel-edge"  # the metadata record McapSink writes (outputs/mcap.py)
+METADATA_HEAD_BYTES = 64 * 1024  # header and metadata records are read from this much
 KEEP_BACKGROUNDS = 8  # distinct backgrounds remembered, by the CRC-32 of their message
 
 
@@ -84,6 +95,50 @@ class open_recording:  # noqa: N801 - used as a context manager
 
     def __exit__(self, *exc: object) -> None:
         self.fh.close()
+
+
+def recording_metadata(path: str | Path) -> dict[str, str]:
+    """The ``spiel-edge`` metadata record that McapSink writes right after the header (``port``,
+    ``profile``, ...); {} when the file has none or its head is unreadable."""
+    try:
+        with open_recording(Path(path)) as (fh, _size):
+            head = fh.read(METADATA_HEAD_BYTES)
+    except InputError:
+        return {}
+    pos = 0
+    while pos + RECORD_HEAD.size <= len(head):
+        op, length = RECORD_HEAD.unpack_from(head, pos)
+        body = head[pos + RECORD_HEAD.size : pos + RECORD_HEAD.size + length]
+        if op == OP_METADATA and len(body) == length:
+            name, entries = _metadata(body)
+            if name == METADATA_NAME:
+                return entries
+        elif op != OP_HEADER:
+            break  # the metadata comes before the first chunk
+        pos += RECORD_HEAD.size + length
+    return {}
+
+
+def _metadata(body: bytes) -> tuple[str, dict[str, str]]:
+    """A Metadata record's body: name, then a map of string pairs ("", {} when malformed)."""
+    try:
+        name, pos = _string(body, 0)
+        (size,) = struct.unpack_from("<I", body, pos)
+        end, pos = pos + 4 + size, pos + 4
+        entries = {}
+        while pos < end:
+            key, pos = _string(body, pos)
+            entries[key], pos = _string(body, pos)
+        return name, entries
+    except (struct.error, UnicodeDecodeError, ValueError):
+        return "", {}
+
+
+def _string(data: bytes, pos: int) -> tuple[str, int]:
+    (size,) = struct.unpack_from("<I", data, pos)
+    if pos + 4 + size > len(data):
+        raise ValueError("string runs past its record")
+    return data[pos + 4 : pos + 4 + size].decode(), pos + 4 + size
 
 
 def scan_limits(limits: InputLimits) -> Limits:

@@ -19,9 +19,10 @@ from typing import IO
 log = logging.getLogger(__name__)
 
 MAGIC = b"\x89MCAP0\r\n"
-OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END = 0x03, 0x04, 0x05, 0x06, 0x0F
+OP_HEADER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x03, 0x04, 0x05, 0x06
+OP_METADATA, OP_DATA_END = 0x0C, 0x0F
 KNOWN_OPS = frozenset(range(0x01, 0x10))
-_HEAD = struct.Struct("<BQ")
+RECORD_HEAD = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQQ")
 _CHUNK = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
 WINDOW = 1 << 20  # resync and zero-skip read size
@@ -92,18 +93,18 @@ class McapScanner:
     def messages(self) -> Iterator[RawMessage]:
         pos = len(MAGIC)
         while pos < self.size:
-            head = self._read(pos, _HEAD.size)
-            if len(head) < _HEAD.size:
+            head = self._read(pos, RECORD_HEAD.size)
+            if len(head) < RECORD_HEAD.size:
                 self.report.truncated = True
                 return
-            op, length = _HEAD.unpack(head)
+            op, length = RECORD_HEAD.unpack(head)
             if op == OP_DATA_END:  # finalized when the file also ends with its footer and magic
                 self.report.finalized = self._read(self.size - len(MAGIC), len(MAGIC)) == MAGIC
                 return
             if op == 0 and length == 0:
                 pos = self._skip_zeros(pos)
                 continue
-            end = pos + _HEAD.size + length
+            end = pos + RECORD_HEAD.size + length
             if op == OP_CHUNK:
                 result = self._chunk(pos)
                 if result is not None:
@@ -116,7 +117,7 @@ class McapScanner:
                     pos = self._resync(pos + 1)
                     continue
                 if op in (OP_CHANNEL, OP_MESSAGE):
-                    body = self._read(pos + _HEAD.size, length)
+                    body = self._read(pos + RECORD_HEAD.size, length)
                     yield from self._records(bytes([op]) + struct.pack("<Q", length) + body)
                 pos = end
                 continue
@@ -148,7 +149,7 @@ class McapScanner:
             block = self._read(pos, WINDOW + 64)
             at = block.find(bytes([OP_CHUNK]))
             while 0 <= at < min(len(block), WINDOW):
-                if self._plausible_chunk(block[at : at + _HEAD.size + _CHUNK.size]):
+                if self._plausible_chunk(block[at : at + RECORD_HEAD.size + _CHUNK.size]):
                     self.report.skipped_bytes += pos + at - start
                     return pos + at
                 at = block.find(bytes([OP_CHUNK]), at + 1)
@@ -158,10 +159,10 @@ class McapScanner:
 
     def _plausible_chunk(self, head: bytes) -> bool:
         """Whether ``head`` (bytes from a 0x06) reads as a chunk header within the limits."""
-        if len(head) < _HEAD.size + _CHUNK.size:
+        if len(head) < RECORD_HEAD.size + _CHUNK.size:
             return False
-        _op, length = _HEAD.unpack_from(head)
-        start, end, usize, _crc, clen = _CHUNK.unpack_from(head, _HEAD.size)
+        _op, length = RECORD_HEAD.unpack_from(head)
+        start, end, usize, _crc, clen = _CHUNK.unpack_from(head, RECORD_HEAD.size)
         return (
             clen <= 8
             and start <= end
@@ -173,15 +174,15 @@ class McapScanner:
 
     def _chunk(self, pos: int) -> tuple[int, bytes] | None:
         """(offset after the chunk, its decompressed records) or None when it is unusable."""
-        fixed = self._read(pos, _HEAD.size + _CHUNK.size)
-        if len(fixed) < _HEAD.size + _CHUNK.size:
+        fixed = self._read(pos, RECORD_HEAD.size + _CHUNK.size)
+        if len(fixed) < RECORD_HEAD.size + _CHUNK.size:
             self.report.truncated = True
             return self.size, b""
-        _op, length = _HEAD.unpack_from(fixed)
-        _start, _end, usize, crc, clen = _CHUNK.unpack_from(fixed, _HEAD.size)
+        _op, length = RECORD_HEAD.unpack_from(fixed)
+        _start, _end, usize, crc, clen = _CHUNK.unpack_from(fixed, RECORD_HEAD.size)
         if clen > 8:
             return None
-        at = pos + _HEAD.size + _CHUNK.size
+        at = pos + RECORD_HEAD.size + _CHUNK.size
         compression = self._read(at, clen).decode("ascii", "replace")
         at += clen
         inner = self._read(at, 8)
@@ -190,7 +191,7 @@ class McapScanner:
             return self.size, b""
         (records_len,) = struct.unpack("<Q", inner)
         at += 8
-        from_outer = pos + _HEAD.size + length - at
+        from_outer = pos + RECORD_HEAD.size + length - at
         candidates = [n for n in (records_len, from_outer) if 0 < n <= self.limits.max_chunk]
         if not candidates:
             return None
@@ -212,8 +213,8 @@ class McapScanner:
     def _record_starts(self, pos: int) -> bool:
         if pos >= self.size:
             return pos == self.size
-        head = self._read(pos, _HEAD.size)
-        return len(head) == _HEAD.size and head[0] in KNOWN_OPS
+        head = self._read(pos, RECORD_HEAD.size)
+        return len(head) == RECORD_HEAD.size and head[0] in KNOWN_OPS
 
     def _decompress(self, compression: str, data: bytes, usize: int) -> tuple[bytes, bool]:
         """(the records, whether decompression ran to the end); as much as could be read."""
@@ -230,9 +231,9 @@ class McapScanner:
 
     def _records(self, data: bytes) -> Iterator[RawMessage]:
         pos, size = 0, len(data)
-        while pos + _HEAD.size <= size:
-            op, length = _HEAD.unpack_from(data, pos)
-            body_at, end = pos + _HEAD.size, pos + _HEAD.size + length
+        while pos + RECORD_HEAD.size <= size:
+            op, length = RECORD_HEAD.unpack_from(data, pos)
+            body_at, end = pos + RECORD_HEAD.size, pos + RECORD_HEAD.size + length
             if op not in KNOWN_OPS or end > size:
                 pos = self._resync_inner(data, pos + 1)
                 continue
@@ -248,14 +249,14 @@ class McapScanner:
         """The next message record with a known channel and a JSON object payload."""
         while True:
             at = data.find(bytes([OP_MESSAGE]), pos)
-            if at < 0 or at + _HEAD.size + _MSG.size >= len(data):
+            if at < 0 or at + RECORD_HEAD.size + _MSG.size >= len(data):
                 return len(data)
-            _op, length = _HEAD.unpack_from(data, at)
-            channel = struct.unpack_from("<H", data, at + _HEAD.size)[0]
-            payload_at = at + _HEAD.size + _MSG.size
+            _op, length = RECORD_HEAD.unpack_from(data, at)
+            channel = struct.unpack_from("<H", data, at + RECORD_HEAD.size)[0]
+            payload_at = at + RECORD_HEAD.size + _MSG.size
             if (
                 channel in self.topics
-                and _MSG.size < length <= len(data) - at - _HEAD.size
+                and _MSG.size < length <= len(data) - at - RECORD_HEAD.size
                 and data[payload_at : payload_at + 1] == b"{"
             ):
                 return at

@@ -86,12 +86,28 @@ def open_pipeline(
 ) -> tuple[Pipeline, str]:
     """Open ``session``, choose the profile (``calibration`` > the board's stored config, unless
     ``use_board`` is false > ``profile_name``), build the pipeline and warm it up. Returns the
-    pipeline and where its geometry came from; closing the session is the caller's."""
+    pipeline and where its geometry came from; closing the session is the caller's.
+    ``toa_correction``: as :func:`live_toa_correction` chooses."""
+    toa_correction = live_toa_correction(session.url, toa_correction)
     session.open()
     profile, source = run_profile(session, profile_name, calibration, use_board=use_board)
     pipeline = build_pipeline(profile, association, toa_correction)
     warm_up(pipeline)
     return pipeline, source
+
+
+def live_toa_correction(url: str, requested: str | None) -> str | None:
+    """The learned ToA correction for a board: ``requested``, else none on a virtual board's
+    modelled envelope (the correction was learned on the real board's), else None (the
+    profile's)."""
+    if requested is not None or not url.lower().startswith("sim:"):
+        return requested  # a real board: the virtual board's modules are not even imported
+    from spiel_edge.sim.options import modelled_envelope
+
+    if modelled_envelope(url):
+        log.info("virtual board with a modelled envelope: no learned ToA correction")
+        return "none"
+    return None
 
 
 def check_stream_shape(session: DeviceSession, pipeline: Pipeline) -> None:

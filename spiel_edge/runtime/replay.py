@@ -11,6 +11,7 @@ from spiel_edge.errors import InputError, SpielError
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.io.spiel_csv import Recording, iter_recordings
 from spiel_edge.pipeline.run import Pipeline, Result
+from spiel_edge.profile.specs import TOA_CORRECTIONS
 from spiel_edge.runtime.records import error_record
 
 log = logging.getLogger(__name__)
@@ -38,6 +39,11 @@ class Replayed:
         return {"source": self.source, **self.result.record()}
 
 
+def format_of(path: Path, fmt: str | None = None) -> str:
+    """``fmt``, else guessed from the path: MCAP for ``*.mcap``, a spiel-csv folder otherwise."""
+    return fmt or ("mcap" if path.suffix == ".mcap" else "spiel-csv")
+
+
 def iter_sources(
     path: str | Path,
     fmt: str | None = None,
@@ -47,7 +53,7 @@ def iter_sources(
     """Recordings from a spiel-csv folder or an MCAP file (format guessed from the path),
     each bounded by ``limits`` (the profile's frame shape) before it is parsed."""
     path = Path(path)
-    fmt = fmt or ("mcap" if path.suffix == ".mcap" else "spiel-csv")
+    fmt = format_of(path, fmt)
     if fmt == "spiel-csv":
         yield from iter_recordings(path, background, limits)
     elif fmt == "mcap":
@@ -60,6 +66,24 @@ def iter_sources(
         yield from iter_mcap_recordings(path, limits)
     else:
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+
+
+def recorded_toa_correction(path: str | Path, fmt: str | None = None) -> str | None:
+    """The learned ToA correction an MCAP recording was made with (``run`` and ``replay`` write
+    it in their metadata), so that replaying it reproduces its records; None (the profile's)
+    for other inputs and for recordings that do not say."""
+    path = Path(path)
+    if format_of(path, fmt) != "mcap" or not path.is_file():
+        return None
+    try:
+        from spiel_edge.io.mcap import recording_metadata
+    except ImportError:
+        return None  # MCAP replay itself says why it is unavailable
+    recorded = recording_metadata(path).get("toa_correction")
+    if recorded not in TOA_CORRECTIONS:
+        return None
+    log.info("%s: the learned ToA correction it was recorded with: %s", path, recorded)
+    return recorded
 
 
 def replay(pipeline: Pipeline, recordings: Iterator[Recording]) -> Iterator[Replayed]:

@@ -19,6 +19,7 @@ from spiel_edge.io.mcap import (
     BACKGROUND_TOPIC,
     POSITION_TOPIC,
     iter_mcap_recordings,
+    recording_metadata,
 )
 from spiel_edge.outputs.mcap import McapSink
 from spiel_edge.pipeline.factory import build_pipeline
@@ -32,9 +33,9 @@ def subset():
     return load_subset()
 
 
-def _record(path, subset, n=N):
+def _record(path, subset, n=N, metadata=None):
     """The vendored acquisitions as a live run writes them: acquisition, then its record."""
-    with McapSink(path, metadata={"profile": "spiel-icra23"}) as sink:
+    with McapSink(path, metadata=metadata or {"profile": "spiel-icra23"}) as sink:
         for i in range(n):
             acq = {
                 "seq": 100 + i,
@@ -113,6 +114,39 @@ def test_replay_command_matches_the_pipeline(tmp_path, subset):
             line["position_mm"] == expected["position_mm"] and line["reason"] == expected["reason"]
         )
     assert sum(line["position_mm"] is not None for line in lines) >= N // 2  # real data locates
+
+
+def test_metadata_is_read_back_and_a_bad_head_reads_as_none(tmp_path, subset):
+    path = _record(tmp_path / "m.mcap", subset, 2, {"port": "sim://?scene=model", "x": "y"})
+    meta = recording_metadata(path)
+    assert meta["port"] == "sim://?scene=model" and meta["x"] == "y" and "version" in meta
+    raw = bytearray(path.read_bytes())
+    at = raw.index(b"port") - 4
+    raw[at : at + 4] = (1 << 30).to_bytes(4, "little")  # a key longer than its record
+    (tmp_path / "bad.mcap").write_bytes(raw)
+    (tmp_path / "text.mcap").write_text("not mcap")
+    for name in ("bad.mcap", "text.mcap", "missing.mcap"):
+        assert recording_metadata(tmp_path / name) == {}
+
+
+def test_replay_uses_the_toa_correction_the_recording_was_made_with(tmp_path, subset):
+    path = _record(tmp_path / "r.mcap", subset, metadata={"toa_correction": "none"})
+    profile, geometric = load_profile("spiel-icra23"), ["--association", "geometric"]
+    runs = {}
+    for flag in ([], ["--toa-correction", "auto"]):
+        out = tmp_path / f"out{len(flag)}.ndjson"
+        assert main(["replay", str(path), *geometric, *flag, "-o", str(out)]) == 0
+        runs[tuple(flag)] = [
+            json.loads(line)["position_mm"] for line in out.read_text().splitlines()
+        ]
+    for flag, correction in (((), "none"), (("--toa-correction", "auto"), "auto")):
+        pipeline = build_pipeline(profile, "geometric", correction)
+        expected = [
+            pipeline.process(subset.frames[i], subset.backgrounds[i]).record()["position_mm"]
+            for i in range(N)
+        ]
+        assert runs[flag] == expected
+    assert runs[()] != runs[("--toa-correction", "auto")]  # the choice changes positions
 
 
 def test_unfinalized_file_replays_up_to_its_end(tmp_path, subset):

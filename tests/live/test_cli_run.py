@@ -7,6 +7,7 @@ import json
 import numpy as np
 
 from spiel_edge.cli import main
+from spiel_edge.io.mcap import recording_metadata
 from spiel_edge.link import discover
 
 
@@ -47,18 +48,18 @@ def test_run_writes_one_record_per_acquisition(sim_url, tmp_path, capsys):
 
 
 def test_run_on_the_echo_model_is_accurate(sim_url, tmp_path):
+    # no --toa-correction: the learned correction fits the recorded board's echo shapes, not
+    # the echo model's, so run leaves it out on a modelled envelope (with it: median ~7 mm)
     out = tmp_path / "out.ndjson"
     port = sim_url("scene=model&seed=3")
-    # the learned ToA correction fits the recorded board's echo shapes, not the echo model's
-    argv = ["run", "--port", port, "--frames", "60", "--rate", "500", "--toa-correction", "none"]
-    assert main([*argv, "-o", str(out)]) == 0
+    assert main(["run", "--port", port, "--frames", "60", "--rate", "500", "-o", str(out)]) == 0
     recs = records(out)
     errors = [
         np.linalg.norm(np.subtract(r["position_mm"], r["truth_mm"]))
         for r in recs
         if r["position_mm"]
     ]
-    assert len(errors) >= 57 and np.median(errors) < 8
+    assert len(errors) >= 57 and np.median(errors) < 5.5 and np.max(errors) < 18
 
 
 def test_run_takes_the_port_from_the_environment(sim_url, tmp_path, monkeypatch):
@@ -151,6 +152,8 @@ def test_run_records_what_replay_reproduces(sim_url, tmp_path):
         )
         == 0
     )
+    # the echo model: run left the learned ToA correction out, and said so for replay
+    assert recording_metadata(rec)["toa_correction"] == "none"
     assert main(["replay", str(rec), "-o", str(again)]) == 0
     live, replayed = records(out), records(again)
     assert len(replayed) == 12
