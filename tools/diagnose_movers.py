@@ -23,9 +23,17 @@ from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
 
 
-def diagnose(movers: int, seed: int, acquisitions: int, max_targets: int, tol: float, merge: float):
+def diagnose(
+    movers: int,
+    seed: int,
+    acquisitions: int,
+    max_targets: int,
+    tol: float,
+    merge: float,
+    toa_correction: str | None = "none",
+):
     profile = load_profile("spiel-icra23")
-    pipeline = build_pipeline(profile)
+    pipeline = build_pipeline(profile, None, toa_correction)
     pipeline.set_max_targets(max_targets)
     scene = build_scene(SimOptions.from_url(f"sim://?scene=model&movers={movers}&seed={seed}"))
     rows = []  # per (acquisition, target): detected channels, merged channels, found
@@ -67,12 +75,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--movers", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--acquisitions", type=int, default=300)
+    parser.add_argument(
+        "--toa-correction",
+        choices=["auto", "onnx", "none"],
+        default="none",
+        help="learned ToA correction (default none: it was fitted to the real board's envelope, "
+        "not the modelled one; docs/virtual-board.md)",
+    )
     parser.add_argument("--max-targets", type=int, default=4)
     parser.add_argument("--tol", type=float, default=1.0, help="samples")
     parser.add_argument("--merge", type=float, default=2.0, help="samples")
     args = parser.parse_args(argv)
     out = diagnose(
-        args.movers, args.seed, args.acquisitions, args.max_targets, args.tol, args.merge
+        args.movers,
+        args.seed,
+        args.acquisitions,
+        args.max_targets,
+        args.tol,
+        args.merge,
+        args.toa_correction,
     )
     print(json.dumps(out))
 

@@ -24,6 +24,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--acquisitions", type=int, default=1000)
     parser.add_argument("--rate", type=float, default=50.0, help="acquisitions per second")
     parser.add_argument("--profile", default="spiel-icra23")
+    parser.add_argument(
+        "--toa-correction",
+        choices=["auto", "onnx", "none"],
+        default="none",
+        help="learned ToA correction (default none: it was fitted to the real board's envelope, "
+        "not the modelled one; docs/virtual-board.md)",
+    )
     parser.add_argument("--max-targets", type=int, default=4, help="targets per acquisition")
     parser.add_argument(
         "--oracle",
@@ -40,7 +47,7 @@ def main(argv: list[str] | None = None) -> None:
         "running estimate",
     )
     args = parser.parse_args(argv)
-    pipeline = build_pipeline(load_profile(args.profile))
+    pipeline = build_pipeline(load_profile(args.profile), None, args.toa_correction)
     pipeline.set_max_targets(args.max_targets)
     url = f"sim://?scene=model&movers={args.movers}&seed={args.seed}"
     print(

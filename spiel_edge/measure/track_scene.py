@@ -41,6 +41,7 @@ class MoverScore:
     switches: int = 0
     tracked_errors: list[float] = field(default_factory=list)
     raw_errors: list[float] = field(default_factory=list)
+    paired: list[tuple[float, float]] = field(default_factory=list)  # (tracked, raw), both found
     _last_ids: list[int | None] = field(default_factory=list)
 
     def add(self, index: int, truth: np.ndarray, tracks, target_positions: np.ndarray) -> None:
@@ -51,11 +52,13 @@ class MoverScore:
             self._last_ids = [None] * len(truth)
         self.acquisitions += 1
         track_pos = np.array([t.position_mm for t in tracks]).reshape(-1, 3)
+        tracked = np.full(len(truth), np.nan)
         for i, k in enumerate(match(truth, track_pos, self.cover_mm)):
             if k < 0:
                 continue
             self.covered[i] += 1
-            self.tracked_errors.append(float(np.linalg.norm(track_pos[k] - truth[i])))
+            tracked[i] = float(np.linalg.norm(track_pos[k] - truth[i]))
+            self.tracked_errors.append(tracked[i])
             track_id = tracks[k].track_id
             self.switches += self._last_ids[i] is not None and self._last_ids[i] != track_id
             self._last_ids[i] = track_id
@@ -63,6 +66,8 @@ class MoverScore:
             if k >= 0:
                 self.found[i] += 1
                 self.raw_errors.append(float(np.linalg.norm(target_positions[k] - truth[i])))
+                if np.isfinite(tracked[i]):
+                    self.paired.append((float(tracked[i]), self.raw_errors[-1]))
 
     def summary(self) -> dict:
         n = max(self.acquisitions, 1)
@@ -74,6 +79,11 @@ class MoverScore:
             "id_switches": int(self.switches),
             "tracked_mean_mm": _mean(self.tracked_errors),
             "per_acquisition_mean_mm": _mean(self.raw_errors),
+            # the same target-acquisitions (a track and a target within cover_mm): the tracked
+            # figures above also count acquisitions where only the track covers the target
+            "paired_acquisitions": len(self.paired),
+            "paired_tracked_mean_mm": _mean([t for t, _ in self.paired]),
+            "paired_per_acquisition_mean_mm": _mean([r for _, r in self.paired]),
         }
 
 

@@ -107,12 +107,17 @@ def test_mover_score_counts_coverage_and_id_switches():
         ids = (1, 2) if k < 3 else (2, 1)  # the tracks swap targets at k = 3
         tracks = [_track(ids[0], truth[0] + 3), _track(ids[1], truth[1] - 3)]
         tracks = tracks if k != 4 else tracks[:1]
-        score.add(k, truth, tracks, truth + 10)
+        found = truth + 10 if k != 2 else truth[:1] + 10  # the second target missed at k = 2
+        score.add(k, truth, tracks, found)
     s = score.summary()
     assert s["acquisitions_scored"] == 4
     assert s["coverage_per_target"] == [1.0, 0.75] and s["id_switches"] == 2
     assert s["tracked_mean_mm"] == pytest.approx(np.sqrt(27), abs=0.01)
     assert s["per_acquisition_mean_mm"] == pytest.approx(np.sqrt(300), abs=0.01)
+    # paired: tracked and found in the same acquisition (not k = 2's second, not k = 4's second)
+    assert s["paired_acquisitions"] == 6
+    assert s["paired_tracked_mean_mm"] == pytest.approx(np.sqrt(27), abs=0.01)
+    assert s["paired_per_acquisition_mean_mm"] == pytest.approx(np.sqrt(300), abs=0.01)
 
 
 def test_movers_tracked_with_oracle_targets(profile):
