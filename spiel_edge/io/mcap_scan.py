@@ -122,8 +122,14 @@ class McapScanner:
                 pos = end
                 continue
             elif op in KNOWN_OPS and end > self.size and length <= self.limits.max_chunk:
-                self.report.truncated = True
-                return
+                # the file ends inside this record, or a damaged length points past the end:
+                # a chunk after it tells them apart
+                skipped, pos = self.report.skipped_bytes, self._resync(pos + 1)
+                if pos >= self.size:
+                    self.report.skipped_bytes = skipped  # a cut file, not a damaged one
+                    self.report.truncated = True
+                    return
+                continue
             pos = self._resync(pos + 1)
 
     def _read(self, pos: int, n: int) -> bytes:

@@ -5,6 +5,7 @@ of those before it, less one chunk), and `recover` must turn it into a valid fil
 from __future__ import annotations
 
 import logging
+import struct
 
 import pytest
 from mcap.reader import make_reader
@@ -39,6 +40,19 @@ def test_one_flipped_byte_replays_90_percent(original, tmp_path, index):
     path.write_bytes(bytes(damaged))
     intact = count_intact(path)
     assert intact >= 0.9 * TOTAL, f"offset {offset}: {intact} of {TOTAL}"
+
+
+def test_a_damaged_length_running_past_the_end_is_not_taken_for_a_cut(original, tmp_path):
+    """One flipped bit in the length of a record between chunks (here the first message
+    index) must not end the replay as if the file were cut there."""
+    pos = 8  # after the magic: walk the top-level records to the first message index
+    while original[pos] != 0x07:
+        pos += 9 + struct.unpack_from("<Q", original, pos + 1)[0]
+    damaged = bytearray(original)
+    damaged[pos + 1 + 3] ^= 0x01  # + 16 MiB: past the end of the file, within the chunk bound
+    path = tmp_path / "length.mcap"
+    path.write_bytes(bytes(damaged))
+    assert count_intact(path) >= 0.9 * TOTAL
 
 
 @pytest.mark.parametrize("index", range(CUTS))
