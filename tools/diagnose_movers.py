@@ -21,6 +21,7 @@ from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
+from tools.track_movers import add_toa_correction
 
 
 def diagnose(
@@ -75,13 +76,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--movers", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--acquisitions", type=int, default=300)
-    parser.add_argument(
-        "--toa-correction",
-        choices=["auto", "onnx", "none"],
-        default="none",
-        help="learned ToA correction (default none: it was fitted to the real board's envelope, "
-        "not the modelled one; docs/virtual-board.md)",
-    )
+    add_toa_correction(parser)
     parser.add_argument("--max-targets", type=int, default=4)
     parser.add_argument("--tol", type=float, default=1.0, help="samples")
     parser.add_argument("--merge", type=float, default=2.0, help="samples")

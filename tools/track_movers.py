@@ -17,6 +17,17 @@ from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
 
 
+def add_toa_correction(parser: argparse.ArgumentParser) -> None:
+    """``--toa-correction``, none by default: the learned correction was fitted to the real
+    board's envelope, not the echo model's (docs/virtual-board.md)."""
+    parser.add_argument(
+        "--toa-correction",
+        choices=["auto", "onnx", "none"],
+        default="none",
+        help="learned ToA correction (default none: fitted to the real board's envelope)",
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--movers", type=int, default=3)
@@ -24,13 +35,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--acquisitions", type=int, default=1000)
     parser.add_argument("--rate", type=float, default=50.0, help="acquisitions per second")
     parser.add_argument("--profile", default="spiel-icra23")
-    parser.add_argument(
-        "--toa-correction",
-        choices=["auto", "onnx", "none"],
-        default="none",
-        help="learned ToA correction (default none: it was fitted to the real board's envelope, "
-        "not the modelled one; docs/virtual-board.md)",
-    )
+    add_toa_correction(parser)
     parser.add_argument("--max-targets", type=int, default=4, help="targets per acquisition")
     parser.add_argument(
         "--oracle",
