@@ -62,7 +62,9 @@ toa_correction_option = click.option(
     "--toa-correction",
     type=click.Choice(["auto", "onnx", "none"]),
     default=None,
-    help="Learned ToA correction (default: the profile's; auto/onnx = the model when it loads).",
+    help="Learned ToA correction (default: the profile's, but none on the virtual board's echo "
+    "model, and for an MCAP recording the one it was made with; auto/onnx = the model when it "
+    "loads).",
 )
 jobs_option = click.option(
     "--jobs",
