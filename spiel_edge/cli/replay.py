@@ -27,7 +27,13 @@ from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
-from spiel_edge.runtime.replay import FORMATS, iter_sources, recorded_toa_correction, replay
+from spiel_edge.runtime.replay import (
+    FORMATS,
+    chosen_toa_correction,
+    iter_sources,
+    recorded_toa_correction,
+    replay,
+)
 from spiel_edge.runtime.tracking import replay_tracked
 
 
@@ -111,7 +117,7 @@ def command(
         "command": "replay",
         "source": path,
         "profile": profile.name,
-        "toa_correction": toa_correction or profile.echo_timing.toa_correction,
+        **chosen_toa_correction(toa_correction),
     }
     sink = open_replay_output(
         output, force=force, record_profile=ros2["record_profile"], ros2=frame, metadata=meta

@@ -33,6 +33,7 @@ from spiel_edge.runtime.loop import (
     load_background,
     open_pipeline,
 )
+from spiel_edge.runtime.replay import chosen_toa_correction
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier
 
@@ -183,8 +184,7 @@ def command(
                     "port": port,
                     "profile": profile.name,
                     "geometry": source,
-                    # replay reads it back (runtime/replay.py: recorded_toa_correction)
-                    "toa_correction": toa_correction or profile.echo_timing.toa_correction,
+                    **chosen_toa_correction(toa_correction),
                 },
                 force=force,
                 **ros2_kwargs,

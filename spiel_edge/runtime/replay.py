@@ -68,10 +68,18 @@ def iter_sources(
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
 
 
+def chosen_toa_correction(toa_correction: str | None) -> dict[str, str]:
+    """The recording metadata that says a ToA correction other than the profile's was used
+    (given, or none on a modelled envelope); {} for the profile's own, which a replay with
+    another profile should not override."""
+    return {} if toa_correction is None else {"toa_correction": toa_correction}
+
+
 def recorded_toa_correction(path: str | Path, fmt: str | None = None) -> str | None:
-    """The learned ToA correction an MCAP recording was made with (``run`` and ``replay`` write
-    it in their metadata), so that replaying it reproduces its records; None (the profile's)
-    for other inputs and for recordings that do not say."""
+    """The learned ToA correction an MCAP recording was made with when it was not the profile's
+    (``run`` and ``replay`` write it in their metadata: :func:`chosen_toa_correction`), so that
+    replaying it reproduces its records; None (the profile's) for other inputs and for
+    recordings that do not say."""
     path = Path(path)
     if format_of(path, fmt) != "mcap" or not path.is_file():
         return None

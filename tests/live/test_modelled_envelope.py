@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
+from spiel_edge.io.mcap import recording_metadata
 from spiel_edge.runtime.loop import live_toa_correction, open_pipeline
 from spiel_edge.sim.options import modelled_envelope
 
@@ -53,3 +55,12 @@ def test_open_pipeline_leaves_the_correction_out_on_the_model_unless_asked(
         session.close()
     staged = getattr(pipeline, "pipeline", pipeline)  # the fused pipeline wraps the staged one
     assert (staged.echo_timing.correction is not None) is corrected
+
+
+def test_a_recording_names_the_correction_only_when_it_is_not_the_profiles(sim_url, tmp_path):
+    """So that replaying a real board's recording with another profile takes that profile's."""
+    for query, expected in (("", None), ("scene=model", "none")):
+        rec = tmp_path / f"run{len(query)}.mcap"
+        argv = ["run", "--port", sim_url(query), "--frames", "3", "--rate", "200"]
+        assert main([*argv, "--record", str(rec), "-o", str(rec.with_suffix(".ndjson"))]) == 0
+        assert recording_metadata(rec).get("toa_correction") == expected
