@@ -55,14 +55,16 @@ class EchoUpdater:
             used, z = [], []
             for n, e in enumerate(echoes):
                 e = np.asarray(e, dtype=np.float64)
-                if len(e) and np.min(np.abs(e - predicted[n])) <= self.gate:
+                nearest = int(np.argmin(np.abs(e - predicted[n]))) if len(e) else -1
+                if nearest >= 0 and abs(e[nearest] - predicted[n]) <= self.gate:
                     used.append(n)
-                    z.append(e[np.argmin(np.abs(e - predicted[n]))])
+                    z.append(e[nearest])
             if len(used) < self.min_channels:
                 continue
+            zs = np.array(z)
             for m in range(2):
-                xm[s, m], pm[s, m] = self._update(xm[s, m], pm[s, m], used, np.array(z))
-            x[s], p[s] = self._update(x[s], p[s], used, np.array(z))
+                xm[s, m], pm[s, m] = self._update(xm[s, m], pm[s, m], used, zs)
+            x[s], p[s] = self._update(x[s], p[s], used, zs)
             meta[MISSES, s] = 0
             done += 1
         return done
