@@ -12,7 +12,7 @@ Methods, each giving one matched echo per channel (or none):
 - ``mlp+contrastive``: the paper's method with the 8 MEMG features (no geometry).
 - ``geometric``: the project's geometric associator alone.
 - ``combined``: the runtime (``OnnxAssociator``): embedding-distance candidates, geometric guard.
-Scores as defined in ``spiel_edge.pipeline.echo_labels``; 3-D error = |located - truth| over
+Scores as defined in ``spiel_edge.measure.echo_labels``; 3-D error = |located - truth| over
 acquisitions the method's matches can be located from (>= 3 channels, solve ok).
 """
 
@@ -25,16 +25,16 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from spiel_edge.pipeline.associate import GeometricAssociator  # noqa: E402
-from spiel_edge.pipeline.associate_onnx import (  # noqa: E402
+from spiel_edge.measure.echo_labels import AssociationScore, score_association  # noqa: E402
+from spiel_edge.pipeline.learned.associate_onnx import (  # noqa: E402
     OnnxAssociator,
     bench_scoring,
     candidate_mask,
     guarded_match,
     score_bonus,
 )
-from spiel_edge.pipeline.echo_labels import AssociationScore, score_association  # noqa: E402
-from spiel_edge.pipeline.features import FEATURE_NAMES, TOA_COLUMN  # noqa: E402
+from spiel_edge.pipeline.stages.associate import GeometricAssociator  # noqa: E402
+from spiel_edge.pipeline.stages.features import FEATURE_NAMES, TOA_COLUMN  # noqa: E402
 from spiel_edge.profile.schema import Profile, load_profile  # noqa: E402
 from tools import association_model as ta
 

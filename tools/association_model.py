@@ -9,7 +9,7 @@ Data: ``<data>/train_val`` + ``<data>/train_val_bg`` (spiel-csv with labels). Th
 frames are excluded (mislabelled: their echoes fit z ~ 140-150 mm). Split by position: the
 distinct (x, y) positions are hashed with ``--split-salt`` (``spiel_edge.measure.evaluate``'s split, so
 ``spiel-edge evaluate`` validates on the same positions) and ~``val_fraction`` of them held out at
-every height, so validation positions are unseen xy. Labels: ``spiel_edge.pipeline.echo_labels``
+every height, so validation positions are unseen xy. Labels: ``spiel_edge.measure.echo_labels``
 (the echo nearest the ground-truth echo time within 1.5 samples is the target's).
 
 Network: 8 -> 32 -> 32 -> 4 (ReLU after each: the embedding) -> 1 (sigmoid: the score), with the
@@ -37,18 +37,18 @@ from torch import nn
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure import evaluate
-from spiel_edge.pipeline import Pipeline
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.associate_onnx import candidate_mask, guarded_match, score_bonus
-from spiel_edge.pipeline.echo_labels import (
+from spiel_edge.measure.echo_labels import (
     DEFAULT_TOLERANCE,
     AssociationScore,
     expected_toa,
     label_echoes,
     score_association,
 )
-from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
-from spiel_edge.pipeline.locate import locate
+from spiel_edge.pipeline import Pipeline
+from spiel_edge.pipeline.learned.associate_onnx import candidate_mask, guarded_match, score_bonus
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
+from spiel_edge.pipeline.stages.features import N_FEATURES, TOA_COLUMN
+from spiel_edge.pipeline.stages.locate import locate
 from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger("train_association")

@@ -15,9 +15,9 @@ import time
 import numpy as np
 
 from spiel_edge.data import load_subset
-from spiel_edge.pipeline.associate_onnx import OnnxAssociator, load_session
-from spiel_edge.pipeline.fused import FusedPipeline
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.compiled.fused import FusedPipeline
+from spiel_edge.pipeline.learned.associate_onnx import OnnxAssociator, load_session
+from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.sim.synthetic import ring_profile, synthesize
 

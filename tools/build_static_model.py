@@ -2,7 +2,7 @@
 
 Per-sample median and median absolute deviation of the background captures (train_val_bg)
 of the TRAINING positions only (split by (x, y) position as in spiel_edge.measure.evaluate),
-so validation figures stay unseen. See spiel_edge/pipeline/static_scene.py.
+so validation figures stay unseen. See spiel_edge/pipeline/stages/static_scene.py.
 
     python -m tools.build_static_model /work/shared/datasets/spiel-icra23
 """
@@ -16,7 +16,7 @@ import numpy as np
 
 from spiel_edge.io.spiel_csv import frame_files, position_key, read_frames
 from spiel_edge.measure.evaluate import split_by_position
-from spiel_edge.pipeline.static_scene import static_model_arrays
+from spiel_edge.pipeline.stages.static_scene import static_model_arrays
 
 OUT = Path(__file__).resolve().parents[1] / "spiel_edge" / "models" / "static_spiel_icra23.npz"
 

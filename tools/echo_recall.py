@@ -32,12 +32,12 @@ from spiel_edge.measure.echo_recall import (
     truth_gap,
 )
 from spiel_edge.measure.scenes import load_scenes
-from spiel_edge.pipeline.detect import detect
-from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
-from spiel_edge.pipeline.memg import fit_memg
-from spiel_edge.pipeline.preprocess import preprocess
-from spiel_edge.pipeline.run import Pipeline
-from spiel_edge.pipeline.split import split_merged
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.detect import detect
+from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
+from spiel_edge.pipeline.stages.memg import fit_memg
+from spiel_edge.pipeline.stages.preprocess import preprocess
+from spiel_edge.pipeline.stages.split import split_merged
 from spiel_edge.profile.schema import load_profile
 from tools.tune_scene import parse_value
 

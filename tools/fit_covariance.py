@@ -1,7 +1,7 @@
 """Fit the covariance calibration ([scene] covariance_scale, covariance_floor_mm,
 covariance_scale_no_background) on TRAINING single-target scene files, out of fold.
 
-The pipeline's covariance is ``C = s^2 L + f^2 I`` (pipeline/uncertainty.py), L the
+The pipeline's covariance is ``C = s^2 L + f^2 I`` (pipeline/stages/uncertainty.py), L the
 linearised covariance with s = 1, f = 0. This tool locates the best target of every
 single-target acquisition once with s = 1, f = 0, then picks, on a grid, the (s, f) with the
 scales with and without a background and the shared floor with the smallest summed median
@@ -28,7 +28,7 @@ import numpy as np
 from spiel_edge.io.spiel_csv import position_key
 from spiel_edge.measure.scenes import load_scenes
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.pipeline.uncertainty import CHI2_95_3DOF
+from spiel_edge.pipeline.stages.uncertainty import CHI2_95_3DOF
 from spiel_edge.profile.schema import load_profile
 
 SCALES = np.round(np.arange(0.3, 4.001, 0.05), 3)

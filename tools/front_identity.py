@@ -21,9 +21,9 @@ import numpy as np
 
 from spiel_edge.data import load_subset
 from spiel_edge.measure.bench import synthetic_set
-from spiel_edge.pipeline.front import _front_kernel
-from spiel_edge.pipeline.fused import FusedPipeline, _numeric
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.compiled.front import _front_kernel
+from spiel_edge.pipeline.compiled.fused import FusedPipeline, _numeric
+from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.profile.schema import load_profile
 
 

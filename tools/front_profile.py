@@ -11,13 +11,13 @@ import numpy as np
 
 from spiel_edge.data import load_subset
 from spiel_edge.measure.bench import synthetic_set
-from spiel_edge.pipeline import front as F
-from spiel_edge.pipeline.detect import _detect_kernel
-from spiel_edge.pipeline.features import _features_kernel
-from spiel_edge.pipeline.fused import FusedPipeline
-from spiel_edge.pipeline.memg import _memg_kernel
-from spiel_edge.pipeline.preprocess import _preprocess_kernel
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.compiled import front as F
+from spiel_edge.pipeline.compiled.fused import FusedPipeline
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.detect import _detect_kernel
+from spiel_edge.pipeline.stages.features import _features_kernel
+from spiel_edge.pipeline.stages.memg import _memg_kernel
+from spiel_edge.pipeline.stages.preprocess import _preprocess_kernel
 from spiel_edge.profile.schema import load_profile
 
 clk = time.perf_counter_ns

@@ -17,12 +17,12 @@ import numpy as np
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure.evaluate import split_by_position
-from spiel_edge.pipeline.echo_quality import echo_quality
-from spiel_edge.pipeline.echo_timing import clean_envelope, refine_toa, toa_features
 from spiel_edge.pipeline.factory import build_associator
-from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.locate import locate
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.echo_quality import echo_quality
+from spiel_edge.pipeline.stages.echo_timing import clean_envelope, refine_toa, toa_features
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
+from spiel_edge.pipeline.stages.locate import locate
 from spiel_edge.profile.schema import Profile
 
 FIELDS = [

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from spiel_edge.measure.localisation import position_folds
-from spiel_edge.pipeline.locate import locate
+from spiel_edge.pipeline.stages.locate import locate
 
 INLIER = 1.5
 

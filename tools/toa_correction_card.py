@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.pipeline.echo_timing import n_toa_features
-from spiel_edge.pipeline.toa_correction import MAX_CORRECTION
+from spiel_edge.pipeline.learned.toa_correction import MAX_CORRECTION
+from spiel_edge.pipeline.stages.echo_timing import n_toa_features
 from spiel_edge.profile.schema import Profile
 from tools import toa_correction_data as tcd
 
@@ -85,7 +85,7 @@ def markdown_table(rows: list[dict]) -> str:
 
 def scoring_us(model_path: Path, n_channels: int, n: int = 2000) -> float:
     """Median microseconds for onnxruntime to score one acquisition's n_channels echoes."""
-    from spiel_edge.pipeline.toa_correction import load_correction
+    from spiel_edge.pipeline.learned.toa_correction import load_correction
 
     corr = load_correction(n_channels, model_path)
     x = np.random.default_rng(0).random((n_channels, n_toa_features(n_channels)))

@@ -4,7 +4,7 @@ runtime's matched echoes, their refined ToA and features, with and without the b
 Workstation tool. Each labelled acquisition of ``<data>/train_val`` (z = 90 mm excluded,
 ``spiel_edge.data.EXCLUDED_Z_MM``) goes through the runtime stages up to association (the
 shipped associator), once with its background capture and once without; the matched echoes'
-ToA is refined by ``spiel_edge.pipeline.echo_timing`` (the runtime's own functions, so training
+ToA is refined by ``spiel_edge.pipeline.stages.echo_timing`` (the runtime's own functions, so training
 and runtime features are identical). Target per echo: refined ToA - delay - ideal ToA (the
 true position's echo path / mm per sample), in samples.
 """
@@ -19,15 +19,15 @@ import numpy as np
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure.evaluate import split_by_position
-from spiel_edge.pipeline.echo_timing import (
+from spiel_edge.pipeline.factory import build_associator
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.echo_timing import (
     EchoTiming,
     clean_envelope,
     refine_toa,
     toa_features,
 )
-from spiel_edge.pipeline.factory import build_associator
-from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.profile.schema import Profile
 
 INLIER_SAMPLES = 1.5  # a matched echo further than this from the truth is a wrong association

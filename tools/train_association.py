@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from spiel_edge.pipeline.features import FEATURE_NAMES
+from spiel_edge.pipeline.stages.features import FEATURE_NAMES
 from spiel_edge.profile.schema import load_profile
 from tools import ablation_association as ablation
 from tools.association_model import (

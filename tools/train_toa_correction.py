@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.pipeline.echo_timing import feature_names
+from spiel_edge.pipeline.stages.echo_timing import feature_names
 from spiel_edge.profile.schema import load_profile
 from tools import toa_correction_card as card
 from tools import toa_correction_data as tcd

@@ -4,7 +4,7 @@ weights next to them (build time), so an install never imports onnxruntime for t
     python -m tools.verify_models [--folder spiel_edge/models]
 
 Writes ``<model>-<hash16>.verified.npz`` for the association MLP and the ToA correction trees
-(:mod:`spiel_edge.pipeline.verified_models`); exits 1 when a model does not verify. Rerun it
+(:mod:`spiel_edge.pipeline.learned.verified_models`); exits 1 when a model does not verify. Rerun it
 after retraining a model (a stale file is ignored: its hash no longer matches).
 """
 
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.pipeline import associate_onnx, mlp, toa_correction, verified_models
-from spiel_edge.pipeline.echo_timing import N_SCALARS, N_WINDOW
+from spiel_edge.pipeline.learned import associate_onnx, mlp, toa_correction, verified_models
+from spiel_edge.pipeline.stages.echo_timing import N_SCALARS, N_WINDOW
 
 
 def verify_association(path: Path, folder: Path) -> Path | None:

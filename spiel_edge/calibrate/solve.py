@@ -1,7 +1,7 @@
 """The calibration solver: array geometry, delays and speed of sound from echo times.
 
 Observation i: a target at a known position p_i, a channel n_i and its measured echo time
-t_i (samples). The model is the pipeline's own (``pipeline/locate.py``)::
+t_i (samples). The model is the pipeline's own (``pipeline/stages/locate.py``)::
 
     t = (|p - e| + |p - r_n|) * fs / (1000 c) + d_n
 

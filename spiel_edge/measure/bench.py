@@ -5,7 +5,7 @@ Real 4 x 64 acquisitions come from the vendored recordings; synthetic 8 x 256 an
 acquisitions from the virtual board's echo model (:mod:`spiel_edge.sim.synthetic`, two targets each). Start-up is measured in
 fresh interpreters: the second start must load numba's compiled kernels from its cache.
 
-End-to-end figures of the fused path (:mod:`spiel_edge.pipeline.fused`, what the CLI runs)
+End-to-end figures of the fused path (:mod:`spiel_edge.pipeline.compiled.fused`, what the CLI runs)
 and of the staged path (``Pipeline.process``) are measured interleaved, acquisition by
 acquisition, so both see the same machine load; the plain numpy/scipy reference of the same
 method (:mod:`spiel_edge.measure.reference`) runs on a few acquisitions when scipy is
@@ -27,9 +27,9 @@ from spiel_edge.data import load_subset
 from spiel_edge.measure import reference
 from spiel_edge.measure.bench_ros2 import ros2_encoding_us
 from spiel_edge.measure.bench_track import time_tracker
+from spiel_edge.pipeline.compiled.fused import FusedPipeline
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.pipeline.fused import FusedPipeline
-from spiel_edge.pipeline.run import STAGES, Pipeline
+from spiel_edge.pipeline.staged import STAGES, Pipeline
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.sim.synthetic import ring_profile, synthesize
 
@@ -277,7 +277,7 @@ def _onnx_scoring(profile) -> dict | None:
     from spiel_edge.errors import ModelError
 
     try:
-        from spiel_edge.pipeline.associate_onnx import bench_scoring
+        from spiel_edge.pipeline.learned.associate_onnx import bench_scoring
 
         return bench_scoring(n=1000, profile=profile)
     except (ImportError, ModelError):

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from spiel_edge.pipeline.run import Target
+from spiel_edge.pipeline.staged import Target
 from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.track import Tracker
 

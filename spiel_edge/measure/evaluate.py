@@ -3,7 +3,7 @@
 Association accuracy counts, over listening channels, how often the matched echo is the one
 nearest the ground-truth echo time (the true path projected with the profile's geometry), with
 "no echo" right when no detected echo lies within 1.5 samples of that time; F1 as in
-:mod:`spiel_edge.pipeline.echo_labels`.
+:mod:`spiel_edge.measure.echo_labels`.
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ import numpy as np
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.io.spiel_csv import frame_files, position_key, read_recording, read_truth
-from spiel_edge.measure.scenes import SceneTally
-from spiel_edge.pipeline.echo_labels import (
+from spiel_edge.measure.echo_labels import (
     AssociationScore,
     expected_toa,
     label_echoes,
     score_association,
 )
-from spiel_edge.pipeline.run import Pipeline, Result
+from spiel_edge.measure.scenes import SceneTally
+from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.profile.schema import Profile
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files
 

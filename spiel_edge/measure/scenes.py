@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.run import Pipeline, Result
-from spiel_edge.pipeline.uncertainty import CHI2_95_3DOF, mahalanobis2
+from spiel_edge.pipeline.staged import Pipeline, Result
+from spiel_edge.pipeline.stages.uncertainty import CHI2_95_3DOF, mahalanobis2
 
 MATCH_MM = 30.0
 

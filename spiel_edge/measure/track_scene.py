@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from spiel_edge.pipeline.run import Pipeline, Target
+from spiel_edge.pipeline.staged import Pipeline, Target
 from spiel_edge.runtime.running_background import RunningBackground
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.sim.options import SimOptions

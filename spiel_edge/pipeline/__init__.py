@@ -3,6 +3,6 @@
 -> echo_quality -> locate (+ uncertainty); ``run`` composes them, ``fused`` runs the front
 stages as one compiled call."""
 
-from spiel_edge.pipeline.run import Pipeline, Result
+from spiel_edge.pipeline.staged import Pipeline, Result
 
 __all__ = ["Pipeline", "Result"]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import logging
 
 from spiel_edge.errors import ModelError
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.echo_timing_setup import build_echo_timing
-from spiel_edge.pipeline.fused import FusedPipeline
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.compiled.fused import FusedPipeline
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
+from spiel_edge.pipeline.stages.echo_timing_setup import build_echo_timing
 from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)
@@ -21,7 +21,7 @@ def build_associator(profile: Profile, method: str | None = None):
     if method == "geometric":
         return GeometricAssociator(profile)
     try:
-        from spiel_edge.pipeline.associate_onnx import OnnxAssociator
+        from spiel_edge.pipeline.learned.associate_onnx import OnnxAssociator
     except ImportError as exc:  # the learned associator is not built into this install
         log.warning("learned association unavailable (%s); using geometric association", exc)
         return GeometricAssociator(profile)

@@ -16,7 +16,7 @@ TOA_METHODS = ("mode", "mu", "half", "peak")
 ASSOCIATION_METHODS = ("auto", "onnx", "geometric")
 ECHO_TIMING_ESTIMATORS = ("none", "parabola", "log_parabola")
 TOA_CORRECTIONS = ("auto", "onnx", "none")
-SCENE_SELECTIONS = ("joint", "greedy")  # [scene] selection (pipeline/scene.py)
+SCENE_SELECTIONS = ("joint", "greedy")  # [scene] selection (pipeline/stages/scene.py)
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,7 @@ class MemgSpec:
     max_iterations: int = 30
     mu_window: float = 3.0
     toa: str = "mode"
-    split_merged: bool = False  # split merged two-echo humps (pipeline/split.py)
+    split_merged: bool = False  # split merged two-echo humps (pipeline/stages/split.py)
     split_min_sigma: float = 2.0  # only components at least this wide (samples) are tried
     split_max_cost_ratio: float = 1.0  # keep two when they leave at most this share of one's
 
@@ -94,7 +94,7 @@ class AssociateSpec:
 @dataclass(frozen=True)
 class LocateSpec:
     """Per matched echo, its expected ToA error (whose inverse weighs its channel in the solve)
-    and a ToA correction for background interference; see pipeline/echo_quality.py."""
+    and a ToA correction for background interference; see pipeline/stages/echo_quality.py."""
 
     toa_sigma_samples: float = 1.0
     toa_sigma_per_background: float = 0.0
@@ -108,7 +108,7 @@ class SceneSpec:
     """Several targets per acquisition and their uncertainty; see docs/scene.md."""
 
     max_targets: int = 1
-    selection: str = "joint"  # "joint" (pipeline/joint.py) or "greedy" choice of the targets
+    selection: str = "joint"  # "joint" (pipeline/stages/joint.py) or "greedy" choice of the targets
     max_cost_mm: float = 0.0  # a further target needs an association cost <= this (joint: birth)
     share_penalty_mm: float = 40.0  # cost of reusing an echo another target took
     missing_penalty_mm: float = 10.0  # joint: cost of a channel left out (replaces associate's)
@@ -130,7 +130,7 @@ MAX_TARGETS_LIMIT = 16  # also in profile/ranges.py (scene.max_targets)
 @dataclass(frozen=True)
 class EchoTimingSpec:
     """Per matched echo, the ToA from the power-domain background-free envelope and a learned
-    correction; see pipeline/echo_timing.py. ``delay_shift_samples`` (one per channel, or
+    correction; see pipeline/stages/echo_timing.py. ``delay_shift_samples`` (one per channel, or
     empty for none) is added to the geometry's delays when the estimator is on."""
 
     estimator: str = "none"

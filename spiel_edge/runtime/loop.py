@@ -22,7 +22,7 @@ from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
 from spiel_edge.outputs import Sink
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.runtime.once import OncePerProblem
 from spiel_edge.runtime.records import error_record
 from spiel_edge.runtime.tracking import ResultTracker, track_records

@@ -10,7 +10,7 @@ from pathlib import Path
 from spiel_edge.errors import InputError, SpielError
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.io.spiel_csv import Recording, iter_recordings
-from spiel_edge.pipeline.run import Pipeline, Result
+from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.profile.specs import TOA_CORRECTIONS
 from spiel_edge.runtime.records import error_record
 

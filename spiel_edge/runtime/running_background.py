@@ -7,7 +7,7 @@ confirmed track's echo lies (per channel, the samples within ``running_backgroun
 plus two standard deviations of the track's echo path of its predicted time of arrival) the
 acquisition is not taken in: the estimate keeps its previous value there, so a target that
 stands still is not learnt as background once it has a track. Until ``window`` acquisitions
-are in, the stand-in of the profile (``[scene] static_model``, pipeline/static_scene.py) or
+are in, the stand-in of the profile (``[scene] static_model``, pipeline/stages/static_scene.py) or
 nothing is used, and the samples of those acquisitions at a track are that stand-in too.
 
 A captured background always wins: callers use :meth:`RunningBackground.background` only when
@@ -25,7 +25,7 @@ import warnings
 
 import numpy as np
 
-from spiel_edge.pipeline.static_scene import load_static_model
+from spiel_edge.pipeline.stages.static_scene import load_static_model
 from spiel_edge.profile.schema import Profile
 
 

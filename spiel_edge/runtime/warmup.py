@@ -33,8 +33,8 @@ def pipeline_kernels() -> dict[str, object]:
     found = {}
     for package_name in KERNEL_PACKAGES:
         package = importlib.import_module(package_name)
-        for info in pkgutil.iter_modules(package.__path__):
-            name = f"{package_name}.{info.name}"
+        for info in pkgutil.walk_packages(package.__path__, f"{package_name}."):
+            name = info.name
             try:
                 module = importlib.import_module(name)
             except ImportError:
@@ -145,7 +145,7 @@ def warmup() -> dict:
 def cache_dir() -> str | None:
     """Where numba caches the pipeline's kernels in this environment (None: nowhere usable)."""
     try:
-        from spiel_edge.pipeline import detect
+        from spiel_edge.pipeline.stages import detect
     except RuntimeError as exc:  # numba raises at import when no cache location is writable
         log.debug("numba cache: %s", exc)
         return None

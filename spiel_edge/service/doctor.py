@@ -148,7 +148,7 @@ def check_model(path: str | Path | None = None, method: str = "auto") -> Check:
     if method == "geometric":
         return Check("model", True, "not used: the profile asks for geometric association")
     try:
-        from spiel_edge.pipeline.associate_onnx import default_model_path, load_session
+        from spiel_edge.pipeline.learned.associate_onnx import default_model_path, load_session
     except ImportError as exc:
         return Check(
             "model",

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from spiel_edge.data import load_subset
+from spiel_edge.measure.echo_labels import expected_toa, label_echoes
 from spiel_edge.pipeline import Pipeline
-from spiel_edge.pipeline.echo_labels import expected_toa, label_echoes
 from spiel_edge.profile.schema import load_profile
 
 

@@ -10,8 +10,8 @@ from onnx import TensorProto, helper
 
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline import factory
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.associate_onnx import OnnxAssociator, default_model_path
+from spiel_edge.pipeline.learned.associate_onnx import OnnxAssociator, default_model_path
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
 
 
 def _wrong_shape_model(path, n_features=5):
@@ -66,7 +66,9 @@ def test_wrong_shape_message_names_the_expected_shape(profile, tmp_path):
 @pytest.mark.parametrize("kind", ["missing", "garbage", "truncated", "wrong shape"])
 def test_factory_warns_and_uses_geometric(profile, tmp_path, monkeypatch, caplog, kind):
     path = _bad_files(tmp_path)[kind]
-    monkeypatch.setattr("spiel_edge.pipeline.associate_onnx.default_model_path", lambda: path)
+    monkeypatch.setattr(
+        "spiel_edge.pipeline.learned.associate_onnx.default_model_path", lambda: path
+    )
     with caplog.at_level(logging.WARNING, logger=factory.__name__):
         assoc = factory.build_associator(profile, "onnx")
     assert isinstance(assoc, GeometricAssociator)

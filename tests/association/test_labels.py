@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from spiel_edge.pipeline.echo_labels import (
+from spiel_edge.measure.echo_labels import (
     AssociationScore,
     expected_toa,
     label_echoes,
     score_association,
 )
-from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
+from spiel_edge.pipeline.stages.features import N_FEATURES, TOA_COLUMN
 
 
 def _features(toas: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.associate_onnx import (
+from spiel_edge.measure.echo_labels import AssociationScore, score_association
+from spiel_edge.pipeline.learned.associate_onnx import (
     OnnxAssociator,
     bench_scoring,
     candidate_mask,
     guarded_match,
     score_bonus,
 )
-from spiel_edge.pipeline.echo_labels import AssociationScore, score_association
-from spiel_edge.pipeline.features import FEATURE_NAMES
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
+from spiel_edge.pipeline.stages.features import FEATURE_NAMES
 
 
 @pytest.fixture(scope="module")

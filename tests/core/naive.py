@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from spiel_edge.measure.reference import detect, emg, locate, paths, preprocess  # noqa: F401
-from spiel_edge.pipeline import memg
+from spiel_edge.pipeline.stages import memg
 
 
 def envelope(rf, f):

@@ -1,4 +1,4 @@
-"""The back kernel (pipeline/back.py) gives the staged Result bit for bit; the association MLP
+"""The back kernel (pipeline/compiled/one_target.py) gives the staged Result bit for bit; the association MLP
 in numba agrees with onnxruntime; verified weights load without onnxruntime."""
 
 import dataclasses
@@ -12,11 +12,18 @@ import pytest
 from onnx import helper
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import back, back_scene, back_steps, mlp, verified_models
-from spiel_edge.pipeline.associate_onnx import OnnxAssociator, default_model_path, load_session
-from spiel_edge.pipeline.echo_timing import EchoTiming
-from spiel_edge.pipeline.fused import FusedPipeline
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.compiled import one_target as back
+from spiel_edge.pipeline.compiled import several_targets as back_scene
+from spiel_edge.pipeline.compiled import steps as back_steps
+from spiel_edge.pipeline.compiled.fused import FusedPipeline
+from spiel_edge.pipeline.learned import mlp, verified_models
+from spiel_edge.pipeline.learned.associate_onnx import (
+    OnnxAssociator,
+    default_model_path,
+    load_session,
+)
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.echo_timing import EchoTiming
 from spiel_edge.sim.synthetic import ring_profile, synthesize
 from tests.core.test_fused import assert_same
 

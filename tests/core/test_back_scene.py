@@ -1,4 +1,4 @@
-"""The several-target kernel's pieces (pipeline/scene_steps.py, scene_geometry.py) against the
+"""The several-target kernel's pieces (pipeline/compiled/scene_steps.py, scene_geometry.py) against the
 staged functions they replace, and the fixed-order sums against plain numpy."""
 
 import math
@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from spiel_edge.pipeline import scene
-from spiel_edge.pipeline import scene_steps as back_scene
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
-from spiel_edge.pipeline.scene_geometry import distance3, dot3, height3, predicted_paths_into
+from spiel_edge.pipeline.compiled import scene_steps as back_scene
+from spiel_edge.pipeline.stages import scene
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
+from spiel_edge.pipeline.stages.scene import SceneAssociator, is_double_reflection, shared_echoes
+from spiel_edge.pipeline.stages.scene_geometry import distance3, dot3, height3, predicted_paths_into
 
 
 def _random_pool(rng, n, n_ch, n_echoes):
@@ -109,8 +109,8 @@ def test_packed_config_holds_every_argument_exactly(profile, association):
     """scene_config packs the kernel's constants into four buffers by dtype; the kernel's
     views (_v1 / _v2 with _scene_kernel's slot numbers) give each array back with its
     dtype, shape and bits; an array of another dtype turns the kernel off (staged steps)."""
-    from spiel_edge.pipeline import back_scene as kernel
-    from spiel_edge.pipeline import scene_steps as packing
+    from spiel_edge.pipeline.compiled import scene_steps as packing
+    from spiel_edge.pipeline.compiled import several_targets as kernel
     from spiel_edge.pipeline.factory import build_pipeline
 
     pipeline = build_pipeline(profile, association, fused=False)

@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.echo_timing import (
+from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.pipeline.stages.echo_timing import (
     EchoTiming,
     clean_envelope,
     n_toa_features,
     refine_toa,
     toa_features,
 )
-from spiel_edge.pipeline.echo_timing_setup import timing_delays
-from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.pipeline.stages.echo_timing_setup import timing_delays
 from tests.core import naive
 
 

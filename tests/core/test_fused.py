@@ -6,11 +6,14 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import back_scene, back_steps, fused, run
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.associate_onnx import OnnxAssociator, load_session
-from spiel_edge.pipeline.fused import FusedPipeline, unsupported_stages
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline import staged as run
+from spiel_edge.pipeline.compiled import fused
+from spiel_edge.pipeline.compiled import several_targets as back_scene
+from spiel_edge.pipeline.compiled import steps as back_steps
+from spiel_edge.pipeline.compiled.fused import FusedPipeline, unsupported_stages
+from spiel_edge.pipeline.learned.associate_onnx import OnnxAssociator, load_session
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
 from spiel_edge.sim.synthetic import ring_profile, synthesize
 
 

@@ -1,4 +1,4 @@
-"""Joint choice of the targets (pipeline/joint.py): the combination pool and the subset search
+"""Joint choice of the targets (pipeline/stages/joint.py): the combination pool and the subset search
 against brute-force numpy references, bounded cost in clutter, K = 1 unchanged."""
 
 import dataclasses
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import ConfigError, InputError
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.joint import MAX_NODES, combination_pool, select_subset
-from spiel_edge.pipeline.locate import locate
-from spiel_edge.pipeline.run import Pipeline
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
+from spiel_edge.pipeline.stages.joint import MAX_NODES, combination_pool, select_subset
+from spiel_edge.pipeline.stages.locate import locate
 from spiel_edge.profile.schema import profile_from_dict, profile_to_dict
 from spiel_edge.sim.synthetic import synthesize
 from tests.core import naive

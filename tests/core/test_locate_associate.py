@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.associate import GeometricAssociator, anchor_triples
-from spiel_edge.pipeline.echo_quality import echo_quality
-from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
-from spiel_edge.pipeline.locate import _solve3, locate, locate_kernel
-from spiel_edge.pipeline.memg import solve_spd
+from spiel_edge.pipeline.stages.associate import GeometricAssociator, anchor_triples
+from spiel_edge.pipeline.stages.echo_quality import echo_quality
+from spiel_edge.pipeline.stages.features import N_FEATURES, TOA_COLUMN
+from spiel_edge.pipeline.stages.locate import _solve3, locate, locate_kernel
+from spiel_edge.pipeline.stages.memg import solve_spd
 from spiel_edge.sim.synthetic import ring_profile
 from tests.core import naive
 

@@ -3,9 +3,9 @@ import pytest
 from scipy.optimize import curve_fit
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.detect import detect
-from spiel_edge.pipeline.features import FEATURE_NAMES, echo_features
-from spiel_edge.pipeline.memg import (
+from spiel_edge.pipeline.stages.detect import detect
+from spiel_edge.pipeline.stages.features import FEATURE_NAMES, echo_features
+from spiel_edge.pipeline.stages.memg import (
     _jacobian_sums,
     _trial_cost,
     emg_value,
@@ -148,7 +148,7 @@ def test_features_match_numpy_reference():
 
 
 def test_mode_is_the_maximum_for_every_bounded_eta():
-    from spiel_edge.pipeline.features import _mode
+    from spiel_edge.pipeline.stages.features import _mode
 
     for eta in np.linspace(-4.0, 8.0, 49):
         t = np.linspace(18.0, 25.0, 700001)  # mu 20, sigma 1: [mu - 2 sigma, mu + 5 sigma]

@@ -46,7 +46,7 @@ report = {"records": out, "optimised": list(runs), "registries": "numba.np.array
 # then a compilation in the same process (a new signature of a kernel whose callees come from
 # the cache): it must link them as numba would, their bitcode parsed on demand
 import numpy as np
-from spiel_edge.pipeline import detect, memg
+from spiel_edge.pipeline.stages import detect, memg
 y = subset.frames[0].astype(np.float32)
 peaks, counts = detect.detect(subset.frames[0] - subset.backgrounds[0], threshold=100.0)
 params = np.full((y.shape[0], peaks.shape[1], 4), np.nan)

@@ -5,8 +5,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.detect import detect
-from spiel_edge.pipeline.preprocess import envelope, preprocess
+from spiel_edge.pipeline.stages.detect import detect
+from spiel_edge.pipeline.stages.preprocess import envelope, preprocess
 from tests.core import naive
 
 frames_st = arrays(

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import ConfigError, InputError
-from spiel_edge.pipeline.run import Pipeline
-from spiel_edge.pipeline.scene import is_double_reflection, predicted_paths, shared_echoes
-from spiel_edge.pipeline.static_scene import load_static_model
-from spiel_edge.pipeline.uncertainty import CHI2_95_3DOF, mahalanobis2, position_covariance
+from spiel_edge.pipeline.staged import Pipeline
+from spiel_edge.pipeline.stages.scene import is_double_reflection, predicted_paths, shared_echoes
+from spiel_edge.pipeline.stages.static_scene import load_static_model
+from spiel_edge.pipeline.stages.uncertainty import CHI2_95_3DOF, mahalanobis2, position_covariance
 from spiel_edge.profile.schema import profile_from_dict, profile_to_dict
 from spiel_edge.sim.synthetic import synthesize
 from tests.core import naive
@@ -57,7 +57,7 @@ def test_covariance_always_finite_symmetric_positive(profile):
 def test_covariance_covers_simulated_toa_noise(profile, rng):
     """With the true path error, small enough for the linearisation to hold, the 95 %
     ellipsoid holds the truth about 95 % of the time (larger errors are the floor's job)."""
-    from spiel_edge.pipeline.locate import locate
+    from spiel_edge.pipeline.stages.locate import locate
 
     ch, e = geometry(profile)
     f = np.asarray(profile.geometry.facing, float)

@@ -1,4 +1,4 @@
-"""The merged-echo split (pipeline/split.py): two echoes 2-4 samples apart that detect reports
+"""The merged-echo split (pipeline/stages/split.py): two echoes 2-4 samples apart that detect reports
 as one are found as two; one echo is not split; max_echoes holds; a numpy reference agrees."""
 
 import numpy as np
@@ -6,10 +6,10 @@ import pytest
 
 from spiel_edge.errors import InputError
 from spiel_edge.measure.reference import fit_memg as reference_fit_memg
-from spiel_edge.pipeline.detect import detect
-from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
-from spiel_edge.pipeline.memg import WINDOW_AFTER, WINDOW_BEFORE, fit_memg
-from spiel_edge.pipeline.split import MIN_SHARE, SPLIT_OFFSET, split_merged
+from spiel_edge.pipeline.stages.detect import detect
+from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
+from spiel_edge.pipeline.stages.memg import WINDOW_AFTER, WINDOW_BEFORE, fit_memg
+from spiel_edge.pipeline.stages.split import MIN_SHARE, SPLIT_OFFSET, split_merged
 from tests.core import naive
 
 T = np.arange(96.0)

@@ -9,14 +9,14 @@ import pytest
 from onnx import TensorProto, helper
 
 from spiel_edge.errors import ModelError
-from spiel_edge.pipeline.echo_timing import EchoTiming, n_toa_features
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.pipeline.toa_correction import (
+from spiel_edge.pipeline.learned.toa_correction import (
     MAX_CORRECTION,
     build_correction,
     default_model_path,
     load_correction,
 )
+from spiel_edge.pipeline.stages.echo_timing import EchoTiming, n_toa_features
 
 
 def _model(path, n_features=None, opset=17, output="correction"):
@@ -90,7 +90,8 @@ def test_pipeline_with_a_bad_model_warns_and_still_locates(
     profile, subset, tmp_path, monkeypatch, caplog
 ):
     monkeypatch.setattr(
-        "spiel_edge.pipeline.toa_correction.default_model_path", lambda: tmp_path / "none.onnx"
+        "spiel_edge.pipeline.learned.toa_correction.default_model_path",
+        lambda: tmp_path / "none.onnx",
     )
     with caplog.at_level(logging.WARNING):
         pipe = build_pipeline(profile, "geometric", "auto")
@@ -101,7 +102,7 @@ def test_pipeline_with_a_bad_model_warns_and_still_locates(
 
 @pytest.mark.parametrize("with_background", [True, False])
 def test_fused_step_equals_the_separate_wrappers(subset, with_background):
-    from spiel_edge.pipeline.echo_timing import clean_envelope, refine_toa, toa_features
+    from spiel_edge.pipeline.stages.echo_timing import clean_envelope, refine_toa, toa_features
 
     corr = load_correction(4)
     assert corr.trees is not None

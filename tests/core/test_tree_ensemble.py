@@ -6,9 +6,9 @@ import pytest
 from onnx import TensorProto, helper
 
 from spiel_edge.errors import ModelError
-from spiel_edge.pipeline import tree_ensemble
-from spiel_edge.pipeline.echo_timing import n_toa_features
-from spiel_edge.pipeline.toa_correction import default_model_path, load_correction
+from spiel_edge.pipeline.learned import tree_ensemble
+from spiel_edge.pipeline.learned.toa_correction import default_model_path, load_correction
+from spiel_edge.pipeline.stages.echo_timing import n_toa_features
 
 
 def _uneven_model(mode="BRANCH_LEQ") -> bytes:

@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from spiel_edge.pipeline.run import Target
+from spiel_edge.pipeline.staged import Target
 from spiel_edge.profile.schema import TrackSpec, load_profile
 from spiel_edge.track import Tracker
 from spiel_edge.track.layout import MISSES

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import ConfigError, InputError
-from spiel_edge.pipeline.run import Target
+from spiel_edge.pipeline.staged import Target
 from spiel_edge.profile.schema import TrackSpec, load_profile, profile_from_dict, profile_to_dict
 from spiel_edge.track import MAX_TARGETS, Tracker
 from tests.track import naive

@@ -4,7 +4,7 @@ against ``_measurements`` and ``_step``: the same numbers, bit for bit."""
 import numpy as np
 import pytest
 
-from spiel_edge.pipeline.run import Target
+from spiel_edge.pipeline.staged import Target
 from spiel_edge.track.layout import allocate, measurement_views, snapshot_rows, target_ids
 from spiel_edge.track.step import _step, _step_buffered
 from spiel_edge.track.tracker import Tracker, _measurements

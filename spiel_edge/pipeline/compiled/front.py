@@ -14,11 +14,11 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.detect import _detect_kernel
-from spiel_edge.pipeline.features import TOA_CODES, TOA_COLUMN, _features_kernel
-from spiel_edge.pipeline.memg import _memg_kernel
-from spiel_edge.pipeline.preprocess import _envelope_kernel, _preprocess_kernel
-from spiel_edge.pipeline.split import _split_kernel
+from spiel_edge.pipeline.stages.detect import _detect_kernel
+from spiel_edge.pipeline.stages.features import TOA_CODES, TOA_COLUMN, _features_kernel
+from spiel_edge.pipeline.stages.memg import _memg_kernel
+from spiel_edge.pipeline.stages.preprocess import _envelope_kernel, _preprocess_kernel
+from spiel_edge.pipeline.stages.split import _split_kernel
 
 FRAMES_NOT_FINITE, BACKGROUND_NOT_FINITE = 1, 2
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline._validate import as_frames
+from spiel_edge.pipeline.stages._validate import as_frames
 
 
 def detect(

@@ -1,10 +1,10 @@
 """The learned ToA correction (gradient-boosted trees in ONNX), run in numba or onnxruntime.
 
 Input ``features`` (batch, n_toa_features) float32 from
-:func:`spiel_edge.pipeline.echo_timing.toa_features`; output ``correction`` (batch, 1): the
+:func:`spiel_edge.pipeline.stages.echo_timing.toa_features`; output ``correction`` (batch, 1): the
 ToA error in samples (refined ToA minus delay minus the true ToA) to subtract; the trees are
-evaluated in numba (:mod:`spiel_edge.pipeline.tree_ensemble`, checked against onnxruntime
-once per model file and then stored by its hash, :mod:`spiel_edge.pipeline.verified_models`, so
+evaluated in numba (:mod:`spiel_edge.pipeline.learned.tree_ensemble`, checked against onnxruntime
+once per model file and then stored by its hash, :mod:`spiel_edge.pipeline.learned.verified_models`, so
 later loads do not import onnxruntime), else by onnxruntime. Model card:
 ``spiel_edge/models/toa_correction.md``; trained by ``python -m tools.train_toa_correction``.
 
@@ -23,9 +23,9 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
-from spiel_edge.pipeline import tree_ensemble, verified_models
-from spiel_edge.pipeline.echo_timing import n_toa_features
-from spiel_edge.pipeline.mlp import read_metadata
+from spiel_edge.pipeline.learned import tree_ensemble, verified_models
+from spiel_edge.pipeline.learned.mlp import read_metadata
+from spiel_edge.pipeline.stages.echo_timing import n_toa_features
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ It computes what ``Pipeline.scene`` (``SceneAssociator._joint``) + ``Pipeline._l
 compute, bit for bit (tests/core/test_fused.py, K = 2, 4, 8 with and without a background),
 by calling the same kernels in the same order:
 
-1. the score prior and the strength as :mod:`spiel_edge.pipeline.back` (K = 1);
+1. the score prior and the strength as :mod:`spiel_edge.pipeline.compiled.one_target` (K = 1);
 2. ``joint._pool_kernel`` (as ``joint.combination_pool``), then the joint choice's glue in
    numba (``scene_steps._hypotheses``: the missing-channel shift, the stable order by cost
    with the K = 1 pick first, ``drop_variants``, the birth gains) and
@@ -15,7 +15,7 @@ by calling the same kernels in the same order:
 3. per hypothesis ``back_steps._one_target`` (as ``Pipeline._target``), ``_share`` (as
    ``scene.shared_echoes``), the separation and the double-reflection test (as
    ``Pipeline._targets`` with ``scene.is_double_reflection``), using the fixed-order sums of
-   :mod:`spiel_edge.pipeline.scene_geometry` that the staged path uses too.
+   :mod:`spiel_edge.pipeline.stages.scene_geometry` that the staged path uses too.
 
 Only the Target and Result objects are built in Python, once per acquisition. The call
 takes 15 arguments, not 45 (numba's dispatch costs about 65 ns per array argument): the
@@ -24,7 +24,7 @@ constants are packed by dtype into four buffers (:func:`pack_config`), the outpu
 ``_scene_acquisition_kernel`` runs the front kernel and it in one call. The staged
 path stays the reference: :func:`scene_config` returns None (staged back steps) for greedy
 selection, the learned associator's reference mode, more than 6 listening channels, or
-anything :func:`spiel_edge.pipeline.back.kernel_arguments` does not cover.
+anything :func:`spiel_edge.pipeline.compiled.one_target.kernel_arguments` does not cover.
 """
 
 from __future__ import annotations
@@ -34,18 +34,10 @@ import math
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.pipeline import back, run
-from spiel_edge.pipeline.back_steps import (
-    F_MM_PER_SAMPLE,
-    I_MIN_CHANNELS,
-    _association_inputs,
-    _one_target,
-)
-from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.front import _packed_front, front_packed, front_scalars, raise_for
-from spiel_edge.pipeline.joint import MAX_POOL, _pool_kernel
-from spiel_edge.pipeline.scene_geometry import distance3, predicted_paths_into
-from spiel_edge.pipeline.scene_steps import (
+from spiel_edge.pipeline import staged as run
+from spiel_edge.pipeline.compiled import one_target as back
+from spiel_edge.pipeline.compiled.front import _packed_front, front_packed, front_scalars, raise_for
+from spiel_edge.pipeline.compiled.scene_steps import (
     S_DOUBLE_TOL,
     S_MAX_TARGETS,
     S_MIN_SEPARATION,
@@ -59,6 +51,15 @@ from spiel_edge.pipeline.scene_steps import (
     _share,
     pack_config,
 )
+from spiel_edge.pipeline.compiled.steps import (
+    F_MM_PER_SAMPLE,
+    I_MIN_CHANNELS,
+    _association_inputs,
+    _one_target,
+)
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
+from spiel_edge.pipeline.stages.joint import MAX_POOL, _pool_kernel
+from spiel_edge.pipeline.stages.scene_geometry import distance3, predicted_paths_into
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 
 
@@ -72,7 +73,7 @@ def scene_config(pipeline: run.Pipeline) -> tuple | None:
 def scene_arguments(pipeline: run.Pipeline) -> tuple | None:
     """The kernel's constant arguments one by one: ``back.kernel_arguments``, then the
     scene's ints, floats and listening mask, then the front kernel's scalars
-    (:data:`~spiel_edge.pipeline.scene_steps._SLOTS` after ``ints``)."""
+    (:data:`~spiel_edge.pipeline.compiled.scene_steps._SLOTS` after ``ints``)."""
     scene = pipeline.scene
     if scene.max_targets < 2 or not scene.joint:
         return None
@@ -133,7 +134,7 @@ def _scene_kernel(
 
 def run_scene(pipeline, config, ws, features, counts, y, bg, raw, background, bonus_given):
     """The Result of one acquisition with up to ``max_targets`` targets, from the front
-    kernel's features (a fresh copy) and counts (as :func:`spiel_edge.pipeline.back.run_back`)."""
+    kernel's features (a fresh copy) and counts (as :func:`spiel_edge.pipeline.compiled.one_target.run_back`)."""
     if bonus_given is not None:
         ws.bonus[:, :] = bonus_given
     scale = back.covariance_scale(pipeline, background)

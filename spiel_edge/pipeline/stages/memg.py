@@ -17,7 +17,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline._validate import as_frames
+from spiel_edge.pipeline.stages._validate import as_frames
 
 SIGMA_MIN, SIGMA_MAX = 0.4, 6.0
 ETA_MIN, ETA_MAX = -4.0, 8.0

@@ -28,8 +28,8 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.locate import locate_kernel
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
+from spiel_edge.pipeline.stages.locate import locate_kernel
 from spiel_edge.profile.schema import Profile
 
 EXHAUSTIVE_MAX_CHANNELS = 6

@@ -14,8 +14,8 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline._validate import as_frames
-from spiel_edge.pipeline.memg import SQRT2, SQRT_2_OVER_PI, _emg_arguments, emg_value
+from spiel_edge.pipeline.stages._validate import as_frames
+from spiel_edge.pipeline.stages.memg import SQRT2, SQRT_2_OVER_PI, _emg_arguments, emg_value
 
 FEATURE_NAMES = (
     "alpha",

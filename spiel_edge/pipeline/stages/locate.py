@@ -66,7 +66,7 @@ def locate(
 
 @_solve
 def _solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2):
-    """:func:`spiel_edge.pipeline.memg.solve_spd` for n = 3 on scalars (the lower triangle of
+    """:func:`spiel_edge.pipeline.stages.memg.solve_spd` for n = 3 on scalars (the lower triangle of
     a symmetric a): the same operations in the same order, so the same bits, without arrays.
     Returns (ok, x0, x1, x2); ok False when a is not positive definite."""
     d = a00

@@ -2,9 +2,9 @@
 
 The model (``spiel_edge/models/association.onnx``, card beside it) maps each echo's 8 features
 to a target score and a 4-D embedding; one call per acquisition scores every echo. The MLP
-runs in numba (:mod:`spiel_edge.pipeline.mlp`) when its graph has the known shape and agreed
+runs in numba (:mod:`spiel_edge.pipeline.learned.mlp`) when its graph has the known shape and agreed
 with onnxruntime on a probe batch (checked once per model file, then stored by its hash:
-:mod:`spiel_edge.pipeline.verified_models`; such a load never imports onnxruntime), else in
+:mod:`spiel_edge.pipeline.learned.verified_models`; such a load never imports onnxruntime), else in
 onnxruntime (``engine``).
 Two ways to use it (``mode``):
 
@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError, ModelError
-from spiel_edge.pipeline import mlp, verified_models
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.features import N_FEATURES, TOA_COLUMN
+from spiel_edge.pipeline.learned import mlp, verified_models
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
+from spiel_edge.pipeline.stages.features import N_FEATURES, TOA_COLUMN
 from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)
@@ -288,7 +288,7 @@ def bench_scoring(
     """Median and p99 wall time (us) of scoring one acquisition (the ``run`` call with its
     input packing) and of the whole association, over the vendored recordings."""
     from spiel_edge.data import load_subset
-    from spiel_edge.pipeline.run import Pipeline
+    from spiel_edge.pipeline.staged import Pipeline
     from spiel_edge.profile.schema import load_profile
 
     profile = profile or load_profile("spiel-icra23")

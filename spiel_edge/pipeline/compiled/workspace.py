@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from spiel_edge.pipeline.features import N_FEATURES
+from spiel_edge.pipeline.stages.features import N_FEATURES
 
 
 @dataclass
@@ -27,7 +27,7 @@ class Workspace:
     iterations: np.ndarray = field(init=False, repr=False)
     unsorted: np.ndarray = field(init=False, repr=False)  # features in detection order
     features: np.ndarray = field(init=False, repr=False)  # features in ToA order
-    # the back kernel's (pipeline/back.py)
+    # the back kernel's (pipeline/compiled/one_target.py)
     bonus: np.ndarray = field(init=False, repr=False)  # (channels, max_echoes) score prior, mm
     clean: np.ndarray = field(init=False, repr=False)  # echo timing's background-free envelope
     matched: np.ndarray = field(init=False, repr=False)

@@ -3,7 +3,7 @@
 ``FusedPipeline(pipeline).process(frames, background)`` returns the same Result as
 ``pipeline.process`` bit for bit (tests/core/test_fused.py asserts it on real and synthetic
 data) with less Python around the kernels: shapes are validated once at the boundary (with
-the staged path's messages), and the front kernel (:mod:`spiel_edge.pipeline.front`) runs the
+the staged path's messages), and the front kernel (:mod:`spiel_edge.pipeline.compiled.front`) runs the
 finite check, preprocess (with the RF envelope), detect, memg, features and their ToA
 ordering on a per-thread Workspace.
 
@@ -29,9 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline import back, back_scene, back_steps, run
-from spiel_edge.pipeline.front import _front_kernel, front_scalars, raise_for
-from spiel_edge.pipeline.workspace import ThreadWorkspaces
+from spiel_edge.pipeline import staged as run
+from spiel_edge.pipeline.compiled import one_target as back
+from spiel_edge.pipeline.compiled import several_targets as back_scene
+from spiel_edge.pipeline.compiled import steps as back_steps
+from spiel_edge.pipeline.compiled.front import _front_kernel, front_scalars, raise_for
+from spiel_edge.pipeline.compiled.workspace import ThreadWorkspaces
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """Model weights checked once against onnxruntime, stored so later loads skip onnxruntime.
 
-A model the runtime evaluates in numba (the association MLP, :mod:`spiel_edge.pipeline.mlp`)
+A model the runtime evaluates in numba (the association MLP, :mod:`spiel_edge.pipeline.learned.mlp`)
 is read from its ONNX file and compared with onnxruntime on a probe batch the first time it is
 loaded (or at ``spiel-edge warmup`` / ``service install``, or at build time by
 ``python -m tools.verify_models``). What agreed is stored as a small ``.npz`` holding the

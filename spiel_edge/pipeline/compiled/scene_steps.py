@@ -1,4 +1,4 @@
-"""The several-target kernel's steps (pipeline/back_scene.py), each as the staged function it
+"""The several-target kernel's steps (pipeline/compiled/several_targets.py), each as the staged function it
 replaces computes it: the joint choice after the pool (``SceneAssociator._joint``), the
 shared echoes (``scene.shared_echoes``) and the double-reflection test
 (``scene.is_double_reflection``). Tested against those in tests/core/test_back_scene.py. One
@@ -12,8 +12,8 @@ import math
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.pipeline.joint import MAX_NODES, MAX_POOL, _select_kernel
-from spiel_edge.pipeline.scene_geometry import height3
+from spiel_edge.pipeline.stages.joint import MAX_NODES, MAX_POOL, _select_kernel
+from spiel_edge.pipeline.stages.scene_geometry import height3
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 
 log = logging.getLogger(__name__)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spiel_edge.pipeline.features import TOA_COLUMN
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.profile.schema import Profile
 
 # the ground truth of `spiel-edge evaluate` and of training (1.5 samples = 23 mm of path)

@@ -1,7 +1,7 @@
 """Scene stage: up to K targets per acquisition from one multi-hypothesis association.
 
 ``[scene] selection = "joint"`` (default): the set of targets is chosen jointly among the
-cheapest consistent echo combinations (:mod:`spiel_edge.pipeline.joint`). ``"greedy"``, and
+cheapest consistent echo combinations (:mod:`spiel_edge.pipeline.stages.joint`). ``"greedy"``, and
 the cases the joint search does not cover (more than 6 listening channels, the learned
 associator's ``reference`` mode), hypothesise-and-verify greedily (docs/scene.md):
 
@@ -29,9 +29,9 @@ import math
 
 import numpy as np
 
-from spiel_edge.pipeline.associate import EXHAUSTIVE_MAX_CHANNELS
-from spiel_edge.pipeline.joint import combination_pool, drop_variants, select_subset
-from spiel_edge.pipeline.scene_geometry import _predicted_paths, height3
+from spiel_edge.pipeline.stages.associate import EXHAUSTIVE_MAX_CHANNELS
+from spiel_edge.pipeline.stages.joint import combination_pool, drop_variants, select_subset
+from spiel_edge.pipeline.stages.scene_geometry import _predicted_paths, height3
 
 
 class SceneAssociator:

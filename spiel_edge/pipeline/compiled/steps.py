@@ -11,12 +11,12 @@ import math
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.pipeline.echo_quality import _echo_quality_kernel
-from spiel_edge.pipeline.echo_timing import _clean_kernel, _fused_kernel, _refine_kernel
-from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.locate import locate_kernel
-from spiel_edge.pipeline.mlp import mlp_scores
-from spiel_edge.pipeline.uncertainty import _covariance_kernel
+from spiel_edge.pipeline.learned.mlp import mlp_scores
+from spiel_edge.pipeline.stages.echo_quality import _echo_quality_kernel
+from spiel_edge.pipeline.stages.echo_timing import _clean_kernel, _fused_kernel, _refine_kernel
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
+from spiel_edge.pipeline.stages.locate import locate_kernel
+from spiel_edge.pipeline.stages.uncertainty import _covariance_kernel
 
 PRIOR_NONE, PRIOR_MLP, PRIOR_GIVEN = 0, 1, 2
 TIMING_NONE, TIMING_REFINE, TIMING_TREES = 0, 1, 2
@@ -135,7 +135,7 @@ def _score_bonus(
     features, counts, listening, weight, mean, std, w0, b0, w1, b1, w2, b2, wh, bh, bonus
 ):
     """As OnnxAssociator.bonus: weight * logit(score) per present, listening, finite echo
-    (the echoes scored together by :func:`spiel_edge.pipeline.mlp.mlp_scores`)."""
+    (the echoes scored together by :func:`spiel_edge.pipeline.learned.mlp.mlp_scores`)."""
     n_ch, k_max, n_f = features.shape
     x = np.empty((n_ch * k_max, n_f), dtype=np.float32)
     at = np.empty(n_ch * k_max, dtype=np.int64)

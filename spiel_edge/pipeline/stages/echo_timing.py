@@ -7,7 +7,7 @@ echo, the background is removed in the power domain, ``sqrt(max(frame^2 - backgr
 peak of a parabola through the log of the three samples around the largest sample within
 ``half_window`` of the matched echo (a Gaussian pulse's exact peak; the peak sample itself
 where a neighbour is zero, i.e. removed with the background, as in the study of issue 11). An optional learned
-correction (:mod:`spiel_edge.pipeline.toa_correction`) then removes the remaining bias from
+correction (:mod:`spiel_edge.pipeline.learned.toa_correction`) then removes the remaining bias from
 the local window of frame, background and cleaned envelope (:func:`toa_features`).
 
 Without a background capture the cleaned envelope is the frame itself, and the features say so.
@@ -24,7 +24,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.tree_ensemble import _predict_kernel
+from spiel_edge.pipeline.learned.tree_ensemble import _predict_kernel
 
 ESTIMATORS = {"none": 0, "parabola": 1, "log_parabola": 2}
 FEATURE_HALF_WIDTH = 6  # samples either side of the echo's peak sample (chosen by grouped CV)
@@ -174,7 +174,7 @@ def _features_kernel(y, bg, e, toa, hw, out):
 class EchoTiming:
     """The step for one target: ``(frames, background or None, toa per channel) -> toa``.
 
-    ``correction`` (a :class:`spiel_edge.pipeline.toa_correction.ToaCorrection` or None) maps
+    ``correction`` (a :class:`spiel_edge.pipeline.learned.toa_correction.ToaCorrection` or None) maps
     (features, refined toa) to the corrected toa. The result is finite wherever ``toa`` is.
     """
 

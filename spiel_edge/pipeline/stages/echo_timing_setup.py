@@ -1,6 +1,6 @@
 """Build the echo-timing step a profile asks for (the step, its learned correction, its delays).
 
-Apart from :mod:`spiel_edge.pipeline.echo_timing` so that the correction, which needs the
+Apart from :mod:`spiel_edge.pipeline.stages.echo_timing` so that the correction, which needs the
 step's feature layout, and the step do not import each other.
 """
 
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spiel_edge.pipeline.echo_timing import EchoTiming
-from spiel_edge.pipeline.toa_correction import build_correction
+from spiel_edge.pipeline.learned.toa_correction import build_correction
+from spiel_edge.pipeline.stages.echo_timing import EchoTiming
 
 
 def build_echo_timing(profile, toa_correction: str | None = None) -> EchoTiming:

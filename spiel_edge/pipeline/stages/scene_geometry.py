@@ -4,8 +4,8 @@ The after-locating checks (docs/scene.md: shared echoes, the minimum separation,
 reflections) compare lengths against tolerances. ``np.dot`` / ``np.linalg.norm`` of a
 3-vector go through BLAS, whose rounding (fused multiply-add or not, summation order) depends
 on the BLAS build and the CPU; these kernels sum in one fixed order instead, so the staged
-path (:mod:`spiel_edge.pipeline.scene`, ``Pipeline._targets``) and the fused several-target
-kernel (:mod:`spiel_edge.pipeline.back_scene`) compute the same bits on every machine.
+path (:mod:`spiel_edge.pipeline.stages.scene`, ``Pipeline._targets``) and the fused several-target
+kernel (:mod:`spiel_edge.pipeline.compiled.several_targets`) compute the same bits on every machine.
 """
 
 from __future__ import annotations

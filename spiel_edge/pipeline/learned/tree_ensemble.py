@@ -5,7 +5,7 @@ in numba takes a few. The trees are read from the ONNX file itself with a minima
 reader (ModelProto.graph.node[].attribute[]: no ``onnx`` package at run time). Only what
 skl2onnx writes for a regressor is accepted (BRANCH_LEQ/LEAF nodes, SUM, no post transform,
 one target); anything else raises ModelError and the caller keeps onnxruntime.
-:class:`spiel_edge.pipeline.toa_correction.ToaCorrection` also checks on load that both agree.
+:class:`spiel_edge.pipeline.learned.toa_correction.ToaCorrection` also checks on load that both agree.
 """
 
 from __future__ import annotations

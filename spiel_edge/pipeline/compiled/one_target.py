@@ -6,8 +6,8 @@ It computes what ``Pipeline.scene`` + ``Pipeline._locate`` compute for one targe
 (tests/core/test_back.py), by calling the same kernels in the same order:
 
 1. the learned score prior (``prior``): the association MLP in numba on every echo at once
-   (:func:`spiel_edge.pipeline.mlp.mlp_scores`, bit for bit ``OnnxAssociator.score``'s
-   per-row :func:`~spiel_edge.pipeline.mlp.mlp_row`), or a bonus the
+   (:func:`spiel_edge.pipeline.learned.mlp.mlp_scores`, bit for bit ``OnnxAssociator.score``'s
+   per-row :func:`~spiel_edge.pipeline.learned.mlp.mlp_row`), or a bonus the
    caller computed with onnxruntime between the front and the back kernel (a model that is
    not the known MLP), or none (geometric association);
 2. the associator's search (``associate._exhaustive_kernel`` / ``_hypothesis_kernel``) with
@@ -30,13 +30,10 @@ import math
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.pipeline import run
-from spiel_edge.pipeline.associate import (
-    GeometricAssociator,
-    _exhaustive_kernel,
-    _hypothesis_kernel,
-)
-from spiel_edge.pipeline.back_steps import (
+from spiel_edge.pipeline import staged as run
+from spiel_edge.pipeline.compiled.front import _packed_front, front_packed, front_scalars, raise_for
+from spiel_edge.pipeline.compiled.scene_steps import _back_views, _front_views, pack_config
+from spiel_edge.pipeline.compiled.steps import (
     I_EXHAUSTIVE,
     I_MIN_CHANNELS,
     PRIOR_GIVEN,
@@ -48,11 +45,14 @@ from spiel_edge.pipeline.back_steps import (
     _association_inputs,
     _one_target,
 )
-from spiel_edge.pipeline.echo_timing import ESTIMATORS, EchoTiming
-from spiel_edge.pipeline.features import TOA_COLUMN
-from spiel_edge.pipeline.front import _packed_front, front_packed, front_scalars, raise_for
-from spiel_edge.pipeline.scene import SceneAssociator
-from spiel_edge.pipeline.scene_steps import _back_views, _front_views, pack_config
+from spiel_edge.pipeline.stages.associate import (
+    GeometricAssociator,
+    _exhaustive_kernel,
+    _hypothesis_kernel,
+)
+from spiel_edge.pipeline.stages.echo_timing import ESTIMATORS, EchoTiming
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
+from spiel_edge.pipeline.stages.scene import SceneAssociator
 
 BACK_STAGES = ("associate", "echo_timing", "locate")
 _NO_TREES = (
@@ -67,7 +67,7 @@ _NO_SCENE = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.bool_))  # its s
 
 def back_config(pipeline: run.Pipeline) -> tuple | None:
     """The back kernel's constant arguments for this pipeline, packed
-    (:func:`~spiel_edge.pipeline.scene_steps.pack_config`), or None when it must run the
+    (:func:`~spiel_edge.pipeline.compiled.scene_steps.pack_config`), or None when it must run the
     staged back steps (then the reason is logged by the caller)."""
     if pipeline.scene.max_targets != 1:
         return None
@@ -80,7 +80,7 @@ def back_config(pipeline: run.Pipeline) -> tuple | None:
 
 def kernel_arguments(pipeline: run.Pipeline) -> tuple | None:
     """The constant arguments of a back kernel for one target (the several-target kernel,
-    pipeline/back_scene.py, takes them too), whatever ``max_targets``; None when the
+    pipeline/compiled/several_targets.py, takes them too), whatever ``max_targets``; None when the
     pipeline has a step they do not describe."""
     scene, assoc, timing = pipeline.scene, pipeline.associator, pipeline.echo_timing
     methods = ("_locate", "_targets", "_target")
@@ -152,7 +152,7 @@ def _prior(assoc) -> tuple:
     """(prior mode or None when unsupported, MLP weights, score weight)."""
     if type(assoc) is GeometricAssociator:
         return PRIOR_NONE, _NO_MLP, 0.0
-    from spiel_edge.pipeline.associate_onnx import OnnxAssociator  # only when it is in use
+    from spiel_edge.pipeline.learned.associate_onnx import OnnxAssociator  # only when it is in use
 
     if type(assoc) is not OnnxAssociator or assoc.mode != "prior":
         return None, _NO_MLP, 0.0

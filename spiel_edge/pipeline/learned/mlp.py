@@ -10,7 +10,7 @@ ONNX file with the tree reader's minimal protobuf parser (no ``onnx`` package at
 accepts only that shape; anything else raises ModelError and the caller keeps onnxruntime.
 The standardisation is done in float32 as onnxruntime does; the layers accumulate in float64
 (onnxruntime accumulates in float32): the two agree within about 1e-7 on realistic rows,
-and :mod:`spiel_edge.pipeline.verified_models` stores the weights only after a probe batch
+and :mod:`spiel_edge.pipeline.learned.verified_models` stores the weights only after a probe batch
 agreed within AGREEMENT.
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
-from spiel_edge.pipeline.tree_ensemble import _fields
+from spiel_edge.pipeline.learned.tree_ensemble import _fields
 
 AGREEMENT = 1e-5  # max |numba - onnxruntime| on the probe batch (score and embedding)
 N_INPUT = 8

@@ -34,7 +34,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.associate import _feasible, _score
+from spiel_edge.pipeline.stages.associate import _feasible, _score
 
 MAX_POOL = 48  # echo combinations kept for the joint choice
 MAX_NODES = 20000  # subset-search nodes per acquisition

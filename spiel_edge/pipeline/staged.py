@@ -10,20 +10,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.associate import GeometricAssociator
-from spiel_edge.pipeline.detect import detect
-from spiel_edge.pipeline.echo_quality import echo_quality
-from spiel_edge.pipeline.echo_timing import EchoTiming
-from spiel_edge.pipeline.echo_timing_setup import build_echo_timing, timing_delays
-from spiel_edge.pipeline.features import TOA_COLUMN, echo_features
-from spiel_edge.pipeline.locate import locate
-from spiel_edge.pipeline.memg import fit_memg
-from spiel_edge.pipeline.preprocess import preprocess
-from spiel_edge.pipeline.scene import SceneAssociator, is_double_reflection, shared_echoes
-from spiel_edge.pipeline.scene_geometry import distance3
-from spiel_edge.pipeline.split import split_merged
-from spiel_edge.pipeline.static_scene import load_static_model
-from spiel_edge.pipeline.uncertainty import _covariance_kernel
+from spiel_edge.pipeline.stages.associate import GeometricAssociator
+from spiel_edge.pipeline.stages.detect import detect
+from spiel_edge.pipeline.stages.echo_quality import echo_quality
+from spiel_edge.pipeline.stages.echo_timing import EchoTiming
+from spiel_edge.pipeline.stages.echo_timing_setup import build_echo_timing, timing_delays
+from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
+from spiel_edge.pipeline.stages.locate import locate
+from spiel_edge.pipeline.stages.memg import fit_memg
+from spiel_edge.pipeline.stages.preprocess import preprocess
+from spiel_edge.pipeline.stages.scene import SceneAssociator, is_double_reflection, shared_echoes
+from spiel_edge.pipeline.stages.scene_geometry import distance3
+from spiel_edge.pipeline.stages.split import split_merged
+from spiel_edge.pipeline.stages.static_scene import load_static_model
+from spiel_edge.pipeline.stages.uncertainty import _covariance_kernel
 from spiel_edge.profile.schema import Profile
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 

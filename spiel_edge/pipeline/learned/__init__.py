@@ -1,0 +1,1 @@
+"""The learned models in numba, each checked against onnxruntime (docs/pipeline.md)."""

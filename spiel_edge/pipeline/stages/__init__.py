@@ -1,0 +1,1 @@
+"""The pipeline's stages, one module each, in data-flow order (docs/pipeline.md, "Stages")."""
