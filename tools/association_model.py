@@ -35,7 +35,6 @@ import torch
 from torch import nn
 
 from spiel_edge.data import EXCLUDED_Z_MM
-from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure import evaluate
 from spiel_edge.measure.echo_labels import (
     DEFAULT_TOLERANCE,
@@ -50,6 +49,7 @@ from spiel_edge.pipeline.stages.associate import GeometricAssociator
 from spiel_edge.pipeline.stages.features import N_FEATURES, TOA_COLUMN
 from spiel_edge.pipeline.stages.locate import locate
 from spiel_edge.profile.schema import Profile
+from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_truth
 
 log = logging.getLogger("train_association")
 

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.io.spiel_csv import frame_files, position_key, read_frames, read_truth
 from spiel_edge.measure.evaluate import split_by_position
+from spiel_edge.recordings.spiel_csv import frame_files, position_key, read_frames, read_truth
 
 FULL_SCALE = 65535.0
 EXCLUDE_Z = (90.0,)

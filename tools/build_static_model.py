@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.io.spiel_csv import frame_files, position_key, read_frames
 from spiel_edge.measure.evaluate import split_by_position
 from spiel_edge.pipeline.stages.static_scene import static_model_arrays
+from spiel_edge.recordings.spiel_csv import frame_files, position_key, read_frames
 
 OUT = Path(__file__).resolve().parents[1] / "spiel_edge" / "models" / "static_spiel_icra23.npz"
 

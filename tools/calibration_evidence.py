@@ -18,10 +18,10 @@ import numpy as np
 
 from spiel_edge.calibrate import calibrate_frames, load_recordings
 from spiel_edge.data import EXCLUDED_Z_MM
-from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import Profile, load_profile
+from spiel_edge.recordings.spiel_csv import frame_files
 
 
 def val_error(profile: Profile, folder: Path, bg: Path, val: set) -> dict:

@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.io.spiel_csv import position_key
 from spiel_edge.measure.scenes import load_scenes
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.stages.uncertainty import CHI2_95_3DOF
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.recordings.spiel_csv import position_key
 
 SCALES = np.round(np.arange(0.3, 4.001, 0.05), 3)
 FLOORS = np.arange(0.0, 20.5, 1.0)

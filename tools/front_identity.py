@@ -97,7 +97,7 @@ def dump(path: str, real: str | None) -> None:
 
 def real(path: str, folder: str = "/work/shared/datasets/spiel-icra23") -> None:
     """Every train_val recording with its train_val_bg background, as arrays."""
-    from spiel_edge.io.spiel_csv import frame_files, read_recording
+    from spiel_edge.recordings.spiel_csv import frame_files, read_recording
 
     frames, backgrounds = [], []
     for p in frame_files(f"{folder}/train_val"):

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.data import EXCLUDED_Z_MM
-from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.measure.evaluate import split_by_position
 from spiel_edge.pipeline.factory import build_associator
 from spiel_edge.pipeline.staged import Pipeline
@@ -29,6 +28,7 @@ from spiel_edge.pipeline.stages.echo_timing import (
 )
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.profile.schema import Profile
+from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_truth
 
 INLIER_SAMPLES = 1.5  # a matched echo further than this from the truth is a wrong association
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.io.spiel_csv import position_key, read_frames, read_truth
+from spiel_edge.recordings.spiel_csv import position_key, read_frames, read_truth
 
 FRAMES_PER_POSITION = 3
 

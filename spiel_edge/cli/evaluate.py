@@ -18,12 +18,12 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import InputError
-from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.measure.track_eval import evaluate_tracked
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
 
 

@@ -21,7 +21,7 @@ def command(file: str, output: str, force: bool) -> int:
     Every readable message is kept with its sequence number and times; damaged chunks are
     skipped and summarized. FILE is never modified. Exit status 1 when something was lost.
     """
-    from spiel_edge.io.recover import recover
+    from spiel_edge.recordings.recover import recover
 
     plan = FilePlan(force)
     plan.input_file(file, "FILE")

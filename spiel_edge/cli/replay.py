@@ -22,10 +22,10 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.errors import OutputError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
 from spiel_edge.runtime.replay import (
     FORMATS,

@@ -1,2 +1,3 @@
-"""Recorded acquisitions in: spiel-csv folders (``spiel_csv``) and MCAP recordings (``mcap``);
-writing MCAP is an output (``spiel_edge.outputs.mcap``)."""
+"""The commands' file rules: which files may be read and written and how (``guard``), and how
+large an input may be before it is parsed (``limits``). Recordings are in
+:mod:`spiel_edge.recordings`."""

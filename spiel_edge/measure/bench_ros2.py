@@ -17,10 +17,10 @@ import time
 
 import numpy as np
 
-from spiel_edge.io.cdr import Ros2Encoder
 from spiel_edge.outputs.ros2 import frame_settings
 from spiel_edge.outputs.zenoh_ros2 import TF_PERIOD_S, CdrMessages
 from spiel_edge.profile.frame_section import FrameSpec
+from spiel_edge.recordings.cdr import Ros2Encoder
 
 RATE_HZ = 50.0  # `run --rate`'s default
 

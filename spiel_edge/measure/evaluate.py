@@ -17,7 +17,6 @@ import numpy as np
 
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.spiel_csv import frame_files, position_key, read_recording, read_truth
 from spiel_edge.measure.echo_labels import (
     AssociationScore,
     expected_toa,
@@ -27,6 +26,7 @@ from spiel_edge.measure.echo_labels import (
 from spiel_edge.measure.scenes import SceneTally
 from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.profile.schema import Profile
+from spiel_edge.recordings.spiel_csv import frame_files, position_key, read_recording, read_truth
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files
 
 

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.profile.track_section import TrackSpec
+from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_truth
 from spiel_edge.runtime.running_background import RunningBackground
 from spiel_edge.runtime.tracking import ResultTracker, time_ordered
 

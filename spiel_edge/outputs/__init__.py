@@ -175,12 +175,12 @@ def _mcap_sink(
     ros2: Any = None,
     exclusive: bool = False,
 ) -> Sink:
-    from spiel_edge.outputs.mcap import McapSink
+    from spiel_edge.recordings.mcap_writer import McapSink
 
     try:
         if profile == "ros2":
             from spiel_edge.outputs.ros2 import Ros2Settings
-            from spiel_edge.outputs.ros2_mcap import Ros2McapSink
+            from spiel_edge.recordings.ros2_mcap import Ros2McapSink
 
             ros2 = ros2 or Ros2Settings()
             return Ros2McapSink(

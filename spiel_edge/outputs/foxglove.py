@@ -13,9 +13,9 @@ import logging
 from collections.abc import Sequence
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.outputs.mcap import POSITION_SCHEMA
 from spiel_edge.outputs.scene_view import Trails, ellipsoid
 from spiel_edge.outputs.udp import parse_host_port
+from spiel_edge.recordings.mcap_writer import POSITION_SCHEMA
 
 log = logging.getLogger(__name__)
 

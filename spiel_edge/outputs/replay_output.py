@@ -2,7 +2,7 @@
 (``-o FILE.mcap``) laid out as `run --record` writes it, so it replays again.
 
 The MCAP holds, per replayed acquisition, its raw frames and background and its record (the
-JSON profile), or with ``--record-profile ros2`` the ROS 2 messages of outputs/ros2_mcap.py
+JSON profile), or with ``--record-profile ros2`` the ROS 2 messages of recordings/ros2_mcap.py
 and the static transforms on ``/tf_static``. Records gain ``seq`` and ``host_time``: the
 acquisition's capture time when the input recording has it (an MCAP), else the replay's start
 time plus NOMINAL_PERIOD_S per acquisition.
@@ -155,11 +155,11 @@ def _mcap_sink(path: Path, metadata: dict | None, record_profile: str, ros2: Any
     the static transforms are written with the first acquisition, at its time."""
     if record_profile == "ros2":
         from spiel_edge.outputs.ros2 import Ros2Settings
-        from spiel_edge.outputs.ros2_mcap import Ros2McapSink
+        from spiel_edge.recordings.ros2_mcap import Ros2McapSink
 
         frame_id = (ros2 or Ros2Settings()).frame_id
         return Ros2McapSink(path, frame_id=frame_id, metadata=metadata)
-    from spiel_edge.outputs.mcap import McapSink
+    from spiel_edge.recordings.mcap_writer import McapSink
 
     return McapSink(path, metadata=metadata)
 

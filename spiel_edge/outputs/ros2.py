@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.cdr import StaticTransform
 from spiel_edge.profile.frame_section import (
     DEFAULT_FRAME_ID,
     FrameSpec,
@@ -24,6 +23,7 @@ from spiel_edge.profile.frame_section import (
     validate_frame,
     with_overrides,
 )
+from spiel_edge.recordings.cdr import StaticTransform
 
 RECORD_PROFILES = ("json", "ros2")
 ZENOH_ENCODINGS = ("json", "cdr")

@@ -21,9 +21,9 @@ import logging
 import time
 from typing import Any
 
-from spiel_edge.io.cdr import Ros2Encoder
 from spiel_edge.outputs.ros2 import Ros2Settings
 from spiel_edge.outputs.zenoh import open_publishers
+from spiel_edge.recordings.cdr import Ros2Encoder
 
 log = logging.getLogger(__name__)
 

@@ -54,7 +54,7 @@ def load_background(path: str | Path) -> np.ndarray:
         except (OSError, ValueError) as exc:
             raise InputError(f"{path}: cannot read background: {exc}") from exc
     else:
-        from spiel_edge.io.spiel_csv import read_frames
+        from spiel_edge.recordings.spiel_csv import read_frames
 
         arr = read_frames(path)
     if arr.ndim != 2 or not np.all(np.isfinite(arr)):

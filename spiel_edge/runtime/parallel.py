@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.spiel_csv import read_recording
+from spiel_edge.recordings.spiel_csv import read_recording
 from spiel_edge.runtime.replay import Replayed, replay
 from spiel_edge.runtime.tracking import ResultTracker, _run_and_index, replay_tracked
 

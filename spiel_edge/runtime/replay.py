@@ -9,9 +9,9 @@ from pathlib import Path
 
 from spiel_edge.errors import InputError, SpielError
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.spiel_csv import Recording, iter_recordings
 from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.profile.specs import TOA_CORRECTIONS
+from spiel_edge.recordings.spiel_csv import Recording, iter_recordings
 from spiel_edge.runtime.records import error_record
 
 log = logging.getLogger(__name__)
@@ -58,7 +58,7 @@ def iter_sources(
         yield from iter_recordings(path, background, limits)
     elif fmt == "mcap":
         try:
-            from spiel_edge.io.mcap import iter_mcap_recordings
+            from spiel_edge.recordings.mcap_reader import iter_mcap_recordings
         except ImportError as exc:
             raise InputError(
                 f"{path}: MCAP replay is not available in this install ({exc})"
@@ -84,7 +84,7 @@ def recorded_toa_correction(path: str | Path, fmt: str | None = None) -> str | N
     if format_of(path, fmt) != "mcap" or not path.is_file():
         return None
     try:
-        from spiel_edge.io.mcap import recording_metadata
+        from spiel_edge.recordings.mcap_reader import recording_metadata
     except ImportError:
         return None  # MCAP replay itself says why it is unavailable
     recorded = recording_metadata(path).get("toa_correction")

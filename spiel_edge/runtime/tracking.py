@@ -15,9 +15,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spiel_edge.io.spiel_csv import Recording
 from spiel_edge.pipeline.staged import Result, Target
 from spiel_edge.profile.track_section import TrackSpec
+from spiel_edge.recordings.spiel_csv import Recording
 from spiel_edge.runtime.replay import Replayed, replay
 from spiel_edge.runtime.running_background import RunningBackground
 from spiel_edge.track import Track, Tracker

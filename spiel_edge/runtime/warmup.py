@@ -24,7 +24,12 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-KERNEL_PACKAGES = ("spiel_edge.pipeline", "spiel_edge.io", "spiel_edge.track", "firmware_protocol")
+KERNEL_PACKAGES = (
+    "spiel_edge.pipeline",
+    "spiel_edge.recordings",
+    "spiel_edge.track",
+    "firmware_protocol",
+)
 
 
 def pipeline_kernels() -> dict[str, object]:
@@ -77,9 +82,9 @@ def _ring_input(n_channels: int = 8, n_samples: int = 128):
 
 def _exercise() -> None:
     from spiel_edge.data import load_subset
-    from spiel_edge.io.spiel_csv import _read_integers
     from spiel_edge.pipeline.factory import build_pipeline
     from spiel_edge.profile.schema import load_profile
+    from spiel_edge.recordings.spiel_csv import _read_integers
 
     _read_integers(b"0 15 860\n0 8 54\n")  # the spiel-csv scanner (replay, evaluate)
 

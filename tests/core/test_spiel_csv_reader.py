@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.spiel_csv import read_frames
+from spiel_edge.recordings.spiel_csv import read_frames
 
 
 @pytest.mark.parametrize(

@@ -14,16 +14,16 @@ from mcap.reader import make_reader
 
 from spiel_edge.cli import main
 from spiel_edge.data import load_subset
-from spiel_edge.io.mcap import (
+from spiel_edge.pipeline.factory import build_pipeline
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.recordings.mcap_reader import (
     ACQUISITION_TOPIC,
     BACKGROUND_TOPIC,
     POSITION_TOPIC,
     iter_mcap_recordings,
     recording_metadata,
 )
-from spiel_edge.outputs.mcap import McapSink
-from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.profile.schema import load_profile
+from spiel_edge.recordings.mcap_writer import McapSink
 
 N = 12
 
@@ -203,7 +203,7 @@ _WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
     from spiel_edge.cli._signals import terminate_raises
-    from spiel_edge.outputs.mcap import McapSink
+    from spiel_edge.recordings.mcap_writer import McapSink
     sink = McapSink(sys.argv[1])
     frames = np.arange(256, dtype=np.float64).reshape(4, 64)
     n = 0

@@ -9,9 +9,9 @@ import pytest
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.outputs import MultiSink, open_outputs, recording_path
-from spiel_edge.outputs.mcap import McapSink
 from spiel_edge.outputs.ndjson import NdjsonSink
 from spiel_edge.outputs.udp import UdpSink
+from spiel_edge.recordings.mcap_writer import McapSink
 
 
 class Collect:

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from spiel_edge.cli import main
-from spiel_edge.io.mcap import POSITION_TOPIC, iter_mcap_recordings
-from spiel_edge.io.mcap_scan import MAGIC
-from spiel_edge.outputs.mcap import McapSink
 from spiel_edge.profile.schema import dump_toml, load_profile, profile_to_dict
+from spiel_edge.recordings.mcap_reader import POSITION_TOPIC, iter_mcap_recordings
+from spiel_edge.recordings.mcap_scan import MAGIC
+from spiel_edge.recordings.mcap_writer import McapSink
 
 rosbags = pytest.importorskip("rosbags", reason="rosbags is in the 'test' extra")
 from rosbags.highlevel import AnyReader  # noqa: E402

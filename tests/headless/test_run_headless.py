@@ -17,7 +17,11 @@ import pytest
 from mcap.reader import make_reader
 
 from spiel_edge.cli import main
-from spiel_edge.io.mcap import ACQUISITION_TOPIC, POSITION_TOPIC, iter_mcap_recordings
+from spiel_edge.recordings.mcap_reader import (
+    ACQUISITION_TOPIC,
+    POSITION_TOPIC,
+    iter_mcap_recordings,
+)
 
 _names = itertools.count()
 

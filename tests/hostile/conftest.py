@@ -77,7 +77,7 @@ def csv_folder(tmp_path_factory, subset):
 @pytest.fixture(scope="session")
 def recording(tmp_path_factory, subset) -> Path:
     """A finalized MCAP of 300 live-like acquisitions (one background, as `run --record`)."""
-    from spiel_edge.outputs.mcap import McapSink
+    from spiel_edge.recordings.mcap_writer import McapSink
 
     path = tmp_path_factory.mktemp("mcap") / "rec.mcap"
     with McapSink(path) as sink:

@@ -10,8 +10,8 @@ import struct
 import pytest
 from mcap.reader import make_reader
 
-from spiel_edge.io.damage import count_intact, sample_offsets
-from spiel_edge.io.recover import recover
+from spiel_edge.recordings.damage import count_intact, sample_offsets
+from spiel_edge.recordings.recover import recover
 
 TOTAL = 300
 FLIPS, CUTS = 64, 32
@@ -24,7 +24,7 @@ def original(recording):
 
 @pytest.fixture(autouse=True)
 def _quiet(caplog):
-    caplog.set_level(logging.ERROR, logger="spiel_edge.io.mcap")
+    caplog.set_level(logging.ERROR, logger="spiel_edge.recordings.mcap_reader")
 
 
 def _offsets(n: int, seed: int) -> list[int]:

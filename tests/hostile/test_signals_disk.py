@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from spiel_edge.io.mcap import iter_mcap_recordings
-from spiel_edge.io.mcap_scan import MAGIC
+from spiel_edge.recordings.mcap_reader import iter_mcap_recordings
+from spiel_edge.recordings.mcap_scan import MAGIC
 
 CLI = [sys.executable, "-m", "spiel_edge.cli"]
 

@@ -7,8 +7,8 @@ import json
 import numpy as np
 
 from spiel_edge.cli import main
-from spiel_edge.io.mcap import recording_metadata
 from spiel_edge.link import discover
+from spiel_edge.recordings.mcap_reader import recording_metadata
 
 
 def records(path) -> list[dict]:

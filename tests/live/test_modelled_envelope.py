@@ -6,7 +6,7 @@ import pytest
 
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
-from spiel_edge.io.mcap import recording_metadata
+from spiel_edge.recordings.mcap_reader import recording_metadata
 from spiel_edge.runtime.loop import live_toa_correction, open_pipeline
 from spiel_edge.sim.options import modelled_envelope
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from spiel_edge.cli import main
-from spiel_edge.io.spiel_csv import Recording
 from spiel_edge.measure.track_scene import MoverScore
 from spiel_edge.outputs.scene_view import CHI2_3DOF_95, Trails, ellipsoid
+from spiel_edge.recordings.spiel_csv import Recording
 from spiel_edge.runtime.tracking import NOMINAL_PERIOD_S, time_ordered
 from spiel_edge.track import Track
 from tests.core.spiel_csv_fixture import write_spiel_csv

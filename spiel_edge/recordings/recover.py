@@ -13,7 +13,7 @@ from mcap.writer import CompressionType, Writer
 from spiel_edge import __version__
 from spiel_edge.io.guard import atomic_write
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.mcap import (
+from spiel_edge.recordings.mcap_reader import (
     ACQUISITION_TOPIC,
     BACKGROUND_TOPIC,
     POSITION_TOPIC,
@@ -22,7 +22,7 @@ from spiel_edge.io.mcap import (
     scan_limits,
     topic_of,
 )
-from spiel_edge.io.mcap_scan import McapScanner, ScanReport
+from spiel_edge.recordings.mcap_scan import McapScanner, ScanReport
 
 
 @dataclass
@@ -43,7 +43,7 @@ class Recovered:
 
 def recover(src: str | Path, dst: str | Path, limits: InputLimits | None = None) -> Recovered:
     """Write what can be read of ``src`` to ``dst`` (atomically: a temporary file renamed)."""
-    from spiel_edge.outputs.mcap import (
+    from spiel_edge.recordings.mcap_writer import (
         ACQUISITION_SCHEMA,
         BACKGROUND_SCHEMA,
         MCAP_PROFILE,

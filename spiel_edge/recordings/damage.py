@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.io.mcap import iter_mcap_recordings
+from spiel_edge.recordings.mcap_reader import iter_mcap_recordings
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
 from spiel_edge.io.guard import open_exclusive
-from spiel_edge.io.mcap import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
+from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
 
 log = logging.getLogger(__name__)
 
@@ -142,7 +142,7 @@ class McapSink:
         # a replay's recording: log times are the capture times, so `ros2 bag play` paces it
         self.log_time_from_stamp = False
 
-    profile = MCAP_PROFILE  # subclasses (outputs/ros2_mcap.py) change the encoding
+    profile = MCAP_PROFILE  # subclasses (recordings/ros2_mcap.py) change the encoding
 
     def _register_channels(self) -> dict[str, int]:
         return {

@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from spiel_edge.io import cdr
-from spiel_edge.io.mcap import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
-from spiel_edge.outputs.mcap import McapSink, _default, _stamp
+from spiel_edge.recordings import cdr
+from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
+from spiel_edge.recordings.mcap_writer import McapSink, _default, _stamp
 
 POINT_TOPIC = "/spiel/point"
 TARGETS_TOPIC = "/spiel/targets"

@@ -1,6 +1,6 @@
-"""Reading MCAP recordings written by :class:`spiel_edge.outputs.mcap.McapSink`: every recorded
+"""Reading MCAP recordings written by :class:`spiel_edge.recordings.mcap_writer.McapSink`: every recorded
 acquisition with the background in force, a damaged, cut or unfinalized file read as far as
-it goes (:mod:`spiel_edge.io.mcap_scan`), one error entry at the end saying what was skipped.
+it goes (:mod:`spiel_edge.recordings.mcap_scan`), one error entry at the end saying what was skipped.
 
 Inputs are bounded before they are parsed: a message larger than the profile's frame allows
 is skipped unread, and a hostile JSON payload (deep nesting, huge numbers) becomes an error
@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.cdr import ENCAPSULATION, decode_acquisition
 from spiel_edge.io.guard import shorten
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.mcap_scan import (
+from spiel_edge.recordings.cdr import ENCAPSULATION, decode_acquisition
+from spiel_edge.recordings.mcap_scan import (
     MAGIC,
     OP_HEADER,
     OP_METADATA,
@@ -33,14 +33,14 @@ from spiel_edge.io.mcap_scan import (
     McapScanner,
     RawMessage,
 )
-from spiel_edge.io.spiel_csv import Recording
+from spiel_edge.recordings.spiel_csv import Recording
 
 log = logging.getLogger(__name__)
 
 ACQUISITION_TOPIC = "/spiel/acquisition"
 BACKGROUND_TOPIC = "/spiel/background"
 POSITION_TOPIC = "/spiel/position"
-METADATA_NAME = "spiel-edge"  # the metadata record McapSink writes (outputs/mcap.py)
+METADATA_NAME = "spiel-edge"  # the metadata record McapSink writes (recordings/mcap_writer.py)
 METADATA_HEAD_BYTES = 64 * 1024  # header and metadata records are read from this much
 KEEP_BACKGROUNDS = 8  # distinct backgrounds remembered, by the CRC-32 of their message
 

@@ -1,0 +1,1 @@
+"""Recordings: spiel-csv folders and MCAP files, read, scanned, written, recovered."""
