@@ -1,0 +1,219 @@
+"""Where records go: one Sink per destination, several at once through MultiSink.
+
+A Sink takes JSON-ready record dicts (see the README's record schema) and must be closed;
+raw acquisitions go to sinks that want them (recordings) through ``write_acquisition``.
+:func:`open_outputs` builds the MultiSink the command-line options ask for.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from spiel_edge.errors import ConfigError, OutputError
+
+log = logging.getLogger(__name__)
+
+
+class Sink(Protocol):
+    def write(self, record: dict) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class MultiSink:
+    """Fan records out to several sinks; a failing sink is logged and dropped, not fatal,
+    until none is left (OutputError). ``failed`` names the dropped ones (the command's exit
+    status says some output failed). The reader of stdout going away (BrokenPipeError) is
+    passed on: it is a normal end, not a failure."""
+
+    def __init__(self, sinks: list[Sink]):
+        self.sinks = list(sinks)
+        self.failed: list[str] = []
+
+    def write(self, record: dict) -> None:
+        for sink in list(self.sinks):
+            try:
+                sink.write(record)
+            except OSError as exc:
+                self._drop(sink, exc)
+
+    def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
+        for sink in list(self.sinks):
+            hook = getattr(sink, "write_acquisition", None)
+            if hook is None:
+                continue
+            try:
+                hook(acquisition, frames)
+            except OSError as exc:  # disk full, ...: stop recording, keep publishing
+                self._drop(sink, exc)
+
+    def _drop(self, sink: Sink, exc: OSError) -> None:
+        if isinstance(exc, BrokenPipeError) and not getattr(sink, "owns_file", False):
+            raise exc
+        name = type(sink).__name__
+        log.error("output %s failed, dropping it: %s", name, exc)
+        self.sinks.remove(sink)
+        self.failed.append(f"{name}: {exc.strerror or exc}")
+        _close_quietly(sink)
+        if not self.sinks:
+            raise OutputError(f"every output failed ({'; '.join(self.failed)})") from exc
+
+    def close_files(self) -> None:
+        """Finalize the outputs that are files (recordings, NDJSON files); nothing that could
+        block on a reader. Safe to call again, and from the signal watchdog."""
+        for sink in list(self.sinks):
+            if getattr(sink, "owns_file", False):
+                try:
+                    sink.close()
+                except OSError as exc:
+                    log.error("closing output %s failed: %s", type(sink).__name__, exc)
+                    self.failed.append(f"{type(sink).__name__}: {exc.strerror or exc}")
+                    self.sinks.remove(sink)
+
+    def close(self) -> None:
+        for sink in list(self.sinks):
+            try:
+                sink.close()
+            except OSError as exc:
+                log.error("closing output %s failed: %s", type(sink).__name__, exc)
+
+    def __enter__(self) -> MultiSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _close_quietly(sink: Sink) -> None:
+    try:
+        sink.close()
+    except Exception as exc:  # already failing; the first error was logged
+        log.debug("closing %s: %s", type(sink).__name__, exc)
+
+
+def recording_path(template: str | Path, now: float | None = None) -> Path:
+    """Expand strftime fields (``spiel-%Y%m%d-%H%M%S.mcap``) so a restarted service never
+    overwrites the recording of the run before."""
+    text = str(template)
+    if "%" in text:
+        text = time.strftime(text, time.localtime(now))
+    path = Path(text)
+    if path.suffix != ".mcap":
+        raise ConfigError(f"--record {template}: the file name must end in .mcap")
+    if not path.parent.is_dir():
+        raise ConfigError(f"--record {template}: folder {path.parent} does not exist")
+    return path
+
+
+def check_outputs(plan, output: str | None, record: str | Path | None) -> Path | None:
+    """Check the file outputs of ``run`` before it starts (io.guard rules); the recording's
+    expanded path, to pass to :func:`open_outputs`."""
+    plan.output(output, "--output")
+    if record is None:
+        return None
+    path = recording_path(record)
+    plan.output(path, "--record")
+    return path
+
+
+def open_outputs(
+    output: str | None = "-",
+    record: str | Path | None = None,
+    udp: Sequence[str] | str | None = None,
+    foxglove: str | None = None,
+    zenoh: str | None = None,
+    *,
+    metadata: dict[str, Any] | None = None,
+    receivers_mm: Any = None,
+    force: bool = True,
+    record_profile: str = "json",
+    zenoh_encoding: str = "json",
+    ros2: Any = None,
+) -> MultiSink:
+    """The sinks the options ask for, all at once: NDJSON (``output``; None for none), an MCAP
+    recording, UDP targets, a Foxglove live view, Zenoh. Closes what it opened on failure.
+
+    ``record_profile`` "ros2" and ``zenoh_encoding`` "cdr" write ROS 2 messages in CDR with the
+    frame id and static transforms of ``ros2`` (outputs.ros2.Ros2Settings)."""
+    from spiel_edge.outputs.ndjson import NdjsonSink
+
+    factories: list = []
+    if output is not None:
+        factories.append(lambda: NdjsonSink(output, exclusive=not force))
+    if record is not None:
+        path = recording_path(record)
+        factories.append(
+            lambda: _mcap_sink(path, metadata, record_profile, ros2, exclusive=not force)
+        )
+    for target in [udp] if isinstance(udp, str) else list(udp or []):
+        factories.append(lambda target=target: _udp_sink(target))
+    if foxglove is not None:
+        factories.append(lambda: _foxglove_sink(foxglove, receivers_mm))
+    if zenoh is not None:
+        factories.append(lambda: _zenoh_sink(zenoh, zenoh_encoding, ros2))
+    sinks: list[Sink] = []
+    try:
+        for make in factories:
+            sinks.append(make())
+    except BaseException:
+        for sink in sinks:
+            _close_quietly(sink)
+        raise
+    return MultiSink(sinks)
+
+
+def _mcap_sink(
+    path: Path,
+    metadata: dict[str, Any] | None,
+    profile: str = "json",
+    ros2: Any = None,
+    exclusive: bool = False,
+) -> Sink:
+    from spiel_edge.recordings.mcap_writer import McapSink
+
+    try:
+        if profile == "ros2":
+            from spiel_edge.outputs.ros2 import Ros2Settings
+            from spiel_edge.recordings.ros2_mcap import Ros2McapSink
+
+            ros2 = ros2 or Ros2Settings()
+            return Ros2McapSink(
+                path,
+                frame_id=ros2.frame_id,
+                transforms=ros2.transforms,
+                metadata=metadata,
+                exclusive=exclusive,
+            )
+        return McapSink(path, metadata=metadata, exclusive=exclusive)
+    except ConfigError as exc:
+        raise ConfigError(f"--record {exc}") from exc
+    except OSError as exc:
+        raise ConfigError(f"--record {path}: cannot write: {exc.strerror or exc}") from exc
+
+
+def _udp_sink(target: str) -> Sink:
+    from spiel_edge.outputs.udp import UdpSink
+
+    return UdpSink(target)
+
+
+def _foxglove_sink(bind: str, receivers_mm: Any) -> Sink:
+    from spiel_edge.outputs.foxglove import FoxgloveSink
+
+    return FoxgloveSink(bind, receivers_mm=receivers_mm)
+
+
+def _zenoh_sink(key: str, encoding: str = "json", ros2: Any = None) -> Sink:
+    if encoding == "cdr":
+        from spiel_edge.outputs.zenoh_ros2 import ZenohRos2Sink
+
+        return ZenohRos2Sink(key, ros2)
+    from spiel_edge.outputs.zenoh import ZenohSink
+
+    return ZenohSink(key)
