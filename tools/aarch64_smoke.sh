@@ -121,13 +121,13 @@ compare_positions() {
     local host_py=${SPIEL_HOST_PYTHON:-$REPO/.venv/bin/python}
     (cd "$REPO" && "$(dirname "$host_py")/spiel-edge" run --port "$url" --frames "$FRAMES" --rate 0 \
         -o "$WORK/host.ndjson")
-    "$host_py" -m tools.compare_ndjson_positions "$WORK/host.ndjson" "$ROOT/tmp/arm64.ndjson" \
+    "$host_py" -m tools.release.compare_ndjson_positions "$WORK/host.ndjson" "$ROOT/tmp/arm64.ndjson" \
         --tolerance-mm 0.01
     step "the same run again on arm64, warm: every kernel and numba's runtime from the cache"
     rm -f "$ROOT/tmp/arm64-warm.ndjson"
     in_root sh -c "cd /tmp && spiel-edge run --port '$url' --frames $FRAMES --rate 0 -o /tmp/arm64-warm.ndjson"
     find "$ROOT/opt/venv" -name 'spiel_edge-nrt-*.nbo' | grep -q . || die "no numba runtime cache file"
-    "$host_py" -m tools.compare_ndjson_positions "$WORK/host.ndjson" "$ROOT/tmp/arm64-warm.ndjson" \
+    "$host_py" -m tools.release.compare_ndjson_positions "$WORK/host.ndjson" "$ROOT/tmp/arm64-warm.ndjson" \
         --tolerance-mm 0.01
 }
 

@@ -93,7 +93,7 @@ def command(
 ) -> int:
     """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings.
 
-    FOLDER is a labelled spiel-csv folder, or a scene file (.npz from tools/build_scenes.py:
+    FOLDER is a labelled spiel-csv folder, or a scene file (.npz from tools/train/build_scenes.py:
     several targets, or frames without background) for the per-number-of-targets metrics.
     """
     pipeline = build_pipeline(

@@ -10,7 +10,7 @@ pair first, within MATCH_MM. Per number of true targets n:
   (Mahalanobis^2 <= 7.815); ``coverage_best`` the same for the best target of every
   acquisition with one true target, matched or not (the headline calibration figure).
 
-Scene file (``tools/build_scenes.py``): an ``.npz`` with ``frames`` (N, channels, samples),
+Scene file (``tools/train/build_scenes.py``): an ``.npz`` with ``frames`` (N, channels, samples),
 ``backgrounds`` (N, channels, samples; rows without a background are all NaN),
 ``truth_mm`` (N, max_targets, 3; NaN rows pad), ``names`` (N,) and ``split``.
 """

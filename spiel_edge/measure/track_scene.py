@@ -1,5 +1,5 @@
 """Tracking on the virtual board's moving targets: coverage, id switches, tracked vs
-per-acquisition error (``python -m tools.track_movers``).
+per-acquisition error (``python -m tools.bench.track_movers``).
 
 Per acquisition after ``warmup`` acquisitions, the true targets are matched one-to-one to the
 confirmed tracks (and, separately, to the acquisition's targets) by the least total distance,

@@ -1,6 +1,6 @@
 """Measure how much of a recording survives damage: flip one byte (or cut the file) at sampled
 offsets and count the acquisitions the reader still delivers intact. Used by the hostile
-test suite and ``python -m tools.mcap_damage``."""
+test suite and ``python -m tools.bench.mcap_damage``."""
 
 from __future__ import annotations
 

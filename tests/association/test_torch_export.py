@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
-ta = pytest.importorskip("tools.association_model")
+ta = pytest.importorskip("tools.train.association_model")
 
 
 @pytest.fixture(scope="module")

@@ -167,7 +167,7 @@ def test_scene_file_evaluate_and_max_targets_option(subset, tmp_path, capsys):
     import json
 
     from spiel_edge.cli import main
-    from tools.build_scenes import compose
+    from tools.train.build_scenes import compose
 
     frames, bgs = subset.frames.astype(float), subset.backgrounds.astype(float)
     a, b = 0, int(np.argmax(np.linalg.norm(subset.truth_mm - subset.truth_mm[0], axis=1)))

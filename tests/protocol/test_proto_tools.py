@@ -1,4 +1,4 @@
-"""Smoke tests of tools/fuzz_protocol.py and tools/bench_protocol.py (not timed)."""
+"""Smoke tests of tools/release/fuzz_protocol.py and tools/bench/bench_protocol.py (not timed)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The association model's Siamese MLP evaluated in numba (no onnxruntime in the hot path).
 
-The shipped graph (``tools/train_association.py``, exported by torch) is
+The shipped graph (``tools/train/train_association.py``, exported by torch) is
 
     Sub(mean) -> Div(std) -> Gemm -> Relu -> Gemm -> Relu -> Gemm -> Relu (embedding)
     -> Gemm -> Sigmoid (score)

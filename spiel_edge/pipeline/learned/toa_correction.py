@@ -6,7 +6,7 @@ ToA error in samples (refined ToA minus delay minus the true ToA) to subtract; t
 evaluated in numba (:mod:`spiel_edge.pipeline.learned.tree_ensemble`, checked against onnxruntime
 once per model file and then stored by its hash, :mod:`spiel_edge.pipeline.learned.verified_models`, so
 later loads do not import onnxruntime), else by onnxruntime. Model card:
-``spiel_edge/models/toa_correction.md``; trained by ``python -m tools.train_toa_correction``.
+``spiel_edge/models/toa_correction.md``; trained by ``python -m tools.train.train_toa_correction``.
 
 A missing, corrupt or mismatched model raises ModelError in :func:`load_correction`, which
 :func:`build_correction` turns into one warning and no correction. Rows with NaN features

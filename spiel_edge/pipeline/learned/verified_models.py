@@ -3,7 +3,7 @@
 A model the runtime evaluates in numba (the association MLP, :mod:`spiel_edge.pipeline.learned.mlp`)
 is read from its ONNX file and compared with onnxruntime on a probe batch the first time it is
 loaded (or at ``spiel-edge warmup`` / ``service install``, or at build time by
-``python -m tools.verify_models``). What agreed is stored as a small ``.npz`` holding the
+``python -m tools.release.verify_models``). What agreed is stored as a small ``.npz`` holding the
 weights, the metadata and the SHA-256 of the ONNX file. A later load whose file has the same
 hash reads the ``.npz`` and never imports onnxruntime (about 28 MiB and 0.1-0.2 s less per
 process, docs/performance.md); a changed or unknown file goes through onnxruntime again.

@@ -2,7 +2,7 @@
 
 The emitter's ring-down, the direct crosstalk and the board's mount are the same in every
 acquisition of one board; the per-sample median over many target-free captures (the training
-sessions' background captures, ``tools/build_static_model.py``) is largely exactly that, and
+sessions' background captures, ``tools/train/build_static_model.py``) is largely exactly that, and
 their median absolute deviation says how much it varies. ``[scene] static_model`` names the
 model (a file in ``spiel_edge/models`` or a path); the stand-in background is
 ``median + static_mad_factor * mad``. A captured background is always used instead when given.

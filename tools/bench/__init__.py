@@ -1,0 +1,1 @@
+"""Benchmarks and evidence: the figures docs/measurements.md and docs/performance.md quote."""

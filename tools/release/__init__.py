@@ -1,0 +1,1 @@
+"""Release checks: wheels, other Pythons and architectures, fuzzing, the shipped models' verification."""

@@ -1,0 +1,1 @@
+"""Studies and prototypes, measured and not part of the product (docs/history/)."""

@@ -1,0 +1,1 @@
+"""Tests of the research helpers: ``python -m pytest tools/research``."""
