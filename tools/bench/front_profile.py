@@ -2,7 +2,7 @@
 
     cd /tmp && PYTHONPATH=<worktree> python <worktree>/tools/front_profile.py
 
-(docs/experiments/front-speed.md; PYTHONPATH from a non-worktree cwd picks the tree to time).
+(docs/history/front-speed.md; PYTHONPATH from a non-worktree cwd picks the tree to time).
 """
 
 import time

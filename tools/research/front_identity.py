@@ -1,5 +1,5 @@
 """Dump every front-kernel output and fused Result for a fixed input set, or compare two dumps
-bit for bit (docs/experiments/front-speed.md).
+bit for bit (docs/history/front-speed.md).
 
     python tools/research/front_identity.py real REAL.npz [FOLDER]   # spiel-icra23 train_val + _bg
     python tools/research/front_identity.py dump OUT.pkl [REAL.npz]
