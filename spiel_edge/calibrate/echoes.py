@@ -18,8 +18,7 @@ import numpy as np
 from spiel_edge.calibrate.solve import Observations
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.staged import Pipeline
-from spiel_edge.pipeline.stages.echo_timing import EchoTiming
-from spiel_edge.pipeline.stages.echo_timing_setup import timing_delays
+from spiel_edge.pipeline.stages.echo_timing import EchoTiming, timing_delays
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.profile.schema import Profile
 

@@ -1,9 +1,5 @@
-"""Where records go: one Sink per destination, several at once through MultiSink.
-
-A Sink takes JSON-ready record dicts (see the README's record schema) and must be closed;
-raw acquisitions go to sinks that want them (recordings) through ``write_acquisition``.
-:func:`open_outputs` builds the MultiSink the command-line options ask for.
-"""
+"""Several outputs at once: :class:`MultiSink`, and :func:`open_outputs`, which builds the one
+the command-line options ask for (each output a :class:`~spiel_edge.outputs.sink.Sink`)."""
 
 from __future__ import annotations
 
@@ -11,22 +7,17 @@ import logging
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from spiel_edge.errors import ConfigError, OutputError
+from spiel_edge.outputs.sink import Sink
 
 log = logging.getLogger(__name__)
 
 
-class Sink(Protocol):
-    def write(self, record: dict) -> None: ...
-
-    def close(self) -> None: ...
-
-
-class MultiSink:
+class MultiSink(Sink):
     """Fan records out to several sinks; a failing sink is logged and dropped, not fatal,
     until none is left (OutputError). ``failed`` names the dropped ones (the command's exit
     status says some output failed). The reader of stdout going away (BrokenPipeError) is
@@ -35,6 +26,14 @@ class MultiSink:
     def __init__(self, sinks: list[Sink]):
         self.sinks = list(sinks)
         self.failed: list[str] = []
+
+    @property
+    def alive(self) -> bool:
+        return bool(self.sinks)
+
+    @property
+    def wants_acquisitions(self) -> bool:
+        return any(sink.wants_acquisitions for sink in self.sinks)
 
     def write(self, record: dict) -> None:
         for sink in list(self.sinks):
@@ -45,16 +44,15 @@ class MultiSink:
 
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
         for sink in list(self.sinks):
-            hook = getattr(sink, "write_acquisition", None)
-            if hook is None:
+            if not sink.wants_acquisitions:
                 continue
             try:
-                hook(acquisition, frames)
+                sink.write_acquisition(acquisition, frames)
             except OSError as exc:  # disk full, ...: stop recording, keep publishing
                 self._drop(sink, exc)
 
     def _drop(self, sink: Sink, exc: OSError) -> None:
-        if isinstance(exc, BrokenPipeError) and not getattr(sink, "owns_file", False):
+        if isinstance(exc, BrokenPipeError) and not sink.owns_file:
             raise exc
         name = type(sink).__name__
         log.error("output %s failed, dropping it: %s", name, exc)
@@ -68,7 +66,7 @@ class MultiSink:
         """Finalize the outputs that are files (recordings, NDJSON files); nothing that could
         block on a reader. Safe to call again, and from the signal watchdog."""
         for sink in list(self.sinks):
-            if getattr(sink, "owns_file", False):
+            if sink.owns_file:
                 try:
                     sink.close()
                 except OSError as exc:

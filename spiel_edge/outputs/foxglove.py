@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.outputs.scene_view import Trails, ellipsoid
+from spiel_edge.outputs.sink import Sink
 from spiel_edge.outputs.udp import parse_host_port
 from spiel_edge.recordings.mcap_writer import POSITION_SCHEMA
 
@@ -45,7 +46,7 @@ def _import_foxglove():
     return foxglove, messages
 
 
-class FoxgloveSink:
+class FoxgloveSink(Sink):
     """Serve records on a Foxglove WebSocket at ``[HOST:]PORT`` (port 0 picks a free one)."""
 
     def __init__(

@@ -8,9 +8,10 @@ from pathlib import Path
 from typing import TextIO
 
 from spiel_edge.io.guard import AtomicTextFile, open_exclusive
+from spiel_edge.outputs.sink import Sink
 
 
-class NdjsonSink:
+class NdjsonSink(Sink):
     """``exclusive``: the file must not exist yet (no --force); ``atomic``: written to a
     temporary file renamed into place on close (a failed or interrupted command leaves the
     target untouched, unless :meth:`commit` is called)."""

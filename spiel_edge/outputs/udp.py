@@ -13,6 +13,7 @@ import time
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import shorten
+from spiel_edge.outputs.sink import Sink
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +41,7 @@ def parse_host_port(
     return host, port
 
 
-class UdpSink:
+class UdpSink(Sink):
     """Send each record as one datagram to ``HOST:PORT`` (broadcast addresses allowed)."""
 
     def __init__(self, target: str, *, timeout_s: float = 0.05):

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.outputs.sink import Sink
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +68,7 @@ def open_publishers(keys: dict[str, str], encoding: str, config: Any = None):
     return session, publishers
 
 
-class ZenohSink:
+class ZenohSink(Sink):
     """Publish each record on ``key_expr`` (e.g. ``robots/r1/spiel/position``)."""
 
     def __init__(self, key_expr: str, config: Any = None):

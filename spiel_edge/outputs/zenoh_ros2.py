@@ -22,6 +22,7 @@ import time
 from typing import Any
 
 from spiel_edge.outputs.ros2 import Ros2Settings
+from spiel_edge.outputs.sink import Sink
 from spiel_edge.outputs.zenoh import open_publishers
 from spiel_edge.recordings.cdr import Ros2Encoder
 
@@ -62,7 +63,7 @@ class CdrMessages:
         return self.encoder.tf_message(self.transforms, time.time())
 
 
-class ZenohRos2Sink:
+class ZenohRos2Sink(Sink):
     """Publish CDR PointStamped and PointCloud2 under the key prefix ``key_expr``."""
 
     def __init__(self, key_expr: str, ros2: Ros2Settings | None = None, config: Any = None):

@@ -6,9 +6,9 @@ import logging
 
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline.compiled.fused import FusedPipeline
+from spiel_edge.pipeline.learned.toa_correction import build_echo_timing
 from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.pipeline.stages.associate import GeometricAssociator
-from spiel_edge.pipeline.stages.echo_timing_setup import build_echo_timing
 from spiel_edge.profile.schema import Profile
 
 log = logging.getLogger(__name__)

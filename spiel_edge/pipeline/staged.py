@@ -1,4 +1,7 @@
-"""The whole per-acquisition pipeline: frames in, one Result (position or reason) out."""
+"""The staged pipeline, the reference: frames in, one Result (position or reason) out, every
+stage a call of its own (``pipeline/stages/``). The compiled path (``pipeline/compiled/``) runs
+the same stages in one call and must agree with it bit for bit; it reads what it needs through
+:meth:`Pipeline.kernel_constants` and the public attributes below."""
 
 from __future__ import annotations
 
@@ -6,15 +9,16 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from spiel_edge.errors import InputError
+from spiel_edge.pipeline.learned.toa_correction import build_echo_timing
 from spiel_edge.pipeline.stages.associate import GeometricAssociator
 from spiel_edge.pipeline.stages.detect import detect
 from spiel_edge.pipeline.stages.echo_quality import echo_quality
-from spiel_edge.pipeline.stages.echo_timing import EchoTiming
-from spiel_edge.pipeline.stages.echo_timing_setup import build_echo_timing, timing_delays
+from spiel_edge.pipeline.stages.echo_timing import EchoTiming, timing_delays
 from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.stages.locate import locate
 from spiel_edge.pipeline.stages.memg import fit_memg
@@ -30,6 +34,17 @@ from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 log = logging.getLogger(__name__)
 
 Associator = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@runtime_checkable
+class CompiledForm(Protocol):
+    """A collaborator of the Pipeline (associator, echo timing, scene) the compiled path can
+    run: its constants by the names of ``pipeline/compiled/abi.py``, or None when this
+    instance needs the staged path."""
+
+    def kernel_constants(self) -> dict | None: ...
+
+
 # echo_timing runs per target inside locate; its time is reported apart from locate's
 STAGES = ("preprocess", "detect", "memg", "features", "associate", "echo_timing", "locate")
 
@@ -113,10 +128,11 @@ class Pipeline:
         self.static_model = load_static_model(profile)  # stands in for a missing background
         self.saturation = saturation  # full scale of the board's samples (u16 envelopes)
         g = profile.geometry
-        self._channels = np.ascontiguousarray(g.channels_mm, dtype=np.float64)
-        self._emitter = np.ascontiguousarray(g.emitter_mm, dtype=np.float64)
-        self._facing = np.ascontiguousarray(g.facing, dtype=np.float64)
-        self._delays = timing_delays(profile) if self.echo_timing.active else g.delays()
+        self.channels_mm = np.ascontiguousarray(g.channels_mm, dtype=np.float64)
+        self.emitter_mm = np.ascontiguousarray(g.emitter_mm, dtype=np.float64)
+        self.facing = np.ascontiguousarray(g.facing, dtype=np.float64)
+        # per-channel delays (samples) of the ToA the echo-timing step gives
+        self.delays = timing_delays(profile) if self.echo_timing.active else g.delays()
 
     def set_max_targets(self, k: int) -> None:
         """Report up to ``k`` targets per acquisition (1 .. MAX_TARGETS_LIMIT)."""
@@ -196,7 +212,7 @@ class Pipeline:
         hypotheses = self.scene(feats, counts)
         t5 = clock()
         self._clock, self._echo_timing_ns = clock, 0
-        result = self._locate(feats, counts, hypotheses, np.asarray(frames), background)
+        result = self.locate_hypotheses(feats, counts, hypotheses, np.asarray(frames), background)
         t6 = clock()
         if timed:
             stamps = (t0, t1, t2, t3, t4, t5, t5 + self._echo_timing_ns, t6)
@@ -204,7 +220,7 @@ class Pipeline:
             result.timings_us["end_to_end"] = (t6 - t0) / 1e3
         return result
 
-    def _locate(
+    def locate_hypotheses(
         self,
         feats: np.ndarray,
         counts: np.ndarray,
@@ -219,9 +235,7 @@ class Pipeline:
         targets = self._targets(feats, hypotheses, raw, background)
         if not targets:
             match_list = [int(m) if m >= 0 else None for m in first]
-            reason = (
-                REASON_SOLVE_FAILED if (first >= 0).sum() >= 3 else self._why_empty(raw, counts)
-            )
+            reason = REASON_SOLVE_FAILED if (first >= 0).sum() >= 3 else self.why_empty(raw, counts)
             return Result(None, reason, None, echoes, match_list, **base)
         best = targets[0]
         return Result(
@@ -232,13 +246,13 @@ class Pipeline:
         """Locate every hypothesis; share echoes where two targets sit at one range; drop
         double reflections and failed solves (docs/scene.md)."""
         sc, g = self.profile.scene, self.profile.geometry
-        paths_all = (feats[:, :, TOA_COLUMN] - self._delays[:, None]) * self.profile.mm_per_sample
+        paths_all = (feats[:, :, TOA_COLUMN] - self.delays[:, None]) * self.profile.mm_per_sample
         taken = np.zeros(paths_all.shape, dtype=np.bool_)
         for matched, _ in hypotheses:
             taken[np.flatnonzero(matched >= 0), matched[matched >= 0]] = True
         out: list[tuple[Target, np.ndarray]] = []
         for i, (matched, cost) in enumerate(hypotheses):
-            located = self._target(feats, matched, cost, raw, background)
+            located = self.locate_target(feats, matched, cost, raw, background)
             if located is None:
                 continue
             if i > 0 and (matched < 0).any():
@@ -247,13 +261,13 @@ class Pipeline:
                     located[0].position_mm,
                     paths_all,
                     taken,
-                    self._channels,
-                    self._emitter,
+                    self.channels_mm,
+                    self.emitter_mm,
                     g.listening_mask(),
                     sc.share_tolerance_mm,
                 )
                 if (more != matched).any():
-                    located = self._target(feats, more, cost, raw, background) or located
+                    located = self.locate_target(feats, more, cost, raw, background) or located
             target, paths = located
             if any(
                 distance3(target.position_mm, other.position_mm) < sc.min_separation_mm
@@ -265,8 +279,8 @@ class Pipeline:
                     paths,
                     other_paths,
                     other.position_mm,
-                    self._emitter,
-                    self._facing,
+                    self.emitter_mm,
+                    self.facing,
                     sc.double_tolerance_mm,
                 )
                 for other, other_paths in out
@@ -275,7 +289,9 @@ class Pipeline:
             out.append((target, paths))
         return [t for t, _ in out]
 
-    def _target(self, feats, matched, cost, raw, background) -> tuple[Target, np.ndarray] | None:
+    def locate_target(
+        self, feats, matched, cost, raw, background
+    ) -> tuple[Target, np.ndarray] | None:
         """One target from its matched echoes, re-timed by the echo-timing step, with its
         covariance; None when the solve fails."""
         use = matched >= 0
@@ -292,32 +308,73 @@ class Pipeline:
         )
         if self.echo_timing.active:  # the echo timing replaces echo quality's ToA shift
             shift = 0.0
-        paths = (picked + shift - self._delays) * self.profile.mm_per_sample
+        paths = (picked + shift - self.delays) * self.profile.mm_per_sample
         pos, rms, ok = locate(
-            paths, self._channels, self._emitter, self._facing, use, weights=weights
+            paths, self.channels_mm, self.emitter_mm, self.facing, use, weights=weights
         )
         if not ok:
             return None
         sigma_mm = self.profile.mm_per_sample / weights
         cov = np.empty((3, 3))  # arrays checked above: the kernel directly (hot path)
-        sc = self.profile.scene
-        captured = background is not None and background is not self.static_model
         _covariance_kernel(
             pos,
             paths,
             sigma_mm,
             use & np.isfinite(paths),
-            self._channels,
-            self._emitter,
-            sc.covariance_scale if captured else sc.covariance_scale_no_background,
-            sc.covariance_floor_mm,
+            self.channels_mm,
+            self.emitter_mm,
+            self.covariance_scale(background),
+            self.profile.scene.covariance_floor_mm,
             cov,
         )
         match_list = [int(m) if m >= 0 else None for m in matched]
         score = -cost if np.isfinite(cost) else 0.0
         return Target(pos, cov, rms, match_list, score), paths
 
-    def _why_empty(self, raw: np.ndarray, counts: np.ndarray) -> str:
+    def covariance_scale(self, background: np.ndarray | None) -> float:
+        """The covariance's scale for a captured background, or for none (the static model
+        standing in)."""
+        sc = self.profile.scene
+        captured = background is not None and background is not self.static_model
+        return float(sc.covariance_scale if captured else sc.covariance_scale_no_background)
+
+    def kernel_constants(self) -> dict | None:
+        """What the compiled path needs to run this pipeline's stages after the front ones,
+        by the names of its argument table (``pipeline/compiled/abi.py``): each
+        collaborator's own (associator, echo timing, scene: their ``kernel_constants``), then
+        the pipeline's geometry and settings. None when a collaborator has no compiled form;
+        then the staged path runs. A subclass that changes what a stage computes returns
+        None here (or from the collaborator's ``kernel_constants``)."""
+        parts = [self.associator, self.echo_timing, self.scene]
+        found = [p.kernel_constants() if isinstance(p, CompiledForm) else None for p in parts]
+        if any(f is None for f in found):
+            return None
+        loc, sc = self.profile.locate, self.profile.scene
+        quality = (
+            loc.toa_sigma_samples,
+            loc.toa_sigma_per_background,
+            loc.toa_sigma_alpha_counts,
+            loc.toa_shift_background_after,
+            loc.toa_shift_background_before,
+        )
+        listening = self.profile.geometry.listening_mask()
+        return {
+            **found[0],
+            **found[1],
+            **found[2],
+            "quality": np.array(quality),
+            "delays": self.delays,
+            "channels": self.channels_mm,
+            "emitter": self.emitter_mm,
+            "facing": self.facing,
+            "cov_floor": sc.covariance_floor_mm,
+            "share_tol": sc.share_tolerance_mm,
+            "min_separation": sc.min_separation_mm,
+            "double_tol": sc.double_tolerance_mm,
+            "share_listening": np.ascontiguousarray(listening, dtype=np.bool_),
+        }
+
+    def why_empty(self, raw: np.ndarray, counts: np.ndarray) -> str:
         if raw.size and np.mean(raw >= self.saturation) > 0.5:
             return REASON_SATURATED
         if raw.size and np.ptp(raw) == 0:

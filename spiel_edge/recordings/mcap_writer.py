@@ -31,6 +31,7 @@ from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
 from spiel_edge.io.guard import open_exclusive
+from spiel_edge.outputs.sink import Sink
 from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
 
 log = logging.getLogger(__name__)
@@ -106,7 +107,7 @@ POSITION_SCHEMA = {
 }
 
 
-class McapSink:
+class McapSink(Sink):
     """Record acquisitions and records to ``path`` (overwritten); always call close()."""
 
     def __init__(
@@ -136,6 +137,7 @@ class McapSink:
         self._background_chunk = -1
         self._lock = threading.RLock()  # close() may come from the signal watchdog
         self.owns_file = True
+        self.wants_acquisitions = True
         self._since_background = 0
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}

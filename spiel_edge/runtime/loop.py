@@ -166,7 +166,7 @@ class LiveRunner:
             self.handle(acq)
             if frames is not None and self.stats.records >= frames:
                 break
-            if getattr(self.sink, "sinks", None) == []:  # a MultiSink whose outputs all failed
+            if not self.sink.alive:  # a fan-out whose outputs all failed
                 log.error("every output failed; stopping")
                 break
             if status is not None and time.monotonic() >= next_status:
@@ -177,9 +177,8 @@ class LiveRunner:
 
     def handle(self, acq: LiveAcquisition) -> dict:
         record = self.record(acq)
-        raw = getattr(self.sink, "write_acquisition", None)
-        if raw is not None:  # recordings keep the raw samples and the background used
-            raw(self._acquisition_meta(acq, record), acq.samples)
+        if self.sink.wants_acquisitions:  # recordings keep the raw samples and the background
+            self.sink.write_acquisition(self._acquisition_meta(acq, record), acq.samples)
         self.sink.write(record)
         if self.on_record is not None:
             self.on_record()

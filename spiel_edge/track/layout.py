@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from spiel_edge._abi import Field, Table
 from spiel_edge._jit import jit
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
@@ -38,8 +39,8 @@ def state_views(floats: np.ndarray, ints: np.ndarray):
     """(x (cap, 6), P (cap, 6, 6), meta (5, cap), counters (3,)): views of :func:`allocate`'s
     arrays."""
     cap = int(ints[_I_COUNTS + CAP])
-    x = floats[: SLOTS * 6].reshape(SLOTS, 6)[:cap]
-    p = floats[SLOTS * 6 : _F_MODELS].reshape(SLOTS, 6, 6)[:cap]
+    x = floats[:_F_P].reshape(SLOTS, 6)[:cap]
+    p = floats[_F_P:_F_MODELS].reshape(SLOTS, 6, 6)[:cap]
     meta = ints[_I_META:_I_COUNTS].reshape(5, SLOTS)[:, :cap]
     return x, p, meta, ints[_I_COUNTS:_I_SCRATCH]
 
@@ -47,40 +48,79 @@ def state_views(floats: np.ndarray, ints: np.ndarray):
 def model_views(floats: np.ndarray, cap: int):
     """(xm (cap, 2, 6), pm (cap, 2, 6, 6), mu (cap, 2)): the IMM's model states (imm.py),
     meaningful while the IMM is on (``step._imm_on``)."""
-    xm = floats[_F_MODELS : _F_MODELS + SLOTS * 12].reshape(SLOTS, 2, 6)[:cap]
-    pm = floats[_F_MODELS + SLOTS * 12 : _F_MU].reshape(SLOTS, 2, 6, 6)[:cap]
+    xm = floats[_F_MODELS:_F_PM].reshape(SLOTS, 2, 6)[:cap]
+    pm = floats[_F_PM:_F_MU].reshape(SLOTS, 2, 6, 6)[:cap]
     return xm, pm, floats[_F_MU:_F_PARAMS].reshape(SLOTS, 2)[:cap]
 
 
 SNAPSHOT = 6 + 36  # columns of a snapshot row
 N_PARAMS = 11  # see Tracker: the CV filter's 8, then static_q2, switch, static share at birth
+SLOTS = 64  # at most SLOTS tracks and SLOTS targets
+_N = SLOTS + 1  # the Hungarian's size
 
-# the scratch layout: at most SLOTS tracks and SLOTS targets, N = SLOTS + 1 for the Hungarian
-SLOTS = 64
-_N = SLOTS + 1
-_COST, _R, _WORK, _MIX = SLOTS * SLOTS, SLOTS * 9, 6 * 15, 2 * 42
-_SNAP = _COST + _R + _WORK + 3 * _N + _MIX  # the snapshot's rows
-_Z = _SNAP + SLOTS * SNAPSHOT  # the targets' positions and covariances (last)
-_FLOATS = _Z + SLOTS * 12
-_META = 3 * SLOTS + 3 * _N  # the snapshot's ids, ages, hits, misses
-_INTS = _META + 4 * SLOTS
-_BOOLS = 3 * SLOTS + _N
-# the state before the scratch: x, P (the track's estimate), the IMM's model states and
-# probabilities, the parameters; meta, the counters
-_F_MODELS = SLOTS * 42
-_F_MU = _F_MODELS + SLOTS * 84
-_F_PARAMS = _F_MU + SLOTS * 2
-_F_SCRATCH = _F_PARAMS + N_PARAMS
-_I_META, _I_COUNTS, _I_SCRATCH = 0, 5 * SLOTS, 5 * SLOTS + 3
+_F, _I, _B = np.float64, np.int64, np.bool_
+# the state, first in each array (the scheme of spiel_edge._abi, as the compiled pipeline's)
+STATE = Table(
+    (
+        Field("x", _F, (SLOTS, 6)),  # each slot's estimate
+        Field("p", _F, (SLOTS, 6, 6)),
+        Field("xm", _F, (SLOTS, 2, 6)),  # the IMM's model states and probabilities
+        Field("pm", _F, (SLOTS, 2, 6, 6)),
+        Field("mu", _F, (SLOTS, 2)),
+        Field("params", _F, (N_PARAMS,)),
+        Field("meta", _I, (5, SLOTS)),  # status, id, age, hits, misses
+        Field("counters", _I, (3,)),
+    ),
+    (_F, _I, _B),
+)
+# the step's scratch, after the state
+SCRATCH = Table(
+    (
+        Field("cost", _F, (SLOTS, SLOTS)),  # gating costs
+        Field("r", _F, (SLOTS, 3, 3)),  # measurement noise
+        Field("work", _F, (6, 15)),
+        Field("fwork", _F, (3, _N)),
+        Field("mix_x", _F, (2, 6)),  # the IMM's mixing
+        Field("mix_p", _F, (2, 6, 6)),
+        Field("snapshot", _F, (SLOTS, SNAPSHOT)),  # the confirmed tracks
+        Field("z", _F, (SLOTS, 3)),  # the targets, written in by the Tracker (last)
+        Field("zr", _F, (SLOTS, 3, 3)),
+        Field("slots", _I, (SLOTS,)),
+        Field("chosen", _I, (SLOTS,)),
+        Field("target_slot", _I, (SLOTS,)),
+        Field("owner", _I, (_N,)),
+        Field("way", _I, (_N,)),
+        Field("cols", _I, (_N,)),
+        Field("snap_meta", _I, (4, SLOTS)),  # the snapshot's ids, ages, hits, misses
+        Field("usable", _B, (SLOTS,)),
+        Field("near", _B, (SLOTS,)),
+        Field("scratch", _B, (SLOTS,)),
+        Field("used", _B, (_N,)),
+    ),
+    (_F, _I, _B),
+)
+# where each part starts: in the whole arrays (_F_*, _I_*), in the scratch (the rest)
+_F_P, _F_MODELS, _F_PM = STATE.offset("p"), STATE.offset("xm"), STATE.offset("pm")
+_F_MU, _F_PARAMS = STATE.offset("mu"), STATE.offset("params")
+_F_SCRATCH = STATE.total(_F)
+_I_META, _I_COUNTS, _I_SCRATCH = STATE.offset("meta"), STATE.offset("counters"), STATE.total(_I)
+_R, _WORK, _FWORK = SCRATCH.offset("r"), SCRATCH.offset("work"), SCRATCH.offset("fwork")
+_MIX_X, _MIX_P = SCRATCH.offset("mix_x"), SCRATCH.offset("mix_p")
+_SNAP, _Z, _ZR = SCRATCH.offset("snapshot"), SCRATCH.offset("z"), SCRATCH.offset("zr")
+_CHOSEN, _TARGET_SLOT = SCRATCH.offset("chosen"), SCRATCH.offset("target_slot")
+_OWNER, _WAY, _COLS = SCRATCH.offset("owner"), SCRATCH.offset("way"), SCRATCH.offset("cols")
+_META = SCRATCH.offset("snap_meta")
+_NEAR, _SCRATCH, _USED = SCRATCH.offset("near"), SCRATCH.offset("scratch"), SCRATCH.offset("used")
+_FLOATS, _INTS, _BOOLS = SCRATCH.total(_F), SCRATCH.total(_I), SCRATCH.total(_B)
 
 
 @jit(inline="always")
 def _unpack(floats, ints, bools):
     cap = ints[_I_COUNTS + CAP]
-    x = floats[: SLOTS * 6].reshape((SLOTS, 6))[:cap]
-    p = floats[SLOTS * 6 : _F_MODELS].reshape((SLOTS, 6, 6))[:cap]
-    xm = floats[_F_MODELS : _F_MODELS + SLOTS * 12].reshape((SLOTS, 2, 6))[:cap]
-    pm = floats[_F_MODELS + SLOTS * 12 : _F_MU].reshape((SLOTS, 2, 6, 6))[:cap]
+    x = floats[:_F_P].reshape((SLOTS, 6))[:cap]
+    p = floats[_F_P:_F_MODELS].reshape((SLOTS, 6, 6))[:cap]
+    xm = floats[_F_MODELS:_F_PM].reshape((SLOTS, 2, 6))[:cap]
+    pm = floats[_F_PM:_F_MU].reshape((SLOTS, 2, 6, 6))[:cap]
     mu = floats[_F_MU:_F_PARAMS].reshape((SLOTS, 2))[:cap]
     params = floats[_F_PARAMS:_F_SCRATCH]
     meta = ints[_I_META:_I_COUNTS].reshape((5, SLOTS))[:, :cap]
@@ -91,37 +131,30 @@ def _unpack(floats, ints, bools):
 
 @jit(inline="always")
 def _views(wf, wi, wb, m):
-    r = wf[_COST : _COST + _R].reshape((SLOTS, 3, 3))[:m]
-    at = _COST + _R
-    work = wf[at : at + _WORK].reshape((6, 15))
-    at += _WORK
-    fwork = wf[at : at + 3 * _N].reshape((3, _N))
-    at += 3 * _N
-    mixing = (wf[at : at + 12].reshape((2, 6)), wf[at + 12 : at + _MIX].reshape((2, 6, 6)))
-    cost = wf[:_COST].reshape((SLOTS, SLOTS))
-    slots, chosen, target_slot = wi[:SLOTS], wi[SLOTS : 2 * SLOTS], wi[2 * SLOTS : 3 * SLOTS]
-    owner, way, cols = (
-        wi[3 * SLOTS : 3 * SLOTS + _N],
-        wi[3 * SLOTS + _N : 3 * SLOTS + 2 * _N],
-        wi[3 * SLOTS + 2 * _N :],
-    )
-    usable, near, scratch = wb[:SLOTS], wb[SLOTS : 2 * SLOTS], wb[2 * SLOTS : 3 * SLOTS]
-    used = wb[3 * SLOTS :]
+    """The step's scratch (``wf``, ``wi``, ``wb``: the arrays from _F_SCRATCH, _I_SCRATCH, 0)
+    as SCRATCH lays it out."""
+    r = wf[_R:_WORK].reshape((SLOTS, 3, 3))[:m]
+    work = wf[_WORK:_FWORK].reshape((6, 15))
+    fwork = wf[_FWORK:_MIX_X].reshape((3, _N))
+    mixing = (wf[_MIX_X:_MIX_P].reshape((2, 6)), wf[_MIX_P:_SNAP].reshape((2, 6, 6)))
+    cost = wf[:_R].reshape((SLOTS, SLOTS))
+    slots, chosen, target_slot = wi[:_CHOSEN], wi[_CHOSEN:_TARGET_SLOT], wi[_TARGET_SLOT:_OWNER]
+    owner, way, cols = wi[_OWNER:_WAY], wi[_WAY:_COLS], wi[_COLS:]
+    usable, near, scratch = wb[:_NEAR], wb[_NEAR:_SCRATCH], wb[_SCRATCH:_USED]
+    used = wb[_USED:]
     views = (cost, slots, chosen, fwork, owner, way, cols, used)
     return r, work, mixing, target_slot, usable, near, scratch, views
 
 
 @jit(inline="always")
 def _measurement_buffers(floats):
-    at = _F_SCRATCH + _Z
-    z = floats[at : at + SLOTS * 3].reshape((SLOTS, 3))
-    return z, floats[at + SLOTS * 3 : at + SLOTS * 12].reshape((SLOTS, 3, 3))
+    z = floats[_F_SCRATCH + _Z : _F_SCRATCH + _ZR].reshape((SLOTS, 3))
+    return z, floats[_F_SCRATCH + _ZR : _F_SCRATCH + _FLOATS].reshape((SLOTS, 3, 3))
 
 
 @jit(inline="always")
 def _snapshot_buffer(floats):
-    at = _F_SCRATCH + _SNAP
-    return floats[at : at + SLOTS * SNAPSHOT].reshape((SLOTS, SNAPSHOT))
+    return floats[_F_SCRATCH + _SNAP : _F_SCRATCH + _Z].reshape((SLOTS, SNAPSHOT))
 
 
 def snapshot_rows(floats: np.ndarray, rows: int) -> np.ndarray:
@@ -134,14 +167,13 @@ def snapshot_rows(floats: np.ndarray, rows: int) -> np.ndarray:
 def measurement_views(floats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(z (SLOTS, 3), r (SLOTS, 3, 3)): views of :func:`allocate`'s float array where
     :func:`_step_buffered` reads the targets' positions and covariances."""
-    at = _F_SCRATCH + _Z
-    z = floats[at : at + SLOTS * 3].reshape(SLOTS, 3)
-    return z, floats[at + SLOTS * 3 : at + SLOTS * 12].reshape(SLOTS, 3, 3)
+    z = floats[_F_SCRATCH + _Z : _F_SCRATCH + _ZR].reshape(SLOTS, 3)
+    return z, floats[_F_SCRATCH + _ZR : _F_SCRATCH + _FLOATS].reshape(SLOTS, 3, 3)
 
 
 def target_ids(ints: np.ndarray, m: int) -> list[int]:
     """After :func:`_step` with ``m`` targets: per target its confirmed track's id or -1."""
-    at = _I_SCRATCH + 2 * SLOTS
+    at = _I_SCRATCH + _TARGET_SLOT
     return ints[at : at + m].tolist()
 
 

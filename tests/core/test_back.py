@@ -1,4 +1,4 @@
-"""The back kernel (pipeline/compiled/one_target.py) gives the staged Result bit for bit; the association MLP
+"""The one-target kernel (pipeline/compiled/one_target.py) gives the staged Result bit for bit; the association MLP
 in numba agrees with onnxruntime; verified weights load without onnxruntime."""
 
 import dataclasses
@@ -12,9 +12,7 @@ import pytest
 from onnx import helper
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.compiled import one_target as back
-from spiel_edge.pipeline.compiled import several_targets as back_scene
-from spiel_edge.pipeline.compiled import steps as back_steps
+from spiel_edge.pipeline.compiled import abi
 from spiel_edge.pipeline.compiled.fused import FusedPipeline
 from spiel_edge.pipeline.learned import mlp, verified_models
 from spiel_edge.pipeline.learned.associate_onnx import (
@@ -36,9 +34,9 @@ def _same_on(staged: Pipeline, frames, backgrounds, prior: int | None = None) ->
         result = fast.process(f, b)
         assert_same(result, staged.process(f, b))
         located += result.position_mm is not None
-    assert fast._back_config is not None, "the back kernel was not used"
+    assert fast.kernel == "one_target", "the compiled path was not used"
     if prior is not None:
-        assert fast._back_config[0][back_steps.I_PRIOR] == prior
+        assert fast.config.ints[abi.I_PRIOR] == prior
     return located
 
 
@@ -46,19 +44,22 @@ def test_back_kernel_with_the_numba_mlp_equals_staged(profile, subset):
     assoc = OnnxAssociator(profile)
     assert assoc.engine == "numba"
     staged = Pipeline(profile, assoc)
-    located = _same_on(staged, subset.frames, subset.backgrounds, back_steps.PRIOR_MLP)
+    located = _same_on(staged, subset.frames, subset.backgrounds, abi.PRIOR_MLP)
     assert located > 0.9 * len(subset.frames)
 
 
-def test_back_kernel_with_onnxruntime_between_the_kernels(profile, subset):
+def test_a_model_in_onnxruntime_runs_the_staged_path_whole(profile, subset):
     assoc = OnnxAssociator(profile)
     assoc.mlp, assoc.engine, assoc.session = None, "onnxruntime", load_session(assoc.model_path)
     staged = Pipeline(profile, assoc)
-    _same_on(staged, subset.frames[:40], subset.backgrounds[:40], back_steps.PRIOR_GIVEN)
+    fast = FusedPipeline(staged)
+    for f, b in zip(subset.frames[:10], subset.backgrounds[:10], strict=True):
+        assert_same(fast.process(f, b), staged.process(f, b))
+    assert fast.kernel is None
     bad = subset.frames[0].copy()
     bad[2, 5] = np.inf
     with pytest.raises(InputError, match="frames contains NaN or infinite"):
-        FusedPipeline(staged).process(bad, subset.backgrounds[0])
+        fast.process(bad, subset.backgrounds[0])
 
 
 @pytest.mark.parametrize("estimator", ["log_parabola", "none"])
@@ -79,7 +80,7 @@ def test_back_kernel_hypothesis_search_equals_staged(rng):
         backgrounds.append(b)
     frames.append(np.zeros((8, 256)))  # nothing to find: the reason, as staged
     backgrounds.append(np.zeros((8, 256)))
-    _same_on(Pipeline(prof), frames, backgrounds, back_steps.PRIOR_NONE)
+    _same_on(Pipeline(prof), frames, backgrounds, abi.PRIOR_NONE)
 
 
 def test_several_targets_use_the_scene_kernel_greedy_keeps_the_staged_steps(profile, subset):
@@ -87,16 +88,16 @@ def test_several_targets_use_the_scene_kernel_greedy_keeps_the_staged_steps(prof
     fast = FusedPipeline(staged)
     for f, b in zip(subset.frames[:20], subset.backgrounds[:20], strict=True):
         assert_same(fast.process(f, b), staged.process(f, b))
-    assert fast._back_config is not None and fast._run_back is back_scene.run_scene
+    assert fast.kernel == "several_targets"
     staged.set_max_targets(1)  # a new scene: the one-target kernel
     fast.process(subset.frames[0], subset.backgrounds[0])
-    assert fast._back_config is not None and fast._run_back is back.run_back
+    assert fast.kernel == "one_target"
     greedy = profile.replace(scene=dataclasses.replace(profile.scene, selection="greedy"))
     staged = Pipeline(greedy, max_targets=3)
     fast = FusedPipeline(staged)
     for f, b in zip(subset.frames[:20], subset.backgrounds[:20], strict=True):
         assert_same(fast.process(f, b), staged.process(f, b))
-    assert fast._back_config is None
+    assert fast.kernel is None
 
 
 def test_numba_mlp_matches_onnxruntime(profile, subset):

@@ -105,29 +105,45 @@ def test_fixed_order_sums_equal_numpy_sums(rng):
 
 
 @pytest.mark.parametrize("association", ["geometric", "onnx"])
-def test_packed_config_holds_every_argument_exactly(profile, association):
-    """scene_config packs the kernel's constants into four buffers by dtype; the kernel's
-    views (_v1 / _v2 with _scene_kernel's slot numbers) give each array back with its
-    dtype, shape and bits; an array of another dtype turns the kernel off (staged steps)."""
-    from spiel_edge.pipeline.compiled import scene_steps as packing
-    from spiel_edge.pipeline.compiled import several_targets as kernel
+@pytest.mark.parametrize("k", [1, 4])
+def test_packed_config_holds_every_constant_exactly(profile, association, k):
+    """kernel_config packs the pipeline's constants into four buffers by dtype; the kernels'
+    views (_v1 / _v2 with the table's slot numbers) give each array back with its dtype,
+    shape and bits; an array of another dtype turns the kernel off (the staged path)."""
+    from spiel_edge.pipeline.compiled import abi
     from spiel_edge.pipeline.factory import build_pipeline
 
     pipeline = build_pipeline(profile, association, fused=False)
-    pipeline.set_max_targets(4)
-    args = kernel.scene_arguments(pipeline)
-    config = kernel.scene_config(pipeline)
-    assert args is not None and config is not None and len(args) == len(packing._SLOTS) + 1
-    ints, f64, f32, i64, flags, layout = config
-    assert ints.dtype == np.int64 and ints.tobytes() == args[0].tobytes()
-    buffers = (f64, f32, i64, flags)
-    for slot, want in enumerate(args[1:]):
-        want = np.asarray(want)
-        buf = buffers[packing._KINDS[slot]]
-        got = packing._v2(buf, layout, slot) if want.ndim == 2 else packing._v1(buf, layout, slot)
-        assert got.dtype == want.dtype, packing._SLOTS[slot]
-        assert got.size == want.size and got.tobytes() == want.tobytes(), packing._SLOTS[slot]
-        assert got.shape == (want.shape or (1,)), packing._SLOTS[slot]
-    wrong = list(args)
-    wrong[1 + packing._SLOTS.index("w0")] = np.zeros((2, 2))  # float64 weights
-    assert packing.pack_config(tuple(wrong)) is None
+    pipeline.set_max_targets(k)
+    values = pipeline.kernel_constants()
+    config = abi.kernel_config(pipeline)
+    assert values is not None and config is not None
+    assert config.ints.dtype == np.int64
+    assert config.ints.tolist() == [
+        abi.PRIORS.index(values[n]) if n == "prior" else
+        abi.TIMINGS.index(values[n]) if n == "timing" else int(values[n])
+        for n in abi.INTS
+    ]  # fmt: skip
+    buffers = (config.f64, config.f32, config.i64, config.flags)
+    for field in abi.CONSTANTS.fields:
+        slot = abi.CONSTANTS.slot(field.name)
+        buf = buffers[abi.CONSTANTS.buffer_of(field.name)]
+        got = (
+            abi._v2(buf, config.layout, slot)
+            if len(field.dims) == 2
+            else abi._v1(buf, config.layout, slot)
+        )
+        if field.name == "share_listening" and k == 1:
+            assert got.size == 0  # the scene's constants are empty for one target
+        elif field.name in values:
+            want = np.asarray(values[field.name])
+            assert got.dtype == want.dtype, field.name
+            assert got.size == want.size and got.tobytes() == want.tobytes(), field.name
+            assert got.shape == (want.shape or (1,)), field.name
+    floats = abi._v1(config.f64, config.layout, abi.L_FLOATS)
+    assert floats.tolist() == [values[n] for n in abi.FLOATS]
+    scene = abi._v1(config.f64, config.layout, abi.L_SCENE_FLOATS)
+    assert scene.tolist() == ([values[n] for n in abi.SCENE_FLOATS] if k > 1 else [])
+    wrong = dict(values, w0=np.zeros((2, 2)))  # float64 weights
+    pipeline.kernel_constants = lambda: wrong
+    assert abi.kernel_config(pipeline) is None

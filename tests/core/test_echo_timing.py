@@ -10,9 +10,9 @@ from spiel_edge.pipeline.stages.echo_timing import (
     clean_envelope,
     n_toa_features,
     refine_toa,
+    timing_delays,
     toa_features,
 )
-from spiel_edge.pipeline.stages.echo_timing_setup import timing_delays
 from tests.core import naive
 
 

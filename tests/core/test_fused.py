@@ -8,8 +8,6 @@ import pytest
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline import staged as run
 from spiel_edge.pipeline.compiled import fused
-from spiel_edge.pipeline.compiled import several_targets as back_scene
-from spiel_edge.pipeline.compiled import steps as back_steps
 from spiel_edge.pipeline.compiled.fused import FusedPipeline, unsupported_stages
 from spiel_edge.pipeline.learned.associate_onnx import OnnxAssociator, load_session
 from spiel_edge.pipeline.staged import Pipeline
@@ -75,7 +73,7 @@ def test_fused_equals_staged_with_the_merged_echo_split(profile, subset, rng):
         assert_same(FusedPipeline(Pipeline(prof)).process(f, b), Pipeline(prof).process(f, b))
 
 
-@pytest.mark.parametrize("max_targets", [1, 4])  # one call: back.py's or back_scene.py's
+@pytest.mark.parametrize("max_targets", [1, 4])  # one call: one_target's or several_targets'
 def test_fused_validates_like_staged(profile, subset, max_targets):
     staged = Pipeline(profile, max_targets=max_targets)
     fast = FusedPipeline(staged)
@@ -93,7 +91,7 @@ def test_fused_validates_like_staged(profile, subset, max_targets):
         with pytest.raises(InputError, match=match):
             staged.process(*args)
         assert_same(fast.process(f, b), staged.process(f, b))  # nothing left behind
-    assert fast._back_config is not None
+    assert fast.kernel is not None
 
 
 def test_unknown_stage_or_subclass_falls_back_to_staged(profile, subset, monkeypatch):
@@ -108,13 +106,19 @@ def test_unknown_stage_or_subclass_falls_back_to_staged(profile, subset, monkeyp
     assert fast.fallback == ["Extra.process"]
     fast.process(subset.frames[0], subset.backgrounds[0])
     assert calls == [1]
+
+    class OwnTarget(Pipeline):
+        def locate_target(self, *args):
+            return super().locate_target(*args)
+
+    assert FusedPipeline(OwnTarget(profile)).fallback == ["OwnTarget.locate_target"]
     monkeypatch.setattr(run, "STAGES", (*run.STAGES[:5], "timing", "locate"))
     assert unsupported_stages(Pipeline(profile)) == ["timing"]  # a step fused.py lacks
     staged = Pipeline(profile)
     seen = []
     monkeypatch.setattr(staged, "process", lambda *a, **k: seen.append(1) or "staged")
     assert FusedPipeline(staged).process(subset.frames[0]) == "staged" and seen == [1]
-    monkeypatch.setitem(fused.BACK_STEPS, "timing", lambda pipeline, state: None)
+    monkeypatch.setattr(fused, "COMPILED_STAGES", run.STAGES)
     assert unsupported_stages(Pipeline(profile)) == []
 
 
@@ -140,7 +144,7 @@ def _several_same(staged: Pipeline, frames, backgrounds) -> int:
             assert_same(a, s)
             assert_same_targets(a, s)
             several += len(a.targets) > 1
-    assert fast._back_config is not None and fast._run_back is back_scene.run_scene
+    assert fast.kernel == "several_targets"
     return several
 
 
@@ -154,8 +158,8 @@ def test_fused_equals_staged_with_several_targets(profile, subset, k, associatio
 
 def test_fused_equals_staged_with_several_targets_and_other_scene_settings(profile, subset):
     """No K = 1 pick kept first, a dearer birth, wide share / double / separation tolerances
-    (shared echoes and double reflections are frequent here), and the prior computed by
-    onnxruntime between the two kernels."""
+    (shared echoes and double reflections are frequent here), and the model in onnxruntime
+    (then the staged path runs whole)."""
     scene = dataclasses.replace(
         profile.scene,
         keep_best=False,
@@ -169,8 +173,10 @@ def test_fused_equals_staged_with_several_targets_and_other_scene_settings(profi
     assoc = OnnxAssociator(prof)
     assoc.mlp, assoc.engine, assoc.session = None, "onnxruntime", load_session(assoc.model_path)
     staged = Pipeline(prof, assoc, max_targets=3)
-    _several_same(staged, subset.frames[:60], subset.backgrounds[:60])
-    assert FusedPipeline(staged)._kernel_config()[0][back_steps.I_PRIOR] == back_steps.PRIOR_GIVEN
+    fast = FusedPipeline(staged)  # the model in onnxruntime: the staged path whole
+    for f, b in zip(subset.frames[:20], subset.backgrounds[:20], strict=True):
+        assert_same_targets(fast.process(f, b), staged.process(f, b))
+    assert fast.kernel is None
 
 
 def test_fused_equals_staged_with_several_synthetic_targets(rng):

@@ -10,11 +10,14 @@ import pytest
 from spiel_edge.errors import ConfigError
 from spiel_edge.outputs import MultiSink, open_outputs, recording_path
 from spiel_edge.outputs.ndjson import NdjsonSink
+from spiel_edge.outputs.sink import Sink
 from spiel_edge.outputs.udp import UdpSink
 from spiel_edge.recordings.mcap_writer import McapSink
 
 
-class Collect:
+class Collect(Sink):
+    wants_acquisitions = True
+
     def __init__(self, fail_with: Exception | None = None):
         self.records, self.acquisitions, self.closed, self.fail_with = [], [], 0, fail_with
 
@@ -32,15 +35,12 @@ class Collect:
         self.closed += 1
 
 
-class RecordsOnly:
+class RecordsOnly(Sink):  # the other hooks: Sink's no-ops
     def __init__(self):
         self.records = []
 
     def write(self, record):
         self.records.append(record)
-
-    def close(self):
-        pass
 
 
 def test_multisink_fans_out_and_drops_a_failing_sink():
@@ -53,8 +53,10 @@ def test_multisink_fans_out_and_drops_a_failing_sink():
     assert [r["seq"] for r in good.records] == [0, 1] == [r["seq"] for r in plain.records]
     assert good.acquisitions[0][1] is frames
     assert bad not in sink.sinks and bad.closed == 1  # dropped and closed at the first failure
+    assert sink.wants_acquisitions and sink.alive
     sink.close()
     assert good.closed == 1
+    assert not MultiSink([RecordsOnly()]).wants_acquisitions
 
 
 def test_ndjson_file_one_line_per_record(tmp_path):

@@ -8,8 +8,17 @@ from spiel_edge.service import kit
 
 def test_one_kernel_finder_sees_the_fused_and_staged_kernels():
     names = set(warmup.pipeline_kernels())
-    kernels = ("front._front_kernel", "memg._memg_kernel", "split._split_kernel")
-    for kernel in (*kernels, "associate._hypothesis_kernel", "back_scene._scene_kernel"):
+    kernels = (
+        "compiled.front._front_kernel",
+        "stages.memg._memg_kernel",
+        "stages.split._split_kernel",
+    )
+    for kernel in (
+        *kernels,
+        "stages.associate._hypothesis_kernel",
+        "compiled.several_targets._scene_acquisition_kernel",
+        "learned.mlp.mlp_scores",
+    ):
         assert f"spiel_edge.pipeline.{kernel}" in names
 
 

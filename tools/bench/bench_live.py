@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from spiel_edge.device import DeviceSession
+from spiel_edge.outputs.sink import Sink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.runtime.loop import LiveRunner, warm_up
@@ -37,12 +38,9 @@ CLI = [
 ]
 
 
-class NullSink:
+class NullSink(Sink):
     def write(self, record: dict) -> None:
         json.dumps(record, separators=(",", ":"))  # the cost of an NDJSON line, without the I/O
-
-    def close(self) -> None:
-        pass
 
 
 def pty_run(pipeline, n: int, rate: float) -> dict:

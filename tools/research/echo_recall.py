@@ -90,7 +90,7 @@ def collect(pipe: Pipeline, scenes: dict) -> list:
             pipe, frames.astype(np.float64), None if np.isnan(bg).all() else bg
         )
         out.append(
-            (len(truths), ideal_toa(paths, mmps, pipe._delays), toa, counts, peaks, str(name))
+            (len(truths), ideal_toa(paths, mmps, pipe.delays), toa, counts, peaks, str(name))
         )
     return out
 

@@ -71,7 +71,7 @@ def collect(data: Path, profile: Profile) -> dict[str, np.ndarray]:
     out = {k: np.array(v) for k, v in rows.items()}
     _, val = split_by_position(names)
     out["is_val"] = np.array([tuple(xy) in val for xy in out["xy"]])
-    out["delays"] = pipe._delays
+    out["delays"] = pipe.delays
     return out
 
 

@@ -293,7 +293,7 @@ def position_error(profile: Profile, s: Sample, matched: np.ndarray) -> float:
         return float("nan")
     if s.frames is not None:
         pipe = _final_stages(profile)
-        located = pipe._target(s.features, matched, 0.0, s.frames, s.background)
+        located = pipe.locate_target(s.features, matched, 0.0, s.frames, s.background)
         return (
             float("nan")
             if located is None

@@ -141,7 +141,7 @@ def locate_errors(profile: Profile, cases: list[Case], toa_of, echo_timing_on: b
     out = np.full(len(cases), np.nan)
     for i, c in enumerate(cases):
         given.toa = toa_of(c)
-        located = pipe._target(c.feats, c.matched, 0.0, c.frames, c.background)
+        located = pipe.locate_target(c.feats, c.matched, 0.0, c.frames, c.background)
         if located is not None:
             out[i] = float(np.linalg.norm(located[0].position_mm - c.truth_mm))
     return out

@@ -33,8 +33,8 @@ def cache_front(pipeline, scenes) -> list:
         captured.update(feats=feats, counts=counts, raw=raw, background=background)
         return original(feats, counts, hyps, raw, background)
 
-    original = pipeline._locate
-    pipeline._locate = capture
+    original = pipeline.locate_hypotheses
+    pipeline.locate_hypotheses = capture
     try:
         for frames, bg, truth in zip(
             scenes["frames"], scenes["backgrounds"], scenes["truth_mm"], strict=True
@@ -45,7 +45,7 @@ def cache_front(pipeline, scenes) -> list:
                 (*(captured[k] for k in ("feats", "counts", "raw", "background")), truths)
             )
     finally:
-        pipeline._locate = original
+        pipeline.locate_hypotheses = original
     return cached
 
 
@@ -54,7 +54,7 @@ def run_setting(pipeline, cached, max_targets: int) -> dict:
     tally = SceneTally()
     for feats, counts, raw, background, truths in cached:
         hyps = pipeline.scene(feats, counts)
-        tally.add(pipeline._locate(feats, counts, hyps, raw, background), truths)
+        tally.add(pipeline.locate_hypotheses(feats, counts, hyps, raw, background), truths)
     return tally.summary()
 
 

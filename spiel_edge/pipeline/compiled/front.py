@@ -1,11 +1,10 @@
-"""The fused path's front kernel: one compiled call from frames to echo features.
+"""The front kernel: from frames to echo features, the first part of both acquisition kernels.
 
 ``_front_kernel`` runs the finite check, preprocess (with the RF envelope), detect, memg (and
 the merged-echo split), features and their ToA ordering on a Workspace's buffers, calling the
 staged stages' kernels in their order, so its features are the staged ones bit for bit
-(tests/core/test_fused.py). Its 13 scalars come from :func:`front_scalars`; the back kernels
-that run a whole acquisition in one call (``back._acquisition_kernel``,
-``back_scene._scene_acquisition_kernel``) take them packed (:func:`front_packed`).
+(tests/core/test_fused.py). The acquisition kernels (``one_target``, ``several_targets``)
+call it through :func:`_packed_front` with its settings packed (``abi.front_constants``).
 """
 
 from __future__ import annotations
@@ -14,44 +13,28 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
+from spiel_edge.pipeline.compiled.abi import (
+    FF_CARRIER,
+    FF_HI,
+    FF_LO,
+    FF_MIN_AMP,
+    FF_MU_WINDOW,
+    FF_SPLIT_RATIO,
+    FF_SPLIT_SIGMA,
+    FI_BLIND,
+    FI_HALF_WIDTH,
+    FI_MAX_ITER,
+    FI_RF,
+    FI_SPLIT,
+    FI_TOA,
+)
 from spiel_edge.pipeline.stages.detect import _detect_kernel
-from spiel_edge.pipeline.stages.features import TOA_CODES, TOA_COLUMN, _features_kernel
+from spiel_edge.pipeline.stages.features import TOA_COLUMN, _features_kernel
 from spiel_edge.pipeline.stages.memg import _memg_kernel
 from spiel_edge.pipeline.stages.preprocess import _envelope_kernel, _preprocess_kernel
 from spiel_edge.pipeline.stages.split import _split_kernel
 
 FRAMES_NOT_FINITE, BACKGROUND_NOT_FINITE = 1, 2
-
-
-def front_scalars(profile) -> tuple:
-    """The front kernel's scalar arguments for a profile, in its order."""
-    acq, d, m = profile.acquisition, profile.detect, profile.memg
-    cycles_per_sample = acq.carrier_hz / acq.sample_rate_hz
-    return (
-        int(profile.preprocess.blind_zone_samples),
-        acq.signal == "rf",
-        float(cycles_per_sample),
-        max(1, int(round(0.5 / cycles_per_sample))),  # as envelope()
-        float(d.threshold),
-        float(d.threshold * d.hysteresis),
-        float(d.min_amplitude),
-        float(m.mu_window),
-        int(m.max_iterations),
-        bool(m.split_merged),
-        float(m.split_min_sigma),
-        float(m.split_max_cost_ratio),
-        TOA_CODES[m.toa],
-    )
-
-
-_INT_SLOTS = (0, 1, 3, 8, 9, 12)  # front_scalars' integers and flags, in _packed_front's order
-_FLOAT_SLOTS = (2, 4, 5, 6, 7, 10, 11)
-
-
-def front_packed(scalars: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`front_scalars` as (int64 array, float64 array) for :func:`_packed_front`."""
-    ints = np.array([int(scalars[i]) for i in _INT_SLOTS], dtype=np.int64)
-    return ints, np.array([scalars[i] for i in _FLOAT_SLOTS], dtype=np.float64)
 
 
 def raise_for(status: int) -> None:
@@ -67,13 +50,14 @@ def _packed_front(
     y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
     ws_features, features, counts,
 ):  # fmt: skip
-    """:func:`_front_kernel` on :func:`front_packed`'s arrays ``fi`` and ``ff``, then its
+    """:func:`_front_kernel` on the settings ``fi`` and ``ff`` (abi.FRONT_INTS, FRONT_FLOATS), then its
     features and counts copied into the caller's fresh ``features`` and ``counts``: the
     front's status (0 when done)."""
     status = _front_kernel(
-        y, bg, fi[0], fi[1] != 0, ff[0], fi[2], ff[1], ff[2], ff[3], ff[4], fi[3], fi[4] != 0,
-        ff[5], ff[6], fi[5], env, bg_env, cleaned, peaks, ws_counts, params, iterations,
-        unsorted, ws_features,
+        y, bg, fi[FI_BLIND], fi[FI_RF] != 0, ff[FF_CARRIER], fi[FI_HALF_WIDTH], ff[FF_HI],
+        ff[FF_LO], ff[FF_MIN_AMP], ff[FF_MU_WINDOW], fi[FI_MAX_ITER], fi[FI_SPLIT] != 0,
+        ff[FF_SPLIT_SIGMA], ff[FF_SPLIT_RATIO], fi[FI_TOA], env, bg_env, cleaned, peaks,
+        ws_counts, params, iterations, unsorted, ws_features,
     )  # fmt: skip
     if status == 0:
         features[:] = ws_features
@@ -94,15 +78,15 @@ def _all_finite(a):
 def _front_kernel(
     y,
     bg,
-    blind,
+    blind_zone,
     rf,
     carrier,
     half_width,
-    hi,
-    lo,
-    min_amp,
+    threshold_hi,
+    threshold_lo,
+    min_amplitude,
     mu_window,
-    max_iter,
+    max_iterations,
     split,
     split_min_sigma,
     split_max_ratio,
@@ -129,13 +113,13 @@ def _front_kernel(
         if bg.shape[0] > 0:
             _envelope_kernel(bg, carrier, half_width, bg_env)
             bg = bg_env
-    _preprocess_kernel(y, bg, blind, cleaned)
+    _preprocess_kernel(y, bg, blind_zone, cleaned)
     peaks[:, :] = -1
     counts[:] = 0
-    _detect_kernel(cleaned, hi, lo, min_amp, blind, peaks, counts)
+    _detect_kernel(cleaned, threshold_hi, threshold_lo, min_amplitude, blind_zone, peaks, counts)
     params[:, :, :] = np.nan
     iterations[:, :] = 0
-    _memg_kernel(cleaned, peaks, counts, mu_window, max_iter, params, iterations)
+    _memg_kernel(cleaned, peaks, counts, mu_window, max_iterations, params, iterations)
     if split:
         _split_kernel(
             cleaned,
@@ -146,7 +130,7 @@ def _front_kernel(
             split_min_sigma,
             split_max_ratio,
             mu_window,
-            max_iter,
+            max_iterations,
         )
     unsorted[:, :, :] = np.nan
     _features_kernel(cleaned, params, peaks, toa_code, unsorted)

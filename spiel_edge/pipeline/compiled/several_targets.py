@@ -1,30 +1,24 @@
-"""The fused path's back kernel for several targets (``max_targets`` > 1, joint selection):
-the score prior, the combination pool, the joint subset choice, and per chosen combination
-echo timing, echo quality, locate, covariance and the after-locating checks (shared echoes,
+"""The several-target acquisition kernel (``max_targets`` > 1, joint selection): front, the
+score prior, the combination pool, the joint subset choice, and per chosen combination echo
+timing, echo quality, locate, covariance and the after-locating checks (shared echoes,
 minimum separation, double reflections), in one compiled call on a Workspace's buffers.
 
-It computes what ``Pipeline.scene`` (``SceneAssociator._joint``) + ``Pipeline._locate``
-compute, bit for bit (tests/core/test_fused.py, K = 2, 4, 8 with and without a background),
-by calling the same kernels in the same order:
+It computes what ``Pipeline.process`` computes with ``SceneAssociator._joint``, bit for bit
+(tests/core/test_fused.py, K = 2, 4, 8 with and without a background), by calling the same
+kernels in the same order:
 
-1. the score prior and the strength as :mod:`spiel_edge.pipeline.compiled.one_target` (K = 1);
-2. ``joint._pool_kernel`` (as ``joint.combination_pool``), then the joint choice's glue in
-   numba (``scene_steps._hypotheses``: the missing-channel shift, the stable order by cost
-   with the K = 1 pick first, ``drop_variants``, the birth gains) and
+1. the front kernel, the score prior and the strength as the one-target kernel;
+2. the pool search ``associate._search_kernel`` (as ``joint.combination_pool``), then the
+   joint choice's glue in numba (``scene_steps._hypotheses``: the missing-channel shift, the
+   stable order by cost with the K = 1 pick first, ``drop_variants``, the birth gains) and
    ``joint._select_kernel``;
-3. per hypothesis ``back_steps._one_target`` (as ``Pipeline._target``), ``_share`` (as
+3. per hypothesis ``steps._one_target`` (as ``Pipeline._target``), ``_share`` (as
    ``scene.shared_echoes``), the separation and the double-reflection test (as
    ``Pipeline._targets`` with ``scene.is_double_reflection``), using the fixed-order sums of
    :mod:`spiel_edge.pipeline.stages.scene_geometry` that the staged path uses too.
 
-Only the Target and Result objects are built in Python, once per acquisition. The call
-takes 15 arguments, not 45 (numba's dispatch costs about 65 ns per array argument): the
-constants are packed by dtype into four buffers (:func:`pack_config`), the outputs into two
-(:class:`SceneBuffers`), and ``_scene_kernel`` hands their views to ``_scene_steps``;
-``_scene_acquisition_kernel`` runs the front kernel and it in one call. The staged
-path stays the reference: :func:`scene_config` returns None (staged back steps) for greedy
-selection, the learned associator's reference mode, more than 6 listening channels, or
-anything :func:`spiel_edge.pipeline.compiled.one_target.kernel_arguments` does not cover.
+Only the Target and Result objects are built in Python, once per acquisition. Its constants
+are the pipeline's (``abi.kernel_config``), its outputs two buffers (:class:`SceneBuffers`).
 """
 
 from __future__ import annotations
@@ -34,71 +28,40 @@ import math
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.pipeline import staged as run
-from spiel_edge.pipeline.compiled import one_target as back
-from spiel_edge.pipeline.compiled.front import _packed_front, front_packed, front_scalars, raise_for
-from spiel_edge.pipeline.compiled.scene_steps import (
+from spiel_edge.pipeline.compiled.abi import (
+    F_MM_PER_SAMPLE,
+    L_CHANNELS,
+    L_DELAYS,
+    L_EMITTER,
+    L_FACING,
+    L_FLOATS,
     S_DOUBLE_TOL,
     S_MAX_TARGETS,
     S_MIN_SEPARATION,
     S_SHARE_TOL,
+    KernelConfig,
     _back_views,
-    _double_reflection,
     _front_views,
-    _hypotheses,
-    _outputs,
     _scene_views,
-    _share,
-    pack_config,
 )
+from spiel_edge.pipeline.compiled.front import _packed_front, raise_for
+from spiel_edge.pipeline.compiled.result import match_list, result
+from spiel_edge.pipeline.compiled.scene_steps import _double_reflection, _hypotheses, _share
 from spiel_edge.pipeline.compiled.steps import (
-    F_MM_PER_SAMPLE,
-    I_MIN_CHANNELS,
     _association_inputs,
     _one_target,
+    _search_arguments,
 )
+from spiel_edge.pipeline.staged import Target
+from spiel_edge.pipeline.stages.associate import MAX_POOL, _search_kernel
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
-from spiel_edge.pipeline.stages.joint import MAX_POOL, _pool_kernel
 from spiel_edge.pipeline.stages.scene_geometry import distance3, predicted_paths_into
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 
 
-def scene_config(pipeline: run.Pipeline) -> tuple | None:
-    """The several-target kernel's constant arguments (packed, :func:`pack_config`), or None
-    when the pipeline must run the staged back steps."""
-    args = scene_arguments(pipeline)
-    return None if args is None else pack_config(args)
-
-
-def scene_arguments(pipeline: run.Pipeline) -> tuple | None:
-    """The kernel's constant arguments one by one: ``back.kernel_arguments``, then the
-    scene's ints, floats and listening mask, then the front kernel's scalars
-    (:data:`~spiel_edge.pipeline.compiled.scene_steps._SLOTS` after ``ints``)."""
-    scene = pipeline.scene
-    if scene.max_targets < 2 or not scene.joint:
-        return None
-    base = back.kernel_arguments(pipeline)
-    if base is None:
-        return None
-    sc, g = pipeline.profile.scene, pipeline.profile.geometry
-    ints = np.array([scene.max_targets, scene.extra_min_channels, scene.keep_best], dtype=np.int64)
-    floats = np.array(
-        [
-            scene.max_cost_mm,
-            scene.share_penalty_mm,
-            scene.missing_shift_mm,
-            sc.share_tolerance_mm,
-            sc.min_separation_mm,
-            sc.double_tolerance_mm,
-        ]
-    )
-    listening = np.ascontiguousarray(g.listening_mask(), dtype=np.bool_)
-    return (*base, ints, floats, listening, *front_packed(front_scalars(pipeline.profile)))
-
-
 class SceneBuffers:
-    """The several-target kernel's outputs and pool for one Workspace shape: views of one
-    int64 and one float64 buffer (the kernel takes the two)."""
+    """The kernel's outputs and pool for one Workspace shape: views of one int64 and one
+    float64 buffer (the kernel takes the two)."""
 
     def __init__(self, n_channels: int):
         k, n = MAX_TARGETS_LIMIT, n_channels
@@ -118,79 +81,27 @@ class SceneBuffers:
         self.buffers = (self.ints, self.floats)
 
 
-@jit
-def _scene_kernel(
-    features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, clean,
-    out_ints, out_floats,
-):  # fmt: skip
-    """:func:`_scene_steps` on the packed constants (:func:`pack_config`) and the two output
-    buffers (:class:`SceneBuffers`); returns the number of targets."""
-    outs = _outputs(out_ints, out_floats, features.shape[0])
-    return _scene_steps(
-        features, counts, y, bg, cov_scale, ints, *_back_views(f64, f32, i64, flags, layout),
-        *_scene_views(f64, i64, flags, layout), bonus, clean, *outs,
-    )  # fmt: skip
-
-
-def run_scene(pipeline, config, ws, features, counts, y, bg, raw, background, bonus_given):
-    """The Result of one acquisition with up to ``max_targets`` targets, from the front
-    kernel's features (a fresh copy) and counts (as :func:`spiel_edge.pipeline.compiled.one_target.run_back`)."""
-    if bonus_given is not None:
-        ws.bonus[:, :] = bonus_given
-    scale = back.covariance_scale(pipeline, background)
-    buffers = _scene_buffers(ws)
-    n = _scene_kernel(features, counts, y, bg, scale, *config, ws.bonus, ws.clean, *buffers.buffers)
-    return _result(pipeline, buffers, features, counts, raw, n)
-
-
-def run_scene_acquisition(pipeline, config, ws, y, bg, raw, background):
-    """The Result of one acquisition in one compiled call, front and back (as the front
-    kernel followed by :func:`run_scene` without a bonus)."""
+def run(pipeline, config: KernelConfig, ws, y, bg, raw, background):
+    """The Result of one acquisition with up to ``max_targets`` targets (arguments as
+    ``one_target.run``)."""
     features, counts = np.empty_like(ws.features), np.empty_like(ws.counts)
-    scale = back.covariance_scale(pipeline, background)
-    buffers = _scene_buffers(ws)
+    scale = pipeline.covariance_scale(background)
+    if ws.scene is None:  # made once per thread's Workspace
+        ws.scene = SceneBuffers(ws.n_channels)
+    out = ws.scene
     n = _scene_acquisition_kernel(
         y, bg, *ws.front_buffers, features, counts, scale, *config, ws.bonus, ws.clean,
-        *buffers.buffers,
+        *out.buffers,
     )  # fmt: skip
     if n < 0:
         raise_for(-n)
-    return _result(pipeline, buffers, features, counts, raw, n)
-
-
-def _scene_buffers(ws) -> SceneBuffers:
-    buffers = getattr(ws, "scene", None)
-    if buffers is None:  # made once per thread's Workspace
-        buffers = ws.scene = SceneBuffers(ws.n_channels)
-    return buffers
-
-
-def _result(pipeline, buffers: SceneBuffers, features, counts, raw, n: int) -> run.Result:
-    toa = features[:, :, TOA_COLUMN]  # tolist: Python floats and ints, as the staged lists
-    echoes = [toa[c, :k].tolist() for c, k in enumerate(counts.tolist())]
-    base = {"features": features, "counts": counts}
-    if n == 0:
-        match_list = [m if m >= 0 else None for m in buffers.first.tolist()]
-        used = sum(m is not None for m in match_list)
-        reason = run.REASON_SOLVE_FAILED if used >= 3 else pipeline._why_empty(raw, counts)
-        return run.Result(None, reason, None, echoes, match_list, **base)
-    positions = buffers.position[:n].copy()
-    covariances = buffers.covariance[:n].copy()
-    rms, score = buffers.rms[:n].tolist(), buffers.score[:n].tolist()
+    positions, covariances = out.position[:n].copy(), out.covariance[:n].copy()
+    rms, score = out.rms[:n].tolist(), out.score[:n].tolist()
     targets = [
-        run.Target(
-            positions[i],
-            covariances[i],
-            rms[i],
-            [m if m >= 0 else None for m in row],
-            score[i],
-        )
-        for i, row in enumerate(buffers.matched[:n].tolist())
+        Target(positions[i], covariances[i], rms[i], match_list(row), score[i])
+        for i, row in enumerate(out.matched[:n].tolist())
     ]
-    best = targets[0]
-    return run.Result(
-        best.position_mm, None, best.residual_mm, echoes, best.matched, targets=targets, **base
-    )
+    return result(pipeline, features, counts, raw, targets, out.first.tolist())
 
 
 @jit
@@ -200,7 +111,7 @@ def _scene_acquisition_kernel(
     out_floats,
 ):  # fmt: skip
     """The front kernel, its features and counts copied into ``features`` and ``counts``,
-    then :func:`_scene_kernel`: the number of targets, or minus the front's status."""
+    then :func:`_scene_steps`: the number of targets, or minus the front's status."""
     fi, ff = _front_views(f64, i64, layout)
     status = _packed_front(
         y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
@@ -208,103 +119,62 @@ def _scene_acquisition_kernel(
     )  # fmt: skip
     if status != 0:
         return -status
-    return _scene_kernel(
-        features, counts, y, bg, cov_scale, ints, f64, f32, i64, flags, layout, bonus, clean,
-        out_ints, out_floats,
+    return _scene_steps(
+        features, counts, y, bg, cov_scale, ints, _back_views(f64, f32, i64, flags, layout),
+        _scene_views(f64, i64, flags, layout), bonus, clean,
+        *_outputs(out_ints, out_floats, features.shape[0]),
     )  # fmt: skip
 
 
 @jit
+def _outputs(ints, floats, n):
+    """Views of the two output buffers: pool choices, first, matched (ints); pool costs,
+    positions, covariances, rms, scores, paths (floats)."""
+    k = MAX_TARGETS_LIMIT
+    o = MAX_POOL * n
+    pool_choices = ints[:o].reshape((MAX_POOL, n))
+    first = ints[o : o + n]
+    matched = ints[o + n : o + n + k * n].reshape((k, n))
+    pool_costs = floats[:MAX_POOL]
+    o = MAX_POOL
+    position = floats[o : o + 3 * k].reshape((k, 3))
+    o += 3 * k
+    covariance = floats[o : o + 9 * k].reshape((k, 3, 3))
+    o += 9 * k
+    rms = floats[o : o + k]
+    score = floats[o + k : o + 2 * k]
+    o += 2 * k
+    paths = floats[o : o + k * n].reshape((k, n))
+    return pool_choices, pool_costs, first, matched, position, covariance, rms, score, paths
+
+
+@jit
 def _scene_steps(
-    features,
-    counts,
-    y,
-    bg,
-    cov_scale,
-    ints,
-    floats,
-    quality,
-    assoc_delays,
-    listening,
-    max_path_diff,
-    anchors,
-    cost_weights,
-    delays,
-    channels,
-    emitter,
-    facing,
-    mean,
-    std,
-    w0,
-    b0,
-    w1,
-    b1,
-    w2,
-    b2,
-    wh,
-    bh,
-    feature,
-    threshold,
-    value,
-    base,
-    scene_ints,
-    scene_floats,
-    share_listening,
-    bonus,
-    clean,
-    pool_choices,
-    pool_costs,
-    first,
-    out_matched,
-    out_position,
-    out_covariance,
-    out_rms,
-    out_score,
-    out_paths,
-):
-    """The kernel's steps on the unpacked arguments: the number of targets found; their
-    matched echoes, positions, covariances, rms, scores and paths in ``out_*`` (best
-    first); ``first`` the first hypothesis's echoes."""
+    features, counts, y, bg, cov_scale, ints, cs, scene, bonus, clean, pool_choices, pool_costs,
+    first, out_matched, out_position, out_covariance, out_rms, out_score, out_paths,
+):  # fmt: skip
+    """The kernel's steps: the number of targets found; their matched echoes, positions,
+    covariances, rms, scores and paths in ``out_*`` (best first); ``first`` the first
+    hypothesis's echoes. ``cs``: the constants' views (``abi._back_views``), ``scene`` the
+    scene's (``abi._scene_views``)."""
     n_ch, k_max = features.shape[0], features.shape[1]
-    mm = floats[F_MM_PER_SAMPLE]
-    all_paths = np.empty((n_ch, k_max))
-    allowed = np.empty((n_ch, k_max), dtype=np.bool_)
-    strength = np.empty((n_ch, k_max))
-    _association_inputs(
-        features, counts, listening, ints, floats, assoc_delays, mean, std, w0, b0, w1, b1, w2,
-        b2, wh, bh, bonus, all_paths, allowed, strength,
-    )  # fmt: skip
+    scene_ints, scene_floats, share_listening = scene
+    mm = cs[L_FLOATS][F_MM_PER_SAMPLE]
+    delays, channels, emitter, facing = cs[L_DELAYS], cs[L_CHANNELS], cs[L_EMITTER], cs[L_FACING]
+    all_paths, allowed, strength = _association_inputs(features, counts, ints, cs, bonus)
     pool_choices[:, :] = -1
     pool_costs[:] = np.inf
-    n_pool = _pool_kernel(
-        all_paths,
-        strength,
-        counts,
-        allowed,
-        listening,
-        channels,
-        emitter,
-        facing,
-        max_path_diff,
-        cost_weights,
-        ints[I_MIN_CHANNELS],
-        pool_choices,
-        pool_costs,
-    )
+    args = _search_arguments(all_paths, strength, counts, allowed, ints, cs)
+    n_pool = _search_kernel(*args, pool_choices, pool_costs)
     if n_pool == 0:
         first[:] = -1
         return 0
     hyp_matched = np.empty((scene_ints[S_MAX_TARGETS], n_ch), dtype=np.int64)
     hyp_cost = np.empty(scene_ints[S_MAX_TARGETS])
     n_hyp = _hypotheses(
-        pool_choices[:n_pool],
-        pool_costs[:n_pool],
-        k_max,
-        scene_ints,
-        scene_floats,
-        hyp_matched,
+        pool_choices[:n_pool], pool_costs[:n_pool], k_max, scene_ints, scene_floats, hyp_matched,
         hyp_cost,
-    )
+    )  # fmt: skip
     first[:] = hyp_matched[0]
     # Pipeline._targets
     toa_paths = np.empty((n_ch, k_max))
@@ -329,8 +199,7 @@ def _scene_steps(
     for h in range(n_hyp):
         matched = hyp_matched[h]
         ok, rms = _one_target(
-            features, y, bg, matched, cov_scale, ints, floats, quality, delays, channels,
-            emitter, facing, feature, threshold, value, base, clean, *scratch, position,
+            features, y, bg, matched, cov_scale, ints, cs, clean, *scratch, position,
             covariance, paths,
         )  # fmt: skip
         if not ok:
@@ -346,8 +215,7 @@ def _scene_steps(
             )
             if changed:
                 ok2, rms2 = _one_target(
-                    features, y, bg, more, cov_scale, ints, floats, quality, delays, channels,
-                    emitter, facing, feature, threshold, value, base, clean, *scratch, position2,
+                    features, y, bg, more, cov_scale, ints, cs, clean, *scratch, position2,
                     covariance2, paths2,
                 )  # fmt: skip
                 if ok2:

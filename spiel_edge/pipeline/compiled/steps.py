@@ -1,8 +1,7 @@
-"""The compiled steps both back kernels share (back.py for one target, back_scene.py for
-several) and the layout of their ``ints`` / ``floats`` argument arrays: the association
-search's inputs (score prior, paths, strengths), the MLP prior, echo timing, and one target
-from its matched echoes (as ``Pipeline._target``: echo timing, echo quality, locate,
-covariance)."""
+"""The compiled steps both acquisition kernels share (one_target.py, several_targets.py): the
+association search's inputs (score prior, paths, strengths), the MLP prior, echo timing, and
+one target from its matched echoes (as ``Pipeline._target``: echo timing, echo quality,
+locate, covariance). Their ``ints`` / ``floats`` entries are declared in abi.py."""
 
 from __future__ import annotations
 
@@ -11,6 +10,47 @@ import math
 import numpy as np
 
 from spiel_edge._jit import jit
+from spiel_edge.pipeline.compiled.abi import (
+    F_COV_FLOOR,
+    F_LIMIT,
+    F_MM_PER_SAMPLE,
+    F_SCORE_WEIGHT,
+    F_STRENGTH,
+    I_BLIND,
+    I_HALF_WINDOW,
+    I_LOG,
+    I_MIN_CHANNELS,
+    I_PRIOR,
+    I_TIMING,
+    L_ASSOC_DELAYS,
+    L_B0,
+    L_B1,
+    L_B2,
+    L_BASE,
+    L_BH,
+    L_CHANNELS,
+    L_COST_WEIGHTS,
+    L_DELAYS,
+    L_EMITTER,
+    L_FACING,
+    L_FEATURE,
+    L_FLOATS,
+    L_LISTENING,
+    L_MAX_PATH_DIFF,
+    L_MEAN,
+    L_QUALITY,
+    L_STD,
+    L_THRESHOLD,
+    L_VALUE,
+    L_W0,
+    L_W1,
+    L_W2,
+    L_WH,
+    PRIOR_MLP,
+    PRIOR_NONE,
+    TIMING_NONE,
+    TIMING_TREES,
+)
 from spiel_edge.pipeline.learned.mlp import mlp_scores
 from spiel_edge.pipeline.stages.echo_quality import _echo_quality_kernel
 from spiel_edge.pipeline.stages.echo_timing import _clean_kernel, _fused_kernel, _refine_kernel
@@ -18,45 +58,18 @@ from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.pipeline.stages.locate import locate_kernel
 from spiel_edge.pipeline.stages.uncertainty import _covariance_kernel
 
-PRIOR_NONE, PRIOR_MLP, PRIOR_GIVEN = 0, 1, 2
-TIMING_NONE, TIMING_REFINE, TIMING_TREES = 0, 1, 2
-# ints[] slots
-I_MIN_CHANNELS, I_EXHAUSTIVE, I_PRIOR, I_TIMING, I_BLIND, I_HALF_WINDOW, I_LOG = range(7)
-# floats[] slots
-F_MM_PER_SAMPLE, F_STRENGTH, F_SCORE_WEIGHT, F_LIMIT, F_COV_FLOOR = range(5)
-
 
 @jit
 def _one_target(
-    features,
-    y,
-    bg,
-    matched,
-    cov_scale,
-    ints,
-    floats,
-    quality,
-    delays,
-    channels,
-    emitter,
-    facing,
-    feature,
-    threshold,
-    value,
-    base,
-    clean,
-    picked,
-    weights,
-    shift,
-    mask,
-    position,
-    covariance,
-    paths,
-):
+    features, y, bg, matched, cov_scale, ints, cs, clean, picked, weights, shift, mask, position,
+    covariance, paths,
+):  # fmt: skip
     """As ``Pipeline._target``, for the K = 1 back kernel after association and for each target
-    of the several-target kernel (back_scene.py): (ok, rms);
+    of the several-target kernel (several_targets.py): (ok, rms);
     position, covariance and paths filled."""
     n_ch = features.shape[0]
+    floats, delays, channels = cs[L_FLOATS], cs[L_DELAYS], cs[L_CHANNELS]
+    emitter, facing = cs[L_EMITTER], cs[L_FACING]
     mm = floats[F_MM_PER_SAMPLE]
     n_use = 0
     for c in range(n_ch):
@@ -65,11 +78,13 @@ def _one_target(
         picked[c] = features[c, max(matched[c], 0), TOA_COLUMN] if use else np.nan
     if n_use < 3:
         return False, math.inf
-    timed = _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, clean)
+    timed = _echo_timing(
+        y, bg, picked, ints, floats, cs[L_FEATURE], cs[L_THRESHOLD], cs[L_VALUE], cs[L_BASE], clean
+    )
     alpha_matched = np.empty(n_ch)
     for c in range(n_ch):
         alpha_matched[c] = features[c, max(matched[c], 0), 0]
-    _echo_quality_kernel(y, bg, timed, alpha_matched, quality, weights, shift)
+    _echo_quality_kernel(y, bg, timed, alpha_matched, cs[L_QUALITY], weights, shift)
     for c in range(n_ch):
         s = 0.0 if ints[I_TIMING] != TIMING_NONE else shift[c]
         paths[c] = (timed[c] + s - delays[c]) * mm
@@ -88,34 +103,22 @@ def _one_target(
 
 
 @jit
-def _association_inputs(
-    features, counts, listening, ints, floats, assoc_delays, mean, std, w0, b0, w1, b1, w2, b2,
-    wh, bh, bonus, all_paths, allowed, strength,
-):  # fmt: skip
+def _association_inputs(features, counts, ints, cs, bonus):
     """The association search's inputs, as the staged associator builds them: the score
-    prior into ``bonus`` (the MLP's, or zeros), each echo's path (mm) into ``all_paths``,
-    whether it is finite into ``allowed``, and its strength (log amplitude plus prior)."""
+    prior into ``bonus`` (the MLP's, or zeros), and (each echo's path in mm, whether it is
+    finite, its strength: log amplitude plus prior)."""
     n_ch, k_max = features.shape[0], features.shape[1]
+    all_paths = np.empty((n_ch, k_max))
+    allowed = np.empty((n_ch, k_max), dtype=np.bool_)
+    strength = np.empty((n_ch, k_max))
+    floats, assoc_delays = cs[L_FLOATS], cs[L_ASSOC_DELAYS]
     mm = floats[F_MM_PER_SAMPLE]
     if ints[I_PRIOR] == PRIOR_MLP:
         _score_bonus(
-            features,
-            counts,
-            listening,
-            floats[F_SCORE_WEIGHT],
-            mean,
-            std,
-            w0,
-            b0,
-            w1,
-            b1,
-            w2,
-            b2,
-            wh,
-            bh,
-            bonus,
-        )
-    elif ints[I_PRIOR] == PRIOR_NONE:
+            features, counts, cs[L_LISTENING], floats[F_SCORE_WEIGHT], cs[L_MEAN], cs[L_STD],
+            cs[L_W0], cs[L_B0], cs[L_W1], cs[L_B1], cs[L_W2], cs[L_B2], cs[L_WH], cs[L_BH], bonus,
+        )  # fmt: skip
+    else:
         bonus[:, :] = 0.0
     for c in range(n_ch):
         for k in range(k_max):
@@ -128,6 +131,16 @@ def _association_inputs(
                 strength[c, k] = strength[c, k] + (
                     bonus[c, k] if math.isfinite(bonus[c, k]) else 0.0
                 )
+    return all_paths, allowed, strength
+
+
+@jit(inline="always")
+def _search_arguments(all_paths, strength, counts, allowed, ints, cs):
+    """The search kernels' arguments before their outputs (``associate._search_kernel``)."""
+    return (
+        all_paths, strength, counts, allowed, cs[L_LISTENING], cs[L_CHANNELS], cs[L_EMITTER],
+        cs[L_FACING], cs[L_MAX_PATH_DIFF], cs[L_COST_WEIGHTS], ints[I_MIN_CHANNELS],
+    )  # fmt: skip
 
 
 @jit

@@ -1,5 +1,5 @@
-"""Preallocated buffers for one acquisition shape, so the fused path allocates no arrays for
-its intermediates (outputs handed to the caller are still fresh copies)."""
+"""Preallocated buffers for one acquisition shape, so the acquisition kernels allocate no
+arrays for their intermediates (outputs handed to the caller are still fresh copies)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ class Workspace:
     iterations: np.ndarray = field(init=False, repr=False)
     unsorted: np.ndarray = field(init=False, repr=False)  # features in detection order
     features: np.ndarray = field(init=False, repr=False)  # features in ToA order
-    # the back kernel's (pipeline/compiled/one_target.py)
+    # the back steps' (one_target.py; bonus and clean also several_targets.py)
     bonus: np.ndarray = field(init=False, repr=False)  # (channels, max_echoes) score prior, mm
     clean: np.ndarray = field(init=False, repr=False)  # echo timing's background-free envelope
     matched: np.ndarray = field(init=False, repr=False)
@@ -40,6 +40,7 @@ class Workspace:
     covariance: np.ndarray = field(init=False, repr=False)
     front_buffers: tuple = field(init=False, repr=False)
     back_buffers: tuple = field(init=False, repr=False)
+    scene: object = field(default=None, init=False, repr=False)  # several_targets.SceneBuffers
 
     def __post_init__(self) -> None:
         shape = (self.n_channels, self.n_samples)

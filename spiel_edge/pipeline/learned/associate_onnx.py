@@ -263,6 +263,19 @@ class OnnxAssociator:
         score, embedding = self.session.run(list(OUTPUTS), {INPUT_NAME: x})
         return rows, score[:, 0], embedding
 
+    def kernel_constants(self) -> dict | None:
+        """The compiled path's constants (``pipeline/compiled/abi.py``): the geometric
+        search's with the MLP as its score prior; None in ``reference`` mode or with the model
+        in onnxruntime (then the staged path runs)."""
+        if self.mode != "prior" or self.mlp is None:
+            return None
+        return {
+            **self.geometric.kernel_constants(),
+            "prior": "mlp",
+            "score_weight": self.score_weight_mm,
+            **dict(zip(mlp.WEIGHTS, self.mlp, strict=True)),
+        }
+
     def bonus(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray:
         """The score prior as a (channels, max_echoes) cost bonus in mm (the scene stage)."""
         rows, score, _ = self.score(features, counts)

@@ -25,6 +25,8 @@ from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline.learned.tree_ensemble import _fields
 
+WEIGHTS = ("mean", "std", "w0", "b0", "w1", "b1", "w2", "b2", "wh", "bh")  # the tuple's order
+
 AGREEMENT = 1e-5  # max |numba - onnxruntime| on the probe batch (score and embedding)
 N_INPUT = 8
 KNOWN_OPS = ("Sub", "Div", "Gemm", "Relu", "Gemm", "Relu", "Gemm", "Relu", "Gemm", "Sigmoid")

@@ -25,7 +25,7 @@ from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline.learned import tree_ensemble, verified_models
 from spiel_edge.pipeline.learned.mlp import read_metadata
-from spiel_edge.pipeline.stages.echo_timing import n_toa_features
+from spiel_edge.pipeline.stages.echo_timing import EchoTiming, n_toa_features
 
 log = logging.getLogger(__name__)
 
@@ -190,3 +190,18 @@ def build_correction(
     except ModelError as exc:
         log.warning("%s; using the uncorrected ToA", exc)
     return None
+
+
+def build_echo_timing(profile, toa_correction: str | None = None) -> EchoTiming:
+    """The profile's step; ``toa_correction`` (auto|onnx|none) overrides the profile's.
+    RF boards keep the MEMG ToA: the step works on envelopes."""
+    spec = profile.echo_timing
+    estimator = spec.estimator if profile.acquisition.signal == "envelope" else "none"
+    correction = None
+    if estimator != "none":
+        correction = build_correction(
+            toa_correction or spec.toa_correction, profile.geometry.n_channels
+        )
+    return EchoTiming(
+        estimator, spec.half_window, profile.preprocess.blind_zone_samples, correction
+    )

@@ -18,6 +18,9 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
 
+# the arrays a correction's ``trees`` holds for the kernels: dense(...) and the base
+DENSE = ("feature", "threshold", "value", "base")
+
 # protobuf field numbers (onnx.proto3)
 _MODEL_GRAPH, _GRAPH_NODE = 7, 1
 _NODE_OP_TYPE, _NODE_ATTRIBUTE, _NODE_DOMAIN = 4, 5, 7

@@ -35,6 +35,7 @@ from spiel_edge.profile.schema import Profile
 EXHAUSTIVE_MAX_CHANNELS = 6
 MAX_SOLVES = 4096  # bound on located combinations per acquisition: time stays bounded in clutter
 MAX_ANCHOR_TRIPLES = 3
+MAX_POOL = 48  # echo combinations the scene's joint choice keeps (stages/joint.py)
 
 
 def anchor_triples(channels: np.ndarray, emitter: np.ndarray, listening: np.ndarray) -> np.ndarray:
@@ -104,6 +105,31 @@ class GeometricAssociator:
         restricts the search, ``bonus_mm`` (channels, max_echoes) lowers the cost of
         combinations by the mean bonus of their echoes (both used by the learned associator);
         ``min_channels`` overrides the profile's (the scene stage asks more of extra targets)."""
+        args = self.search_inputs(features, counts, allowed, bonus_mm, min_channels)
+        matched = np.full(self.channels.shape[0], -1, dtype=np.int64)
+        if self.anchors is None:
+            cost = _exhaustive_kernel(*args, matched)
+        else:
+            cost = _hypothesis_kernel(*args, matched, self.anchors)
+        return matched, cost
+
+    def pool(
+        self, features: np.ndarray, counts: np.ndarray, bonus_mm=None, max_pool: int = MAX_POOL
+    ):
+        """``(choices (n, channels) int64, costs (n,))``: the ``max_pool`` cheapest consistent
+        combinations of the exhaustive search (up to EXHAUSTIVE_MAX_CHANNELS listening
+        channels), cheapest first; the first is :meth:`candidates`' pick."""
+        if max_pool < 1:
+            raise InputError(f"max_pool must be >= 1, got {max_pool}")
+        args = self.search_inputs(features, counts, None, bonus_mm, None)
+        choices = np.full((max_pool, self.channels.shape[0]), -1, dtype=np.int64)
+        costs = np.full(max_pool, np.inf)
+        n = _search_kernel(*args, choices, costs)
+        return choices[:n], costs[:n]
+
+    def search_inputs(self, features, counts, allowed=None, bonus_mm=None, min_channels=None):
+        """The search kernels' arguments before their outputs: paths, strengths, counts,
+        allowed echoes, the geometry, the cost weights and the minimum channel count."""
         features = np.asarray(features, dtype=np.float64)
         counts = np.ascontiguousarray(counts, dtype=np.int64)
         if (
@@ -125,9 +151,7 @@ class GeometricAssociator:
         if bonus_mm is not None:
             strength = strength + np.where(np.isfinite(bonus_mm), bonus_mm, 0.0)
         strength = np.ascontiguousarray(strength, dtype=np.float64)
-        weights = np.array([self.max_residual_mm, self.missing_penalty_mm, 1.0, self.range_weight])
-        matched = np.full(self.channels.shape[0], -1, dtype=np.int64)
-        args = (
+        return (
             paths,
             strength,
             counts,
@@ -137,15 +161,32 @@ class GeometricAssociator:
             self.emitter,
             self.facing,
             self.max_path_diff,
-            weights,
+            self.cost_weights(),
             self.min_channels if min_channels is None else max(3, int(min_channels)),
-            matched,
         )
-        if self.anchors is None:
-            cost = _exhaustive_kernel(*args)
-        else:
-            cost = _hypothesis_kernel(*args, self.anchors)
-        return matched, cost
+
+    def kernel_constants(self) -> dict:
+        """This associator's constants for the compiled path (``pipeline/compiled/abi.py``):
+        the search's, without a score prior."""
+        anchors = self.anchors if self.anchors is not None else np.zeros((0, 3), np.int64)
+        return {
+            "min_channels": self.min_channels,
+            "exhaustive": self.anchors is None,
+            "mm_per_sample": self.mm_per_sample,
+            "strength": self.strength_weight_mm,
+            "prior": "none",
+            "score_weight": 0.0,
+            "assoc_delays": self.delays,
+            "listening": self.listening,
+            "max_path_diff": self.max_path_diff,
+            "anchors": anchors,
+            "cost_weights": self.cost_weights(),
+        }
+
+    def cost_weights(self) -> np.ndarray:
+        """The cost's weights as the kernels take them: (max residual, missing-channel
+        penalty, strength scale, range weight)."""
+        return np.array([self.max_residual_mm, self.missing_penalty_mm, 1.0, self.range_weight])
 
 
 @jit
@@ -185,13 +226,44 @@ def _feasible(paths, choice, c, k, max_diff):
 def _exhaustive_kernel(
     paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best
 ):
+    """The best combination into ``best`` (untouched when none is consistent): its cost,
+    inf when none."""
+    costs = np.full(1, math.inf)
+    _search_kernel(
+        paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch,
+        best.reshape((1, best.shape[0])), costs,
+    )  # fmt: skip
+    return costs[0]
+
+
+@jit
+def _search_kernel(
+    paths,
+    strength,
+    counts,
+    allowed,
+    listening,
+    ch,
+    e,
+    facing,
+    max_diff,
+    weights,
+    min_ch,
+    out_choices,
+    out_costs,
+):
+    """The depth-first search over echo combinations, the one both the associator (keeping
+    the best: one row) and the scene's joint choice (keeping a pool: MAX_POOL rows)
+    run: the cheapest combinations by sorted insertion into ``out_*``, the first found first
+    among equal costs; returns how many are kept. At most MAX_SOLVES combinations located."""
     n_ch = paths.shape[0]
+    cap = out_costs.shape[0]
     choice = np.full(n_ch, -1, dtype=np.int64)
     d = np.empty(n_ch)
     use = np.zeros(n_ch, dtype=np.bool_)
     unit = np.ones(n_ch)  # the search weighs every channel alike
     pos = np.empty(3)
-    best_cost = math.inf
+    kept = 0
     solves = 0
     # iterative depth-first search: choice[c] runs over -1 (no echo), 0 .. counts[c] - 1
     c = 0
@@ -217,10 +289,19 @@ def _exhaustive_kernel(
             continue
         solves += 1
         cost = _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos)
-        if cost < best_cost:
-            best_cost = cost
-            best[:] = choice
-    return best_cost
+        if not cost < math.inf or (kept == cap and cost >= out_costs[cap - 1]):
+            continue
+        # strict '<': among equal costs the first found stays first
+        i = kept if kept < cap else cap - 1
+        while i > 0 and cost < out_costs[i - 1]:
+            out_costs[i] = out_costs[i - 1]
+            out_choices[i, :] = out_choices[i - 1, :]
+            i -= 1
+        out_costs[i] = cost
+        out_choices[i, :] = choice
+        if kept < cap:
+            kept += 1
+    return kept
 
 
 @jit

@@ -24,7 +24,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.learned.tree_ensemble import _predict_kernel
+from spiel_edge.pipeline.learned.tree_ensemble import DENSE, _predict_kernel
 
 ESTIMATORS = {"none": 0, "parabola": 1, "log_parabola": 2}
 FEATURE_HALF_WIDTH = 6  # samples either side of the echo's peak sample (chosen by grouped CV)
@@ -211,6 +211,27 @@ class EchoTiming:
         corrected = self.correction(toa_features(frames, background, clean, refined), refined)
         return np.where(np.isfinite(corrected), corrected, refined)
 
+    def kernel_constants(self) -> dict | None:
+        """This step's constants for the compiled path (``pipeline/compiled/abi.py``); None
+        when its correction has no numba trees (it runs in onnxruntime)."""
+        if not self.active:
+            mode, trees = "none", {}
+        elif self.correction is None:
+            mode, trees = "refine", {}
+        else:
+            dense = getattr(self.correction, "trees", None)
+            if dense is None:
+                return None
+            mode, trees = "trees", dict(zip(DENSE, dense, strict=True))
+        return {
+            "timing": mode,
+            "blind": self.blind_zone,
+            "half_window": self.half_window,
+            "log": ESTIMATORS[self.estimator] == ESTIMATORS["log_parabola"],
+            "limit": float(getattr(self.correction, "max_correction", 0.0)),
+            **trees,
+        }
+
     def _fused(self, frames, background, toa, trees) -> np.ndarray:
         y = _as_2d(frames, "frames")
         bg = np.zeros((0, 0)) if background is None else _as_2d(background, "background")
@@ -241,3 +262,12 @@ def _fused_kernel(
     for c in range(n_ch):
         p = pred[c]
         out[c] = refined[c] if not math.isfinite(p) else refined[c] - min(max(p, -limit), limit)
+
+
+def timing_delays(profile) -> np.ndarray:
+    """Per-channel delays (samples) for the ToA the profile's step produces."""
+    delays = np.asarray(profile.geometry.delays(), dtype=np.float64)
+    spec = profile.echo_timing
+    if spec.estimator != "none" and spec.delay_shift_samples:
+        delays = delays + np.asarray(spec.delay_shift_samples, dtype=np.float64)
+    return delays

@@ -28,119 +28,20 @@ mode, keep the greedy search.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.stages.associate import _feasible, _score
+from spiel_edge.pipeline.stages.associate import MAX_POOL
 
-MAX_POOL = 48  # echo combinations kept for the joint choice
 MAX_NODES = 20000  # subset-search nodes per acquisition
-_POOL_SOLVES = 4096  # the associator's MAX_SOLVES: located combinations per acquisition
 
 
 def combination_pool(associator, features, counts, bonus_mm=None, max_pool: int = MAX_POOL):
     """``(choices (n, channels) int64, costs (n,))``: the ``max_pool`` cheapest consistent
     combinations of ``associator`` (a GeometricAssociator with <= 6 listening channels),
     cheapest first, each using at least the associator's ``min_channels``."""
-    if max_pool < 1:
-        raise InputError(f"max_pool must be >= 1, got {max_pool}")
-    a = associator
-    features = np.asarray(features, dtype=np.float64)
-    counts = np.ascontiguousarray(counts, dtype=np.int64)
-    paths = np.ascontiguousarray(a.paths_mm(features))
-    alpha = features[:, :, 0]
-    strength = a.strength_weight_mm * np.log(
-        np.where(np.isfinite(alpha) & (alpha > 1.0), alpha, 1.0)
-    )
-    if bonus_mm is not None:
-        strength = strength + np.where(np.isfinite(bonus_mm), bonus_mm, 0.0)
-    weights = np.array([a.max_residual_mm, a.missing_penalty_mm, 1.0, a.range_weight])
-    choices = np.full((max_pool, paths.shape[0]), -1, dtype=np.int64)
-    costs = np.full(max_pool, np.inf)
-    n = _pool_kernel(
-        paths,
-        np.ascontiguousarray(strength, dtype=np.float64),
-        counts,
-        np.ascontiguousarray(np.isfinite(paths)),
-        a.listening,
-        a.channels,
-        a.emitter,
-        a.facing,
-        a.max_path_diff,
-        weights,
-        int(a.min_channels),
-        choices,
-        costs,
-    )
-    return choices[:n], costs[:n]
-
-
-@jit
-def _pool_kernel(
-    paths,
-    strength,
-    counts,
-    allowed,
-    listening,
-    ch,
-    e,
-    facing,
-    max_diff,
-    weights,
-    min_ch,
-    out_choices,
-    out_costs,
-):
-    """The associator's exhaustive depth-first search, keeping the cheapest combinations
-    (sorted insertion into ``out_*``) instead of the one best; returns how many are kept."""
-    n_ch = paths.shape[0]
-    cap = out_costs.shape[0]
-    choice = np.full(n_ch, -1, dtype=np.int64)
-    d = np.empty(n_ch)
-    use = np.zeros(n_ch, dtype=np.bool_)
-    unit = np.ones(n_ch)
-    pos = np.empty(3)
-    kept = 0
-    solves = 0
-    c = 0
-    choice[0] = -2
-    while c >= 0 and solves < _POOL_SOLVES:
-        choice[c] += 1
-        if choice[c] >= counts[c] or (choice[c] >= 0 and not listening[c]):
-            choice[c] = -2
-            c -= 1
-            continue
-        k = choice[c]
-        if k >= 0 and not (allowed[c, k] and _feasible(paths, choice, c, k, max_diff)):
-            continue
-        n_used = 0
-        for j in range(c + 1):
-            if choice[j] >= 0:
-                n_used += 1
-        if n_used + (n_ch - c - 1) < min_ch:
-            continue
-        if c < n_ch - 1:
-            c += 1
-            choice[c] = -2
-            continue
-        solves += 1
-        cost = _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos)
-        if not cost < math.inf or (kept == cap and cost >= out_costs[cap - 1]):
-            continue
-        # strict '<' on ties keeps the first found first, as the associator's own search
-        i = kept if kept < cap else cap - 1
-        while i > 0 and cost < out_costs[i - 1]:
-            out_costs[i] = out_costs[i - 1]
-            out_choices[i, :] = out_choices[i - 1, :]
-            i -= 1
-        out_costs[i] = cost
-        out_choices[i, :] = choice
-        if kept < cap:
-            kept += 1
-    return kept
+    return associator.pool(features, counts, bonus_mm, max_pool)
 
 
 def drop_variants(choices: np.ndarray) -> np.ndarray:

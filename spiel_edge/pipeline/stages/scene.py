@@ -65,6 +65,20 @@ class SceneAssociator:
             and n_listening <= EXHAUSTIVE_MAX_CHANNELS
         )
 
+    def kernel_constants(self) -> dict | None:
+        """The compiled path's constants for this scene (``pipeline/compiled/abi.py``); None
+        for several targets chosen greedily (then the staged path runs)."""
+        if self.max_targets > 1 and not self.joint:
+            return None
+        return {
+            "max_targets": self.max_targets,
+            "extra_min": self.extra_min_channels,
+            "keep_best": self.keep_best,
+            "max_cost": self.max_cost_mm,
+            "share_penalty": self.share_penalty_mm,
+            "missing_shift": self.missing_shift_mm,
+        }
+
     def _bonus(self, features: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
         """The learned score prior as a per-echo cost bonus (None for geometric association)."""
         if not hasattr(self.associator, "bonus") or getattr(self.associator, "mode", "") != "prior":
