@@ -2,7 +2,7 @@
 
 Pure code: the decoder is fed bytes and returns frames; it never reads a port. It works on
 whole delimiter-separated pieces (``bytes.split``) with COBS in numba kernels
-(firmware_protocol.cobs, with a pure fallback) and the C CRC-32C, so there is no per-byte Python loop (>= 100 MB/s, see tools/bench/bench_protocol.py).
+(firmware_protocol.cobs, with a pure fallback) and the C CRC-32C, so there is no per-byte Python loop (>= 100 MB/s, see tools/bench_protocol.py).
 """
 
 from __future__ import annotations
