@@ -29,9 +29,36 @@ from firmware_protocol.config_messages import (
 from firmware_protocol.errors import MessageError, RemoteError, UnknownMessageError
 from firmware_protocol.framing import Flags, Frame, encode_frame
 from firmware_protocol.stream import SampleFormat, StreamData
+from firmware_protocol.v2_messages import (  # noqa: F401  (registers the version 2 messages)
+    BoardState,
+    BootState,
+    ErrorFlag,
+    FwBegin,
+    FwBeginResponse,
+    FwConfirm,
+    FwConfirmResponse,
+    FwInfo,
+    FwInfoRequest,
+    FwTest,
+    FwTestResponse,
+    FwVerify,
+    FwVerifyResponse,
+    FwWrite,
+    FwWriteResponse,
+    Heartbeat,
+    LogLevel,
+    LogMessage,
+    SlotState,
+    Telemetry,
+    TelemetryResponse,
+    TimeSync,
+    TimeSyncResponse,
+)
 
 __all__ = [
+    "MAX_PROTOCOL_VERSION",
     "MAX_RETRIES",
+    "MIN_PROTOCOL_VERSION",
     "REGISTRY",
     "SCHEMA_HASH",
     "Capability",
@@ -70,6 +97,10 @@ __all__ = [
 ]
 
 MAX_RETRIES = 3  # a request is sent at most 1 + MAX_RETRIES times, always with the same seq
+# Protocol (message-layer) versions this package speaks, negotiated by HELLO (PROTOCOL.md
+# 6.2); frames keep header version 1 (framing.PROTOCOL_VERSION) in both.
+MIN_PROTOCOL_VERSION = 1
+MAX_PROTOCOL_VERSION = 2
 
 
 class MsgType(IntEnum):
@@ -78,6 +109,7 @@ class MsgType(IntEnum):
     ERROR = 0x0003
     PING = 0x0004
     REBOOT = 0x0005
+    TIME_SYNC = 0x0006  # version 2
     STREAM_START = 0x0010
     STREAM_STOP = 0x0011
     STREAM_STATUS = 0x0012
@@ -86,6 +118,15 @@ class MsgType(IntEnum):
     CONFIG_WRITE = 0x0021
     CONFIG_COMMIT = 0x0022
     CONFIG_STATUS = 0x0023
+    TELEMETRY = 0x0030  # version 2: heartbeat period and log level
+    HEARTBEAT = 0x0031  # version 2: device-originated
+    LOG = 0x0032  # version 2: device-originated
+    FW_INFO = 0x0040  # version 2: firmware slots
+    FW_BEGIN = 0x0041
+    FW_WRITE = 0x0042
+    FW_VERIFY = 0x0043
+    FW_TEST = 0x0044
+    FW_CONFIRM = 0x0045
 
 
 class Capability(IntFlag):
@@ -97,7 +138,10 @@ class Capability(IntFlag):
     F32_SAMPLES = 0x04  # SampleFormat.F32
     RF_SAMPLES = 0x08  # SampleFormat.I16_RF
     BULK = 0x10  # also reachable over USB bulk endpoints
-    TIME_SYNC = 0x20  # timestamp_us is synchronised to the host (otherwise free-running)
+    TIME_SYNC = 0x20  # version 2: answers TIME_SYNC (timestamp_us is its clock)
+    TELEMETRY = 0x40  # version 2: TELEMETRY, HEARTBEAT and LOG
+    FIRMWARE_UPDATE = 0x80  # version 2: FW_INFO/BEGIN/WRITE/VERIFY/TEST/CONFIRM
+    IQ_SAMPLES = 0x100  # version 2: SampleFormat.I16_IQ
 
 
 class RebootMode(IntEnum):

@@ -33,7 +33,8 @@ class Acquisition:
     timestamp_us: int
     sample_rate_hz: int
     sample_format: int
-    samples: np.ndarray  # (n_channels, n_samples), dtype SAMPLE_DTYPE[sample_format]
+    samples: np.ndarray  # (n_channels, n_samples), dtype SAMPLE_DTYPE[sample_format];
+    # I16_IQ: (n_channels, 2 * n_samples) int16, q and i interleaved
 
     @property
     def n_channels(self) -> int:
@@ -41,7 +42,8 @@ class Acquisition:
 
     @property
     def n_samples(self) -> int:
-        return int(self.samples.shape[1])
+        per_sample = 2 if self.sample_format == SampleFormat.I16_IQ else 1
+        return int(self.samples.shape[1]) // per_sample
 
 
 @dataclass(slots=True)

@@ -4,7 +4,8 @@ that fails them is refused with a message naming both sides, before any stream s
 
 from __future__ import annotations
 
-from firmware_protocol import MAX_PAYLOAD, PROTOCOL_VERSION, HelloResponse
+from firmware_protocol import MAX_PAYLOAD, HelloResponse
+from firmware_protocol import MAX_PROTOCOL_VERSION as PROTOCOL_VERSION
 from firmware_protocol.errors import ErrorCode
 from spiel_edge.errors import DeviceError
 

@@ -23,9 +23,9 @@ from typing import Any
 
 from firmware_protocol import (
     MAX_PAYLOAD,
+    MAX_PROTOCOL_VERSION,
     MAX_RETRIES,
     MAX_WIRE_SIZE,
-    PROTOCOL_VERSION,
     SCHEMA_HASH,
     ErrorResponse,
     FrameDecoder,
@@ -45,6 +45,7 @@ from spiel_edge.device.config import ConfigTransferMixin
 from spiel_edge.device.hello import MIN_PROTOCOL_VERSION, check_hello, version_refused
 from spiel_edge.device.stream import StreamTracker
 from spiel_edge.device.streaming import StreamingMixin
+from spiel_edge.device.v2 import SessionV2Mixin
 from spiel_edge.errors import (
     DeviceDisconnectedError,
     DeviceError,
@@ -71,7 +72,7 @@ class SessionCounters:
     restarts: int = 0  # streams the board had stopped by itself (restarted)
 
 
-class DeviceSession(StreamingMixin, ConfigTransferMixin):
+class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
     """``with DeviceSession("sim://") as dev: dev.start_stream(rate_hz=50); for a in dev.acquisitions(stop): ...``"""
 
     def __init__(
@@ -106,6 +107,8 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
         self._stream_request: StreamStart | None = None
         self._overruns_before = 0  # board counters of earlier boots
         self._last_data = time.monotonic()
+        self._v2_init()
+        self.tracker.stamp = self.stamp  # board time -> host time, once synced
 
     # --- connection ----------------------------------------------------------------------
 
@@ -143,7 +146,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
 
     def _handshake(self) -> None:
         try:
-            hello = self.request(Hello(MIN_PROTOCOL_VERSION, PROTOCOL_VERSION, MAX_PAYLOAD, 0))
+            hello = self.request(Hello(MIN_PROTOCOL_VERSION, MAX_PROTOCOL_VERSION, MAX_PAYLOAD, 0))
         except DeviceRequestError as exc:
             if exc.code in (ErrorCode.VERSION_TOO_OLD, ErrorCode.VERSION_TOO_NEW):
                 raise DeviceError(version_refused(self.url, exc.code)) from exc
@@ -188,6 +191,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             hello.n_channels,
             hello.protocol_version,
         )
+        self._v2_start()
 
     def _drop_link(self) -> None:
         if self._link is not None:
@@ -231,6 +235,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             if attempt:
                 self.counters.retries += 1
                 log.debug("%s: retry %d of %s (seq %d)", self.url, attempt, type(msg).__name__, seq)
+            self._sent_ns = time.perf_counter_ns()
             link.write(wire)
             answer = self._await(seq, msg.MSG_TYPE, time.monotonic() + timeout_s)
             if answer is not None:
@@ -260,7 +265,9 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
                     and frame.msg_type in (msg_type, ErrorResponse.MSG_TYPE)
                 ):
                     try:
-                        return decode_message(frame)
+                        answer = decode_message(frame)
+                        self._answer_ns = ns
+                        return answer
                     except MessageError as exc:  # valid CRC but a payload we cannot read
                         log.warning("%s: unreadable answer: %s", self.url, exc)
                         continue
@@ -277,6 +284,8 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             self._inbox.extend((frame, ns) for frame in self.decoder.feed(data))
 
     def _dispatch(self, frame: Frame, ns: int) -> None:
+        if self._v2_frame(frame, ns):
+            return
         if self.tracker.feed(frame, ns):
             self._last_data = time.monotonic()
         elif frame.is_response:
@@ -309,4 +318,5 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             "overruns": self._overruns_before + (status.overruns if status else 0),
             "device_rx_errors": status.rx_errors if status else 0,
             **asdict(self.counters),
+            **self.v2_counts(),
         }

@@ -9,6 +9,8 @@ import threading
 import time
 from collections.abc import Iterator
 
+import numpy as np
+
 from firmware_protocol import (
     MAX_RETRIES,
     SampleFormat,
@@ -19,6 +21,7 @@ from firmware_protocol import (
     StreamStop,
 )
 from firmware_protocol.errors import ErrorCode
+from spiel_edge.device.iq import iq_envelope
 from spiel_edge.device.stream import LiveAcquisition
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -39,12 +42,18 @@ class StreamingMixin:
     # --- streaming -----------------------------------------------------------------------
 
     def start_stream(
-        self, *, rate_hz: float = 50.0, n_samples: int = 0, n_acquisitions: int = 0
+        self,
+        *,
+        rate_hz: float = 50.0,
+        n_samples: int = 0,
+        n_acquisitions: int = 0,
+        sample_format: int = SampleFormat.U16_ENVELOPE,
     ) -> StreamStartResponse:
-        """Start streaming (stopping any stream the board still runs)."""
-        request = StreamStart(
-            n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, 0
-        )
+        """Start streaming (stopping any stream the board still runs); ``sample_format``
+        I16_IQ asks for I/Q pairs (the acquisitions then carry envelope and phase)."""
+        request = StreamStart(n_acquisitions, float(rate_hz), n_samples, sample_format, 0)
+        if sample_format == SampleFormat.I16_IQ:  # compile (or load) the kernel before data flows
+            iq_envelope(np.zeros((1, 2), dtype=np.int16))
         self._stop_quietly()
         self.tracker.begin()
         answer = self.request(request)
@@ -98,6 +107,7 @@ class StreamingMixin:
         self._fill(self.poll_s)
         while self._inbox:
             self._dispatch(*self._inbox.popleft())
+        self._v2_tick()
         if self._stream_request is not None and time.monotonic() - self._last_data > self.stall_s:
             self._check_alive()
 
@@ -118,6 +128,7 @@ class StreamingMixin:
                 rate_hz=request.rate_hz,
                 n_samples=request.n_samples,
                 n_acquisitions=request.n_acquisitions,
+                sample_format=request.sample_format,
             )
 
     # --- reconnection --------------------------------------------------------------------

@@ -110,7 +110,7 @@ class Ros2McapSink(McapSink):
         self.counts["acquisitions"] += 1
 
     def write(self, record: dict) -> None:
-        seconds = record.get("host_time")
+        seconds = record.get("stamp_host") or record.get("host_time")  # synced board time first
         stamp = int(seconds * 1e9) if isinstance(seconds, (int, float)) and seconds > 0 else 0
         best = record.get("position_mm")
         if best is not None:

@@ -45,14 +45,16 @@ from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
+from spiel_edge.sim.board_v2 import BoardV2Mixin
 from spiel_edge.sim.config_slots import BoardConfigMixin
 from spiel_edge.sim.faults import Outgoing
-from spiel_edge.sim.flash import Flash
+from spiel_edge.sim.firmware_slots import FirmwareFlash
+from spiel_edge.sim.flash import Flash, PowerCut
 from spiel_edge.sim.scenes import EchoModelScene, ReplayScene
 
 log = logging.getLogger(__name__)
 
-FIRMWARE_VERSION = "sim-0.1.0"
+FIRMWARE_VERSION = "sim-0.1.0"  # of the factory image (sim/firmware_slots.py)
 MAX_RATE_HZ = 10000.0
 MAX_SAMPLES = 4096
 RESPONSE_CACHE = 16
@@ -67,6 +69,7 @@ class _Stream:
     next_time: float
     sent: int = 0
     seq: int = 0  # the STREAM_START's seq, echoed by its STREAM_DATA frames
+    sample_format: int = SampleFormat.U16_ENVELOPE
 
     @property
     def period(self) -> float:
@@ -86,7 +89,7 @@ class BoardStats:
         self.executed[msg_type] = self.executed.get(msg_type, 0) + 1
 
 
-class VirtualBoard(BoardConfigMixin):
+class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
     def __init__(
         self,
         scene: ReplayScene | EchoModelScene,
@@ -97,10 +100,23 @@ class VirtualBoard(BoardConfigMixin):
         flash: Flash | None = None,
         seed: int = 0,
         now: float = 0.0,
+        protocol: int = PROTOCOL_VERSION,
+        drift_ppm: float = 0.0,
+        firmware: FirmwareFlash | None = None,
+        sync_fault: str = "",
+        heartbeat_flags: int = 0,
+        log_flood: float = 0.0,
     ):
         self.scene = scene
         self.serial, self.vid, self.pid = serial, vid, pid
         self.flash = flash or Flash()
+        self.max_version = protocol  # the highest protocol version this board speaks
+        self.drift_ppm = drift_ppm
+        self.fw = firmware or FirmwareFlash(factory=None)
+        self.sync_fault = sync_fault
+        self.heartbeat_extra_flags = heartbeat_flags
+        self.log_flood = log_flood
+        self.version = 1
         self.stats = BoardStats()
         self.tx_dropped = 0  # set by the line: frames lost on the way out
         self._rng = random.Random(seed)
@@ -123,6 +139,14 @@ class VirtualBoard(BoardConfigMixin):
         self._last_background: np.ndarray | None = None
         self._request_seq = 0
         self.reboot_at = None
+        self.version = 1
+        for _ in range(3):  # the bootloader's record writes may be cut too: boot again
+            try:
+                self.fw.boot()
+                break
+            except PowerCut as exc:
+                log.info("%s: %s during boot", self.serial, exc)
+        self._v2_boot(now)
 
     @property
     def streaming(self) -> bool:
@@ -137,6 +161,8 @@ class VirtualBoard(BoardConfigMixin):
     def receive(self, data: bytes, now: float) -> list[Outgoing]:
         """Decode requests and return their responses (PowerCut propagates)."""
         out = []
+        if self.silent:  # a firmware that hangs at start: it reads nothing
+            return out
         for frame in self._decoder.feed(data):
             wire = self._answer(frame, now)
             if wire is not None:
@@ -183,6 +209,20 @@ class VirtualBoard(BoardConfigMixin):
             m.ConfigStatusRequest: self._config_status,
         }.get(type(req))
         if handler is None:
+            handler = {
+                m.TimeSync: self._time_sync,
+                m.Telemetry: self._telemetry,
+                m.FwInfoRequest: self._fw_info,
+                m.FwBegin: self._fw_begin,
+                m.FwWrite: self._fw_write,
+                m.FwVerify: self._fw_verify,
+                m.FwTest: self._fw_test,
+                m.FwConfirm: self._fw_confirm,
+            }.get(type(req))
+            refused = self._need_v2(req) if handler is not None else None
+            if refused is not None:
+                return refused
+        if handler is None:
             return ErrorResponse(
                 ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles"
             )
@@ -191,26 +231,28 @@ class VirtualBoard(BoardConfigMixin):
     # --- session -------------------------------------------------------------------------
 
     def _hello(self, req: Hello, now: float) -> m.Message:
-        if req.max_version < PROTOCOL_VERSION:
-            return ErrorResponse(
-                ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
-            )
-        if req.min_version > PROTOCOL_VERSION:
-            return ErrorResponse(
-                ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
-            )
+        top = self.max_protocol()
+        if req.max_version < 1:
+            return ErrorResponse(ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, f"board speaks 1-{top}")
+        if req.min_version > top:
+            return ErrorResponse(ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, f"board speaks 1-{top}")
+        self.version = min(req.max_version, top)
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
+        if self.version >= 2:
+            caps |= Capability.TIME_SYNC | Capability.TELEMETRY | Capability.FIRMWARE_UPDATE
+            if hasattr(self.scene, "iq_supported"):
+                caps |= Capability.IQ_SAMPLES
         return m.HelloResponse(
-            PROTOCOL_VERSION,
-            PROTOCOL_VERSION,
-            PROTOCOL_VERSION,
+            self.version,
+            1,
+            top,
             self.scene.n_channels,
             MAX_PAYLOAD,
             MAX_SAMPLES,
             int(caps),
             SCHEMA_HASH,
             self.boot_id,
-            FIRMWARE_VERSION,
+            self.firmware_version,
             self.vid,
             self.pid,
             self.serial,
@@ -245,8 +287,12 @@ class VirtualBoard(BoardConfigMixin):
         error = None
         if self.streaming:
             error = (ErrorCode.BAD_STATE, "a stream is already running; stop it first")
-        elif req.sample_format != SampleFormat.U16_ENVELOPE:
-            error = (ErrorCode.UNSUPPORTED, "this board sends U16_ENVELOPE samples only")
+        elif req.sample_format == SampleFormat.I16_IQ and (
+            self.version < 2 or not hasattr(self.scene, "iq_supported")
+        ):
+            error = (ErrorCode.UNSUPPORTED, "I/Q samples need protocol 2 and scene=model")
+        elif req.sample_format not in (SampleFormat.U16_ENVELOPE, SampleFormat.I16_IQ):
+            error = (ErrorCode.UNSUPPORTED, "this board sends U16_ENVELOPE or I16_IQ samples")
         elif req.channel_mask not in (0, (1 << n_ch) - 1):
             error = (ErrorCode.UNSUPPORTED, "channel subsets are not supported; use all channels")
         elif n_samples > min(MAX_SAMPLES, MAX_SAMPLES_PER_FRAME[SampleFormat.U16_ENVELOPE]):
@@ -264,14 +310,21 @@ class VirtualBoard(BoardConfigMixin):
         self._last_background = (
             None  # every stream starts with the background (a new host may be listening)
         )
-        self._stream = _Stream(req.rate_hz, n_samples, remaining, now, seq=self._request_seq)
+        self._stream = _Stream(
+            req.rate_hz,
+            n_samples,
+            remaining,
+            now,
+            seq=self._request_seq,
+            sample_format=req.sample_format,
+        )
         return StreamStartResponse(
             self._acquisition,
             self._counter,
             self.scene.sample_rate_hz,
             n_samples,
             n_ch,
-            SampleFormat.U16_ENVELOPE,
+            req.sample_format,
         )
 
     def _stream_stop(self, req: StreamStop, now: float) -> m.Message:
@@ -291,19 +344,25 @@ class VirtualBoard(BoardConfigMixin):
         )
 
     def next_due(self) -> float | None:
-        return None if self._stream is None else self._stream.next_time
+        times = [t for t in (self.telemetry_next(),) if t is not None]
+        if self._stream is not None:
+            times.append(self._stream.next_time)
+        return min(times) if times else None
 
     def acquisition_size(self) -> int:
         """Upper bound of the wire bytes of one acquisition (annotations included)."""
         n = self._stream.n_samples if self._stream else self.scene.n_samples
-        frame = 12 + 24 + 2 * n + 4
+        per = 4 if self._stream and self._stream.sample_format == SampleFormat.I16_IQ else 2
+        frame = 12 + 24 + per * n + 4
         return 2 * self.scene.n_channels * (frame + frame // 254 + 3)
 
     def due(self, now: float, room: int, limit: int | None = None) -> list[Outgoing]:
         """Acquisitions due by ``now`` that fit in ``room`` bytes (the others overrun), at
         most ``limit`` pings."""
-        out: list[Outgoing] = []
+        out: list[Outgoing] = self.telemetry_due(now)
         s = self._stream
+        if self.silent:
+            return out
         size = self.acquisition_size()
         while s is not None and s.next_time <= now and (limit is None or limit > 0):
             limit = None if limit is None else limit - 1
@@ -331,7 +390,12 @@ class VirtualBoard(BoardConfigMixin):
 
     def _acquire(self, s: _Stream) -> list[Outgoing]:
         index, time_s = self._acquisition, s.next_time - self._boot_time
-        frame = self.scene.frame(index, s.n_samples, time_s)
+        iq = s.sample_format == SampleFormat.I16_IQ
+        frame = (
+            self.scene.frame(index, s.n_samples, time_s, iq=True)
+            if iq
+            else (self.scene.frame(index, s.n_samples, time_s))
+        )
         background = frame.background
         if (
             background is not None
@@ -347,14 +411,17 @@ class VirtualBoard(BoardConfigMixin):
         if frame.truth_targets_mm is not None:
             out.append(Outgoing(encode_truth_targets(index, frame.truth_targets_mm), exempt=True))
         n_ch = frame.samples.shape[0]
-        rows = np.ascontiguousarray(frame.samples, dtype="<u2")
-        stamp = int(time_s * 1e6)
+        if iq:
+            rows = np.ascontiguousarray(frame.iq, dtype="<i2")  # (channels, samples, 2): q, i
+        else:
+            rows = np.ascontiguousarray(frame.samples, dtype="<u2")
+        stamp = self.clock_us(s.next_time)
         for c in range(n_ch):
             msg = StreamData(
                 index,
                 c,
                 n_ch,
-                SampleFormat.U16_ENVELOPE,
+                s.sample_format,
                 self.scene.sample_rate_hz,
                 stamp,
                 rows[c].tobytes(),
