@@ -30,11 +30,15 @@ __all__ = ["ClockEstimate", "SyncCounters", "SyncSample", "TimeSyncEstimator"]
 
 MAX_DRIFT = 500e-6  # |board rate / host rate - 1| assumed at most (crystals: +-100 ppm each)
 MAX_RTT_US = 200_000.0  # a round trip longer than this tells nothing useful
-WINDOW = 128  # exchanges kept for the fit
+WINDOW = 512  # exchanges kept for the fit
 MIN_FIT = 8  # exchanges before the fit replaces the best single exchange
-BEST_FRACTION = 0.5  # the fit uses this fraction of the window, shortest round trips first
+BEST_FRACTION = 0.12  # the fit uses this fraction of the window, shortest round trips first
+SIGMAS = 3.5  # the stated uncertainty: this many standard errors of the fit's prediction
 OUTLIER_FLOOR_US = 2_000.0  # an answer this far (and 8 uncertainties) off the line is an outlier
 STEP_AFTER = 5  # consecutive agreeing outliers: the board's clock was stepped
+RESOLUTION_US = 2.0  # both clocks' resolution (whole us on the wire) on top of half a round trip
+FAST_UNTIL = 64  # exchanges in the window before the session syncs at its normal period
+FAST_PERIOD_S = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,17 +95,22 @@ class TimeSyncEstimator:
         self.estimate: ClockEstimate | None = None
         self._samples: deque[SyncSample] = deque(maxlen=WINDOW)
         self._suspects: list[SyncSample] = []
-        self._rate: float | None = None  # drift measured before a reset
+        self._rate: float | None = None  # the current fit's rate (host us per board us)
         self._rate_sd = MAX_DRIFT
+        self._prior: tuple[float, float] | None = None  # (rate, sd) measured before a reset
+        self._bound: ClockEstimate | None = None  # the best exchange's hard bound
+        self._fitted: ClockEstimate | None = None  # the line through the window
 
     # --- input -------------------------------------------------------------------------
 
     def reset(self, boot_id: int | None = None) -> None:
-        """Forget the offset (the board rebooted); the measured drift is kept."""
+        """Forget the offset (the board rebooted); the measured drift is kept as a prior."""
+        if self._rate is not None and self.estimate is not None and self.estimate.fitted:
+            self._prior = (self._rate, self._rate_sd)
         self.boot_id = boot_id
         self._samples.clear()
         self._suspects.clear()
-        self.estimate = None
+        self.estimate = self._bound = self._fitted = None
 
     def add(self, sent_us: float, received_us: float, board_us: float, boot_id: int) -> bool:
         """One exchange; False (and a counter, and a message) when it was not used."""
@@ -171,16 +180,14 @@ class TimeSyncEstimator:
     def _refit(self) -> None:
         samples = list(self._samples)
         best = min(samples, key=lambda s: s.rtt_us)
-        prior_rate = self._rate if self._rate is not None else 1.0
+        prior_rate, prior_sd = self._prior if self._prior is not None else (1.0, MAX_DRIFT)
+        # the hard bound of the best exchange; the rate known before a reset, if any
+        growth = min(SIGMAS * prior_sd, MAX_DRIFT)
+        bound = ClockEstimate(
+            best.board_us, best.mid_us, prior_rate, 0.5 * best.rtt_us + RESOLUTION_US, growth, False
+        )
+        self.estimate, self._bound, self._fitted = bound, bound, None
         if len(samples) < MIN_FIT:
-            self.estimate = ClockEstimate(
-                best.board_us,
-                best.mid_us,
-                prior_rate,
-                0.5 * best.rtt_us,
-                self._rate_sd if self._rate is not None else MAX_DRIFT,
-                False,
-            )
             return
         k = max(MIN_FIT, int(len(samples) * BEST_FRACTION))
         chosen = sorted(samples, key=lambda s: s.rtt_us)[:k]
@@ -189,26 +196,48 @@ class TimeSyncEstimator:
         n = len(chosen)
         xm, ym = sum(x) / n, sum(y) / n
         sxx = sum((xi - xm) ** 2 for xi in x)
-        if sxx < 1e6:  # exchanges too close in time to see a drift: offset only
-            rate = prior_rate
-        else:
-            rate = sum((xi - xm) * (yi - ym) for xi, yi in zip(x, y, strict=True)) / sxx
-            if abs(rate - 1.0) > MAX_DRIFT:
-                rate = min(max(rate, 1.0 - MAX_DRIFT), 1.0 + MAX_DRIFT)
+        fit_rate = (
+            sum((xi - xm) * (yi - ym) for xi, yi in zip(x, y, strict=True)) / sxx
+            if sxx >= 1e6
+            else prior_rate
+        )
+        resid = [yi - (ym + fit_rate * (xi - xm)) for xi, yi in zip(x, y, strict=True)]
+        sd = math.sqrt(sum(r * r for r in resid) / max(n - 2, 1))
+        fit_sd = sd / math.sqrt(sxx) if sxx >= 1e6 else MAX_DRIFT
+        # the fit's rate and the prior's (from before a reset), weighted by their variances:
+        # a few seconds after a reset the prior is far better than the short window's slope
+        w_fit, w_prior = 1.0 / max(fit_sd, 1e-9) ** 2, 1.0 / max(prior_sd, 1e-9) ** 2
+        rate = (fit_rate * w_fit + prior_rate * w_prior) / (w_fit + w_prior)
+        rate_sd = math.sqrt(1.0 / (w_fit + w_prior))
+        rate = min(max(rate, 1.0 - MAX_DRIFT), 1.0 + MAX_DRIFT)
         resid = [yi - (ym + rate * (xi - xm)) for xi, yi in zip(x, y, strict=True)]
-        s2 = sum(r * r for r in resid) / max(n - 2, 1)
-        # residual scatter cannot be below what the best round trip allows us to see
-        sd = math.sqrt(s2)
-        rate_sd = sd / math.sqrt(sxx) if sxx >= 1e6 else self._rate_sd
-        self._rate, self._rate_sd = rate, min(max(rate_sd, 1e-7), MAX_DRIFT)
-        # 95 %: two standard errors of the line's prediction at its centre, growing with the
-        # rate's standard error away from it
-        base = 2.0 * sd / math.sqrt(n) + 1.0
-        self.estimate = ClockEstimate(xm, ym, rate, base, 2.0 * self._rate_sd, True)
+        sd = math.sqrt(sum(r * r for r in resid) / max(n - 2, 1))
+        self._rate, self._rate_sd = rate, min(max(rate_sd, 1e-8), MAX_DRIFT)
+        # about 95 %: SIGMAS standard errors of the line's prediction at its centre, growing
+        # with the rate's standard error away from it
+        small = 1.0 + 4.0 / n  # few exchanges: a wider interval (Student's t, roughly)
+        base = small * SIGMAS * sd / math.sqrt(n) + 1.0
+        fitted = ClockEstimate(xm, ym, rate, base, small * SIGMAS * self._rate_sd, True)
+        self.estimate = self._fitted = fitted
 
     def map(self, board_us: float) -> tuple[float, float] | None:
-        """(host_us, uncertainty_us) of a board time, or None before the first exchange."""
-        return None if self.estimate is None else self.estimate.map(board_us)
+        """(host_us, uncertainty_us) of a board time, or None before the first exchange.
+
+        The fit's value once there is one; its uncertainty the fit's own, or, while that is
+        still wider, the hard bound's widened by the distance between the two values (the
+        truth lies within the bound, so within that of the fit's value)."""
+        if self.estimate is None:
+            return None
+        fitted, bound = getattr(self, "_fitted", None), getattr(self, "_bound", None)
+        if fitted is None or bound is None:
+            return self.estimate.map(board_us)
+        value, u_fit = fitted.map(board_us)
+        hard, u_bound = bound.map(board_us)
+        return value, min(u_fit, u_bound + abs(value - hard))
+
+    def interval(self, normal_s: float) -> float:
+        """The time to the next exchange: faster (0.1 s) while the window is short."""
+        return min(normal_s, FAST_PERIOD_S) if len(self._samples) < FAST_UNTIL else normal_s
 
     def take_messages(self) -> list[str]:
         out, self.counters.messages = self.counters.messages, []

@@ -33,7 +33,7 @@ from spiel_edge.errors import DeviceError, DeviceTimeoutError
 
 log = logging.getLogger(__name__)
 
-SYNC_PERIOD_S = 0.5  # TIME_SYNC exchanges while streaming
+SYNC_PERIOD_S = 0.25  # TIME_SYNC exchanges while streaming
 SYNC_BURST = 4  # exchanges right after the handshake
 HEARTBEAT_MS = 500  # the period the host asks for
 SYNC_TIMEOUT_S = 0.25  # an answer later than this is useless for the clock anyway
@@ -77,7 +77,7 @@ class SessionV2Mixin:
 
     def sync_clock(self) -> bool:
         """One TIME_SYNC exchange into the estimator; False if it gave nothing."""
-        self._next_sync = time.monotonic() + self.sync_period_s
+        self._next_sync = time.monotonic() + self.clock.interval(self.sync_period_s)
         if not self._offers(Capability.TIME_SYNC):
             return False
         try:
