@@ -46,6 +46,8 @@ class StreamingMixin:
             n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, 0
         )
         self._stop_quietly()
+        if self._status_base is None:  # the board's since-boot counters before this run
+            self._status_base = self._request_status()
         self.tracker.begin()
         answer = self.request(request)
         assert isinstance(answer, StreamStartResponse)
@@ -69,9 +71,16 @@ class StreamingMixin:
                 raise
 
     def stream_status(self) -> StreamStatus:
-        status = self.request(StreamStatusRequest())
-        assert isinstance(status, StreamStatus)
+        """The board's counters (since its boot); ``counts()`` reports them from the start
+        of this session's stream."""
+        status = self._request_status()
         self.device_status = status
+        return status
+
+    def _request_status(self) -> StreamStatus:
+        status = self.request(StreamStatusRequest())
+        if not isinstance(status, StreamStatus):
+            raise DeviceError(f"STREAM_STATUS answered with {type(status).__name__}")
         return status
 
     def acquisitions(self, stop: threading.Event | None = None) -> Iterator[LiveAcquisition]:

@@ -281,6 +281,10 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     if ((mask & ~all_channels()) != 0) {
         return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "channel_mask names absent channels");
     }
+    if (dev.version < 2 && mask != all_channels()) {
+        /* version 1 numbers a subset's channels 0..n-1, losing which they are */
+        return fail(SP_ERR_UNSUPPORTED, SP_MSG_STREAM_START, "channel subsets need version 2");
+    }
     if (n_samples > max_samples ||
         SP_STREAM_HEADER_SIZE + 2u * (uint32_t)n_samples > dev.max_payload) {
         return fail(SP_ERR_TOO_LARGE, SP_MSG_STREAM_START, "n_samples too large");
@@ -389,7 +393,7 @@ static void send_channel(void)
         memset(samples, 0, st.n_samples * sizeof samples[0]);
     }
     h.acquisition = st.index;
-    h.channel = (uint8_t)(dev.version >= 2 ? c : st.rank);
+    h.channel = (uint8_t)c; /* physical id; equal to the rank in version 1 (all channels) */
     h.n_channels = st.n_channels;
     h.sample_format = SP_SAMPLE_U16_ENVELOPE;
     h.header_size = SP_STREAM_HEADER_SIZE;
