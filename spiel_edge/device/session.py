@@ -317,7 +317,6 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
         """Every counter in one flat dict (see the README for their meaning)."""
         assembler = self.tracker.assembler.stats
         decoder = self.decoder.stats
-        status = self.device_status
         return {
             "acquisitions": self.tracker.acquisitions,
             "lost": self.tracker.lost,

@@ -41,9 +41,9 @@ from firmware_protocol import (
     decode_message,
     encode_message,
 )
-from firmware_protocol.stream import STREAM_HEADER
 from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
+from firmware_protocol.stream import STREAM_HEADER
 from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.sim.config_slots import BoardConfigMixin
