@@ -28,6 +28,7 @@ static uint32_t sample_rate;
 static uint32_t trigger_mask;
 static uint16_t trigger_samples;
 static const uint8_t *current; /* the acquisition last triggered */
+static int current_read;       /* a channel of it was read */
 static int flash_fd = -1;
 static int in_fd, out_fd;
 static long flash_cut = -1, flash_fail = -1, flash_ops;
@@ -158,8 +159,13 @@ int hal_acq_trigger(uint32_t channel_mask, uint16_t samples)
     }
     trigger_mask = channel_mask;
     trigger_samples = samples;
+    if (current != NULL && current_read) {
+        cursor = (cursor + 1) % n_acq; /* the recordings in order, looped */
+    }
+    /* an acquisition triggered but never read (a STREAM_STOP came first) is measured again:
+     * every recording reaches the host once, in order */
     current = scan_data + (size_t)cursor * n_channels * n_samples * 2u;
-    cursor = (cursor + 1) % n_acq; /* the recordings in order, looped */
+    current_read = 0;
     return 0;
 }
 
@@ -177,6 +183,7 @@ int hal_acq_read(uint8_t channel, uint16_t *samples, uint16_t n)
         return -1;
     }
     row = current + (size_t)channel * n_samples * 2u;
+    current_read = 1;
     for (i = 0; i < n; i++) {
         samples[i] = sp_le_get_u16(row + 2u * i);
     }
