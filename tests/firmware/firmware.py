@@ -144,10 +144,21 @@ class CoreDriver:
         assert self.command(f"time {int(us)}") == "ok"
 
     def stats(self) -> dict[str, int]:
-        names = (
-            "frames crc cobs length oversize version flags requests repeated "
-            "acquisitions_sent frames_sent overruns flash_errors"
-        ).split()
+        names = [
+            "frames",
+            "crc",
+            "cobs",
+            "length",
+            "oversize",
+            "version",
+            "flags",
+            "requests",
+            "repeated",
+            "acquisitions_sent",
+            "frames_sent",
+            "overruns",
+            "flash_errors",
+        ]
         kind, *values = self.command("stats").split()
         assert kind == "stats"
         return dict(zip(names, map(int, values), strict=True))
