@@ -30,6 +30,7 @@ from firmware_protocol.framing import (
 from firmware_protocol.messages import (
     MAX_PROTOCOL_VERSION,
     MAX_RETRIES,
+    MIN_PAYLOAD,
     MIN_PROTOCOL_VERSION,
     REGISTRY,
     SCHEMA_HASH,
@@ -64,6 +65,7 @@ from firmware_protocol.messages import (
     decode_message,
     decode_payload,
     encode_message,
+    payload_for_version,
 )
 from firmware_protocol.reassembly import Acquisition, AcquisitionAssembler, AssemblerStats
 from firmware_protocol.stream import (
@@ -108,6 +110,7 @@ __all__ = [
     "MAX_PAYLOAD",
     "MAX_PROTOCOL_VERSION",
     "MAX_RETRIES",
+    "MIN_PAYLOAD",
     "MIN_PROTOCOL_VERSION",
     "MAX_SAMPLES_PER_FRAME",
     "MAX_WIRE_SIZE",
@@ -187,5 +190,6 @@ __all__ = [
     "describe_error",
     "encode_frame",
     "encode_message",
+    "payload_for_version",
     "load_test_vectors",
 ]

@@ -39,6 +39,9 @@ RECONNECT_POLL_S = 0.05  # how often to look for a board that went away
 class StreamingMixin:
     """Mixed into DeviceSession, whose state (link, tracker, inbox, counters) it uses."""
 
+    protocol_version: int
+    _status_base: StreamStatus | None
+
     # --- streaming -----------------------------------------------------------------------
 
     def start_stream(
@@ -47,15 +50,27 @@ class StreamingMixin:
         rate_hz: float = 50.0,
         n_samples: int = 0,
         n_acquisitions: int = 0,
+        channel_mask: int = 0,
         sample_format: int = SampleFormat.U16_ENVELOPE,
     ) -> StreamStartResponse:
-        """Start streaming (stopping any stream the board still runs); ``sample_format``
-        I16_IQ asks for I/Q pairs (the acquisitions then carry envelope and phase)."""
-        request = StreamStart(n_acquisitions, float(rate_hz), n_samples, sample_format, 0)
+        """Start streaming (stopping any stream the board still runs). ``channel_mask``: the
+        physical channels to stream (0: all); a subset needs protocol version 2, where the
+        acquisitions' rows are the mask's channels in increasing order. ``sample_format``
+        I16_IQ asks for I/Q pairs (protocol 2; the acquisitions then carry envelope and phase)."""
+        if channel_mask and self.protocol_version < 2:
+            raise DeviceError(
+                f"{self.url}: a channel subset needs protocol version 2; the board speaks "
+                f"{self.protocol_version}"
+            )
+        request = StreamStart(
+            n_acquisitions, float(rate_hz), n_samples, sample_format, channel_mask
+        )
         if sample_format == SampleFormat.I16_IQ:  # compile (or load) the kernel before data flows
             iq_envelope(np.zeros((1, 2), dtype=np.int16))
         self._stop_quietly()
-        self.tracker.begin()
+        if self._status_base is None:  # the board's since-boot counters before this run
+            self._status_base = self._request_status()
+        self.tracker.begin(channel_mask)
         answer = self.request(request)
         assert isinstance(answer, StreamStartResponse)
         self.tracker.started(answer.first_acquisition)
@@ -78,9 +93,16 @@ class StreamingMixin:
                 raise
 
     def stream_status(self) -> StreamStatus:
-        status = self.request(StreamStatusRequest())
-        assert isinstance(status, StreamStatus)
+        """The board's counters (since its boot); ``counts()`` reports them from the start
+        of this session's stream."""
+        status = self._request_status()
         self.device_status = status
+        return status
+
+    def _request_status(self) -> StreamStatus:
+        status = self.request(StreamStatusRequest())
+        if not isinstance(status, StreamStatus):
+            raise DeviceError(f"STREAM_STATUS answered with {type(status).__name__}")
         return status
 
     def acquisitions(self, stop: threading.Event | None = None) -> Iterator[LiveAcquisition]:
@@ -129,6 +151,7 @@ class StreamingMixin:
                 n_samples=request.n_samples,
                 n_acquisitions=request.n_acquisitions,
                 sample_format=request.sample_format,
+                channel_mask=request.channel_mask,
             )
 
     # --- reconnection --------------------------------------------------------------------

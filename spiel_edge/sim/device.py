@@ -54,6 +54,7 @@ class SimDevice:
             sync_fault=options.sync_fault,
             heartbeat_flags=options.heartbeat_flags,
             log_flood=options.log_flood,
+            max_payload=options.max_payload,
         )
         self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
         self.generation = 1  # +1 each time it comes back
