@@ -280,9 +280,15 @@ int hal_flash_read(uint32_t addr, uint8_t *data, uint32_t len)
 
 /* ---- system ------------------------------------------------------------------------------- */
 
+void posix_hal_set_firmware_version(const char *version)
+{
+    info.firmware_version = version;
+}
+
 void hal_reset(int to_bootloader)
 {
     char fd[16];
+    const char *loader = getenv("SPIEL_FW_LOADER"); /* an image booted by the bootloader */
     if (to_bootloader) {
         fprintf(stderr, "spiel_fw_posix: reset to the bootloader (none in this target): exit\n");
         exit(3);
@@ -292,7 +298,8 @@ void hal_reset(int to_bootloader)
         setenv("SPIEL_FW_PTY_FD", fd, 1);
     }
     fsync(flash_fd);
-    execv("/proc/self/exe", saved_argv);
+    unsetenv("SPIEL_FW_SLOT"); /* a reset runs the bootloader again, which chooses */
+    execv(loader != NULL ? loader : "/proc/self/exe", saved_argv);
     perror("re-exec");
     exit(1);
 }

@@ -9,7 +9,9 @@
  * looped in order; the flash is a file. A reset re-executes the program on the same pty.
  * Fault injection for tests: --flash-cut N kills the process (SIGKILL) in the middle of the
  * N-th flash operation (0-based: erase or write; half of it done), --flash-fail N makes the
- * N-th one fail. */
+ * N-th one fail.
+ * Firmware update (protocol 2): --images DIR holds the image slots and the boot record
+ * (image_posix.c); the program then starts as the bootloader and runs the chosen image. */
 #define _XOPEN_SOURCE 600
 #define _DEFAULT_SOURCE
 #include <errno.h>
@@ -27,7 +29,8 @@
 static void usage(void)
 {
     fprintf(stderr, "usage: spiel_fw_posix --scans FILE --flash FILE [--pty] [--link PATH] "
-                    "[--serial S] [--flash-cut N] [--flash-fail N]\n");
+                    "[--serial S] [--flash-cut N] [--flash-fail N] [--images DIR] "
+                    "[--image-cut N]\n");
     exit(2);
 }
 
@@ -49,7 +52,8 @@ static int open_pty(void)
 int main(int argc, char **argv)
 {
     const char *scans = NULL, *flash = NULL, *link = NULL, *serial = "POSIX0001";
-    long cut = -1, fail = -1;
+    const char *images = NULL;
+    long cut = -1, fail = -1, image_cut = -1;
     int use_pty = 0, i, in_fd = 0, out_fd = 1, slave = -1;
     const char *inherited = getenv("SPIEL_FW_PTY_FD");
     for (i = 1; i < argc; i++) {
@@ -74,6 +78,10 @@ int main(int argc, char **argv)
             cut = strtol(v, NULL, 0);
         } else if (strcmp(a, "--flash-fail") == 0) {
             fail = strtol(v, NULL, 0);
+        } else if (strcmp(a, "--images") == 0) {
+            images = v;
+        } else if (strcmp(a, "--image-cut") == 0) {
+            image_cut = strtol(v, NULL, 0);
         } else {
             usage();
         }
@@ -81,6 +89,20 @@ int main(int argc, char **argv)
     }
     if (scans == NULL || flash == NULL) {
         usage();
+    }
+    if (images != NULL) {
+#if SPIEL_FW_UPDATE
+        if (posix_image_open(images, image_cut) != 0) {
+            return 1;
+        }
+        if (getenv("SPIEL_FW_SLOT") == NULL) {
+            posix_image_boot(argv); /* the bootloader: returns only without a bootable image */
+        }
+#else
+        (void)image_cut;
+        fprintf(stderr, "--images needs a build with -DSPIEL_FW_UPDATE=1\n");
+        return 2;
+#endif
     }
     if (use_pty) {
         if (inherited != NULL) { /* a reset: the same pty, so the port stays where it was */
@@ -108,6 +130,13 @@ int main(int argc, char **argv)
     if (posix_hal_open(scans, flash, serial, in_fd, out_fd, cut, fail, argv) != 0) {
         return 1;
     }
+#if SPIEL_FW_UPDATE
+    if (images != NULL) {
+        static char version[17];
+        posix_image_started(version);
+        posix_hal_set_firmware_version(version);
+    }
+#endif
     spiel_device_init();
     for (;;) {
         uint32_t idle;

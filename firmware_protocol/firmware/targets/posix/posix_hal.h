@@ -12,4 +12,11 @@ int posix_hal_open(const char *scans, const char *flash, const char *serial, int
 /* Sleep until the transport is readable or `us` microseconds have passed. */
 void posix_hal_wait(uint32_t us);
 
+/* Firmware image slots (image_posix.c, PROTOCOL.md 14.3): --images DIR and --image-cut N. */
+int posix_image_open(const char *images, long cut);
+void posix_image_boot(char **argv);      /* the bootloader; returns only without an image */
+int posix_image_started(char version[17]); /* the running slot (-1 none) and its version */
+/* The firmware version HELLO reports (default "1.0.0+posix"). */
+void posix_hal_set_firmware_version(const char *version);
+
 #endif
