@@ -20,7 +20,9 @@
 
 void uart0_rx_handler(void);
 void timer0_handler(void);
+void timer1_handler(void);
 void mps2_hal_init(void);
+void mps2_wait(uint32_t us);
 
 /* ---- transport ------------------------------------------------------------------------- */
 
@@ -175,12 +177,12 @@ int hal_acq_read(uint8_t channel, uint16_t *samples, uint16_t n_samples)
 
 /* Power-cut hook for the tests (tests/firmware): a mailbox in the PSRAM, which the test
  * writes into the host file that backs it before booting the board. When armed, the n-th
- * flash operation (erase or write, counted from boot) does only its first half and then the
+ * flash operation (erase or write, 0-based, counted from boot) does only its first half and then the
  * board stops dead (mode CUT), or the n-th write fails (mode FAIL). Unarmed on a real board. */
 #define FI_BASE (PSRAM_BASE + 0x00F00000u)
 #define FI_MAGIC REG32(FI_BASE + 0u) /* "SPFI" */
 #define FI_MODE REG32(FI_BASE + 4u)  /* 1 CUT, 2 FAIL */
-#define FI_AT REG32(FI_BASE + 8u)    /* 1-based operation number */
+#define FI_AT REG32(FI_BASE + 8u)    /* operation number, 0-based, counted from boot */
 #define FI_OPS REG32(FI_BASE + 12u)  /* operations so far (written by the board) */
 #define FI_FIRED REG32(FI_BASE + 16u) /* 1 once the cut or failure happened */
 #define FI_MAGIC_VALUE 0x49465053u
@@ -192,12 +194,12 @@ static uint32_t flash_ops;
 /* Count one operation; 1: do it whole, 0: cut it in half and die, -1: fail it. */
 static int flash_op(void)
 {
-    flash_ops++;
+    uint32_t op = flash_ops++;
     if (FI_MAGIC != FI_MAGIC_VALUE) {
         return 1;
     }
     FI_OPS = flash_ops;
-    if (flash_ops != FI_AT) {
+    if (op != FI_AT) {
         return 1;
     }
     return FI_MODE == FI_CUT ? 0 : FI_MODE == FI_FAIL ? -1 : 1;
@@ -310,6 +312,31 @@ uint32_t hal_random(void)
     return x;
 }
 
+/* ---- idle ------------------------------------------------------------------------------ */
+
+void timer1_handler(void)
+{
+    TIMER_CTRL(TIMER1_BASE) = 0; /* one shot */
+    TIMER_INTSTATUS(TIMER1_BASE) = 1u;
+}
+
+/* Sleep (WFI) until a byte arrives or `us` microseconds have passed. Interrupts are masked
+ * between the check and the WFI, so a byte that arrives in between still wakes it. */
+void mps2_wait(uint32_t us)
+{
+    uint32_t ticks = us > 100000000u ? 0xFFFFFFFFu : us * (MPS2_SYSCLK_HZ / 1000000u);
+    irq_disable();
+    if (rx_head == rx_tail && ticks > 0) {
+        TIMER_CTRL(TIMER1_BASE) = 0;
+        TIMER_INTSTATUS(TIMER1_BASE) = 1u;
+        TIMER_RELOAD(TIMER1_BASE) = ticks;
+        TIMER_VALUE(TIMER1_BASE) = ticks;
+        TIMER_CTRL(TIMER1_BASE) = TIMER_CTRL_EN | TIMER_CTRL_IRQEN;
+        __asm volatile("wfi" ::: "memory");
+    }
+    irq_enable();
+}
+
 /* ---- start-up ---------------------------------------------------------------------------- */
 
 void mps2_hal_init(void)
@@ -324,6 +351,6 @@ void mps2_hal_init(void)
     UART_INTSTATUS(UART0_BASE) = 0xFu;
     UART_CTRL(UART0_BASE) = UART_CTRL_TXEN | UART_CTRL_RXEN | UART_CTRL_RXINTEN;
 
-    NVIC_ISER0 = (1u << UART0_RX_IRQ) | (1u << TIMER0_IRQ);
+    NVIC_ISER0 = (1u << UART0_RX_IRQ) | (1u << TIMER0_IRQ) | (1u << TIMER1_IRQ);
     irq_enable();
 }

@@ -39,6 +39,8 @@
 #define TIMER_CTRL_EN 0x1u
 #define TIMER_CTRL_IRQEN 0x8u
 #define TIMER0_IRQ 8u
+#define TIMER1_BASE 0x40001000u /* the idle wake-up */
+#define TIMER1_IRQ 9u
 
 /* The 16 MB PSRAM at 0x21000000 is the machine's main RAM in qemu, so a
  * memory-backend-file (share=on) keeps it in a host file across kills and restarts:

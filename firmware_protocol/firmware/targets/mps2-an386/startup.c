@@ -16,6 +16,7 @@ void fault_handler(void);
 void default_handler(void);
 void uart0_rx_handler(void); /* hal_mps2.c */
 void timer0_handler(void);   /* hal_mps2.c */
+void timer1_handler(void);   /* hal_mps2.c */
 
 void reset_handler(void)
 {
@@ -71,7 +72,8 @@ __attribute__((section(".isr_vector"), used)) const vector_t vector_table[16 + N
     default_handler, default_handler, default_handler, default_handler, default_handler,
     default_handler, default_handler,
     timer0_handler, /* 8: timer 0 */
-    default_handler, default_handler, default_handler, default_handler, default_handler,
+    timer1_handler, /* 9: timer 1 */
+    default_handler, default_handler, default_handler, default_handler,
     default_handler, default_handler, default_handler, default_handler, default_handler,
     default_handler, default_handler, default_handler, default_handler, default_handler,
     default_handler, default_handler, default_handler, default_handler, default_handler,
