@@ -28,7 +28,10 @@ from firmware_protocol.framing import (
     encode_frame,
 )
 from firmware_protocol.messages import (
+    MAX_PROTOCOL_VERSION,
     MAX_RETRIES,
+    MIN_PAYLOAD,
+    MIN_PROTOCOL_VERSION,
     REGISTRY,
     SCHEMA_HASH,
     Capability,
@@ -62,6 +65,7 @@ from firmware_protocol.messages import (
     decode_message,
     decode_payload,
     encode_message,
+    payload_for_version,
 )
 from firmware_protocol.reassembly import Acquisition, AcquisitionAssembler, AssemblerStats
 from firmware_protocol.stream import (
@@ -79,7 +83,10 @@ __all__ = [
     "KNOWN_FLAGS",
     "MAX_ENCODED_SIZE",
     "MAX_PAYLOAD",
+    "MAX_PROTOCOL_VERSION",
     "MAX_RETRIES",
+    "MIN_PAYLOAD",
+    "MIN_PROTOCOL_VERSION",
     "MAX_SAMPLES_PER_FRAME",
     "MAX_WIRE_SIZE",
     "PROTOCOL_VERSION",
@@ -135,5 +142,6 @@ __all__ = [
     "describe_error",
     "encode_frame",
     "encode_message",
+    "payload_for_version",
     "load_test_vectors",
 ]

@@ -29,7 +29,16 @@ from firmware_protocol.framing import (
     PROTOCOL_VERSION,
     Flags,
 )
-from firmware_protocol.messages import MAX_RETRIES, SCHEMA_HASH, Capability, MsgType, RebootMode
+from firmware_protocol.messages import (
+    MAX_PROTOCOL_VERSION,
+    MAX_RETRIES,
+    MIN_PAYLOAD,
+    MIN_PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Capability,
+    MsgType,
+    RebootMode,
+)
 from firmware_protocol.stream import (
     MAX_SAMPLES_PER_FRAME,
     SAMPLE_SIZE,
@@ -65,7 +74,10 @@ _PRELUDE = """\
 #include <stdint.h>
 #include <string.h>
 
-#define SP_PROTOCOL_VERSION {version}u
+#define SP_PROTOCOL_VERSION {version}u /* the frame header's version byte */
+#define SP_PROTOCOL_VERSION_MIN {min_version}u /* message-layer versions, negotiated by HELLO */
+#define SP_PROTOCOL_VERSION_MAX {max_version}u
+#define SP_MIN_PAYLOAD {min_payload}u /* the smallest max_payload a HELLO may state */
 #define SP_SCHEMA_HASH 0x{schema_hash:08X}u /* CRC-32C of every message layout */
 #define SP_HEADER_SIZE {header_size}u
 #define SP_CRC_SIZE {crc_size}u
@@ -275,6 +287,9 @@ def render() -> str:
     prelude = _PRELUDE.format(
         command=COMMAND,
         version=PROTOCOL_VERSION,
+        min_version=MIN_PROTOCOL_VERSION,
+        max_version=MAX_PROTOCOL_VERSION,
+        min_payload=MIN_PAYLOAD,
         schema_hash=SCHEMA_HASH,
         header_size=HEADER_SIZE,
         crc_size=CRC_SIZE,

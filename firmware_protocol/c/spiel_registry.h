@@ -11,8 +11,11 @@
 #include <stdint.h>
 #include <string.h>
 
-#define SP_PROTOCOL_VERSION 1u
-#define SP_SCHEMA_HASH 0x5C19611Bu /* CRC-32C of every message layout */
+#define SP_PROTOCOL_VERSION 1u /* the frame header's version byte */
+#define SP_PROTOCOL_VERSION_MIN 1u /* message-layer versions, negotiated by HELLO */
+#define SP_PROTOCOL_VERSION_MAX 2u
+#define SP_MIN_PAYLOAD 64u /* the smallest max_payload a HELLO may state */
+#define SP_SCHEMA_HASH 0xAED59C08u /* CRC-32C of every message layout */
 #define SP_HEADER_SIZE 12u
 #define SP_CRC_SIZE 4u
 #define SP_MAX_PAYLOAD 8256u

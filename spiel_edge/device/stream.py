@@ -58,10 +58,11 @@ class StreamTracker:
         self._rows_for = -1
         self._first_delivered: int | None = None
 
-    def begin(self) -> None:
+    def begin(self, channel_mask: int = 0) -> None:
         """A new stream is being requested: forget the old one's leftovers. Its first
-        frames may arrive before the answer (when the answer was lost and retried)."""
-        self.assembler.reset()
+        frames may arrive before the answer (when the answer was lost and retried).
+        ``channel_mask``: a channel subset under protocol version 2 (physical ids)."""
+        self.assembler.reset(channel_mask)
         self.ready.clear()
         self._truth.clear()
         self._truth_targets.clear()

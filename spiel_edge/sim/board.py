@@ -19,8 +19,8 @@ import numpy as np
 
 from firmware_protocol import (
     MAX_PAYLOAD,
-    MAX_SAMPLES_PER_FRAME,
-    PROTOCOL_VERSION,
+    MAX_PROTOCOL_VERSION,
+    MIN_PAYLOAD,
     SCHEMA_HASH,
     Capability,
     ErrorCode,
@@ -43,6 +43,7 @@ from firmware_protocol import (
 )
 from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
+from firmware_protocol.stream import STREAM_HEADER
 from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.sim.config_slots import BoardConfigMixin
@@ -55,6 +56,7 @@ log = logging.getLogger(__name__)
 FIRMWARE_VERSION = "sim-0.1.0"
 MAX_RATE_HZ = 10000.0
 MAX_SAMPLES = 4096
+SAMPLE_SIZE_U16 = 2
 RESPONSE_CACHE = 16
 _MASK = 0xFFFFFFFF
 
@@ -65,8 +67,10 @@ class _Stream:
     n_samples: int
     remaining: int | None  # None: endless
     next_time: float
-    sent: int = 0
+    scheduled: int = 0  # acquisitions sent or skipped: n_acquisitions counts both
+    sent: int = 0  # acquisitions of this stream sent whole (STREAM_STOP's acquisitions_sent)
     seq: int = 0  # the STREAM_START's seq, echoed by its STREAM_DATA frames
+    channels: tuple[int, ...] = ()  # the physical channels streamed (the resolved mask)
 
     @property
     def period(self) -> float:
@@ -97,9 +101,13 @@ class VirtualBoard(BoardConfigMixin):
         flash: Flash | None = None,
         seed: int = 0,
         now: float = 0.0,
+        protocol: int = MAX_PROTOCOL_VERSION,
+        max_payload: int = MAX_PAYLOAD,
     ):
         self.scene = scene
         self.serial, self.vid, self.pid = serial, vid, pid
+        self.max_version = protocol  # the highest protocol version this board speaks
+        self.board_max_payload = max_payload  # HELLO max_payload: what it sends or accepts
         self.flash = flash or Flash()
         self.stats = BoardStats()
         self.tx_dropped = 0  # set by the line: frames lost on the way out
@@ -123,6 +131,8 @@ class VirtualBoard(BoardConfigMixin):
         self._last_background: np.ndarray | None = None
         self._request_seq = 0
         self.reboot_at = None
+        self.version = 1  # negotiated by HELLO
+        self.max_payload = self.board_max_payload  # of the link: min(board, host's HELLO)
 
     @property
     def streaming(self) -> bool:
@@ -160,7 +170,7 @@ class VirtualBoard(BoardConfigMixin):
             self.stats.count(frame.msg_type)
             self._request_seq = frame.seq
             response = self._execute(request, now)
-        wire = encode_message(response, seq=frame.seq)
+        wire = encode_message(response, seq=frame.seq, version=self.version)
         if frame.msg_type == m.MsgType.HELLO:
             self._cache.clear()
         self._cache[frame.seq] = (frame.msg_type, wire)
@@ -191,21 +201,24 @@ class VirtualBoard(BoardConfigMixin):
     # --- session -------------------------------------------------------------------------
 
     def _hello(self, req: Hello, now: float) -> m.Message:
-        if req.max_version < PROTOCOL_VERSION:
+        speaks = f"board speaks 1-{self.max_version}"
+        if req.max_version < 1:
+            return ErrorResponse(ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, speaks)
+        if req.min_version > self.max_version:
+            return ErrorResponse(ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, speaks)
+        if 0 < req.max_payload < MIN_PAYLOAD:
             return ErrorResponse(
-                ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
+                ErrorCode.INVALID, req.MSG_TYPE, f"max_payload below the minimum {MIN_PAYLOAD}"
             )
-        if req.min_version > PROTOCOL_VERSION:
-            return ErrorResponse(
-                ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
-            )
+        self.version = min(req.max_version, self.max_version)
+        self.max_payload = min(req.max_payload or MAX_PAYLOAD, self.board_max_payload)
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
         return m.HelloResponse(
-            PROTOCOL_VERSION,
-            PROTOCOL_VERSION,
-            PROTOCOL_VERSION,
+            self.version,
+            1,
+            self.max_version,
             self.scene.n_channels,
-            MAX_PAYLOAD,
+            self.board_max_payload,
             MAX_SAMPLES,
             int(caps),
             SCHEMA_HASH,
@@ -231,6 +244,10 @@ class VirtualBoard(BoardConfigMixin):
         )
 
     def _ping(self, req: Ping, now: float) -> m.Message:
+        if len(req.data) + 2 > self.max_payload:
+            return ErrorResponse(
+                ErrorCode.TOO_LARGE, req.MSG_TYPE, "ping data exceeds max_payload - 2"
+            )
         return Pong(req.data)
 
     def _reboot(self, req: m.Reboot, now: float) -> m.Message:
@@ -242,15 +259,23 @@ class VirtualBoard(BoardConfigMixin):
     def _stream_start(self, req: StreamStart, now: float) -> m.Message:
         n_ch = self.scene.n_channels
         n_samples = req.n_samples or self.scene.n_samples
+        every = (1 << n_ch) - 1
+        mask = req.channel_mask or every
         error = None
         if self.streaming:
             error = (ErrorCode.BAD_STATE, "a stream is already running; stop it first")
         elif req.sample_format != SampleFormat.U16_ENVELOPE:
             error = (ErrorCode.UNSUPPORTED, "this board sends U16_ENVELOPE samples only")
-        elif req.channel_mask not in (0, (1 << n_ch) - 1):
-            error = (ErrorCode.UNSUPPORTED, "channel subsets are not supported; use all channels")
-        elif n_samples > min(MAX_SAMPLES, MAX_SAMPLES_PER_FRAME[SampleFormat.U16_ENVELOPE]):
-            error = (ErrorCode.TOO_LARGE, f"at most {MAX_SAMPLES} samples per channel")
+        elif mask & ~every:
+            error = (ErrorCode.INVALID, "channel_mask names absent channels")
+        elif self.version < 2 and mask != every:
+            # version 1 numbers the channels of a subset 0..n-1, losing which they are
+            error = (ErrorCode.UNSUPPORTED, "channel subsets need protocol version 2")
+        elif (
+            n_samples > MAX_SAMPLES
+            or STREAM_HEADER.size + n_samples * SAMPLE_SIZE_U16 > self.max_payload
+        ):
+            error = (ErrorCode.TOO_LARGE, "n_samples too large for max_samples or max_payload")
         elif not self.scene.supports(n_samples):
             error = (
                 ErrorCode.UNSUPPORTED,
@@ -264,14 +289,18 @@ class VirtualBoard(BoardConfigMixin):
         self._last_background = (
             None  # every stream starts with the background (a new host may be listening)
         )
-        self._stream = _Stream(req.rate_hz, n_samples, remaining, now, seq=self._request_seq)
+        channels = tuple(c for c in range(n_ch) if mask >> c & 1)
+        self._stream = _Stream(
+            req.rate_hz, n_samples, remaining, now, seq=self._request_seq, channels=channels
+        )
         return StreamStartResponse(
             self._acquisition,
             self._counter,
             self.scene.sample_rate_hz,
             n_samples,
-            n_ch,
+            len(channels),
             SampleFormat.U16_ENVELOPE,
+            mask,
         )
 
     def _stream_stop(self, req: StreamStop, now: float) -> m.Message:
@@ -315,9 +344,10 @@ class VirtualBoard(BoardConfigMixin):
             else:
                 out += self._acquire(s)
                 room -= size
+                s.sent += 1
             s.next_time = now if s.period == 0.0 else s.next_time + s.period
-            s.sent += 1
-            if s.remaining is not None and s.sent >= s.remaining:
+            s.scheduled += 1
+            if s.remaining is not None and s.scheduled >= s.remaining:
                 self._stream = s = None
         return out
 
@@ -346,20 +376,21 @@ class VirtualBoard(BoardConfigMixin):
         ]
         if frame.truth_targets_mm is not None:
             out.append(Outgoing(encode_truth_targets(index, frame.truth_targets_mm), exempt=True))
-        n_ch = frame.samples.shape[0]
+        channels = s.channels or tuple(range(frame.samples.shape[0]))
+        n_ch = len(channels)
         rows = np.ascontiguousarray(frame.samples, dtype="<u2")
         stamp = int(time_s * 1e6)
-        for c in range(n_ch):
+        for rank, c in enumerate(channels):
             msg = StreamData(
                 index,
-                c,
+                c if self.version >= 2 else rank,  # v2: the physical channel id
                 n_ch,
                 SampleFormat.U16_ENVELOPE,
                 self.scene.sample_rate_hz,
                 stamp,
                 rows[c].tobytes(),
             )
-            more = Flags.MORE if c < n_ch - 1 else 0
+            more = Flags.MORE if rank < n_ch - 1 else 0
             out.append(
                 Outgoing(
                     encode_message(msg, seq=s.seq, flags=more, aux=self._counter), acquisition=index

@@ -46,6 +46,8 @@ class SimDevice:
             flash=Flash(cut_at=options.power_cut),
             seed=options.seed,
             now=now,
+            protocol=options.protocol,
+            max_payload=options.max_payload,
         )
         self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
         self.generation = 1  # +1 each time it comes back

@@ -36,6 +36,8 @@ class SimOptions:
     serial: str = "SIM0001"
     vid: int = BOARD_USB_IDS[0][0]  # the board's own ids (link/usb_ids.py)
     pid: int = BOARD_USB_IDS[0][1]
+    protocol: int = 2  # the highest protocol version the board speaks (1: a version-1 board)
+    max_payload: int = 8256  # HELLO max_payload: the largest payload it sends or accepts
     fifo: int = 65536  # transmit buffer (bytes); a due acquisition that does not fit overruns
     # scene
     profile: str = "spiel-icra23"  # geometry and timing of the model scene
@@ -75,6 +77,11 @@ class SimOptions:
             min(self.unplug_after, self.unplug_count, self.stall_after) >= 0, "counts must be >= 0"
         )
         need(self.unplug_ms >= 0 and self.stall_ms >= 0, "durations must be >= 0")
+        need(self.protocol in (1, 2), f"protocol must be 1 or 2, got {self.protocol}")
+        need(
+            64 <= self.max_payload <= 8256,
+            f"max_payload must be in [64, 8256], got {self.max_payload}",
+        )
         need(self.fifo >= 1024, f"fifo must be >= 1024 bytes, got {self.fifo}")
         need(
             self.noise >= 0 and (self.speed == 0 or 200 <= self.speed <= 2000),

@@ -1,7 +1,7 @@
 /*
  * spiel_hal.h - the hardware abstraction layer of the spiel-edge reference firmware.
  *
- * This is the ONLY header between the portable core (core/) and a target
+ * This is the ONLY header between the portable core (the files in core/) and a target
  * (targets/<name>/). A target implements every function below; the core calls them from
  * spiel_device_poll() only, never from an interrupt. None of them may block for long: the
  * transport calls return at once, flash calls take as long as the flash needs (a commit is
