@@ -54,13 +54,14 @@ def build_mps2(out_dir: Path, target: str = "mps2", extra: tuple[str, ...] = ())
     why = missing_tools()
     if why:
         raise Unavailable(why)
-    cmd = ["make", "-s", f"TARGET={target}", f"BUILD={out_dir}", *extra]
+    build = Path(out_dir) / target
+    cmd = ["make", "-s", f"TARGET={target}", f"BUILD={build}", *extra]
     done = subprocess.run(cmd, cwd=FIRMWARE, capture_output=True, text=True, timeout=600)
     if done.returncode != 0:
         if "nano.specs" in done.stderr or "newlib" in done.stderr:
             raise Unavailable("newlib-nano missing (Debian: apt-get install libnewlib-arm-none-eabi)")
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stdout}\n{done.stderr}")
-    return Path(out_dir) / target / "firmware.elf"
+    return build / "firmware.elf"
 
 
 def new_flash(path: Path) -> Path:
@@ -113,6 +114,11 @@ class QemuBoard:
             self.kill()
             raise RuntimeError(f"qemu did not report its pty: {line!r} {err}")
         self.port = found.group(1).decode()
+        time.sleep(0.2)  # qemu names the pty before it loads the image
+        if self.proc.poll() is not None:
+            err = self.proc.stderr.read().decode(errors="replace")
+            self.kill()
+            raise RuntimeError(f"qemu stopped at start: {err.strip()}")
         # hold the pty's slave open, as a USB CDC port stays while the board is powered:
         # qemu then never sees a hang-up between two host commands
         self._slave = os.open(self.port, os.O_RDWR | os.O_NOCTTY)

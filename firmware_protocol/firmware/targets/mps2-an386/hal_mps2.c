@@ -6,8 +6,9 @@
  *            as many bytes as the UART takes now.
  * clock      CMSDK timer 0 counting down at 25 MHz from 0xFFFFFFFF; its wrap interrupt
  *            extends it to 64 bits.
- * A-scans    the vendored recordings as constant data (ascans.c, generated): trigger k
- *            returns frame k mod N, ready after the listening time n_samples / sample rate.
+ * A-scans    the vendored recordings as constant data (ascans.c, generated), in order and
+ *            looped, one per measurement that was read; ready after the listening time
+ *            n_samples / sample rate.
  * flash      64 KiB of NOR-like memory (erase sets 0xFF, a write can only clear bits) in the
  *            PSRAM, which qemu can back with a host file; plus a test hook for power cuts.
  * reset      SCB AIRCR SYSRESETREQ.
@@ -125,10 +126,10 @@ int16_t hal_temperature_cdeg(void)
     return 0; /* no sensor on this board */
 }
 
-static uint32_t acq_count;     /* triggers since boot: frame acq_count - 1 is being measured */
+static uint32_t acq_frame;     /* the embedded frame the measurement in flight returns */
 static uint32_t acq_mask;
 static uint64_t acq_done_us;
-static int acq_busy;
+static int acq_busy, acq_read;
 static uint32_t sample_rate_hz = 22000u;
 
 void hal_apply_settings(const hal_settings_t *settings)
@@ -145,10 +146,15 @@ int hal_acq_trigger(uint32_t channel_mask, uint16_t n_samples)
         n_samples == 0 || n_samples > SPIEL_ASCANS_SAMPLES) {
         return -1;
     }
+    if (acq_busy && acq_read) {
+        acq_frame = (acq_frame + 1u) % SPIEL_ASCANS_N; /* the recordings in order, looped */
+    }
+    /* a measurement triggered but never read (a STREAM_STOP came first) is measured again,
+     * so every recording reaches the host once, in order (as the posix target does) */
     acq_mask = channel_mask;
     acq_done_us = hal_time_us() + (uint64_t)n_samples * 1000000u / sample_rate_hz;
-    acq_count++;
     acq_busy = 1;
+    acq_read = 0;
     return 0;
 }
 
@@ -159,13 +165,12 @@ int hal_acq_ready(void)
 
 int hal_acq_read(uint8_t channel, uint16_t *samples, uint16_t n_samples)
 {
-    const uint16_t *src;
     if (!acq_busy || channel >= SPIEL_ASCANS_CHANNELS || !(acq_mask & (1u << channel)) ||
-        n_samples > SPIEL_ASCANS_SAMPLES || acq_count == 0) {
+        n_samples > SPIEL_ASCANS_SAMPLES) {
         return -1;
     }
-    src = spiel_ascans[(acq_count - 1u) % SPIEL_ASCANS_N][channel];
-    memcpy(samples, src, (size_t)n_samples * sizeof *samples);
+    memcpy(samples, spiel_ascans[acq_frame][channel], (size_t)n_samples * sizeof *samples);
+    acq_read = 1;
     return 0;
 }
 
