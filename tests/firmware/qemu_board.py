@@ -59,7 +59,9 @@ def build_mps2(out_dir: Path, target: str = "mps2", extra: tuple[str, ...] = ())
     done = subprocess.run(cmd, cwd=FIRMWARE, capture_output=True, text=True, timeout=600)
     if done.returncode != 0:
         if "nano.specs" in done.stderr or "newlib" in done.stderr:
-            raise Unavailable("newlib-nano missing (Debian: apt-get install libnewlib-arm-none-eabi)")
+            raise Unavailable(
+                "newlib-nano missing (Debian: apt-get install libnewlib-arm-none-eabi)"
+            )
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stdout}\n{done.stderr}")
     return build / "firmware.elf"
 

@@ -11,7 +11,6 @@ missing (`.ci/run` installs them)."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -20,10 +19,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import serial
 
+from firmware_protocol import (
+    FrameDecoder,
+    Hello,
+    HelloResponse,
+    Reboot,
+    decode_message,
+    encode_message,
+)
 from spiel_edge.board import schema as bc
-from spiel_edge.cli import main
 from spiel_edge.compat import tomllib
+from spiel_edge.device import DeviceSession
 from spiel_edge.profile.schema import load_profile
 from tests.core.spiel_csv_fixture import write_spiel_csv
 from tests.firmware.qemu_board import (
@@ -155,7 +163,9 @@ def test_config_push_commit_pull_round_trip(board, tmp_path):
     config = pulled(b.port)
     assert config["board"]["name"] == "qemu-7"
     assert config["geometry"]["delay_samples"] == [2.0, 1.5, 1.9, 1.7]
-    ran = cli("config", "push", "--port", b.port, "--commit", board_config(tmp_path / "b.toml", "qemu-8"))
+    ran = cli(
+        "config", "push", "--port", b.port, "--commit", board_config(tmp_path / "b.toml", "qemu-8")
+    )
     assert ran.returncode == 0, ran.stderr
     ran = cli("config", "show", "--port", b.port)
     assert ran.returncode == 0, ran.stderr
@@ -243,11 +253,23 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
 def test_a_failing_flash_write_keeps_the_old_config(board, tmp_path):
     flash = new_flash(tmp_path / "fail.bin")
     b = board(flash)
-    assert cli("config", "push", "--port", b.port, "--commit", board_config(tmp_path / "a.toml", "kept")).returncode == 0
+    assert (
+        cli(
+            "config",
+            "push",
+            "--port",
+            b.port,
+            "--commit",
+            board_config(tmp_path / "a.toml", "kept"),
+        ).returncode
+        == 0
+    )
     b.kill()
     b.arm(FAIL, 1)  # counted from this boot: the commit's second flash operation fails
     b.start()
-    ran = cli("config", "push", "--port", b.port, "--commit", board_config(tmp_path / "b.toml", "lost"))
+    ran = cli(
+        "config", "push", "--port", b.port, "--commit", board_config(tmp_path / "b.toml", "lost")
+    )
     assert ran.returncode != 0 and "Traceback" not in ran.stderr
     assert "flash" in ran.stderr.lower(), ran.stderr
     assert b.mailbox()["fired"] == 1
@@ -261,15 +283,11 @@ def test_a_failing_flash_write_keeps_the_old_config(board, tmp_path):
 def test_reboot_resets_the_board_through_the_scb(board):
     """REBOOT: the core answers, then hal_reset writes AIRCR.SYSRESETREQ; qemu resets the
     board in place (same pty), which comes back with a new boot id."""
-    from spiel_edge.device import DeviceSession
-
     b = board()
     session = DeviceSession(b.port, reconnect=False)
     session.open()
     first = session.hello.boot_id
     session.close()
-    from firmware_protocol import FrameDecoder, Hello, HelloResponse, Reboot, decode_message, encode_message
-    import serial
 
     with serial.Serial(b.port, timeout=0.2) as port:
         port.write(encode_message(Reboot(0, 10), seq=7))
