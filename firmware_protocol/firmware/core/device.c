@@ -293,6 +293,9 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     if (!(rate >= 0.0f && rate <= MAX_RATE_HZ)) { /* NaN fails both */
         return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "rate_hz must be in [0, 10000]");
     }
+    if (rate > 0.0f && rate < 1.0e-3f) { /* its period would overflow the microsecond clock */
+        return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "rate_hz below 0.001");
+    }
     memset(&st, 0, sizeof st);
     st.on = 1;
     st.seq = seq;
@@ -453,7 +456,9 @@ static result_t do_config_read(const uint8_t *p, uint16_t len)
         n = want;
     }
     if (in[6] == SP_CONFIG_SOURCE_STAGING) {
-        memcpy(payload + 6, dev.staging + offset, n);
+        if (n) { /* an offset past the staging must not even form a pointer */
+            memcpy(payload + 6, dev.staging + offset, n);
+        }
     } else if (n && cfg_read_active(offset, payload + 6, n) != 0) {
         return fail(SP_ERR_UNKNOWN, SP_MSG_CONFIG_READ, "flash read failed");
     }
