@@ -299,6 +299,9 @@ void hal_reset(int to_bootloader)
     }
     fsync(flash_fd);
     unsetenv("SPIEL_FW_SLOT"); /* a reset runs the bootloader again, which chooses */
+#if SPIEL_FW_UPDATE
+    posix_image_before_exec();
+#endif
     execv(loader != NULL ? loader : "/proc/self/exe", saved_argv);
     perror("re-exec");
     exit(1);

@@ -67,7 +67,17 @@ int posix_image_open(const char *images, long cut)
     }
     snprintf(dir, sizeof dir, "%s", images);
     image_cut = cut;
+    if (getenv("SPIEL_FW_IMAGE_OPS") != NULL) { /* counted since power-on, across resets */
+        image_ops = strtol(getenv("SPIEL_FW_IMAGE_OPS"), NULL, 10);
+    }
     return 0;
+}
+
+void posix_image_before_exec(void)
+{
+    char n[24];
+    snprintf(n, sizeof n, "%ld", image_ops);
+    setenv("SPIEL_FW_IMAGE_OPS", n, 1);
 }
 
 uint32_t hal_image_slot_size(void)
@@ -187,6 +197,7 @@ void posix_image_boot(char **argv)
     }
     snprintf(num, sizeof num, "%d", slot);
     setenv("SPIEL_FW_SLOT", num, 1);
+    posix_image_before_exec();
     execv(path, argv);
     perror(path);
 }

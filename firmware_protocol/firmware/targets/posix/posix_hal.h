@@ -16,6 +16,7 @@ void posix_hal_wait(uint32_t us);
 int posix_image_open(const char *images, long cut);
 void posix_image_boot(char **argv);      /* the bootloader; returns only without an image */
 int posix_image_started(char version[17]); /* the running slot (-1 none) and its version */
+void posix_image_before_exec(void); /* a reset: keep counting image operations (--image-cut) */
 /* The firmware version HELLO reports (default "1.0.0+posix"). */
 void posix_hal_set_firmware_version(const char *version);
 
