@@ -1,8 +1,10 @@
 """I/Q samples (SampleFormat.I16_IQ) to the envelope the pipeline takes, and the phase kept.
 
 The board sends int16 (q, i) pairs per sample, in the order TDK SonicLib's ``ch_get_iq_data``
-fills them; the envelope is their magnitude (what ``ch_get_amplitude_data`` would give), the
-phase ``atan2(q, i)`` in radians. One small numba kernel, called before the pipeline.
+fills them; the envelope is their magnitude rounded to a whole count, which is what the CH101's
+own amplitude data (``ch_get_amplitude_data``) is, so an I/Q stream feeds the pipeline the same
+numbers as an amplitude stream of the same acquisitions; the phase is ``atan2(q, i)`` in
+radians. One small numba kernel, called before the pipeline.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ def _iq_kernel(pairs, envelope, phase):
         for k in range(n):
             q = float(pairs[c, 2 * k])
             i = float(pairs[c, 2 * k + 1])
-            envelope[c, k] = math.sqrt(i * i + q * q)
+            envelope[c, k] = math.floor(math.sqrt(i * i + q * q) + 0.5)
             phase[c, k] = math.atan2(q, i)
 
 
@@ -48,4 +50,4 @@ def iq_envelope_reference(pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Plain numpy, for tests."""
     q = pairs[:, 0::2].astype(np.float64)
     i = pairs[:, 1::2].astype(np.float64)
-    return np.hypot(i, q), np.arctan2(q, i).astype(np.float32)
+    return np.floor(np.hypot(i, q) + 0.5), np.arctan2(q, i).astype(np.float32)

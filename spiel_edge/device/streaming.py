@@ -66,7 +66,10 @@ class StreamingMixin:
             n_acquisitions, float(rate_hz), n_samples, sample_format, channel_mask
         )
         if sample_format == SampleFormat.I16_IQ:  # compile (or load) the kernel before data flows
-            iq_envelope(np.zeros((1, 2), dtype=np.int16))
+            warm = np.zeros((1, 2), dtype=np.int16)
+            iq_envelope(warm)
+            warm.setflags(write=False)  # reassembled samples are read-only views: their own type
+            iq_envelope(warm)
         self._stop_quietly()
         if self._status_base is None:  # the board's since-boot counters before this run
             self._status_base = self._request_status()

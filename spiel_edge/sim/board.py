@@ -389,7 +389,8 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
     def due(self, now: float, room: int, limit: int | None = None) -> list[Outgoing]:
         """Acquisitions due by ``now`` that fit in ``room`` bytes (the others overrun), at
         most ``limit`` pings."""
-        out: list[Outgoing] = self.telemetry_due(now)
+        out: list[Outgoing] = self.telemetry_due(now, room)
+        room -= sum(len(o.wire) for o in out)
         s = self._stream
         if self.silent:
             return out

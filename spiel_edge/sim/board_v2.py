@@ -135,13 +135,17 @@ class BoardV2Mixin:
             flags |= ErrorFlag.DEFAULT_CONFIG
         return int(flags) & _MASK
 
-    def telemetry_due(self, now: float) -> list[Outgoing]:
+    def telemetry_due(self, now: float, room: int = 1 << 30) -> list[Outgoing]:
+        """HEARTBEAT and LOG frames due by ``now`` that fit ``room`` bytes of the transmit
+        queue (a flood beyond it is lost on the board, as a full UART FIFO loses it)."""
         if self.version < 2 or self.silent:
             return []
         out: list[Outgoing] = []
         if self.log_flood > 0:  # a misbehaving firmware: lines past its own limit
-            while self._flood_next <= now and len(out) < 1000:
+            self._flood_next = max(self._flood_next, now - 0.05)  # no backlog beyond 50 ms
+            while self._flood_next <= now and room > 4096:
                 self._flood_next += 1.0 / self.log_flood
+                room -= 160
                 line = m.LogMessage(LogLevel.WARNING, 0, self.clock_us(now), "flood " * 20)
                 out.append(Outgoing(encode_message(line)))
         self._log_tokens = min(

@@ -144,26 +144,36 @@ class EchoModelScene:
             clean += self._echoes(p, n_samples)
         noisy = clean + self._rng.normal(0.0, self.noise, clean.shape) if self.noise else clean
         samples = np.clip(np.rint(noisy), 0, U16_MAX).astype(np.uint16)
-        pairs = self._iq(np.maximum(noisy, 0.0), targets, n_samples) if iq else None
+        pairs = self._iq(samples, targets, n_samples) if iq else None
         return SceneFrame(samples, background, targets[0].copy(), targets.copy(), pairs)
 
-    def _iq(self, magnitude: np.ndarray, targets: np.ndarray, n_samples: int) -> np.ndarray:
+    def _iq(self, amplitude: np.ndarray, targets: np.ndarray, n_samples: int) -> np.ndarray:
         """I/Q as the CH101 gives them: every component of the echo model (ring-down,
         crosstalk, the mount, each target's echo) is a carrier at ``carrier_hz`` delayed by its
         time of arrival; mixing down with the carrier leaves each as its envelope times
-        exp(-j 2 pi f_c tau). The phase of their sum is the I/Q's phase; the magnitude is the
-        envelope model's own noisy value (clipped to the int16 range), so an I/Q stream and an
-        envelope stream of one scene differ only by rounding."""
+        exp(-j 2 pi f_c tau), and the phase of their sum is the I/Q's phase. The magnitude is
+        the envelope stream's own sample: as on the CH101, whose amplitude data is the rounded
+        magnitude of its I/Q, round(|i + jq|) equals the U16 envelope of the same acquisition
+        (each (i, q) is the int16 pair nearest the phase with that rounded magnitude; values
+        above 32767 are clipped)."""
         phasor = self._background_phasor(n_samples).copy()
         for p in targets:
             toa_s = self.arrival_samples(p) / self.sample_rate_hz
             turn = np.exp(-2j * math.pi * self.carrier_hz * toa_s)
             phasor += self._echoes(p, n_samples) * turn[:, None]
         angle = np.angle(phasor)
-        mag = np.minimum(magnitude, 32767.0)
-        out = np.empty(magnitude.shape + (2,), dtype=np.int16)
-        out[..., 0] = np.clip(np.rint(mag * np.sin(angle)), -32768, 32767)  # q
-        out[..., 1] = np.clip(np.rint(mag * np.cos(angle)), -32768, 32767)  # i
+        mag = np.minimum(amplitude.astype(np.float64), 32767.0)
+        i0, q0 = np.rint(mag * np.cos(angle)), np.rint(mag * np.sin(angle))
+        best_i, best_q, best_err = i0, q0, np.full(mag.shape, np.inf)
+        for di in (0.0, -1.0, 1.0):
+            for dq in (0.0, -1.0, 1.0):
+                i, q = np.clip(i0 + di, -32768, 32767), np.clip(q0 + dq, -32768, 32767)
+                err = np.abs(np.hypot(i, q) - mag)
+                better = err < best_err - 1e-9
+                best_i, best_q = np.where(better, i, best_i), np.where(better, q, best_q)
+                best_err = np.minimum(err, best_err)
+        out = np.empty(mag.shape + (2,), dtype=np.int16)
+        out[..., 0], out[..., 1] = best_q, best_i  # (q, i), SonicLib's order
         return out
 
     def _background_phasor(self, n_samples: int) -> np.ndarray:
