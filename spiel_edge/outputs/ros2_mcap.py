@@ -90,6 +90,9 @@ class Ros2McapSink(McapSink):
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
         meta = {k: v for k, v in acquisition.items() if k not in ("frames", "background")}
         stamp = _stamp(meta)
+        synced = meta.get("stamp_host_ns")  # the board's time on the host clock (protocol 2)
+        if isinstance(synced, int) and synced > 0:
+            stamp = synced
         seconds = stamp / 1e9 if stamp else None
         background = acquisition.get("background")
         if background is not None and (

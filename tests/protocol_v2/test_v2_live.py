@@ -157,3 +157,23 @@ def test_a_version_1_board_runs_configs_and_calibrates(sim_url, tmp_path, capsys
     finally:
         capture.capture_positions = original
     assert code == 0 and (tmp_path / "cal-out.toml").exists()
+
+
+def test_mcap_log_times_and_ros_stamps_are_the_synced_board_times(sim_url, tmp_path):
+    from mcap.reader import make_reader
+
+    url = sim_url("scene=model&drift_ppm=200&seed=6")
+    out, rec = tmp_path / "run.ndjson", tmp_path / "run.mcap"
+    assert main(["run", "--port", url, "--frames", "40", "-o", str(out), "--record", str(rec)]) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    stamps = {round(r["stamp_host"] * 1e9) for r in records}
+    with rec.open("rb") as fh:
+        positions = [
+            (m.log_time, json.loads(m.data))
+            for _, channel, m in make_reader(fh).iter_messages()
+            if channel.topic == "/spiel/position"
+        ]
+    assert len(positions) == 40
+    for log_time, record in positions:
+        assert abs(log_time - record["stamp_host"] * 1e9) < 1000  # the record's own stamp
+        assert round(record["stamp_host"] * 1e9) in stamps
