@@ -1,0 +1,81 @@
+"""The posix C firmware on a pty against the host's device session: handshake, versions,
+streaming of the recordings in order, counters of the run's own stream."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from spiel_edge.device import DeviceSession
+from tests.firmware.conftest import frames_of
+
+
+def take(session, n):
+    out = []
+    for acq in session.acquisitions(threading.Event()):
+        out.append(acq)
+        if len(out) == n:
+            return out
+    return out
+
+
+def test_handshake_negotiates_version_2_and_streams_the_recordings(posix_board, subset_scans):
+    board = posix_board()
+    with DeviceSession(board.port, reconnect=False) as session:
+        hello = session.hello
+        assert (hello.protocol_version, hello.min_version, hello.max_version) == (2, 1, 2)
+        assert (hello.n_channels, hello.max_payload, hello.serial) == (4, 1024, "POSIX0001")
+        assert session.max_payload == 1024
+        answer = session.start_stream(rate_hz=200, n_samples=64)
+        assert (answer.n_channels, answer.channel_mask, answer.sample_rate_hz) == (4, 0xF, 22000)
+        got = take(session, 10)
+        session.stop_stream()
+    frames = frames_of(subset_scans)
+    # indices increase (one skipped when the shared CPU held the firmware back a whole period
+    # is an overrun, which uses its index); the recordings arrive in order all the same
+    assert got[0].index == 0 and all(b.index > a.index for a, b in zip(got, got[1:], strict=False))
+    for k, acq in enumerate(got):
+        np.testing.assert_array_equal(acq.samples, frames[k])
+
+
+def test_a_channel_subset_keeps_the_physical_channel_ids(posix_board, subset_scans):
+    board = posix_board()
+    with DeviceSession(board.port, reconnect=False) as session:
+        answer = session.start_stream(rate_hz=200, n_samples=64, channel_mask=0b1010)
+        assert (answer.n_channels, answer.channel_mask) == (2, 0b1010)
+        got = take(session, 3)
+        session.stop_stream()
+    frames = frames_of(subset_scans)
+    for k, acq in enumerate(got):
+        np.testing.assert_array_equal(acq.samples, frames[k][[1, 3]])
+
+
+def test_a_version_1_build_keeps_working(posix_board, fw_build, subset_scans):
+    from tests.firmware.firmware import build_posix
+
+    board = posix_board(exe=build_posix(fw_build, SPIEL_PROTOCOL_MAX=1))
+    with DeviceSession(board.port, reconnect=False) as session:
+        assert (session.hello.protocol_version, session.hello.max_version) == (1, 1)
+        answer = session.start_stream(rate_hz=200, n_samples=64)
+        assert answer.channel_mask == 0  # absent in version 1
+        got = take(session, 4)
+        session.stop_stream()
+    np.testing.assert_array_equal(got[3].samples, frames_of(subset_scans)[3])
+
+
+def test_run_counters_count_from_the_streams_own_start(posix_board):
+    board = posix_board()
+    with DeviceSession(board.port, reconnect=False) as session:
+        session.start_stream(rate_hz=200, n_samples=64)
+        take(session, 5)
+        session.stop_stream()
+    with DeviceSession(board.port, reconnect=False) as session:  # a second run, same boot
+        session.start_stream(rate_hz=200, n_samples=64)
+        take(session, 3)
+        status = session.stream_status()
+        assert status.acquisitions_sent >= 8  # the board counts since its boot
+        counts = session.counts()
+        session.stop_stream()
+    assert counts["acquisitions"] == 3
+    assert counts["overruns"] == counts["lost"] <= 2  # this run's own, not the first run's

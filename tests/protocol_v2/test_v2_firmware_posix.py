@@ -1,0 +1,104 @@
+"""Firmware update with rollback on the C reference firmware (posix target): two image files,
+a boot record, the bootloader executing the chosen slot; SIGKILL at every image operation.
+Always runs (needs only the system C compiler)."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from pathlib import Path
+
+import pytest
+
+from firmware_protocol.image import pack_image
+from spiel_edge.device import DeviceSession
+from spiel_edge.device.firmware import firmware_info, update_firmware
+from spiel_edge.errors import DeviceError
+from tests.firmware.firmware import PosixBoard, build_posix
+from tools.firmware_scans import write_scans
+
+
+@pytest.fixture(scope="module")
+def posix(tmp_path_factory):
+    from spiel_edge.data import load_subset
+
+    d = tmp_path_factory.mktemp("fw-posix-v2")
+    exe = build_posix(d / "build")
+    scans = write_scans(d / "scans.spas", load_subset().frames[:20], 22000)
+    return exe, scans
+
+
+def board(posix, tmp_path: Path, *extra: str) -> PosixBoard:
+    exe, scans = posix
+    images = tmp_path / "images"
+    if not images.exists():
+        images.mkdir()
+        factory = pack_image(exe.read_bytes(), version="posix-1.0.0", target="posix")
+        (images / "slot0.img").write_bytes(factory)
+    return PosixBoard(exe, scans, tmp_path / "flash.bin", "--images", str(images), *extra)
+
+
+def new_image(posix, version: str = "posix-1.1.0") -> bytes:
+    return pack_image(posix[0].read_bytes(), version=version, target="posix")
+
+
+def hello_version(port: str, timeout_s: float = 10.0) -> str:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with DeviceSession(port, reconnect=False) as dev:
+                return dev.hello.firmware_version
+        except DeviceError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def test_update_confirm_and_rollback_of_a_hanging_image(posix, tmp_path) -> None:
+    with board(posix, tmp_path) as b:
+        result = update_firmware(b.port, new_image(posix), boot_wait_s=10)
+        assert result.confirmed and result.version == "posix-1.1.0"
+        with DeviceSession(b.port, reconnect=False) as dev:
+            info = firmware_info(dev)
+            assert (info.running_slot, info.boot_state, info.target) == (1, 0, "posix")
+            assert info.slot0_version == "posix-1.0.0" and info.slot1_version == "posix-1.1.0"
+        hang = pack_image(b"#!/bin/sh\nexec sleep 600\n", version="posix-hang", target="posix")
+        with pytest.raises(DeviceError, match="did not answer HELLO"):
+            update_firmware(b.port, hang, boot_wait_s=2)
+    # power cycle: the bootloader finds the trial unconfirmed and rolls back
+    with board(posix, tmp_path) as b:
+        assert hello_version(b.port) == "posix-1.1.0"
+
+
+def test_refused_by_the_board_before_the_switch(posix, tmp_path) -> None:
+    foreign = pack_image(b"\x7fELF", version="x", target="mps2-an386")
+    with board(posix, tmp_path) as b:
+        with pytest.raises(DeviceError, match="target"):
+            update_firmware(b.port, foreign)
+        assert hello_version(b.port) == "posix-1.0.0"
+
+
+def test_sigkill_at_every_image_operation_boots_a_complete_image(posix, tmp_path) -> None:
+    image = new_image(posix)
+    # operations of a whole update: erase, the chunks, test record, boot record, confirm record
+    chunks = -(-len(image) // (1024 - 6))
+    ops = 1 + chunks + 3
+    seen = set()
+    for cut in [*range(0, 4), *range(chunks - 1, ops)]:
+        case = tmp_path / f"cut{cut}"
+        case.mkdir()
+        b = board(posix, case, "--image-cut", str(cut))
+        b.start()
+        try:
+            with contextlib.suppress(DeviceError):
+                update_firmware(b.port, image, boot_wait_s=3)
+        finally:
+            b.stop()
+        with board(posix, case) as again:  # power on: the bootloader chooses
+            version = hello_version(again.port)
+            assert version in ("posix-1.0.0", "posix-1.1.0"), cut
+            seen.add(version)
+            # and an update from there completes
+            if version == "posix-1.0.0":
+                assert update_firmware(again.port, image, boot_wait_s=10).confirmed, cut
+    assert seen == {"posix-1.0.0", "posix-1.1.0"}
