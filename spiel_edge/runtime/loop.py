@@ -162,8 +162,14 @@ class LiveRunner:
     ) -> LiveStats:
         """Process acquisitions until ``stop`` is set or ``frames`` records were written."""
         next_status = time.monotonic() + status_every_s
+        batch = getattr(self.sink, "batch", None)
+        if batch is not None:
+            batch()  # NDJSON flushed once the acquisitions read so far are all handled
+        waiting = getattr(getattr(self.session, "tracker", None), "ready", ())
         for acq in self.session.acquisitions(stop):
             self.handle(acq)
+            if batch is not None and not waiting:
+                self.sink.flush()
             if frames is not None and self.stats.records >= frames:
                 break
             if getattr(self.sink, "sinks", None) == []:  # a MultiSink whose outputs all failed
