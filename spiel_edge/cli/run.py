@@ -156,11 +156,11 @@ def command(
     toa_correction = live_toa_correction(port, toa_correction)
     # kernels missing from every cache compile now, said at once and with progress, before
     # the board is opened (its stream never waits on a silent host)
-    prepare_for_run(chosen, association, max_targets, track, toa_correction)
+    notifier = Notifier()
+    prepare_for_run(chosen, association, max_targets, track, toa_correction, notifier=notifier)
     if show_status is None:
         show_status = sys.stderr.isatty()
     session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)
-    notifier = Notifier()
     runner: LiveRunner | None = None
     sink = None
     stop = threading.Event()

@@ -43,6 +43,7 @@ class Progress:
         self.t0 = time.perf_counter()
         self.current = ""
         self._drawn = False
+        self.notifier = None  # a service.systemd.Notifier: STATUS and a longer start timeout
 
     def _isatty(self) -> bool:
         try:
@@ -64,6 +65,8 @@ class Progress:
             self._draw()
         elif event == "compiled":
             self.done += 1
+            if self.notifier is not None:
+                self.notifier.starting(f"compiling kernels: {self.done}/{self.total} ({short})")
             if self.tty:
                 self._draw()
             else:

@@ -301,7 +301,13 @@ def _exercise_run(profile, association, max_targets, track: bool, toa_correction
 
 
 def prepare_for_run(
-    profile, association=None, max_targets=None, track=True, toa_correction=None, stream=None
+    profile,
+    association=None,
+    max_targets=None,
+    track=True,
+    toa_correction=None,
+    stream=None,
+    notifier=None,
 ) -> dict:
     """Before ``run`` opens a board: load every kernel it needs from the cache, or, when one
     is missing, say so at once (what, why, about how long) and compile them with progress on
@@ -322,6 +328,9 @@ def prepare_for_run(
         log.debug("kernel preparation: %s", exc)
         return {"compiled": False, "seconds": round(time.perf_counter() - t0, 3)}
     progress = announce("before opening the board", stream)
+    progress.notifier = notifier  # the service: STATUS per kernel, the start timeout extended
+    if notifier is not None:
+        notifier.starting("compiling kernels for this CPU")
     writable = cache_writable()
     if writable:
         for step in RUN_STEPS:

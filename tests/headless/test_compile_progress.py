@@ -75,3 +75,19 @@ def test_run_prepares_its_kernels_from_the_cache_before_the_board(monkeypatch):
     out = io.StringIO()
     again = warmup.prepare_for_run(profile, None, 4, True, stream=out)
     assert again["compiled"] is False and out.getvalue() == ""
+
+
+def test_the_service_hears_of_each_kernel_and_gets_more_time(tmp_path):
+    import socket
+
+    from spiel_edge.service.systemd import Notifier
+
+    path = str(tmp_path / "notify")
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server:
+        server.bind(path)
+        progress = Progress(total=3, stream=io.StringIO())
+        progress.notifier = Notifier({"NOTIFY_SOCKET": path})
+        progress("compiled", "spiel_edge.track.step._step", 2.0)
+        message = server.recv(4096).decode()
+    assert "STATUS=compiling kernels: 1/3 (track.step._step)" in message
+    assert "EXTEND_TIMEOUT_USEC=120000000" in message
