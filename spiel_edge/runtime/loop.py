@@ -231,10 +231,10 @@ class LiveRunner:
         if tracks is not None:
             record["tracks"] = tracks
         if acq.truth_mm is not None:
-            record["truth_mm"] = [round(float(v), 2) for v in acq.truth_mm]
+            record["truth_mm"] = [round(v, 2) for v in acq.truth_mm.tolist()]
         truths = getattr(acq, "truth_targets_mm", None)
         if truths is not None:
-            record["truth_targets_mm"] = [[round(float(v), 2) for v in p] for p in truths]
+            record["truth_targets_mm"] = [[round(v, 2) for v in p] for p in truths.tolist()]
         return record
 
     def _track(self, result, acq: LiveAcquisition) -> list[dict] | None:
