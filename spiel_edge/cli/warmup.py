@@ -34,8 +34,9 @@ def command(as_json: bool, isolate: bool) -> int:
     if status is not None:
         progress.total = max(len(status["missing"]), 1)
         progress.say(
-            f"{len(status['missing'])} of {status['total']} kernels to compile for this CPU"
-            f" (cache: {status['cache_dir'] or 'none writable'})"
+            f"{len(status['missing'])} of {status['total']} kernels have no compiled copy for "
+            "this CPU (a few helpers only ever compile into others); cache: "
+            f"{status['cache_dir'] or 'no writable folder'}"
         )
     result = warmup(isolate=isolate, progress=progress)
     progress.finish()

@@ -140,6 +140,31 @@ def first_start(env: dict | None = None, frames: int = 50, timeout_s: float = 90
     }
 
 
+def first_line_cold(args: tuple[str, ...] = ("run", "--port", "sim://", "--frames", "50")) -> dict:
+    """Seconds from starting ``spiel-edge ARGS`` on an empty cache to its first line of
+    output; then the command and its children are stopped (no full compile: cheap)."""
+    import signal
+
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache, "SPIEL_EDGE_HOST_KERNELS": "1"}
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(
+            [*CLI, *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=env,
+            start_new_session=True,  # its warm-up children stop with it
+        )
+        try:
+            ready, _, _ = select.select([proc.stdout, proc.stderr], [], [], 120.0)
+            seconds = time.perf_counter() - t0 if ready else None
+            line = ready[0].readline().decode(errors="replace").strip() if ready else ""
+        finally:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return {"first_output_s": None if seconds is None else round(seconds, 2), "line": line[:160]}
+
+
 def warmup_figures(env: dict | None = None, timeout_s: float = 1800.0) -> dict:
     """``spiel-edge warmup --json`` in a fresh process: seconds, kernels compiled, peak RSS of
     it and its children (the warm-up's own report), seconds to its first line of output."""
@@ -163,12 +188,15 @@ def warmup_figures(env: dict | None = None, timeout_s: float = 1800.0) -> dict:
 
 
 def cold_figures() -> dict:
-    """First-start figures on an empty cache (compiles every kernel: minutes), then warm."""
+    """First-start figures: the first line of a cold ``run`` and ``warmup`` (stopped after
+    it), a whole cold ``warmup`` on an empty cache (compiles every kernel: minutes; its peak
+    RSS), then ``run`` from that cache."""
+    out = {
+        "cold_run_first_line": first_line_cold(),
+        "cold_warmup_first_line": first_line_cold(("warmup",)),
+    }
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
-        cold_run = first_start(env)
-        with tempfile.TemporaryDirectory() as cache2:
-            warm_env = {**os.environ, "NUMBA_CACHE_DIR": cache2}
-            cold_warmup = warmup_figures(warm_env)
-        warm_run = first_start(env)
-    return {"cold_run": cold_run, "cold_warmup": cold_warmup, "warm_run": warm_run}
+        out["cold_warmup"] = warmup_figures(env)
+        out["warm_run"] = first_start(env)
+    return out

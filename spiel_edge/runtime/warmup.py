@@ -321,13 +321,14 @@ def prepare_for_run(
         with _kernel_cache.no_compile():
             _exercise_run(profile, association, max_targets, track, toa_correction)
         return {"compiled": False, "seconds": round(time.perf_counter() - t0, 3)}
-    except _kernel_cache.CompileNeeded:
+    except _kernel_cache.CompileNeeded as exc:
         if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
             raise
+        first = exc.name
     except SpielError as exc:  # an unusual profile: the live stream will tell
         log.debug("kernel preparation: %s", exc)
         return {"compiled": False, "seconds": round(time.perf_counter() - t0, 3)}
-    progress = announce("before opening the board", stream)
+    progress = announce("before opening the board", stream, first)
     progress.notifier = notifier  # the service: STATUS per kernel, the start timeout extended
     if notifier is not None:
         notifier.starting("compiling kernels for this CPU")
@@ -350,16 +351,20 @@ def prepare_for_run(
     return {"compiled": True, "seconds": round(seconds, 3)}
 
 
-def announce(when: str, stream=None):
-    """Say at once that kernels must compile, why and about how long; return the display."""
+def announce(when: str, stream=None, first: str | None = None):
+    """Say at once that kernels must compile (``first``: the one found missing), then how
+    many, why and about how long; return the display."""
     import platform
 
     from spiel_edge import _shipped
     from spiel_edge.runtime.compile_progress import Progress, about, estimate_seconds
 
+    progress = Progress(total=1, stream=stream)
+    if first is not None:  # at once: counting them imports every kernel module (seconds)
+        progress.say(f"spiel-edge: kernel {first} has no compiled copy: compiling {when}")
     status = kernel_status()
     n, total = max(len(status["missing"]), 1), max(status["total"], 1)
-    progress = Progress(total=n, stream=stream)
+    progress.total = n
     progress.say(
         f"spiel-edge: compiling {n} of {total} kernels for this CPU {when}, "
         f"{about(estimate_seconds(n, total, platform.machine()))} "
