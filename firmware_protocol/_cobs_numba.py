@@ -6,10 +6,16 @@ Error code as in firmware_protocol.cobs: -2 a code past the end (the caller reje
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+try:  # spiel_edge's kernel cache: prebuilt kernels, and a bad cache file never a crash
+    from spiel_edge._jit import jit
+except ImportError:  # pragma: no cover - firmware_protocol copied without spiel_edge
+    from numba import njit
+
+    jit = njit(cache=True, nogil=True)
 
 
-@njit(cache=True, nogil=True)
+@jit
 def decode(src, dst):  # pragma: no cover - compiled
     # the caller has checked that src holds no zero byte (a C-speed scan)
     size = src.shape[0]
@@ -34,7 +40,7 @@ def decode(src, dst):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True, nogil=True)
+@jit
 def encode(src, dst):  # pragma: no cover - compiled
     # dst holds len(src) + len(src) // 254 + 1 bytes: the worst case
     size = src.shape[0]

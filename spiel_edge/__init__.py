@@ -7,7 +7,10 @@ associations (pipeline/associate, scene) -> positions (pipeline/echo_timing, loc
 tracks (track/) -> outputs (outputs/); runtime/ runs it, cli/ is the command line.
 """
 
+from spiel_edge import _shipped
 from spiel_edge.errors import SpielError
+
+_shipped.select_cpu()  # before anything imports numba: a wheel's prebuilt kernels need it
 
 __version__ = "0.1.0"
 __all__ = ["SpielError", "__version__"]

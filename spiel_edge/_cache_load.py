@@ -33,7 +33,25 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 ENV_SWITCH = "SPIEL_EDGE_NUMBA_LEAN"
-SUPPORTED = ((0, 68),)  # numba versions whose internals this was checked against
+# the numba and llvmlite versions whose internals this was checked against (tests/core/
+# test_cache_load.py runs the lean and the stock path on the installed ones); any other
+# version, or one that lacks an attribute below, loads cached kernels numba's own way
+SUPPORTED = ((0, 68),)
+SUPPORTED_LLVMLITE = ((0, 50),)
+RELIED_ON = (
+    ("numba.core.caching", "FunctionCache", "load_overload"),
+    ("numba.core.caching", "FunctionCache", "_load_overload"),
+    ("numba.core.caching", "FunctionCache", "_guard_against_spurious_io_errors"),
+    ("numba.core.runtime.nrt", "rtsys", "initialize"),
+    ("numba.core.runtime.nrtdynmod", "compile_nrt_functions", None),
+    ("numba.core.runtime.nrtdynmod", "create_nrt_module", None),
+    ("numba.core.codegen", "JITCPUCodegen", "unserialize_library"),
+    ("numba.core.codegen", "JITCPUCodegen", "magic_tuple"),
+    ("numba.core.codegen", "JITCodeLibrary", "_set_compiled_object"),
+    ("numba.core.codegen", "JITCodeLibrary", "_finalize_final_module"),
+    ("numba.core.codegen", "JITCodeLibrary", "serialize_using_object_code"),
+    ("numba.core.cpu", "CPUContext", "refresh"),
+)
 OWN_MODULES = ("spiel_edge.", "firmware_protocol.")
 RUNTIME_MAGIC = b"spiel-edge nrt 1\n"
 
@@ -47,13 +65,13 @@ def install() -> bool:
     if os.environ.get(ENV_SWITCH, "1") == "0":
         return False
     try:
-        import numba
         from numba.core import caching
         from numba.core.runtime import nrt, nrtdynmod
     except ImportError:
         return False
-    if _version(numba.__version__) not in SUPPORTED:
-        log.debug("numba %s: cached kernels load the stock way", numba.__version__)
+    reason = unsupported()
+    if reason:
+        log.debug("%s: cached kernels load numba's own way", reason)
         return False
     stock_load = caching.FunctionCache.load_overload
 
@@ -83,6 +101,32 @@ def install() -> bool:
     _defer_linking_bitcode()
     _state["installed"] = True
     return True
+
+
+def unsupported() -> str:
+    """'' when the installed numba and llvmlite are the versions this module was checked
+    against and have every internal it replaces, else what is not."""
+    import importlib
+
+    import llvmlite
+    import numba
+
+    if _version(numba.__version__) not in SUPPORTED:
+        return f"numba {numba.__version__} (checked: {_versions(SUPPORTED)})"
+    if _version(llvmlite.__version__) not in SUPPORTED_LLVMLITE:
+        return f"llvmlite {llvmlite.__version__} (checked: {_versions(SUPPORTED_LLVMLITE)})"
+    for module_name, name, attr in RELIED_ON:
+        try:
+            obj = getattr(importlib.import_module(module_name), name)
+            if attr is not None:
+                getattr(obj, attr)
+        except (ImportError, AttributeError):
+            return f"numba {numba.__version__} has no {module_name}.{name}.{attr or ''}"
+    return ""
+
+
+def _versions(pairs) -> str:
+    return ", ".join(f"{a}.{b}" for a, b in pairs)
 
 
 def _defer_linking_bitcode() -> None:

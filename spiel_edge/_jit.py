@@ -1,7 +1,9 @@
 """The project's numba flags in one place: every kernel is ``@jit``-compiled with them.
 
-``cache=True`` writes compiled kernels next to the sources or to ``NUMBA_CACHE_DIR`` (the
-service points that at a writable folder, so a read-only install still starts warm);
+Kernels are cached (``cache=True`` in effect) by ``_kernel_cache.KernelCache``: the prebuilt
+kernels of a release wheel first, then numba's own cache (beside the sources, or
+``NUMBA_CACHE_DIR``, which the service points at a writable folder, or the user's cache
+folder), where what compiles is saved; a damaged file or a failed save never stops a kernel.
 ``nogil=True`` lets a caller run pipelines in threads. Importing this module installs the
 lean loading of cached kernels (``_cache_load``): a warm start sets up no compiler.
 """
@@ -13,15 +15,20 @@ from typing import Any
 
 from numba import njit
 
-from spiel_edge import _cache_load
+from spiel_edge import _cache_load, _kernel_cache
 
 _cache_load.install()
 
-FLAGS = {"cache": True, "nogil": True}
+FLAGS = {"nogil": True}  # and cached: see :func:`jit`
 
 
 def jit(fn: Callable | None = None, **extra: Any) -> Any:
-    """``@jit`` or ``@jit(inline="always")``: ``numba.njit`` with :data:`FLAGS`."""
-    if fn is None:
-        return njit(**FLAGS, **extra)
-    return njit(**FLAGS)(fn)
+    """``@jit``, ``@jit(inline="always")`` or ``jit(fn, **options)``: ``numba.njit`` with
+    :data:`FLAGS` and ``extra``, cached by :class:`~spiel_edge._kernel_cache.KernelCache`."""
+
+    def wrap(py_func: Callable) -> Any:
+        dispatcher = njit(**{**FLAGS, **extra})(py_func)
+        dispatcher._cache = _kernel_cache.make(py_func)  # what enable_caching() would set
+        return dispatcher
+
+    return wrap if fn is None else wrap(fn)

@@ -48,7 +48,7 @@ def write_scans(path: str | Path, frames: np.ndarray, sample_rate_hz: int) -> Pa
 
 def read_folder(folder: str | Path) -> np.ndarray:
     """Every ``*_frames.csv`` of a spiel-csv folder, in name order (as replay reads them)."""
-    from spiel_edge.io.spiel_csv import frame_files, read_frames
+    from spiel_edge.recordings.spiel_csv import frame_files, read_frames
 
     return np.stack([read_frames(p) for p in frame_files(folder)])
 

@@ -29,8 +29,25 @@ from spiel_edge.measure.bench import run_bench, to_json
     show_default=True,
     help="Acquisitions for the numpy/scipy reference (0: skip it).",
 )
+@click.option(
+    "--run-path/--no-run-path",
+    default=True,
+    show_default=True,
+    help="CPU per record of the whole `run` over a pty from `simulate --pty` (two runs).",
+)
+@click.option(
+    "--first-start",
+    is_flag=True,
+    help="Also the first-start figures on an empty cache (compiles every kernel: minutes).",
+)
 def command(
-    as_json: bool, repeat: int, association: str | None, no_startup: bool, reference_count: int
+    as_json: bool,
+    repeat: int,
+    association: str | None,
+    no_startup: bool,
+    reference_count: int,
+    run_path: bool,
+    first_start: bool,
 ) -> int:
     """Median and p95 microseconds per acquisition, real 4x64 and synthetic 8x256 / 16x1024:
     per stage (staged path), fused vs staged end to end, and the numpy/scipy reference."""
@@ -87,6 +104,23 @@ def command(
         )
     if "peak_rss_mib" in result:
         click.echo(f"peak RSS of run --port sim:// --frames 300: {result['peak_rss_mib']} MiB")
+    if run_path:
+        from spiel_edge.measure.bench_run import run_path_cpu
+
+        result["run_path_4x64"] = run = run_path_cpu()
+        scene = result.get("scene_4_tracked")
+        if scene:
+            run["over_pipeline"] = round(run["cpu_us_per_record"] / scene["median_us"], 2)
+        click.echo(
+            f"run over a pty (4x64, 4 targets, tracked, NDJSON): {run['cpu_us_per_record']:.0f} "
+            f"CPU-us per record ({run.get('over_pipeline', '-')}x the pipeline's), "
+            f"{run['records_per_s']:.0f} records/s at --rate 0, latency {run['latency_ms']}"
+        )
+    if first_start:
+        from spiel_edge.measure.bench_run import cold_figures
+
+        result["first_start"] = cold_figures()
+        click.echo(f"first start (empty cache): {result['first_start']}")
     if as_json:
         click.echo(to_json(result))
     return 0

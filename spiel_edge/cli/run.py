@@ -35,6 +35,7 @@ from spiel_edge.runtime.loop import (
 )
 from spiel_edge.runtime.replay import chosen_toa_correction
 from spiel_edge.runtime.tracking import ResultTracker
+from spiel_edge.runtime.warmup import prepare_for_run
 from spiel_edge.service.systemd import Notifier
 
 
@@ -148,14 +149,18 @@ def command(
             plan.input_file(path, option)
     record = check_outputs(plan, output, record)
     # a bad profile, calibration or frame option: before the board
-    ros2_kwargs = ros2_output_options(ros2, resolve_profile(profile_name, calibration))
+    chosen = resolve_profile(profile_name, calibration)
+    ros2_kwargs = ros2_output_options(ros2, chosen)
     fixed_background = load_background(background) if background else None
     port = board_port(port)
     toa_correction = live_toa_correction(port, toa_correction)
+    # kernels missing from every cache compile now, said at once and with progress, before
+    # the board is opened (its stream never waits on a silent host)
+    notifier = Notifier()
+    prepare_for_run(chosen, association, max_targets, track, toa_correction, notifier=notifier)
     if show_status is None:
         show_status = sys.stderr.isatty()
     session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)
-    notifier = Notifier()
     runner: LiveRunner | None = None
     sink = None
     stop = threading.Event()

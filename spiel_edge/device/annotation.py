@@ -41,8 +41,10 @@ class Annotation(Message):
 
     @property
     def truth_mm(self) -> np.ndarray | None:
-        truth = np.array([self.truth_x, self.truth_y, self.truth_z], dtype=np.float64)
-        return truth if np.all(np.isfinite(truth)) else None
+        xyz = (self.truth_x, self.truth_y, self.truth_z)
+        if not (math.isfinite(xyz[0]) and math.isfinite(xyz[1]) and math.isfinite(xyz[2])):
+            return None
+        return np.array(xyz, dtype=np.float64)
 
     def background_rows(self) -> np.ndarray:
         """The rows this frame carries, (rows, n_samples) uint16 (empty when malformed)."""

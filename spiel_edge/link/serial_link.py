@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
+import select
 
 import serial
 import serial.tools.list_ports
@@ -22,6 +24,10 @@ log = logging.getLogger(__name__)
 SIM_HANDLER_PACKAGE = "spiel_edge.sim"
 WRITE_TIMEOUT_S = 1.0  # a board that does not drain 1 s of output is stalled or gone
 _ABSENT = {errno.ENOENT, errno.ENODEV, errno.ENXIO, errno.EIO}
+# bytes per read of a posix port: what one read returns shares one arrival time, so this
+# bounds how long an acquisition can wait behind others read with it (about 12 acquisitions
+# of 4 x 64 samples; docs/first-start.md, "Latency at --rate 0")
+READ_MAX = 8192
 
 
 def _register_sim_handler() -> None:
@@ -41,8 +47,16 @@ class SerialLink:
         self.url = url
         self._port = port
         self._timeout: float | None = None
+        # a posix device or pty: select and os.read on its descriptor (pyserial's read loop
+        # costs as much per call as decoding the frames it returns)
+        fd = getattr(port, "fd", None)
+        self._fd = (
+            fd if isinstance(fd, int) and type(port).__module__ == "serial.serialposix" else None
+        )
 
     def read(self, timeout_s: float) -> bytes:
+        if self._fd is not None:
+            return self._read_fd(self._fd, timeout_s)
         port = self._port
         try:
             waiting = port.in_waiting
@@ -58,6 +72,23 @@ class SerialLink:
             return data
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnectedError(f"{self.url}: link lost: {exc}") from exc
+
+    def _read_fd(self, fd: int, timeout_s: float) -> bytes:
+        """What the descriptor holds (at most READ_MAX bytes), waiting up to ``timeout_s``
+        for the first; b"" on a timeout. Readable with nothing to read is an unplug, as
+        pyserial treats it."""
+        try:
+            ready, _, _ = select.select([fd], [], [], timeout_s)
+            if not ready:
+                return b""
+            data = os.read(fd, READ_MAX)
+        except BlockingIOError:
+            return b""
+        except (OSError, ValueError) as exc:  # ValueError: the port was closed meanwhile
+            raise DeviceDisconnectedError(f"{self.url}: link lost: {exc}") from exc
+        if not data:
+            raise DeviceDisconnectedError(f"{self.url}: link lost: the device returned no data")
+        return data
 
     def write(self, data: bytes) -> None:
         try:

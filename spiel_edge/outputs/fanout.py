@@ -42,6 +42,22 @@ class MultiSink(Sink):
             except OSError as exc:
                 self._drop(sink, exc)
 
+    def batch(self) -> None:
+        """Sinks that can hold their writes (NDJSON) stop flushing each record; the caller
+        calls :meth:`flush` when it has caught up with its input (a live run: no acquisition
+        waiting), so a burst costs one flush, and a record never waits for a later one."""
+        for sink in self.sinks:
+            sink.hold = True
+
+    def flush(self) -> None:
+        for sink in list(self.sinks):
+            if not sink.hold:
+                continue  # not held: flushed by its own write (MCAP keeps its chunking)
+            try:
+                sink.flush()
+            except OSError as exc:
+                self._drop(sink, exc)
+
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
         for sink in list(self.sinks):
             if not sink.wants_acquisitions:

@@ -1,4 +1,5 @@
-"""NDJSON records to stdout or a file: one JSON object per line, flushed per record."""
+"""NDJSON records to stdout or a file: one JSON object per line, flushed per record (or,
+held by a live run, whenever it has caught up: ``MultiSink.batch``)."""
 
 from __future__ import annotations
 
@@ -29,8 +30,14 @@ class NdjsonSink(Sink):
         else:
             self._fh = open(target, "w", encoding="utf-8")  # noqa: SIM115
 
+    hold = False  # True: write() leaves flushing to flush() (a live run flushes when caught up)
+
     def write(self, record: dict) -> None:
         self._fh.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
+        if not self.hold:
+            self._fh.flush()
+
+    def flush(self) -> None:
         self._fh.flush()
 
     def close(self) -> None:

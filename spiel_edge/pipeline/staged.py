@@ -69,8 +69,8 @@ class Target:
 
     def record(self) -> dict:
         out = {
-            "position_mm": [round(float(v), 2) for v in self.position_mm],
-            "covariance_mm2": [[round(float(v), 3) for v in row] for row in self.covariance_mm2],
+            "position_mm": [round(v, 2) for v in self.position_mm.tolist()],
+            "covariance_mm2": [[round(v, 3) for v in r] for r in self.covariance_mm2.tolist()],
             "residual_mm": round(float(self.residual_mm), 3),
             "matched": self.matched,
             "score": round(float(self.score), 4),
@@ -99,7 +99,7 @@ class Result:
         return {
             "position_mm": None
             if self.position_mm is None
-            else [round(float(v), 2) for v in self.position_mm],
+            else [round(v, 2) for v in self.position_mm.tolist()],
             "reason": self.reason,
             "residual_mm": None if self.residual_mm is None else round(float(self.residual_mm), 3),
             "echoes": [[round(t, 3) for t in ch] for ch in self.echoes],

@@ -185,8 +185,14 @@ class LiveRunner:
     ) -> LiveStats:
         """Process acquisitions until ``stop`` is set or ``frames`` records were written."""
         next_status = time.monotonic() + status_every_s
+        batch = getattr(self.sink, "batch", None)
+        if batch is not None:
+            batch()  # NDJSON flushed once the acquisitions read so far are all handled
+        waiting = getattr(getattr(self.session, "tracker", None), "ready", ())
         for acq in self.session.acquisitions(stop):
             self.handle(acq)
+            if batch is not None and not waiting:
+                self.sink.flush()
             if frames is not None and self.stats.records >= frames:
                 break
             if not self.sink.alive:  # a fan-out whose outputs all failed
@@ -249,10 +255,10 @@ class LiveRunner:
         if tracks is not None:
             record["tracks"] = tracks
         if acq.truth_mm is not None:
-            record["truth_mm"] = [round(float(v), 2) for v in acq.truth_mm]
+            record["truth_mm"] = [round(v, 2) for v in acq.truth_mm.tolist()]
         truths = getattr(acq, "truth_targets_mm", None)
         if truths is not None:
-            record["truth_targets_mm"] = [[round(float(v), 2) for v in p] for p in truths]
+            record["truth_targets_mm"] = [[round(v, 2) for v in p] for p in truths.tolist()]
         return record
 
     def _track(self, result, acq: LiveAcquisition) -> list[dict] | None:

@@ -16,6 +16,7 @@ import dataclasses
 import importlib
 import logging
 import math
+import os
 import pkgutil
 import time
 
@@ -80,62 +81,94 @@ def _ring_input(n_channels: int = 8, n_samples: int = 128):
     return (profile, *closed_form_acquisition(profile, (20.0, -10.0, 200.0)))
 
 
-def _exercise() -> None:
-    from spiel_edge.data import load_subset
-    from spiel_edge.pipeline.factory import build_pipeline
-    from spiel_edge.profile.schema import load_profile
+def _step_csv() -> None:
     from spiel_edge.recordings.spiel_csv import _read_integers
 
     _read_integers(b"0 15 860\n0 8 54\n")  # the spiel-csv scanner (replay, evaluate)
 
+
+def _vendored_pairs(n: int = 4):
+    from spiel_edge.data import load_subset
+
     subset = load_subset()
-    profile = load_profile()
-    pairs = list(zip(subset.frames[:4], subset.backgrounds[:4], strict=True))
+    return list(zip(subset.frames[:n], subset.backgrounds[:n], strict=True))
+
+
+def _pipeline_results(association: str, fused: bool) -> list:
+    """The vendored acquisitions through one pipeline: one target (the back kernel) and
+    several (the scene's choice), with and without a background (the static-scene stand-in)."""
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.profile.schema import load_profile
+
+    pairs = _vendored_pairs()
+    pipeline = build_pipeline(load_profile(), association, fused=fused)
     results = []
-    for association in ("geometric", "auto"):
-        for fused in (True, False):
-            pipeline = build_pipeline(profile, association, fused=fused)
-            for k in (1, 4):  # one target (the back kernel) and several (the scene's choice)
-                pipeline.set_max_targets(k)
-                for f, b in pairs:
-                    results.append(pipeline.process(f, b))
-                results.append(pipeline.process(pairs[0][0], None))  # the static-scene stand-in
-    _exercise_tracker(profile, results)
-    _exercise_stream()
-    rf = profile.replace(
-        acquisition=dataclasses.replace(profile.acquisition, signal="rf", carrier_hz=5000.0)
-    )
-    for fused in (True, False):
-        build_pipeline(rf, "geometric", fused=fused).process(*pairs[0])
-    split = profile.replace(memg=dataclasses.replace(profile.memg, split_merged=True))
-    for fused in (True, False):
-        build_pipeline(split, "geometric", fused=fused).process(pairs[0][0])  # off by default
-    ring, frames, background = _ring_input()
-    for fused in (True, False):
-        build_pipeline(ring, "geometric", fused=fused).process(frames, background)
+    for k in (1, 4):
+        pipeline.set_max_targets(k)
+        for f, b in pairs:
+            results.append(pipeline.process(f, b))
+        results.append(pipeline.process(pairs[0][0], None))
+    return results
 
 
-def _exercise_tracker(profile, results) -> None:
-    """The tracker's kernels (``run`` tracks by default), fed the results above in turn."""
+def _step_tracker() -> None:
+    """The tracker's kernels (``run`` tracks by default), fed the fused geometric results."""
+    from spiel_edge.profile.schema import load_profile
     from spiel_edge.runtime.tracking import ResultTracker
 
-    tracker = ResultTracker(profile.track)
+    results = _pipeline_results("geometric", True) + _pipeline_results("auto", True)
+    tracker = ResultTracker(load_profile().track)
     for i, result in enumerate(results):
         tracker.update(result, 0.02 * i)
 
 
-def _exercise_stream() -> None:
+def _step_stream() -> None:
     """The stream decoder's COBS kernels (a live board, the virtual one included)."""
     from firmware_protocol import cobs
 
     cobs.warm_up()
 
 
-def warmup() -> dict:
-    """Run inputs through every kernel; report seconds, kernels and where each came from."""
-    t0 = time.perf_counter()
-    _exercise()
-    kernels = pipeline_kernels()
+def _step_variants() -> None:
+    """Profiles off the default path: an RF signal (envelope kernel), merged-echo splitting,
+    and an 8-channel ring (the hypothesise-and-verify associator)."""
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.profile.schema import load_profile
+
+    profile = load_profile()
+    pairs = _vendored_pairs(1)
+    rf = profile.replace(
+        acquisition=dataclasses.replace(profile.acquisition, signal="rf", carrier_hz=5000.0)
+    )
+    split = profile.replace(memg=dataclasses.replace(profile.memg, split_merged=True))
+    ring, frames, background = _ring_input()
+    for fused in (True, False):
+        build_pipeline(rf, "geometric", fused=fused).process(*pairs[0])
+        build_pipeline(split, "geometric", fused=fused).process(pairs[0][0])  # off by default
+        build_pipeline(ring, "geometric", fused=fused).process(frames, background)
+
+
+# The warm-up in steps, each small enough to compile in its own process within a bounded
+# memory (numba keeps every module it compiled until the process ends): the fused path first,
+# the one `run` takes, then what shares its kernels.
+STEPS = {
+    "stream": _step_stream,
+    "fused-geometric": lambda: _pipeline_results("geometric", True),
+    "fused-learned": lambda: _pipeline_results("auto", True),
+    "staged-geometric": lambda: _pipeline_results("geometric", False),
+    "staged-learned": lambda: _pipeline_results("auto", False),
+    "tracker": _step_tracker,
+    "variants": _step_variants,
+    "csv": _step_csv,
+}
+
+
+def _exercise(steps=None) -> None:
+    for name in steps or STEPS:
+        STEPS[name]()
+
+
+def _report(t0: float, kernels: dict) -> dict:
     used = {name: k for name, k in kernels.items() if k.signatures}
     return {
         "seconds": round(time.perf_counter() - t0, 3),
@@ -147,6 +180,236 @@ def warmup() -> dict:
     }
 
 
+def warmup(isolate: bool = True, progress=None) -> dict:
+    """Run inputs through every kernel; report seconds, kernels and where each came from.
+
+    ``isolate``: each step in a child process of its own (peak memory that of the largest
+    step, not of all), else all here. ``progress``: a ``compile_progress.Progress`` (or any
+    ``_kernel_cache`` listener) told of each kernel compiled. ``peak_rss_mib``: the largest
+    resident size of this process and its children."""
+    t0 = time.perf_counter()
+    if not isolate:
+        from spiel_edge import _kernel_cache
+
+        if progress is not None:
+            _kernel_cache.listeners.append(progress)
+        try:
+            _exercise()
+        finally:
+            if progress is not None:
+                _kernel_cache.listeners.remove(progress)
+        report = _report(t0, pipeline_kernels())
+    else:
+        report = _isolated(t0, progress)
+    report["peak_rss_mib"] = peak_rss_mib()
+    return report
+
+
+def _isolated(t0: float, progress) -> dict:
+    merged: dict = {"kernels": set(), "cache_hits": set(), "compiled": set()}
+    for step in STEPS:
+        child = _run_child(step, progress)
+        for key in merged:
+            merged[key].update(child[key])
+    return {
+        "seconds": round(time.perf_counter() - t0, 3),
+        "kernels": len(merged["kernels"]),
+        "cache_hits": sorted(merged["cache_hits"]),
+        "compiled": sorted(merged["compiled"]),
+        "cache_dir": cache_dir(),
+    }
+
+
+def _run_child(step: str, progress) -> dict:
+    """One step in ``python -m spiel_edge.runtime.warmup STEP``: its compile reports (JSON
+    lines on its stdout) go to ``progress``; its last line is its report."""
+    import json
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "spiel_edge.runtime.warmup", step]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    report = None
+    with proc.stdout:
+        for line in proc.stdout:
+            try:
+                message = json.loads(line)
+            except ValueError:
+                continue
+            if "report" in message:
+                report = message["report"]
+            elif progress is not None:
+                progress(message["event"], message["name"], message["detail"])
+    if proc.wait() != 0 or report is None:
+        raise WarmupError(f"the warm-up step {step!r} failed (exit status {proc.returncode})")
+    return report
+
+
+class WarmupError(RuntimeError):
+    """A warm-up child process failed (its error is on stderr)."""
+
+
+def peak_rss_mib() -> float:
+    """The largest resident set of this process and of any child it waited for, in MiB."""
+    import resource
+
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return round(max(own, children) / 1024.0, 1)  # Linux: KiB
+
+
+def _child_main(step: str) -> int:
+    """Run one step here, each compile report and then the report as JSON lines on stdout."""
+    import json
+    import sys
+
+    from spiel_edge import _kernel_cache
+
+    out = sys.stdout
+
+    def send(event: str, name: str, detail: object) -> None:
+        value = detail if isinstance(detail, (int, float)) else str(detail)
+        out.write(json.dumps({"event": event, "name": name, "detail": value}) + "\n")
+        out.flush()
+
+    _kernel_cache.listeners.append(send)
+    t0 = time.perf_counter()
+    STEPS[step]()
+    report = _report(t0, pipeline_kernels())
+    used = [n for n, k in pipeline_kernels().items() if k.signatures]
+    out.write(json.dumps({"report": {**report, "kernels": used}}) + "\n")
+    out.flush()
+    return 0
+
+
+RUN_STEPS = ("stream", "fused-geometric", "fused-learned", "tracker")  # what `run` compiles
+
+
+def _exercise_run(profile, association, max_targets, track: bool, toa_correction=None) -> None:
+    """What ``run`` compiles before its first record: the stream decoder, the pipeline on a
+    closed-form acquisition of the profile's shape (one target and ``max_targets``) and the
+    tracker on the results."""
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.runtime.tracking import ResultTracker
+
+    _step_stream()
+    pipeline = build_pipeline(profile, association, toa_correction)
+    frames, background = closed_form_acquisition(profile)
+    results = []
+    for k in sorted({1, max_targets or 1}):
+        pipeline.set_max_targets(k)
+        results += [pipeline.process(frames, background), pipeline.process(frames, None)]
+    if track:
+        tracker = ResultTracker(profile.track)
+        for i, result in enumerate(results):
+            tracker.update(result, 0.02 * i)
+
+
+def prepare_for_run(
+    profile,
+    association=None,
+    max_targets=None,
+    track=True,
+    toa_correction=None,
+    stream=None,
+    notifier=None,
+) -> dict:
+    """Before ``run`` opens a board: load every kernel it needs from the cache, or, when one
+    is missing, say so at once (what, why, about how long) and compile them with progress on
+    ``stream`` (stderr), in child processes when the cache is writable (bounded memory).
+    ``compiled``: whether anything compiled; ``seconds``: the time it took."""
+    from spiel_edge import _kernel_cache
+    from spiel_edge.errors import SpielError
+
+    t0 = time.perf_counter()
+    try:
+        with _kernel_cache.no_compile():
+            _exercise_run(profile, association, max_targets, track, toa_correction)
+        return {"compiled": False, "seconds": round(time.perf_counter() - t0, 3)}
+    except _kernel_cache.CompileNeeded as exc:
+        if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
+            raise
+        first = exc.name
+    except SpielError as exc:  # an unusual profile: the live stream will tell
+        log.debug("kernel preparation: %s", exc)
+        return {"compiled": False, "seconds": round(time.perf_counter() - t0, 3)}
+    progress = announce("before opening the board", stream, first)
+    progress.notifier = notifier  # the service: STATUS per kernel, the start timeout extended
+    if notifier is not None:
+        notifier.starting("compiling kernels for this CPU")
+    writable = cache_writable()
+    if writable:
+        for step in RUN_STEPS:
+            _run_child(step, progress)
+    _kernel_cache.listeners.append(progress)  # what the profile needs beyond the steps: here
+    try:
+        _exercise_run(profile, association, max_targets, track, toa_correction)
+    except SpielError as exc:
+        log.debug("kernel preparation: %s", exc)
+    finally:
+        _kernel_cache.listeners.remove(progress)
+    seconds = time.perf_counter() - t0
+    progress.finish(
+        f"spiel-edge: kernels ready after {seconds:.0f} s"
+        + ("" if writable else " (not kept: no writable cache folder)")
+    )
+    return {"compiled": True, "seconds": round(seconds, 3)}
+
+
+def announce(when: str, stream=None, first: str | None = None):
+    """Say at once that kernels must compile (``first``: the one found missing), then how
+    many, why and about how long; return the display."""
+    import platform
+
+    from spiel_edge import _shipped
+    from spiel_edge.runtime.compile_progress import Progress, about, estimate_seconds
+
+    progress = Progress(total=1, stream=stream)
+    if first is not None:  # at once: counting them imports every kernel module (seconds)
+        progress.say(f"spiel-edge: kernel {first} has no compiled copy: compiling {when}")
+    status = kernel_status()
+    n, total = max(len(status["missing"]), 1), max(status["total"], 1)
+    progress.total = n
+    progress.say(
+        f"spiel-edge: compiling {n} of {total} kernels for this CPU {when}, "
+        f"{about(estimate_seconds(n, total, platform.machine()))} "
+        f"({_why(status, _shipped.status())}; once: later starts load them from "
+        f"{status['cache_dir'] or 'nowhere: no writable cache folder'})"
+    )
+    return progress
+
+
+def _why(status: dict, shipped: dict) -> str:
+    if shipped["active"]:
+        return "the prebuilt kernels lack them"
+    if status["missing"] and len(status["missing"]) < status["total"]:
+        return f"{shipped['reason']}; the cache holds some of them: the code or numba changed"
+    return f"{shipped['reason']}; the cache is empty"
+
+
+def kernel_status() -> dict:
+    """The kernels with no compiled copy for this CPU (cache key: CPU, numba, bytecode) in
+    any cache layer; inlined helpers, never compiled alone, are left out."""
+    from numba.core.registry import cpu_target
+
+    codegen = cpu_target.target_context.codegen()
+    kernels = {
+        name: k
+        for name, k in pipeline_kernels().items()
+        if k.targetoptions.get("inline", "never") == "never" and hasattr(k._cache, "has_copy")
+    }
+    missing = sorted(name for name, k in kernels.items() if not k._cache.has_copy(codegen))
+    return {"total": len(kernels), "missing": missing, "cache_dir": cache_dir()}
+
+
+def cache_writable() -> bool:
+    try:
+        from spiel_edge.pipeline.stages import detect
+    except RuntimeError:
+        return False
+    return bool(getattr(detect._detect_kernel._cache, "writable", True))
+
+
 def cache_dir() -> str | None:
     """Where numba caches the pipeline's kernels in this environment (None: nowhere usable)."""
     try:
@@ -154,4 +417,11 @@ def cache_dir() -> str | None:
     except RuntimeError as exc:  # numba raises at import when no cache location is writable
         log.debug("numba cache: %s", exc)
         return None
-    return str(detect._detect_kernel._cache._cache_path)
+    cache = detect._detect_kernel._cache
+    return str(cache._cache_path) if getattr(cache, "writable", True) else None
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_child_main(sys.argv[1]))

@@ -194,7 +194,15 @@ def check_numba_cache_dir(path: Path | None) -> Check:
             pass
     except OSError as exc:
         return Check("numba cache", False, f"{path} is not writable: {exc}", fix)
-    return Check("numba cache", True, f"{path} is writable")
+    from spiel_edge import _shipped
+
+    shipped = _shipped.status()
+    where = (
+        "prebuilt kernels in use"
+        if shipped["active"]
+        else f"no prebuilt kernels: {shipped['reason']}"
+    )
+    return Check("numba cache", True, f"{path} is writable ({where})")
 
 
 def pipeline_dispatchers() -> list[Any]:
@@ -215,7 +223,7 @@ def warm_pipeline() -> float:
     """Run every kernel once (compile or cache load); seconds taken."""
     from spiel_edge.runtime.warmup import warmup
 
-    return float(warmup()["seconds"])
+    return float(warmup(isolate=False)["seconds"])  # here: doctor counts this process's kernels
 
 
 def check_numba_kernels(warm: Callable[[], float], counts: Callable[[], tuple[int, int]]) -> Check:

@@ -102,6 +102,11 @@ class Notifier:
     def status(self, text: str) -> bool:
         return self._send(f"STATUS={text}")
 
+    def starting(self, text: str, extend_s: float = 120.0) -> bool:
+        """Still starting (e.g. compiling kernels): STATUS, and the start timeout extended by
+        ``extend_s`` from now (EXTEND_TIMEOUT_USEC), so a slow first start is not killed."""
+        return self._send(f"STATUS={text}\nEXTEND_TIMEOUT_USEC={int(extend_s * 1e6)}")
+
     def stopping(self) -> bool:
         return self._send("STOPPING=1")
 

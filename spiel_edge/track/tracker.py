@@ -102,11 +102,12 @@ class Track:
         return self._snapshot[self._row, 6:].reshape(6, 6)[:3, :3]
 
     def record(self) -> dict:
+        row = self._snapshot[self._row].tolist()  # one conversion: state, then 6 x 6 covariance
         return {
             "track_id": int(self.track_id),
-            "position_mm": [round(v, 2) for v in self.position_mm.tolist()],
-            "velocity_mm_s": [round(v, 2) for v in self.velocity_mm_s.tolist()],
-            "covariance_mm2": [[round(v, 3) for v in row] for row in self.covariance_mm2.tolist()],
+            "position_mm": [round(v, 2) for v in row[0:3]],
+            "velocity_mm_s": [round(v, 2) for v in row[3:6]],
+            "covariance_mm2": [[round(v, 3) for v in row[at : at + 3]] for at in (6, 12, 18)],
             "age": int(self.age),
             "hits": int(self.hits),
         }

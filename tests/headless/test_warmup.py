@@ -24,7 +24,7 @@ def test_one_kernel_finder_sees_the_fused_and_staged_kernels():
 
 def test_warmup_command_reports(monkeypatch, capsys):
     report = {"seconds": 1.5, "kernels": 11, "compiled": ["a"], "cache_hits": [], "cache_dir": "/c"}
-    monkeypatch.setattr(warmup, "warmup", lambda: report)
+    monkeypatch.setattr(warmup, "warmup", lambda **_: report)
     assert main(["warmup"]) == 0
     assert (
         "11 kernels in 1.5 s: 1 compiled, 0 loaded from the cache (/c)" in capsys.readouterr().out

@@ -2,7 +2,7 @@
 
     python -m tools.release.compare_ndjson_positions A.ndjson B.ndjson [--tolerance-mm 0.01]
 
-Used by tools/aarch64_smoke.sh (host against emulated arm64). Exit 0 when both files have the
+Used by tools/release/aarch64_smoke.sh (host against emulated arm64). Exit 0 when both files have the
 same records (by seq), the same fixes (a position in both or in neither) and every position
 (best and per target) agrees within the tolerance; 1 otherwise, naming the first differences.
 """

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # aarch64 smoke test under emulation (not in CI: it takes many minutes). Run as root:
 #
-#   bash tools/aarch64_smoke.sh [WORKDIR]        (default WORKDIR: /var/tmp/spiel-aarch64)
+#   bash tools/release/aarch64_smoke.sh [WORKDIR]        (default WORKDIR: /var/tmp/spiel-aarch64)
 #
 # 1. qemu-user from Debian trixie (qemu 10): bookworm's qemu 7.2 crashes importing
 #    onnxruntime >= 1.28. The .deb comes from a private apt state under WORKDIR/apt, so the
@@ -14,16 +14,19 @@
 #    the core and framing tests run, and `spiel-edge run --port sim://` is compared with the
 #    host's output: every position within 0.01 mm.
 # SPIEL_SMOKE_ROOT_ONLY=1 stops after step 2; SPIEL_ARM_SUITE picks the Debian suite.
+# SPIEL_SMOKE_EXEC="command" runs that host command after step 2 instead of steps 3-4, with
+# the root's /proc, /dev, /sys mounted, qemu registered and ARM_ROOT set to the root (the
+# release script builds the aarch64 wheel this way: tools/release/build_wheels.py).
 # Timings under emulation mean nothing; the run time of each step is printed.
 set -euo pipefail
 
-REPO=$(cd "$(dirname "$0")/.." && pwd)
+REPO=$(cd "$(dirname "$0")/../.." && pwd)
 WORK=${1:-/var/tmp/spiel-aarch64}
 SUITE=${SPIEL_ARM_SUITE:-bookworm}
 MIRROR=${SPIEL_DEBIAN_MIRROR:-http://deb.debian.org/debian}
 FRAMES=${SPIEL_SMOKE_FRAMES:-30}
 BINFMT=/proc/sys/fs/binfmt_misc
-ENTRY=spiel-qemu-aarch64
+ENTRY=${SPIEL_QEMU_ENTRY:-spiel-qemu-aarch64}
 ROOT=$WORK/root
 T0=$(date +%s)
 
@@ -80,13 +83,17 @@ HOST_CA=${SPIEL_HOST_CA:-/etc/ssl/certs/ca-certificates.crt}
 in_root() { chroot "$ROOT" /usr/bin/env -i HOME=/root PATH=/opt/venv/bin:/usr/bin:/bin \
     PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_DEFAULT_TIMEOUT=180 PIP_CERT=/etc/ssl/host-ca.crt "$@"; }
 
-install_checkout() {
-    step "copying the checkout and installing it with [test] (pip under emulation)"
-    mount -t proc proc "$ROOT/proc"
-    mount --bind /dev "$ROOT/dev"
-    mount --bind /sys "$ROOT/sys"
+mount_root() {
+    mountpoint -q "$ROOT/proc" || mount -t proc proc "$ROOT/proc"
+    mountpoint -q "$ROOT/dev" || mount --bind /dev "$ROOT/dev"
+    mountpoint -q "$ROOT/sys" || mount --bind /sys "$ROOT/sys"
     cp /etc/resolv.conf "$ROOT/etc/resolv.conf"
     cp "$HOST_CA" "$ROOT/etc/ssl/host-ca.crt"
+}
+
+install_checkout() {
+    step "copying the checkout and installing it with [test] (pip under emulation)"
+    mount_root
     rm -rf "$ROOT/src" && mkdir -p "$ROOT/src"
     tar -C "$REPO" --exclude=.git --exclude=.venv --exclude='__pycache__' --exclude='*.egg-info' \
         --exclude=build -cf - . | tar -C "$ROOT/src" -xf -
@@ -135,6 +142,13 @@ fetch_qemu
 register_binfmt
 make_root
 if [ "${SPIEL_SMOKE_ROOT_ONLY:-0}" = 1 ]; then step "arm64 root ready"; exit 0; fi
+if [ -n "${SPIEL_SMOKE_EXEC:-}" ]; then
+    mount_root
+    step "running on the host with the arm64 root ready: $SPIEL_SMOKE_EXEC"
+    ARM_ROOT=$ROOT bash -c "$SPIEL_SMOKE_EXEC"
+    step "done"
+    exit 0
+fi
 install_checkout
 compare_positions
 run_tests

@@ -1,6 +1,6 @@
 """Check that every runtime dependency resolves to binary wheels on the boards we support.
 
-    .venv/bin/python -m tools.check_wheels [--python 3.10 3.12] [--arch x86_64 aarch64]
+    .venv/bin/python -m tools.release.check_wheels [--python 3.10 3.12] [--arch x86_64 aarch64]
                                            [--glibc 2_35] [--extra zenoh ...]
 
 For each (Python, architecture) pip resolves the [project] dependencies of pyproject.toml with
@@ -21,7 +21,7 @@ from pathlib import Path
 
 from spiel_edge.compat import tomllib
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def requirements(extras: list[str]) -> list[str]:

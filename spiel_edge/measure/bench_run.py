@@ -1,0 +1,202 @@
+"""The whole ``run`` path per record, and the first-start figures (``spiel-edge bench``).
+
+``run_path_cpu``: the virtual board serves a pseudo-terminal from a process of its own
+(``spiel-edge simulate --pty``, so its cost is not counted); ``spiel-edge run --port <pty>``
+runs twice, for ``small`` and ``big`` records, 4 x 64 with up to 4 targets, tracking and NDJSON
+to a file. CPU seconds of each run (user + system, from the kernel's accounting of the child)
+differ by the records in between: (cpu(big) - cpu(small)) / (big - small) is the CPU per record
+of the steady state, start-up and shut-down cancelled. Latency: the run's own summary (from an
+acquisition's last byte read to its record written).
+
+``first_start``: seconds from ``spiel-edge run --port sim:// --frames 50`` starting to its first
+line of output (stderr or stdout) and to its first record, in a fresh process with the given
+cache folder; and ``warmup``'s seconds and peak resident memory (itself and its children).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import subprocess
+import sys
+import tempfile
+import time
+
+CLI = [
+    sys.executable,
+    "-c",
+    "import sys; from spiel_edge.cli import main; sys.exit(main(sys.argv[1:]))",
+]
+RUN_ARGS = ("--max-targets", "4", "--track", "--no-status")
+
+
+def _serve_pty(timeout_s: float = 60.0) -> tuple[subprocess.Popen, str]:
+    server = subprocess.Popen(
+        [*CLI, "simulate", "--pty"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+    )
+    ready, _, _ = select.select([server.stdout], [], [], timeout_s)
+    if not ready:
+        server.kill()
+        raise RuntimeError("spiel-edge simulate --pty announced no pty")
+    return server, server.stdout.readline().strip()
+
+
+def _timed_run(args: list[str], env: dict | None = None, timeout_s: float = 600.0) -> dict:
+    """Run ``spiel-edge ARGS``: CPU seconds, wall seconds, its summary line (stderr)."""
+    with tempfile.TemporaryFile() as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([*CLI, *args], stdout=subprocess.DEVNULL, stderr=err, env=env)
+        deadline = t0 + timeout_s
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.perf_counter() > deadline:
+                proc.kill()
+                raise RuntimeError(f"spiel-edge {' '.join(args)} ran longer than {timeout_s} s")
+            time.sleep(0.02)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t0
+        err.seek(0)
+        text = err.read().decode(errors="replace")
+    if proc.returncode not in (0, 3):
+        raise RuntimeError(
+            f"spiel-edge {' '.join(args)} exited with {proc.returncode}: {text[-300:]}"
+        )
+    return {"cpu_s": usage.ru_utime + usage.ru_stime, "wall_s": wall, "stderr": text}
+
+
+def run_path_cpu(small: int = 50, big: int = 550, rate: float = 0.0) -> dict:
+    """CPU microseconds per record of ``spiel-edge run`` over a pty (4 x 64, 4 targets,
+    tracking, NDJSON to a file), the virtual board in another process."""
+    server, port = _serve_pty()
+    runs = {}
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for n in (small, big):
+                out = os.path.join(tmp, f"run{n}.ndjson")
+                args = ["run", "--port", port, "--frames", str(n), "--rate", str(rate)]
+                runs[n] = _timed_run([*args, *RUN_ARGS, "-o", out])
+    finally:
+        server.terminate()
+        try:
+            server.wait(5)
+        except subprocess.TimeoutExpired:
+            server.kill()
+    per_record = (runs[big]["cpu_s"] - runs[small]["cpu_s"]) / (big - small)
+    latency = re.search(r"latency median ([\d.]+) ms, p95 ([\d.]+) ms", runs[big]["stderr"])
+    return {
+        "records": [small, big],
+        "rate_hz": rate,
+        "cpu_us_per_record": round(per_record * 1e6, 1),
+        "startup_cpu_s": round(runs[small]["cpu_s"] - small * per_record, 2),
+        "records_per_s": round(
+            (big - small) / max(runs[big]["wall_s"] - runs[small]["wall_s"], 1e-9), 1
+        ),
+        "latency_ms": (
+            {"median": float(latency.group(1)), "p95": float(latency.group(2))} if latency else None
+        ),
+    }
+
+
+def first_start(env: dict | None = None, frames: int = 50, timeout_s: float = 900.0) -> dict:
+    """Seconds to the first line of output and to the first record of ``spiel-edge run
+    --port sim:// --frames N --rate 0`` in a fresh process (``env``: e.g. an empty
+    NUMBA_CACHE_DIR), and whether it compiled anything (its stderr says so)."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [*CLI, "run", "--port", "sim://", "--frames", str(frames), "--rate", "0", "--no-status"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+    )
+    first_line = first_record = None
+    err = b""
+    streams = [proc.stdout, proc.stderr]
+    deadline = t0 + timeout_s
+    while streams and time.perf_counter() < deadline:
+        ready, _, _ = select.select(streams, [], [], 1.0)
+        for stream in ready:
+            chunk = os.read(stream.fileno(), 65536)
+            if not chunk:
+                streams.remove(stream)
+                continue
+            now = time.perf_counter() - t0
+            first_line = first_line if first_line is not None else now
+            if stream is proc.stdout and first_record is None:
+                first_record = now
+            if stream is proc.stderr:
+                err += chunk
+    if streams:
+        proc.kill()
+    proc.wait()
+    text = err.decode(errors="replace")
+    return {
+        "first_output_s": round(first_line, 2) if first_line is not None else None,
+        "first_record_s": round(first_record, 2) if first_record is not None else None,
+        "compiled": "compiling" in text,
+        "exit": proc.returncode,
+    }
+
+
+def first_line_cold(args: tuple[str, ...] = ("run", "--port", "sim://", "--frames", "50")) -> dict:
+    """Seconds from starting ``spiel-edge ARGS`` on an empty cache to its first line of
+    output; then the command and its children are stopped (no full compile: cheap)."""
+    import signal
+
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache, "SPIEL_EDGE_HOST_KERNELS": "1"}
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(
+            [*CLI, *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=env,
+            start_new_session=True,  # its warm-up children stop with it
+        )
+        try:
+            ready, _, _ = select.select([proc.stdout, proc.stderr], [], [], 120.0)
+            seconds = time.perf_counter() - t0 if ready else None
+            line = ready[0].readline().decode(errors="replace").strip() if ready else ""
+        finally:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return {"first_output_s": None if seconds is None else round(seconds, 2), "line": line[:160]}
+
+
+def warmup_figures(env: dict | None = None, timeout_s: float = 1800.0) -> dict:
+    """``spiel-edge warmup --json`` in a fresh process: seconds, kernels compiled, peak RSS of
+    it and its children (the warm-up's own report), seconds to its first line of output."""
+    import json
+
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [*CLI, "warmup", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env
+    )
+    ready, _, _ = select.select([proc.stderr], [], [], timeout_s)
+    first = time.perf_counter() - t0 if ready else None
+    out, _err = proc.communicate(timeout=timeout_s)
+    report = json.loads(out.decode().strip().splitlines()[-1])
+    return {
+        "first_output_s": round(first, 2) if first is not None else None,
+        "seconds": report["seconds"],
+        "compiled": len(report["compiled"]),
+        "kernels": report["kernels"],
+        "peak_rss_mib": report.get("peak_rss_mib"),
+    }
+
+
+def cold_figures() -> dict:
+    """First-start figures: the first line of a cold ``run`` and ``warmup`` (stopped after
+    it), a whole cold ``warmup`` on an empty cache (compiles every kernel: minutes; its peak
+    RSS), then ``run`` from that cache."""
+    out = {
+        "cold_run_first_line": first_line_cold(),
+        "cold_warmup_first_line": first_line_cold(("warmup",)),
+    }
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        out["cold_warmup"] = warmup_figures(env)
+        out["warm_run"] = first_start(env)
+    return out

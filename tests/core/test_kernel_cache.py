@@ -1,0 +1,200 @@
+"""spiel_edge/_kernel_cache.py and _shipped.py: the kernel cache never crashes a start, and a
+wheel's prebuilt kernels load with no compile. Each case runs in a fresh interpreter (numba's
+CPU and cache folders are chosen once per process) on a one-line kernel, or on the stream
+decoder's two kernels for the prebuilt ones."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from spiel_edge import _jit, _shipped
+
+TINY = """
+from spiel_edge._jit import jit
+
+@jit
+def twice(x):
+    return 2 * x + 1
+"""
+
+PROBE = """
+import json, os, signal, sys
+if os.environ.get("FSIZE"):  # a full disk: a write past this size fails (EFBIG)
+    import resource
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    size = int(os.environ["FSIZE"])
+    resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+warnings = []
+from spiel_edge import _kernel_cache
+_kernel_cache.listeners.append(lambda e, n, d: warnings.append(str(d)) if e == "warning" else None)
+import tiny_kernels
+value = tiny_kernels.twice(20)
+print(json.dumps({"value": value, "counts": _kernel_cache.counts, "warnings": warnings,
+                  "writable": tiny_kernels.twice._cache.writable}))
+"""
+
+
+def _probe(tmp_path: Path, **env) -> dict:
+    (tmp_path / "tiny_kernels.py").write_text(TINY)
+    full = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path]),
+        "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+        **env,
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE], env=full, capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _cache_files(tmp_path: Path, pattern: str) -> list[Path]:
+    return sorted((tmp_path / "cache").rglob(pattern))
+
+
+def test_jit_keeps_its_options_when_given_the_function():
+    def f(x):
+        return x + 1
+
+    kernel = _jit.jit(f, boundscheck=True, inline="always")
+    assert kernel.targetoptions["boundscheck"] is True
+    assert kernel.targetoptions["inline"] == "always"
+    assert kernel.targetoptions["nogil"] is True
+    assert type(kernel._cache).__name__ == "KernelCache"
+    decorated = _jit.jit(boundscheck=True)(f)
+    assert decorated.targetoptions["boundscheck"] is True
+
+
+def test_a_damaged_cache_file_is_compiled_again(tmp_path):
+    first = _probe(tmp_path)
+    assert first["value"] == 41 and first["counts"]["compiled"] == 1
+    (data,) = _cache_files(tmp_path, "*.nbc")
+    data.write_bytes(data.read_bytes()[:40])  # truncated, as a crash mid-write leaves it
+    second = _probe(tmp_path)
+    assert second["value"] == 41 and second["counts"]["compiled"] == 1
+    assert any("unusable" in w for w in second["warnings"])
+    third = _probe(tmp_path)  # the compile above rewrote it whole
+    assert third["counts"] == {"hits": 1, "shipped_hits": 0, "compiled": 0}
+    (index,) = _cache_files(tmp_path, "*.nbi")
+    index.write_bytes(b"\x80\x04garbage")
+    assert _probe(tmp_path)["value"] == 41
+    assert _probe(tmp_path)["counts"]["hits"] == 1  # the index was written afresh
+
+
+def test_no_writable_folder_compiles_in_memory_and_says_so(tmp_path):
+    """numba raises at import when no folder is writable; the kernel cache compiles and
+    says once that nothing is kept (NUMBA_CACHE_DIR, __pycache__ and the user's cache
+    folder all under a plain file: not even root can create them)."""
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    (tmp_path / "__pycache__").write_text("")
+    env = {"NUMBA_CACHE_DIR": str(blocker / "c"), "XDG_CACHE_HOME": str(blocker / "x")}
+    env["HOME"] = str(blocker / "home")
+    result = _probe(tmp_path, **env)
+    assert result["value"] == 41 and result["writable"] is False
+    assert any("not kept" in w for w in result["warnings"])
+
+
+def test_a_full_disk_while_saving_leaves_the_kernel_running(tmp_path):
+    result = _probe(tmp_path, FSIZE="200")
+    assert result["value"] == 41 and result["counts"]["compiled"] == 1
+    assert any("not saved" in w for w in result["warnings"])
+    assert not _cache_files(tmp_path, "*.tmp.*")  # no half-written file left behind
+    assert _probe(tmp_path)["value"] == 41  # and the next start compiles or loads: no crash
+
+
+STREAM = """
+import json, os, sys
+import numpy as np
+from spiel_edge import _kernel_cache, _shipped
+from firmware_protocol import cobs
+warnings = []
+_kernel_cache.listeners.append(lambda e, n, d: warnings.append(str(d)) if e == "warning" else None)
+error = None
+try:
+    cobs.warm_up()
+    payload = np.arange(600, dtype=np.uint16).tobytes()
+    assert cobs.decode(cobs.encode(payload)) == payload
+except _kernel_cache.CompileNeeded as exc:
+    error = str(exc)
+print(json.dumps({"status": _shipped.status(), "counts": _kernel_cache.counts, "error": error,
+                  "cpu": os.environ.get("NUMBA_CPU_NAME"), "warnings": warnings}))
+"""
+
+
+def _stream(env: dict) -> dict:
+    full = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_CPU", "SPIEL_EDGE"))}
+    out = subprocess.run(
+        [sys.executable, "-c", STREAM],
+        env={**full, **env},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_prebuilt_kernels_load_from_a_read_only_folder_with_no_compile(tmp_path):
+    from tools.release.build_wheels import manifest
+
+    ship = tmp_path / "ship"
+    build = _stream({_shipped.ENV_BUILD: str(ship), "NUMBA_CACHE_DIR": str(tmp_path / "c0")})
+    assert build["counts"]["compiled"] == 2 and build["cpu"] == "generic"
+    assert not list((tmp_path / "c0").rglob("*.nbi"))  # the build writes only the kernels'
+    ident = _shipped.identity()
+    (ship / "manifest.json").write_text(json.dumps(manifest(ship, ident)))
+    for p in ship.rglob("*"):
+        p.chmod(0o555 if p.is_dir() else 0o444)
+    user = tmp_path / "user"
+    env = {
+        _shipped.ENV_FOLDER: str(ship),
+        "NUMBA_CACHE_DIR": str(user),
+        "SPIEL_EDGE_NO_COMPILE": "1",
+    }
+    run = _stream(env)
+    assert run["error"] is None and run["status"]["active"] and run["cpu"] == "generic"
+    assert run["counts"] == {"hits": 2, "shipped_hits": 2, "compiled": 0}
+    assert not list(user.rglob("*.nb[ic]"))
+    # host-tuned kernels asked for: the prebuilt ones are left alone
+    host = _stream({**env, _shipped.ENV_HOST: "1"})
+    assert not host["status"]["active"] and host["cpu"] is None
+    assert host["error"] and "no compiled copy" in host["error"]
+    # a damaged prebuilt file: refused against the manifest, so the kernel would compile
+    (data, *_) = sorted(ship.rglob("*.nbc"))
+    data.chmod(0o644)
+    data.write_bytes(data.read_bytes()[:-1] + b"\x00")
+    damaged = _stream(env)
+    assert damaged["error"] and any("manifest" in w for w in damaged["warnings"])
+
+
+def test_prebuilt_kernels_for_another_numba_are_not_used(tmp_path):
+    ident = {**_shipped.identity(), "numba": "0.1.0"}
+    assert "built for numba 0.1.0" in _shipped.mismatch(ident)
+    assert _shipped.mismatch(_shipped.identity()) == ""
+    (tmp_path / "manifest.json").write_text(json.dumps({**ident, "files": {}}))
+    result = _stream(
+        {
+            _shipped.ENV_FOLDER: str(tmp_path),
+            "SPIEL_EDGE_NO_COMPILE": "1",
+            "NUMBA_CACHE_DIR": str(tmp_path / "c"),
+        }
+    )
+    assert not result["status"]["active"] and "numba 0.1.0" in result["status"]["reason"]
+    assert result["cpu"] is None and result["error"]  # the host's CPU: it would compile
+
+
+@pytest.mark.parametrize("value", ["", "not json", "[]"])
+def test_a_broken_manifest_means_no_prebuilt_kernels(tmp_path, value):
+    (tmp_path / "manifest.json").write_text(value)
+    code = "import json, spiel_edge._shipped as s; print(json.dumps(s.status()))"
+    env = {**os.environ, _shipped.ENV_FOLDER: str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert not json.loads(out.stdout)["active"]
