@@ -70,6 +70,10 @@ class ZenohRos2Sink:
                     encoding=zenoh.Encoding.APPLICATION_CDR,
                     cache=zenoh.ext.CacheConfig(max_samples=1),
                     publisher_detection=True,
+                    # sequence numbers, not timestamps, order the cache (as rmw_zenoh's)
+                    sample_miss_detection=zenoh.ext.MissDetectionConfig(
+                        heartbeat=None, sporadic_heartbeat=0.5
+                    ),
                 )
             self._queryable = self._declare_tf_cache(zid)
         except Exception:

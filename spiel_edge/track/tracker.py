@@ -107,6 +107,9 @@ class Track:
             "position_mm": [round(v, 2) for v in self.position_mm.tolist()],
             "velocity_mm_s": [round(v, 2) for v in self.velocity_mm_s.tolist()],
             "covariance_mm2": [[round(v, 3) for v in row] for row in self.covariance_mm2.tolist()],
+            "velocity_covariance_mm2_s2": [
+                [round(v, 3) for v in row] for row in self.state_covariance[3:, 3:].tolist()
+            ],
             "age": int(self.age),
             "hits": int(self.hits),
         }
