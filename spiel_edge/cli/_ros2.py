@@ -6,9 +6,9 @@ option given here overrides its key (profile/frame_section.py, docs/ros2.md).
 
 from __future__ import annotations
 
-import click
-
 import os
+
+import click
 
 from spiel_edge.outputs.ros2 import (
     RECORD_PROFILES,

@@ -217,9 +217,7 @@ def _foxglove_sink(bind: str, receivers_mm: Any, ros2: Any = None) -> Sink:
     return FoxgloveSink(bind, receivers_mm=receivers_mm, ros2=ros2)
 
 
-def _zenoh_sink(
-    key: str, encoding: str = "json", ros2: Any = None, settings: Any = None
-) -> Sink:
+def _zenoh_sink(key: str, encoding: str = "json", ros2: Any = None, settings: Any = None) -> Sink:
     if encoding == "rmw_zenoh":
         from spiel_edge.outputs.rmw_zenoh.sink import RmwZenohSink
 

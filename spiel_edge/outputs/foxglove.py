@@ -104,9 +104,7 @@ class FoxgloveSink:
                     "topic_type_hash": ros2_types.type_hash(type_name),
                 },
             )
-        self._tf_channel = foxglove.channels.FrameTransformsChannel(
-            TF_TOPIC, context=self._context
-        )
+        self._tf_channel = foxglove.channels.FrameTransformsChannel(TF_TOPIC, context=self._context)
         self._next_tf = 0.0
         self._send_transforms()
         self._receivers = [self._cube(p) for p in ([] if receivers_mm is None else receivers_mm)]

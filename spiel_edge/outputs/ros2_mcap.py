@@ -84,9 +84,7 @@ class Ros2McapSink(McapSink):
             ros2 = Ros2Settings(frame_id, tuple(transforms))
         self.messages = rm.Ros2Messages(ros2)
         self.encoder = self.messages.encoder.cdr
-        super().__init__(
-            path, metadata={**(metadata or {}), "frame_id": ros2.frame_id}, **options
-        )
+        super().__init__(path, metadata={**(metadata or {}), "frame_id": ros2.frame_id}, **options)
         self._transforms_written = False
         if transforms_now:
             self.write_transforms(time.time())

@@ -36,6 +36,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cache
 
 from spiel_edge.io import cdr
 from spiel_edge.outputs import ros2_types
@@ -98,24 +99,35 @@ class TargetFilter:
     min_score: float = MIN_SCORE
     max_variance_m2: float = MAX_VARIANCE_M2
 
+    def __post_init__(self) -> None:
+        lim = self.limits
+        object.__setattr__(self, "_r_min", (lim.min_range_m - RANGE_MARGIN_M) * 1e3)
+        object.__setattr__(self, "_r_max", (lim.max_range_m + RANGE_MARGIN_M) * 1e3)
+        object.__setattr__(self, "_cos", math.cos(lim.field_of_view_rad / 2))
+        object.__setattr__(self, "_var_max", self.max_variance_m2 * 1e6)
+
     def keep(self, target: dict) -> bool:
+        """Whether ``target`` (a record's, mm) is published; NaN anywhere fails."""
         try:
-            x, y, z = (v / 1e3 for v in target["position_mm"])
-            cov = target.get("covariance_mm2")
+            x, y, z = target["position_mm"]
             score = target.get("score")
             if score is not None and not score >= self.min_score:
                 return False
             r = math.sqrt(x * x + y * y + z * z)
-            lim = self.limits
-            if not lim.min_range_m - RANGE_MARGIN_M <= r <= lim.max_range_m + RANGE_MARGIN_M:
+            if not self._r_min <= r <= self._r_max:
                 return False
-            bx, by, bz = lim.boresight
-            if (x * bx + y * by + z * bz) <= r * math.cos(lim.field_of_view_rad / 2):
+            bx, by, bz = self.limits.boresight
+            if not x * bx + y * by + z * bz > r * self._cos:
                 return False
+            cov = target.get("covariance_mm2")
             if cov is not None:
-                diag = (cov[0][0], cov[1][1], cov[2][2])
-                if not all(0.0 <= v / 1e6 <= self.max_variance_m2 for v in diag):
-                    return False  # NaN fails too
+                vmax = self._var_max
+                if not (
+                    0.0 <= cov[0][0] <= vmax
+                    and 0.0 <= cov[1][1] <= vmax
+                    and 0.0 <= cov[2][2] <= vmax
+                ):
+                    return False
         except (KeyError, TypeError, ValueError, IndexError):
             return False
         return True
@@ -139,12 +151,12 @@ def sensor_transforms(frame_id: str, mount: tuple = ()) -> list[cdr.StaticTransf
 
 # --- encoders ------------------------------------------------------------------------------
 
-_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 _VEC6F = struct.Struct("<6f")
 _NAN6 = _VEC6F.pack(*([math.nan] * 6))
 _VECTORS = struct.Struct("<6d6dH2x")  # position, velocity; acceleration, size; classification
 
 
+@cache
 def track_uuid(track_id: int) -> bytes:
     """A stable 16-byte id per track id (UUID version 5 of the id in our namespace)."""
     return uuid.uuid5(_UUID_NAMESPACE, str(int(track_id))).bytes
@@ -199,8 +211,18 @@ class MessageEncoder:
             parts.append(track_uuid(track["track_id"]) + b"\x00" * pad)
             parts.append(
                 _VECTORS.pack(
-                    x / 1e3, y / 1e3, z / 1e3, vx / 1e3, vy / 1e3, vz / 1e3,
-                    0.0, 0.0, 0.0, 0.0, 0.0, 0.0,  # acceleration, size: not estimated
+                    x / 1e3,
+                    y / 1e3,
+                    z / 1e3,
+                    vx / 1e3,
+                    vy / 1e3,
+                    vz / 1e3,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,  # acceleration, size: not estimated
                     0,  # NO_CLASSIFICATION
                 )
             )
@@ -231,7 +253,10 @@ def _upper(cov, scale: float) -> bytes:
     if cov is None:
         return _NAN6
     try:
-        return _VEC6F.pack(*(cov[i][j] * scale for i, j in _UPPER))
+        a, b = cov[0], cov[1]
+        return _VEC6F.pack(
+            a[0] * scale, a[1] * scale, a[2] * scale, b[1] * scale, b[2] * scale, cov[2][2] * scale
+        )
     except (TypeError, IndexError):
         return _NAN6
 
@@ -282,18 +307,25 @@ class Ros2Messages:
 
     def _range(self, targets: list[dict], stamp) -> bytes:
         limits = self.filter.limits
-        best, variance = math.inf, math.nan
+        nearest, best = None, math.inf
         for t in targets:
             x, y, z = t["position_mm"]
-            r = math.sqrt(x * x + y * y + z * z)
-            if r / 1e3 < best:
-                best = r / 1e3
-                cov = t.get("covariance_mm2")
-                if cov is not None and r > 0:
-                    u = (x / r, y / r, z / r)
-                    variance = sum(u[i] * cov[i][j] * u[j] for i in range(3) for j in range(3))
-                    variance /= 1e6
-        return self.encoder.range(best, variance, limits, stamp)
+            r2 = x * x + y * y + z * z
+            if r2 < best:
+                nearest, best = t, r2
+        if nearest is None:
+            return self.encoder.range(math.inf, math.nan, limits, stamp)
+        r = math.sqrt(best)
+        variance = math.nan
+        cov = nearest.get("covariance_mm2")
+        if cov is not None and r > 0:
+            x, y, z = nearest["position_mm"]
+            a, b, c = cov
+            variance = (
+                x * x * a[0] + y * y * b[1] + z * z * c[2]
+                + 2.0 * (x * y * a[1] + x * z * a[2] + y * z * b[2])
+            ) / (best * 1e6)  # fmt: skip
+        return self.encoder.range(r / 1e3, variance, limits, stamp)
 
     def diagnostics_due(self, stamp) -> bytes | None:
         now = stamp if isinstance(stamp, (int, float)) and stamp > 0 else time.monotonic()
@@ -313,7 +345,9 @@ class Ros2Messages:
         return status
 
     def tf_message(self, stamp_s: float | None = None) -> bytes:
-        return self.encoder.cdr.tf_message(self.transforms, time.time() if stamp_s is None else stamp_s)
+        return self.encoder.cdr.tf_message(
+            self.transforms, time.time() if stamp_s is None else stamp_s
+        )
 
 
 def type_of(topic: str) -> str:

@@ -105,9 +105,10 @@ def test_spiel_msgs_package_is_what_the_recordings_carry():
         assert ros2_types.type_hash(name) in (package / "README.md").read_text()
     cmake = (package / "CMakeLists.txt").read_text()
     assert "rosidl_generate_interfaces" in cmake and '"msg/Acquisition.msg"' in cmake
-    assert "<member_of_group>rosidl_interface_packages</member_of_group>" in (
-        package / "package.xml"
-    ).read_text()
+    assert (
+        "<member_of_group>rosidl_interface_packages</member_of_group>"
+        in (package / "package.xml").read_text()
+    )
 
 
 def test_rosbag2_definitions_parse_in_rosbags_and_mcap_ros2():

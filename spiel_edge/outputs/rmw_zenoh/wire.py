@@ -234,7 +234,9 @@ def check_domain_id(value: object, option: str = "--ros-domain-id") -> int:
     except ValueError:
         domain = -1
     if not 0 <= domain <= MAX_DOMAIN_ID:
-        raise ConfigError(f"{option} {value!r}: a ROS domain id is a whole number 0-{MAX_DOMAIN_ID}")
+        raise ConfigError(
+            f"{option} {value!r}: a ROS domain id is a whole number 0-{MAX_DOMAIN_ID}"
+        )
     return domain
 
 
