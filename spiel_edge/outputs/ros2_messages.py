@@ -63,7 +63,7 @@ OPTICAL_SUFFIX = "_optical"
 # frame_id -> frame_id_optical: z_optical = x, x_optical = -y, y_optical = -z (REP 103)
 OPTICAL_ROTATION_XYZW = (-0.5, 0.5, -0.5, 0.5)
 
-MIN_SCORE = -40.0  # score = -(association cost): below this a target is not published
+MIN_SCORE = -20.0  # score = -(association cost): below this a target is not published
 MAX_VARIANCE_M2 = 0.01  # (0.1 m)^2: a wider target says nothing a robot can use
 RANGE_MARGIN_M = 0.025  # about the localisation error: targets this far past the limits pass
 DIAGNOSTICS_PERIOD_S = 1.0
