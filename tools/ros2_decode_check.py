@@ -67,7 +67,11 @@ def with_mcap_ros2(path: Path) -> dict:
             total += 1
             if decoded is None:
                 failures[channel.topic] += 1
-    return {"messages": total, "failures": sum(failures.values()), "first_failures": list(failures)[:5]}
+    return {
+        "messages": total,
+        "failures": sum(failures.values()),
+        "first_failures": list(failures)[:5],
+    }
 
 
 def with_foxglove(path: Path, node_modules: str | None) -> dict:

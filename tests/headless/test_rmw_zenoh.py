@@ -494,3 +494,69 @@ def test_bridge_mode_announces_its_publishers_and_serves_tf_static(router):
     finally:
         client.close()
         sink.close()
+
+
+# --- Foxglove live, laid out as a recording ------------------------------------------------
+
+
+def test_foxglove_live_serves_the_recordings_ros2_channels_and_transforms():
+    pytest.importorskip("foxglove", reason="extra 'foxglove' not installed")
+    import struct
+
+    from spiel_edge.outputs.foxglove import FoxgloveSink
+    from spiel_edge.outputs.ros2_mcap import TOPIC_TYPES
+    from tests.headless._ws import MiniWebSocket
+
+    mount = FrameSpec(parent="base_link", translation_m=(0.1, 0.0, 0.25))
+    sink = FoxgloveSink("0", receivers_mm=[[0, 0, 0]], ros2=frame_settings(mount, frame_id="sonar"))
+    ws = MiniWebSocket("127.0.0.1", sink.port, "foxglove.sdk.v1")
+    ts = _store()
+    try:
+        channels: dict[str, dict] = {}
+        deadline = time.monotonic() + 5
+        while len(channels) < 9 and time.monotonic() < deadline:
+            message = json.loads(ws.recv()[1])
+            if message["op"] == "advertise":
+                channels.update({c["topic"]: c for c in message["channels"]})
+        for topic, type_name in TOPIC_TYPES.items():
+            if topic.startswith("/spiel/") and topic.split("/")[-1] in (
+                "acquisition",
+                "background",
+                "position",
+            ):
+                continue  # raw frames are recorded only; the JSON records are served as JSON
+            c = channels[topic]
+            assert (c["encoding"], c["schemaEncoding"], c["schemaName"]) == (
+                "cdr",
+                "ros2msg",
+                type_name,
+            ), topic
+        assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms"
+        assert channels["/spiel/scene"]["schemaName"] == "foxglove.SceneUpdate"
+        wanted = {1: "/spiel/point", 2: "/tf_static", 3: "/spiel/scene", 4: "/tf"}
+        ws.send_json(
+            {
+                "op": "subscribe",
+                "subscriptions": [
+                    {"id": k, "channelId": channels[t]["id"]} for k, t in wanted.items()
+                ],
+            }
+        )
+        got: dict[int, bytes] = {}
+        while len(got) < len(wanted) and time.monotonic() < deadline + 5:
+            sink._next_tf = 0.0  # the transforms again with this record
+            sink.write(RECORD)
+            frame = ws.recv(wait_s=0.1)
+            if frame is not None and frame[0] == 2 and frame[1][0] == 1:
+                got[struct.unpack_from("<I", frame[1], 1)[0]] = frame[1][13:]
+        point = ts.deserialize_cdr(got[1], rm.POINT_STAMPED)
+        assert point.header.frame_id == "sonar_optical" and point.point.z == 0.15
+        tf = ts.deserialize_cdr(got[2], rm.TF_MESSAGE)
+        assert [(t.header.frame_id, t.child_frame_id) for t in tf.transforms] == [
+            ("base_link", "sonar"),
+            ("sonar", "sonar_optical"),
+        ]
+        assert b"sonar_optical" in got[3] and b"base_link" in got[4]
+    finally:
+        ws.close()
+        sink.close()
