@@ -152,8 +152,10 @@ def sensor_transforms(frame_id: str, mount: tuple = ()) -> list[cdr.StaticTransf
 # --- encoders ------------------------------------------------------------------------------
 
 _VEC6F = struct.Struct("<6f")
-_NAN6 = _VEC6F.pack(*([math.nan] * 6))
-_VECTORS = struct.Struct("<6d6dH2x")  # position, velocity; acceleration, size; classification
+# position, velocity, acceleration, size; classification; position and velocity covariances
+_TRACK = struct.Struct("<12dH2x12f")
+_ZEROS6 = (0.0,) * 6  # acceleration and size: not estimated
+_NAN12 = _VEC6F.pack(*([math.nan] * 6)) * 2  # their covariances
 
 
 @cache
@@ -210,27 +212,15 @@ class MessageEncoder:
             vx, vy, vz = track.get("velocity_mm_s") or (0.0, 0.0, 0.0)
             parts.append(track_uuid(track["track_id"]) + b"\x00" * pad)
             parts.append(
-                _VECTORS.pack(
-                    x / 1e3,
-                    y / 1e3,
-                    z / 1e3,
-                    vx / 1e3,
-                    vy / 1e3,
-                    vz / 1e3,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,  # acceleration, size: not estimated
+                _TRACK.pack(
+                    x / 1e3, y / 1e3, z / 1e3, vx / 1e3, vy / 1e3, vz / 1e3, *_ZEROS6,
                     0,  # NO_CLASSIFICATION
+                    *_upper6(track.get("covariance_mm2")),
+                    *_upper6(track.get("velocity_covariance_mm2_s2")),
                 )
-            )
-            parts.append(_upper(track.get("covariance_mm2"), 1e-6))
-            parts.append(_upper(track.get("velocity_covariance_mm2_s2"), 1e-6))
-            parts.append(_NAN6)  # acceleration: not estimated
-            parts.append(_NAN6)  # size: unknown
-            pos += pad + _VECTORS.size + 96
+            )  # fmt: skip
+            parts.append(_NAN12)  # acceleration and size: not estimated
+            pos += pad + _TRACK.size + 48
         return b"".join(parts)
 
     def diagnostics(self, status: dict, stamp_s) -> bytes:
@@ -249,16 +239,18 @@ class MessageEncoder:
         return cdr.ENCAPSULATION + bytes(w.buf)
 
 
-def _upper(cov, scale: float) -> bytes:
+_NAN_TUPLE6 = (math.nan,) * 6
+
+
+def _upper6(cov) -> tuple:
+    """The upper triangle xx xy xz yy yz zz of a 3x3 in mm^2, as m^2 (NaN when missing)."""
     if cov is None:
-        return _NAN6
+        return _NAN_TUPLE6
     try:
         a, b = cov[0], cov[1]
-        return _VEC6F.pack(
-            a[0] * scale, a[1] * scale, a[2] * scale, b[1] * scale, b[2] * scale, cov[2][2] * scale
-        )
+        return (a[0] / 1e6, a[1] / 1e6, a[2] / 1e6, b[1] / 1e6, b[2] / 1e6, cov[2][2] / 1e6)
     except (TypeError, IndexError):
-        return _NAN6
+        return _NAN_TUPLE6
 
 
 StatusProvider = Callable[[], dict]
