@@ -64,7 +64,7 @@ OPTICAL_SUFFIX = "_optical"
 OPTICAL_ROTATION_XYZW = (-0.5, 0.5, -0.5, 0.5)
 
 MIN_SCORE = -20.0  # score = -(association cost): below this a target is not published
-MAX_VARIANCE_M2 = 0.01  # (0.1 m)^2: a wider target says nothing a robot can use
+MAX_VARIANCE_M2 = 1.0  # (1 m)^2, twice the listening range: a wider target says nothing
 RANGE_MARGIN_M = 0.025  # about the localisation error: targets this far past the limits pass
 DIAGNOSTICS_PERIOD_S = 1.0
 FIELD_OF_VIEW_RAD = math.pi  # the CH101's 180 degrees (the paper, section IV)
