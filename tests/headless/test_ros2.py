@@ -192,4 +192,12 @@ def test_run_records_ros2_profile(tmp_path):
             ("odom", "sonar"),
             ("sonar", "sonar_optical"),
         ]
+        diagnostics = [c for c in reader.connections if c.topic == "/diagnostics"]
+        first = next(reader.messages(diagnostics))
+        (status,) = reader.deserialize(first[2], first[0].msgtype).status
+        values = {kv.key: kv.value for kv in status.values}
+        assert status.level == 0 and status.message == "streaming" and status.hardware_id
+        assert {"records", "lost", "crc_errors", "reconnects", "firmware"} <= set(values)
+        ranges = [c for c in reader.connections if c.topic == "/spiel/range"]
+        assert sum(c.msgcount for c in ranges) == 20
     assert main(["replay", str(path), "-o", str(tmp_path / "replayed.ndjson")]) == 0
