@@ -155,7 +155,9 @@ def zenoh_settings(values: dict) -> ZenohSettings:
     given = values.get("ros_domain_id")
     if given is not None:
         domain = check_domain_id(given)
-    else:
+    elif values.get("zenoh_encoding") == "rmw_zenoh":  # $ROS_DOMAIN_ID matters only there
         domain = check_domain_id(os.environ.get("ROS_DOMAIN_ID") or 0, "ROS_DOMAIN_ID")
+    else:
+        domain = 0
     connect = tuple(check_endpoint(e) for e in values.get("zenoh_connect") or ())
     return ZenohSettings(values.get("zenoh_mode") or "", connect, domain)

@@ -41,7 +41,10 @@ class ZenohRos2Sink:
         *,
         settings: Any = None,
     ):
+        from spiel_edge.outputs.rmw_zenoh.sink import topics_of
+
         zenoh = _import_zenoh()
+        topics_of(key_expr)  # the bridge makes ROS 2 topics of the keys: ROS's rules apply
         self.messages = rm.Ros2Messages(ros2)
         prefix = key_expr.strip("/")
         self.keys = {

@@ -560,3 +560,15 @@ def test_foxglove_live_serves_the_recordings_ros2_channels_and_transforms():
     finally:
         ws.close()
         sink.close()
+
+
+def test_ros_domain_id_from_the_environment_only_matters_for_rmw_zenoh(monkeypatch):
+    from spiel_edge.cli._ros2 import zenoh_settings
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", "999")
+    assert zenoh_settings({"zenoh_encoding": "json"}).domain_id == 0
+    with pytest.raises(ConfigError, match="ROS_DOMAIN_ID"):
+        zenoh_settings({"zenoh_encoding": "rmw_zenoh"})
+    monkeypatch.setenv("ROS_DOMAIN_ID", "42")
+    assert zenoh_settings({"zenoh_encoding": "rmw_zenoh"}).domain_id == 42
+    assert zenoh_settings({"zenoh_encoding": "rmw_zenoh", "ros_domain_id": "7"}).domain_id == 7
