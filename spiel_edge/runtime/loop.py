@@ -238,7 +238,10 @@ class LiveRunner:
         """Track on the board's clock (sets the result's targets' track ids)."""
         if self.tracker is None:
             return None
-        return track_records(self.tracker.update(result, acq.timestamp_us / 1e6))
+        captured = (
+            self.background is not None or acq.background is not None
+        ) and self.pipeline.profile.preprocess.background_subtraction
+        return track_records(self.tracker.update(result, acq.timestamp_us / 1e6, captured))
 
     def _background_for(self, acq: LiveAcquisition) -> np.ndarray | None:
         if self.background is not None:
