@@ -572,3 +572,38 @@ def test_ros_domain_id_from_the_environment_only_matters_for_rmw_zenoh(monkeypat
     monkeypatch.setenv("ROS_DOMAIN_ID", "42")
     assert zenoh_settings({"zenoh_encoding": "rmw_zenoh"}).domain_id == 42
     assert zenoh_settings({"zenoh_encoding": "rmw_zenoh", "ros_domain_id": "7"}).domain_id == 7
+
+
+def test_peer_without_its_router_warns_once_and_publishes_once_it_is_there(caplog):
+    zenoh = pytest.importorskip("zenoh", reason="extra 'zenoh' not installed")
+    from spiel_edge.outputs.rmw_zenoh import sink as sink_module
+    from tests.headless._rmw_zenoh_listener import Listener
+
+    port = _port()
+    caplog.set_level(logging.WARNING, logger=sink_module.__name__)
+    sink = sink_module.RmwZenohSink("spiel", Ros2Settings(), _settings(port, "peer"))
+    router = client = None
+    try:
+        started = time.monotonic()
+        while time.monotonic() - started < 2.5:  # past two connection checks
+            sink.write({**RECORD, "host_time": time.time()})
+            time.sleep(0.05)
+        warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
+        assert len(warnings) == 1 and "run goes on" in warnings[0].getMessage()
+        router = zenoh.open(_config(zenoh, "router", listen=port))
+        client = zenoh.open(_config(zenoh, "client", connect=port))
+        listener = Listener(client, domain=7).start()
+        assert _wait(lambda: "/spiel/targets" in listener.publishers(), timeout=15.0)
+
+        def flows() -> bool:
+            sink.write({**RECORD, "host_time": time.time()})
+            return bool(listener.received("/spiel/targets"))
+
+        assert _wait(flows, timeout=15.0)
+        assert not listener.problems
+    finally:
+        if client is not None:
+            client.close()
+        sink.close()
+        if router is not None:
+            router.close()
