@@ -102,6 +102,9 @@ class RmwZenohSink:
             session.close()
             raise
         with self._lock:
+            if self._closing.is_set():  # closed while this (retry) opened it
+                session.close()
+                return
             self._session = session
         log.info(
             "ROS 2 node /%s on Zenoh (rmw_zenoh format, domain %d): %s",
