@@ -6,12 +6,16 @@ option given here overrides its key (profile/frame_section.py, docs/ros2.md).
 
 from __future__ import annotations
 
+import os
+
 import click
 
 from spiel_edge.outputs.ros2 import (
     RECORD_PROFILES,
     ZENOH_ENCODINGS,
+    ZENOH_MODES,
     Ros2Settings,
+    ZenohSettings,
     frame_settings,
     parse_numbers,
 )
@@ -21,8 +25,8 @@ _RECORD_PROFILE = click.option(
     type=click.Choice(RECORD_PROFILES),
     default="json",
     show_default=True,
-    help="MCAP message encoding: json (Foxglove, schemas in JSON) or ros2 (CDR: PointStamped, "
-    "PointCloud2, /tf_static; read by rosbags, ros2 bag).",
+    help="MCAP message encoding: json (Foxglove, schemas in JSON) or ros2 (CDR: point, "
+    "targets, tracks, range, /diagnostics, /tf_static; read by rosbags, ros2 bag).",
 )
 _FRAME = [
     click.option(
@@ -65,14 +69,38 @@ _FRAME = [
         "/tf_static (repeatable).",
     ),
 ]
-_ZENOH_ENCODING = click.option(
-    "--zenoh-encoding",
-    type=click.Choice(ZENOH_ENCODINGS),
-    default="json",
-    show_default=True,
-    help="json: each record on KEY; cdr: ROS 2 messages on KEY/point, KEY/targets "
-    "and tf_static (the keys zenoh-bridge-ros2dds maps to /KEY/point, ...).",
-)
+_ZENOH = [
+    click.option(
+        "--zenoh-encoding",
+        type=click.Choice(ZENOH_ENCODINGS),
+        default="json",
+        show_default=True,
+        help="json: each record on KEY; rmw_zenoh: ROS 2 topics /KEY/point, /KEY/targets, "
+        "/KEY/tracks, /KEY/range, /diagnostics, /tf_static as ROS 2 nodes with "
+        "RMW_IMPLEMENTATION=rmw_zenoh_cpp see them; cdr: the same messages on the plain keys "
+        "zenoh-bridge-ros2dds maps (KEY/point, ..., tf_static).",
+    ),
+    click.option(
+        "--zenoh-connect",
+        multiple=True,
+        metavar="ENDPOINT",
+        help="Zenoh router or peer to connect to, e.g. tcp/127.0.0.1:7447 (rmw_zenohd's "
+        "default); repeatable. The run goes on while it is unreachable.",
+    ),
+    click.option(
+        "--zenoh-mode",
+        type=click.Choice(ZENOH_MODES),
+        default=None,
+        help="Zenoh session mode: peer (rmw_zenoh's own) or client (through the router only); "
+        "default peer, or the ZENOH_CONFIG file's.",
+    ),
+    click.option(
+        "--ros-domain-id",
+        default=None,
+        metavar="N",
+        help="ROS domain of --zenoh-encoding rmw_zenoh, 0-232 (default $ROS_DOMAIN_ID or 0).",
+    ),
+]
 
 
 def _apply(command, options: list):
@@ -83,7 +111,7 @@ def _apply(command, options: list):
 
 def ros2_options(command):
     """`run`: the recording's profile, the frame options and the Zenoh encoding."""
-    return _apply(command, [_RECORD_PROFILE, *_FRAME, _ZENOH_ENCODING])
+    return _apply(command, [_RECORD_PROFILE, *_FRAME, *_ZENOH])
 
 
 def ros2_record_options(command):
@@ -94,10 +122,13 @@ def ros2_record_options(command):
 def ros2_settings(values: dict, profile) -> Ros2Settings:
     """The frame id and static transforms: the profile's [frame] with the options over it
     (ConfigError naming the option or key that is wrong)."""
+    from spiel_edge.outputs.ros2_messages import SensorLimits
+
     return frame_settings(
         profile.frame,
         tuple(values["static_tf"]),
         origin=profile.name,
+        limits=SensorLimits.of_profile(profile),
         frame_id=values["frame_id"],
         parent=values["parent_frame"],
         translation_m=parse_numbers(values["translation_m"], 3, "--translation-m"),
@@ -112,4 +143,21 @@ def ros2_output_options(values: dict, profile) -> dict:
         "record_profile": values["record_profile"],
         "zenoh_encoding": values.get("zenoh_encoding", "json"),
         "ros2": ros2_settings(values, profile),
+        "zenoh_settings": zenoh_settings(values),
     }
+
+
+def zenoh_settings(values: dict) -> ZenohSettings:
+    """Mode, endpoints and ROS domain; ConfigError on a bad endpoint or domain id."""
+    from spiel_edge.outputs.rmw_zenoh.wire import check_domain_id
+    from spiel_edge.outputs.zenoh import check_endpoint
+
+    given = values.get("ros_domain_id")
+    if given is not None:
+        domain = check_domain_id(given)
+    elif values.get("zenoh_encoding") == "rmw_zenoh":  # $ROS_DOMAIN_ID matters only there
+        domain = check_domain_id(os.environ.get("ROS_DOMAIN_ID") or 0, "ROS_DOMAIN_ID")
+    else:
+        domain = 0
+    connect = tuple(check_endpoint(e) for e in values.get("zenoh_connect") or ())
+    return ZenohSettings(values.get("zenoh_mode") or "", connect, domain)

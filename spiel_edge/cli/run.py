@@ -195,7 +195,7 @@ def command(
                 **ros2_kwargs,
             )
             finalizers.add(sink.close_files)
-            tracker = ResultTracker(profile.track) if track else None
+            tracker = ResultTracker(profile.track, profile.scene) if track else None
             runner = LiveRunner(
                 session, pipeline, sink, background=fixed_background, tracker=tracker
             )

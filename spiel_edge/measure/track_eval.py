@@ -40,7 +40,7 @@ def evaluate_tracked(
     max_z: float | None = None,
     spec: TrackSpec | None = None,
 ) -> dict:
-    tracker = ResultTracker(spec or pipeline.profile.track)
+    tracker = ResultTracker(spec or pipeline.profile.track, pipeline.profile.scene)
     running = RunningBackground.from_profile(pipeline.profile)
     skip_z = set(exclude_z)
     errors = TrackedErrors()
@@ -58,8 +58,10 @@ def evaluate_tracked(
         if item.new_run:
             tracker.reset()
         stand_in = running is not None and rec.background is None
-        result = pipeline.process(rec.frames, running.background() if stand_in else rec.background)
-        tracks = tracker.update(result, item.t_s)
+        used = running.background() if stand_in else rec.background
+        result = pipeline.process(rec.frames, used)
+        captured = used is not None and pipeline.profile.preprocess.background_subtraction
+        tracks = tracker.update(result, item.t_s, captured)
         if stand_in:
             running.update(rec.frames, tracks)
         found.append(any(np.linalg.norm(t.position_mm - truth) <= 30.0 for t in result.targets))

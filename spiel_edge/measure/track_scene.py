@@ -105,7 +105,7 @@ def run_movers(
     rng = np.random.default_rng(0)
     options = SimOptions.from_url(url)
     scene = build_scene(options)
-    tracker = ResultTracker(pipeline.profile.track)
+    tracker = ResultTracker(pipeline.profile.track, pipeline.profile.scene)
     score = MoverScore(warmup=warmup)
     n_samples = pipeline.profile.acquisition.n_samples
     running = _running(pipeline.profile) if background == "running" else None
@@ -121,7 +121,10 @@ def run_movers(
         result = pipeline.process(samples, used)
         if oracle_sigma_mm is not None:
             result.targets = _oracle_targets(frame.truth_targets_mm, oracle_sigma_mm, rng)
-        tracks = tracker.update(result, t)
+        captured = used is not None and pipeline.profile.preprocess.background_subtraction
+        if oracle_sigma_mm is not None:
+            captured = None  # the oracle's covariance is its own noise, not the pipeline's
+        tracks = tracker.update(result, t, captured)
         if running is not None:
             running.update(samples, tracks)
         positions = np.array([tg.position_mm for tg in tracker.last_targets]).reshape(-1, 3)

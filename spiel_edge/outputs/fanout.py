@@ -42,6 +42,11 @@ class MultiSink(Sink):
             except OSError as exc:
                 self._drop(sink, exc)
 
+    def set_status_provider(self, provider) -> None:
+        """Give the ROS 2 sinks the session's state for /diagnostics (a callable -> dict)."""
+        for sink in self.sinks:
+            sink.set_status_provider(provider)
+
     def batch(self) -> None:
         """Sinks that can hold their writes (NDJSON) stop flushing each record; the caller
         calls :meth:`flush` when it has caught up with its input (a live run: no acquisition
@@ -149,6 +154,7 @@ def open_outputs(
     record_profile: str = "json",
     zenoh_encoding: str = "json",
     ros2: Any = None,
+    zenoh_settings: Any = None,
 ) -> MultiSink:
     """The sinks the options ask for, all at once: NDJSON (``output``; None for none), an MCAP
     recording, UDP targets, a Foxglove live view, Zenoh. Closes what it opened on failure.
@@ -168,9 +174,9 @@ def open_outputs(
     for target in [udp] if isinstance(udp, str) else list(udp or []):
         factories.append(lambda target=target: _udp_sink(target))
     if foxglove is not None:
-        factories.append(lambda: _foxglove_sink(foxglove, receivers_mm))
+        factories.append(lambda: _foxglove_sink(foxglove, receivers_mm, ros2))
     if zenoh is not None:
-        factories.append(lambda: _zenoh_sink(zenoh, zenoh_encoding, ros2))
+        factories.append(lambda: _zenoh_sink(zenoh, zenoh_encoding, ros2, zenoh_settings))
     sinks: list[Sink] = []
     try:
         for make in factories:
@@ -217,17 +223,21 @@ def _udp_sink(target: str) -> Sink:
     return UdpSink(target)
 
 
-def _foxglove_sink(bind: str, receivers_mm: Any) -> Sink:
+def _foxglove_sink(bind: str, receivers_mm: Any, ros2: Any = None) -> Sink:
     from spiel_edge.outputs.foxglove import FoxgloveSink
 
-    return FoxgloveSink(bind, receivers_mm=receivers_mm)
+    return FoxgloveSink(bind, receivers_mm=receivers_mm, ros2=ros2)
 
 
-def _zenoh_sink(key: str, encoding: str = "json", ros2: Any = None) -> Sink:
+def _zenoh_sink(key: str, encoding: str = "json", ros2: Any = None, settings: Any = None) -> Sink:
+    if encoding == "rmw_zenoh":
+        from spiel_edge.outputs.rmw_zenoh.sink import RmwZenohSink
+
+        return RmwZenohSink(key, ros2, settings)
     if encoding == "cdr":
         from spiel_edge.outputs.zenoh_ros2 import ZenohRos2Sink
 
-        return ZenohRos2Sink(key, ros2)
+        return ZenohRos2Sink(key, ros2, settings=settings)
     from spiel_edge.outputs.zenoh import ZenohSink
 
-    return ZenohSink(key)
+    return ZenohSink(key, settings=settings)

@@ -1,15 +1,23 @@
-"""Live view through the Foxglove SDK's WebSocket server (extra ``foxglove``).
+"""Live view through the Foxglove SDK's WebSocket server (extra ``foxglove``), laid out as a
+ros2 recording: the same ROS 2 CDR channels as ``--record-profile ros2`` (``/spiel/point``,
+``/spiel/targets``, ``/spiel/tracks``, ``/spiel/range``, ``/diagnostics``, ``/tf_static``,
+schemas ``ros2msg``; outputs/ros2_messages.py), plus
 
-Topics: ``/spiel/scene`` (foxglove.SceneUpdate in metres in frame ``spiel``: every target as a
-sphere inside its translucent 95 % uncertainty ellipsoid, every track as a sphere with its id
-and a short trail, the receivers as small cubes; the best position alone as before when a
-record has no ``targets``) and ``/spiel/position`` (the JSON records).
+* ``/tf``: foxglove.FrameTransforms, the same transforms as /tf_static (mount and optical
+  frame), sent at start and every TF_PERIOD_S so a client that connects later has them;
+* ``/spiel/scene``: foxglove.SceneUpdate in metres in the messages' frame
+  (``<--frame-id>_optical``): every target as a sphere inside its translucent 95 % uncertainty
+  ellipsoid, every track as a sphere with its id and a short trail, the receivers as small
+  cubes; the best position alone when a record has no ``targets``;
+* ``/spiel/position``: the JSON records.
+
 Binds 127.0.0.1 unless told otherwise: the server has no authentication.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Sequence
 
 from spiel_edge.errors import ConfigError
@@ -22,7 +30,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
-FRAME_ID = "spiel"
+FRAME_ID = "spiel_optical"  # the messages' frame for the default --frame-id
+TF_PERIOD_S = 1.0
+TF_TOPIC = "/tf"
 SCENE_TOPIC = "/spiel/scene"
 POSITION_TOPIC = "/spiel/position"
 TARGET_SIZE_M = 0.03
@@ -54,8 +64,15 @@ class FoxgloveSink(Sink):
         bind: str = f"{DEFAULT_HOST}:{DEFAULT_PORT}",
         *,
         receivers_mm: Sequence[Sequence[float]] | None = None,
+        ros2=None,
     ):
+        from spiel_edge.outputs import ros2_messages as rm
+        from spiel_edge.outputs import ros2_types
+        from spiel_edge.recordings.ros2_mcap import qos_yaml, topic_name
+
         foxglove, self._m = _import_foxglove()
+        self.messages = rm.Ros2Messages(ros2)
+        self.frame_id = self.messages.frame_id
         host, port = parse_host_port(bind, default_host=DEFAULT_HOST, what="--foxglove")
         self._context = foxglove.Context()  # our own: no clash with other SDK users in-process
         try:
@@ -71,12 +88,68 @@ class FoxgloveSink(Sink):
         self._records = foxglove.Channel(
             POSITION_TOPIC, schema=POSITION_SCHEMA, context=self._context
         )
+        self._ros2 = {}
+        for name, type_name in rm.TOPICS.items():
+            schema = foxglove.Schema(
+                name=type_name,
+                encoding="ros2msg",
+                data=ros2_types.rosbag2_definition(type_name).encode(),
+            )
+            self._ros2[name] = foxglove.Channel(
+                topic_name(name),
+                schema=schema,
+                message_encoding="cdr",
+                context=self._context,
+                metadata={
+                    "offered_qos_profiles": qos_yaml(name in rm.LATCHED),
+                    "topic_type_hash": ros2_types.type_hash(type_name),
+                },
+            )
+        self._tf_channel = foxglove.channels.FrameTransformsChannel(TF_TOPIC, context=self._context)
+        self._next_tf = 0.0
+        self._send_transforms()
         self._receivers = [self._cube(p) for p in ([] if receivers_mm is None else receivers_mm)]
         self._trails = Trails()
         self._shown: set[str] = set()
         log.info("Foxglove live view on ws://%s:%d", host, self.port)
 
+    def set_status_provider(self, provider) -> None:
+        self.messages.status_provider = provider
+
+    def _send_transforms(self) -> None:
+        """/tf_static (CDR) and /tf (foxglove.FrameTransforms), now and every TF_PERIOD_S: a
+        WebSocket client that connects later gets no cached message."""
+        now = time.monotonic()
+        if now < self._next_tf:
+            return
+        self._next_tf = now + TF_PERIOD_S
+        m = self._m
+        self._ros2["/tf_static"].log(self.messages.tf_message())
+        self._tf_channel.log(
+            m.FrameTransforms(
+                transforms=[
+                    m.FrameTransform(
+                        parent_frame_id=tf.parent,
+                        child_frame_id=tf.child,
+                        translation=m.Vector3(
+                            x=tf.translation_m[0], y=tf.translation_m[1], z=tf.translation_m[2]
+                        ),
+                        rotation=m.Quaternion(
+                            x=tf.rotation_xyzw[0],
+                            y=tf.rotation_xyzw[1],
+                            z=tf.rotation_xyzw[2],
+                            w=tf.rotation_xyzw[3],
+                        ),
+                    )
+                    for tf in self.messages.transforms
+                ]
+            )
+        )
+
     def write(self, record: dict) -> None:
+        for name, payload in self.messages.of_record(record):
+            self._ros2[name].log(payload)
+        self._send_transforms()
         shown: set[str] = set()
         entities = [*self._target_entities(record, shown), *self._track_entities(record, shown)]
         entities += self._receiver_entities()
@@ -103,7 +176,7 @@ class FoxgloveSink(Sink):
                 spheres.append(shell)
             entity_id = "target" if k == 0 else f"target/{k}"
             shown.add(entity_id)
-            out.append(m.SceneEntity(frame_id=FRAME_ID, id=entity_id, spheres=spheres))
+            out.append(m.SceneEntity(frame_id=self.frame_id, id=entity_id, spheres=spheres))
         return out
 
     def _track_entities(self, record: dict, shown: set[str]) -> list:
@@ -132,7 +205,7 @@ class FoxgloveSink(Sink):
             shown.add(f"track/{track_id}")
             out.append(
                 m.SceneEntity(
-                    frame_id=FRAME_ID,
+                    frame_id=self.frame_id,
                     id=f"track/{track_id}",
                     spheres=[self._sphere(trail[-1], TRACK_SIZE_M, rgb, 0.9)],
                     lines=[line],
@@ -152,7 +225,7 @@ class FoxgloveSink(Sink):
     def _receiver_entities(self) -> list:
         if not self._receivers:
             return []
-        return [self._m.SceneEntity(frame_id=FRAME_ID, id="receivers", cubes=self._receivers)]
+        return [self._m.SceneEntity(frame_id=self.frame_id, id="receivers", cubes=self._receivers)]
 
     def _pose(self, position_mm: Sequence[float], q: Sequence[float] = (0.0, 0.0, 0.0, 1.0)):
         m = self._m

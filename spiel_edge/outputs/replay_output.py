@@ -100,8 +100,7 @@ class ReplayMcap:
             self._remove_temporary()
             raise
         self.sink.log_time_from_stamp = True
-        ros2_transforms = list(ros2.transforms) if ros2 is not None else []
-        self._transforms = ros2_transforms if record_profile == "ros2" else []
+        self._ros2 = record_profile == "ros2"
 
     def write(self, item: Replayed) -> None:
         t = self.clock.time_of(item)
@@ -116,9 +115,8 @@ class ReplayMcap:
 
     def _write_transforms(self, t: float) -> None:
         """/tf_static once, before the first acquisition and stamped with its time."""
-        if self._transforms:
-            transforms, self._transforms = self._transforms, []
-            self.sink.write_transforms(transforms, t)
+        if self._ros2:
+            self.sink.write_transforms(t)  # the sink writes them once
 
     def close(self) -> None:
         """Finalize the recording and move it into place (once; also from the watchdog)."""
@@ -157,8 +155,9 @@ def _mcap_sink(path: Path, metadata: dict | None, record_profile: str, ros2: Any
         from spiel_edge.outputs.ros2 import Ros2Settings
         from spiel_edge.recordings.ros2_mcap import Ros2McapSink
 
-        frame_id = (ros2 or Ros2Settings()).frame_id
-        return Ros2McapSink(path, frame_id=frame_id, metadata=metadata)
+        return Ros2McapSink(
+            path, ros2=ros2 or Ros2Settings(), metadata=metadata, transforms_now=False
+        )
     from spiel_edge.recordings.mcap_writer import McapSink
 
     return McapSink(path, metadata=metadata)

@@ -11,7 +11,7 @@ and on Zenoh with ``--zenoh-encoding cdr``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.profile.frame_section import (
@@ -26,13 +26,31 @@ from spiel_edge.profile.frame_section import (
 from spiel_edge.recordings.cdr import StaticTransform
 
 RECORD_PROFILES = ("json", "ros2")
-ZENOH_ENCODINGS = ("json", "cdr")
+ZENOH_ENCODINGS = ("json", "cdr", "rmw_zenoh")
+ZENOH_MODES = ("peer", "client")
+
+
+def _default_limits():
+    from spiel_edge.outputs.ros2_messages import SensorLimits
+
+    return SensorLimits()
 
 
 @dataclass(frozen=True)
 class Ros2Settings:
-    frame_id: str = DEFAULT_FRAME_ID
-    transforms: tuple[StaticTransform, ...] = ()
+    frame_id: str = DEFAULT_FRAME_ID  # the sensor's REP 103 frame; messages: <frame_id>_optical
+    transforms: tuple[StaticTransform, ...] = ()  # the mount: parent -> frame_id
+    limits: object = field(default_factory=_default_limits)  # ros2_messages.SensorLimits
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """How the Zenoh session meets the others: mode, routers or peers to connect to, and the
+    ROS domain (rmw_zenoh)."""
+
+    mode: str = "peer"
+    connect: tuple[str, ...] = ()
+    domain_id: int = 0
 
 
 def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform:
@@ -76,6 +94,7 @@ def frame_settings(
     profile_frame: FrameSpec | None,
     static_tf: tuple[str, ...] = (),
     origin: str = "profile",
+    limits: object = None,
     **given: object,
 ) -> Ros2Settings:
     """Ros2Settings from the profile's ``[frame]`` with the options ``given`` (keys of
@@ -85,7 +104,7 @@ def frame_settings(
     validate_frame(spec, origin, labels)
     transforms = [frame_transform(spec)] if spec.parent else []
     transforms += [parse_static_tf(t, spec.frame_id) for t in static_tf]
-    return Ros2Settings(spec.frame_id, tuple(transforms))
+    return Ros2Settings(spec.frame_id, tuple(transforms), limits or _default_limits())
 
 
 def frame_transform(spec: FrameSpec) -> StaticTransform:

@@ -24,6 +24,9 @@ class Sink:
         """The raw samples of one acquisition and what was used with them (``background``,
         ``seq``, times): recordings keep them; nothing otherwise."""
 
+    def set_status_provider(self, provider) -> None:
+        """The session's state for /diagnostics (a callable -> dict): ROS 2 sinks use it."""
+
     def flush(self) -> None:
         """Push held writes out (a sink that holds them: NDJSON); nothing otherwise."""
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,40 @@ def load_config(config: Any = None):
         raise ConfigError(f"Zenoh config {path}: {exc}") from exc
 
 
-def open_publishers(keys: dict[str, str], encoding: str, config: Any = None):
+_ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/\S+")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """A Zenoh locator such as ``tcp/127.0.0.1:7447`` (ConfigError naming --zenoh-connect)."""
+    if not _ENDPOINT.fullmatch(endpoint or ""):
+        raise ConfigError(
+            f"--zenoh-connect {endpoint!r}: expected a Zenoh endpoint such as tcp/HOST:7447"
+        )
+    return endpoint
+
+
+def session_config(config: Any = None, settings: Any = None, *, rmw_zenoh: bool = False):
+    """The session's configuration: ``config`` (or $ZENOH_CONFIG, or the defaults) with the
+    mode and endpoints of ``settings`` (outputs.ros2.ZenohSettings) over it. rmw_zenoh's own
+    sessions use no multicast scouting (they meet through a router), so neither does ours in
+    that encoding unless a configuration file says otherwise."""
+    zenoh = _import_zenoh()
+    cfg = load_config(config)
+    given_file = config is not None or bool(os.environ.get("ZENOH_CONFIG"))
+    try:
+        if settings is not None and settings.mode:
+            cfg.insert_json5("mode", json.dumps(settings.mode))
+        if settings is not None and settings.connect:
+            cfg.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+        if rmw_zenoh and not given_file:
+            cfg.insert_json5("scouting/multicast/enabled", "false")
+    except Exception as exc:  # zenoh.ZError
+        raise ConfigError(f"--zenoh: bad Zenoh setting: {exc}") from exc
+    del zenoh
+    return cfg
+
+
+def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, settings: Any = None):
     """(session, {name: publisher}) for the key expressions ``keys``; ``encoding`` names a
     ``zenoh.Encoding`` attribute. Bad keys or an unreachable network: ConfigError."""
     zenoh = _import_zenoh()
@@ -52,7 +86,7 @@ def open_publishers(keys: dict[str, str], encoding: str, config: Any = None):
         except Exception as exc:
             raise ConfigError(f"--zenoh {key!r} is not a valid key expression: {exc}") from exc
     try:
-        session = zenoh.open(load_config(config))
+        session = zenoh.open(session_config(config, settings))
     except ConfigError:
         raise
     except Exception as exc:
@@ -71,9 +105,9 @@ def open_publishers(keys: dict[str, str], encoding: str, config: Any = None):
 class ZenohSink(Sink):
     """Publish each record on ``key_expr`` (e.g. ``robots/r1/spiel/position``)."""
 
-    def __init__(self, key_expr: str, config: Any = None):
+    def __init__(self, key_expr: str, config: Any = None, settings: Any = None):
         self._session, publishers = open_publishers(
-            {"record": key_expr}, "APPLICATION_JSON", config
+            {"record": key_expr}, "APPLICATION_JSON", config, settings
         )
         self._publisher = publishers["record"]
         self.key_expr = key_expr

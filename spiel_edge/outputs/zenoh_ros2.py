@@ -1,16 +1,16 @@
-"""ROS 2 messages over Zenoh without rclpy (``--zenoh KEY --zenoh-encoding cdr``).
+"""ROS 2 messages over Zenoh for zenoh-bridge-ros2dds (``--zenoh KEY --zenoh-encoding cdr``).
 
-Each message is the CDR a DDS writer sends (encapsulation header included), on the plain keys
-that zenoh-bridge-ros2dds maps to ROS 2 topics (topic name without its leading slash):
+The messages of outputs/ros2_messages.py (CDR with its encapsulation header, as a DDS writer
+sends it) on the plain keys the bridge maps to ROS 2 topics (the topic without its leading
+slash): ``KEY/point``, ``KEY/targets``, ``KEY/tracks``, ``KEY/range``, ``diagnostics`` and
+``tf_static``. Each publisher is announced with the bridge's own liveliness token
+(``@/<zid>/@ros2_lv/MP/<key>/<type>/<qos>``, wire.bridge_publisher_token), so a bridge creates
+the DDS writer as soon as it sees it, not only once a typed ROS reader appears.
 
-* ``KEY/point``: geometry_msgs/msg/PointStamped (the best target, metres) -> ``/KEY/point``;
-* ``KEY/targets``: sensor_msgs/msg/PointCloud2 (every target) -> ``/KEY/targets``;
-* ``tf_static``: tf2_msgs/msg/TFMessage (the profile's ``[frame]``, ``--parent-frame``,
-  ``--static-tf``) -> ``/tf_static``, sent at start and then every TF_PERIOD_S, since a plain
-  Zenoh publisher keeps no latched copy for a subscriber that joins later. The last one is also
-  answered to queries on ``@ros2_pub_cache/<session id>/tf_static``, where
-  zenoh-bridge-ros2dds (1.0 to 1.4) asks for the history of a transient-local topic when a ROS
-  reader of it appears (docs/ros2.md: untested against a real bridge).
+``tf_static`` is transient-local: an advanced publisher with a one-sample cache and publisher
+detection (what bridges since their switch to Zenoh's advanced subscribers query), and a
+queryable on ``@ros2_pub_cache/<zid>/tf_static`` answering the transform (what bridges 1.0 to
+1.4 query). It is put once, not re-sent.
 
 docs/ros2.md shows how to see them with ``ros2 topic echo`` through the bridge.
 """
@@ -18,68 +18,77 @@ docs/ros2.md shows how to see them with ``ros2 topic echo`` through the bridge.
 from __future__ import annotations
 
 import logging
-import time
 from typing import Any
 
-from spiel_edge.outputs.ros2 import Ros2Settings
+from spiel_edge.outputs import ros2_messages as rm
+from spiel_edge.outputs import ros2_types
+from spiel_edge.outputs.rmw_zenoh import wire
 from spiel_edge.outputs.sink import Sink
-from spiel_edge.outputs.zenoh import open_publishers
-from spiel_edge.recordings.cdr import Ros2Encoder
+from spiel_edge.outputs.zenoh import _import_zenoh, open_publishers
 
 log = logging.getLogger(__name__)
 
-TF_PERIOD_S = 1.0
-PUB_CACHE_PREFIX = "@ros2_pub_cache"  # zenoh-bridge-ros2dds's publication caches
-
-
-class CdrMessages:
-    """The CDR messages of each record: the point (when there is a fix), the cloud, and
-    /tf_static when TF_PERIOD_S has passed since it was last sent (what `bench` times)."""
-
-    def __init__(self, ros2: Ros2Settings | None = None) -> None:
-        ros2 = ros2 or Ros2Settings()
-        self.encoder = Ros2Encoder(ros2.frame_id)
-        self.transforms = list(ros2.transforms)
-        self._tf_sent = -float("inf")
-
-    def of_record(self, record: dict) -> list[tuple[str, bytes]]:
-        seconds = record.get("stamp_host") or record.get("host_time")  # synced board time first
-        best = record.get("position_mm")
-        out = [] if best is None else [("point", self.encoder.point_stamped(best, seconds))]
-        out.append(("targets", self.encoder.targets_cloud(record.get("targets") or [], seconds)))
-        tf = self.tf_due()
-        if tf is not None:
-            out.append(("tf_static", tf))
-        return out
-
-    def tf_due(self) -> bytes | None:
-        now = time.monotonic()
-        if not self.transforms or now - self._tf_sent < TF_PERIOD_S:
-            return None
-        self._tf_sent = now
-        return self.tf_message()
-
-    def tf_message(self) -> bytes:
-        return self.encoder.tf_message(self.transforms, time.time())
+PUB_CACHE_PREFIX = "@ros2_pub_cache"  # zenoh-bridge-ros2dds's publication caches (<= 1.4)
 
 
 class ZenohRos2Sink(Sink):
-    """Publish CDR PointStamped and PointCloud2 under the key prefix ``key_expr``."""
+    """Publish the ROS 2 messages of each record under the key prefix ``key_expr``."""
 
-    def __init__(self, key_expr: str, ros2: Ros2Settings | None = None, config: Any = None):
-        self.messages = CdrMessages(ros2)
+    def __init__(
+        self,
+        key_expr: str,
+        ros2: Any = None,
+        config: Any = None,
+        *,
+        settings: Any = None,
+    ):
+        from spiel_edge.outputs.rmw_zenoh.sink import topics_of
+
+        zenoh = _import_zenoh()
+        topics_of(key_expr)  # the bridge makes ROS 2 topics of the keys: ROS's rules apply
+        self.messages = rm.Ros2Messages(ros2)
         prefix = key_expr.strip("/")
-        keys = {"point": f"{prefix}/point", "targets": f"{prefix}/targets"}
-        if self.messages.transforms:
-            keys["tf_static"] = "tf_static"
-        self._session, self._publishers = open_publishers(keys, "APPLICATION_CDR", config)
-        self.keys = keys
+        self.keys = {
+            name: name.lstrip("/") if name.startswith("/") else f"{prefix}/{name}"
+            for name in rm.TOPICS
+        }
+        plain = {k: v for k, v in self.keys.items() if k not in rm.LATCHED}
+        self._session, self._publishers = open_publishers(
+            plain, "APPLICATION_CDR", config, settings
+        )
         self.failed = 0
-        self._queryable = self._declare_tf_cache() if self.messages.transforms else None
-        tf = self.messages.tf_due()
-        if tf is not None:
-            self._put("tf_static", tf)
+        self._declared: list[Any] = []
+        try:
+            zid = str(self._session.zid())
+            for name, key in self.keys.items():
+                qos = wire.LATCHED_QOS if name in rm.LATCHED else wire.SENSOR_QOS
+                type_name = rm.TOPICS[name]
+                token = wire.bridge_publisher_token(
+                    zid, key, type_name, qos, ros2_types.type_hash(type_name)
+                )
+                self._declared.append(self._session.liveliness().declare_token(token))
+            for name in rm.LATCHED:
+                self._publishers[name] = zenoh.ext.declare_advanced_publisher(
+                    self._session,
+                    self.keys[name],
+                    encoding=zenoh.Encoding.APPLICATION_CDR,
+                    cache=zenoh.ext.CacheConfig(max_samples=1),
+                    publisher_detection=True,
+                    # sequence numbers, not timestamps, order the cache (as rmw_zenoh's)
+                    sample_miss_detection=zenoh.ext.MissDetectionConfig(
+                        heartbeat=None, sporadic_heartbeat=0.5
+                    ),
+                )
+            self._queryable = self._declare_tf_cache(zid)
+        except Exception:
+            self._session.close()
+            raise
+        self._tf = self.messages.tf_message()
+        self._put("/tf_static", self._tf)
         log.info("publishing ROS 2 CDR on Zenoh keys %s", ", ".join(self.keys.values()))
+
+    def set_status_provider(self, provider) -> None:
+        self.messages.status_provider = provider
 
     def _put(self, name: str, payload: bytes) -> None:
         try:
@@ -91,15 +100,14 @@ class ZenohRos2Sink(Sink):
                     "Zenoh put on %s failed (%d so far): %s", self.keys[name], self.failed, exc
                 )
 
-    def _declare_tf_cache(self):
+    def _declare_tf_cache(self, zid: str):
         """A queryable holding /tf_static, as the bridge's publication caches do."""
         import zenoh
 
-        key = f"{PUB_CACHE_PREFIX}/{self._session.zid()}/tf_static"
+        key = f"{PUB_CACHE_PREFIX}/{zid}/tf_static"
 
         def answer(query) -> None:
-            payload = self.messages.tf_message()
-            query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_CDR)
+            query.reply(key, self._tf, encoding=zenoh.Encoding.APPLICATION_CDR)
 
         self.keys["tf_static_cache"] = key
         return self._session.declare_queryable(key, answer)
@@ -110,9 +118,11 @@ class ZenohRos2Sink(Sink):
 
     def close(self) -> None:
         try:
-            if self._queryable is not None:
-                self._queryable.undeclare()
-            for publisher in self._publishers.values():
-                publisher.undeclare()
+            self._queryable.undeclare()
+            for entity in [*self._declared, *self._publishers.values()]:
+                try:
+                    entity.undeclare()
+                except Exception as exc:
+                    log.debug("undeclare: %s", exc)
         finally:
             self._session.close()

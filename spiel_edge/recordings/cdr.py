@@ -5,7 +5,8 @@ No rclpy, no rosbags at run time: a message is the 4-byte encapsulation header
 The layouts that do not change with the data are packed once (``struct.Struct`` per frame id),
 so a PointStamped costs about one ``pack`` call (52 bytes for the frame id ``spiel``).
 
-Messages: geometry_msgs/msg/PointStamped, sensor_msgs/msg/PointCloud2 (the targets),
+Messages: geometry_msgs/msg/PointStamped, sensor_msgs/msg/PointCloud2 (the targets, with
+the covariance's upper triangle),
 tf2_msgs/msg/TFMessage (the static transform), std_msgs/msg/String (the JSON record), and
 spiel_msgs/msg/Acquisition (raw frames; read back by :func:`decode_acquisition`).
 """
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spiel_edge.errors import InputError
+from spiel_edge.outputs.ros2_types import rosbag2_definition
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR_LE
 
@@ -35,11 +37,15 @@ TARGET_FIELDS = (
     ("z", 7, 8),
     ("score", 7, 12),
     ("track_id", 5, 16),  # -1: no track
-    ("var_x", 7, 20),  # covariance diagonal, m^2
-    ("var_y", 7, 24),
-    ("var_z", 7, 28),
+    ("cov_xx", 7, 20),  # the covariance's upper triangle, m^2
+    ("cov_xy", 7, 24),
+    ("cov_xz", 7, 28),
+    ("cov_yy", 7, 32),
+    ("cov_yz", 7, 36),
+    ("cov_zz", 7, 40),
 )
-_TARGET_POINT = struct.Struct("<4fi3f")
+_TARGET_POINT = struct.Struct("<4fi6f")
+_NO_COVARIANCE = (math.nan,) * 6
 _STEP = _TARGET_POINT.size
 _CLOUD_TAIL = struct.Struct("<?3xIII")  # is_bigendian, point_step, row_step, data length
 
@@ -158,15 +164,19 @@ def _target_point(target: dict) -> bytes:
     cov = target.get("covariance_mm2")
     track = target.get("track_id")
     score = target.get("score")
+    upper = (
+        (cov[0][0] / 1e6, cov[0][1] / 1e6, cov[0][2] / 1e6)
+        + (cov[1][1] / 1e6, cov[1][2] / 1e6, cov[2][2] / 1e6)
+        if cov
+        else _NO_COVARIANCE
+    )
     return _TARGET_POINT.pack(
         x / 1e3,
         y / 1e3,
         z / 1e3,
         math.nan if score is None else score,
         -1 if track is None else track,
-        cov[0][0] / 1e6 if cov else math.nan,
-        cov[1][1] / 1e6 if cov else math.nan,
-        cov[2][2] / 1e6 if cov else math.nan,
+        *upper,
     )
 
 
@@ -214,51 +224,7 @@ def decode_acquisition(data: bytes) -> tuple[int, np.ndarray]:
 
 
 # message definitions stored in the MCAP (schema encoding ros2msg), as rosbag2 writes them
-_HEADER = "builtin_interfaces/Time stamp\nstring frame_id"
-_SEP = "\n" + "=" * 80 + "\n"
 DEFINITIONS = {
-    POINT_STAMPED: "std_msgs/Header header\ngeometry_msgs/Point point"
-    + _SEP
-    + "MSG: std_msgs/Header\n"
-    + _HEADER
-    + _SEP
-    + "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec"
-    + _SEP
-    + "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z",
-    POINT_CLOUD2: "std_msgs/Header header\nuint32 height\nuint32 width\n"
-    "sensor_msgs/PointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\n"
-    "uint8[] data\nbool is_dense"
-    + _SEP
-    + "MSG: std_msgs/Header\n"
-    + _HEADER
-    + _SEP
-    + "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec"
-    + _SEP
-    + "MSG: sensor_msgs/PointField\nuint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\n"
-    "uint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\n"
-    "string name\nuint32 offset\nuint8 datatype\nuint32 count",
-    TF_MESSAGE: "geometry_msgs/TransformStamped[] transforms"
-    + _SEP
-    + "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n"
-    "geometry_msgs/Transform transform"
-    + _SEP
-    + "MSG: std_msgs/Header\n"
-    + _HEADER
-    + _SEP
-    + "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec"
-    + _SEP
-    + "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\n"
-    "geometry_msgs/Quaternion rotation"
-    + _SEP
-    + "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z"
-    + _SEP
-    + "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w",
-    STRING: "string data",
-    ACQUISITION: "std_msgs/Header header\nint64 seq\nint64 device_time_us\nuint32 channels\n"
-    "uint32 samples\nfloat64[] frames"
-    + _SEP
-    + "MSG: std_msgs/Header\n"
-    + _HEADER
-    + _SEP
-    + "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec",
+    name: rosbag2_definition(name)
+    for name in (POINT_STAMPED, POINT_CLOUD2, TF_MESSAGE, STRING, ACQUISITION)
 }

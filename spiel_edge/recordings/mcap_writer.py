@@ -83,6 +83,7 @@ TRACK_SCHEMA = {
         "position_mm": _VECTOR3,
         "velocity_mm_s": _VECTOR3,
         "covariance_mm2": _COVARIANCE,
+        "velocity_covariance_mm2_s2": _COVARIANCE,
         "age": {"type": "integer"},
         "hits": {"type": "integer"},
     },

@@ -1,16 +1,17 @@
 """MCAP recordings with the ROS 2 profile (``--record-profile ros2``): CDR messages that
 ``rosbags``, ``mcap-ros2-support`` and ``ros2 bag`` read, and ``spiel-edge replay`` replays.
 
-Topics (frame ids from ``--frame-id``, metres):
+Topics: the messages of outputs/ros2_messages.py under ``/spiel`` (``/spiel/point``,
+``/spiel/targets``, ``/spiel/tracks``, ``/spiel/range``), ``/diagnostics`` and ``/tf_static``
+(the mount and the optical frame, once at the start), plus
 
-* ``/spiel/point``: geometry_msgs/msg/PointStamped, the best target of each acquisition
-  (none when the acquisition has no fix), stamped with the acquisition's host time;
-* ``/spiel/targets``: sensor_msgs/msg/PointCloud2, every target (cdr.TARGET_FIELDS: x, y, z,
-  score, track_id (-1: none), var_x/y/z the covariance diagonal in m^2);
 * ``/spiel/position``: std_msgs/msg/String, the whole JSON record (reason, echoes, ...);
 * ``/spiel/acquisition`` and ``/spiel/background``: spiel_msgs/msg/Acquisition, the raw frames
-  (the message definition is stored in the file, so ROS tools decode it without a package);
-* ``/tf_static``: tf2_msgs/msg/TFMessage, the static transforms given (``--static-tf``).
+  (the definition is in the file; the package is packaging/ros2/spiel_msgs).
+
+Every channel carries, as rosbag2 (Jazzy and later) writes them, ``offered_qos_profiles`` (the
+QoS the live publishers offer: reliable, keep last 10, volatile; /tf_static transient-local,
+keep last 1, so `ros2 bag play` latches it) and ``topic_type_hash`` (RIHS01).
 """
 
 from __future__ import annotations
@@ -22,30 +23,43 @@ from typing import Any
 
 import numpy as np
 
+from spiel_edge.outputs import ros2_messages as rm
+from spiel_edge.outputs import ros2_types
 from spiel_edge.recordings import cdr
 from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
 from spiel_edge.recordings.mcap_writer import McapSink, _default, _stamp
 
+PREFIX = "/spiel"
 POINT_TOPIC = "/spiel/point"
 TARGETS_TOPIC = "/spiel/targets"
 TF_STATIC_TOPIC = "/tf_static"
 
+
+def topic_name(topic: str, prefix: str = PREFIX) -> str:
+    """A TOPICS name (relative or absolute) -> the absolute topic."""
+    return topic if topic.startswith("/") else f"{prefix}/{topic}"
+
+
 TOPIC_TYPES = {
     ACQUISITION_TOPIC: cdr.ACQUISITION,
     BACKGROUND_TOPIC: cdr.ACQUISITION,
-    POINT_TOPIC: cdr.POINT_STAMPED,
-    TARGETS_TOPIC: cdr.POINT_CLOUD2,
     POSITION_TOPIC: cdr.STRING,
-    TF_STATIC_TOPIC: cdr.TF_MESSAGE,
+    **{topic_name(t): type_name for t, type_name in rm.TOPICS.items()},
 }
-# rosbag2's QoS metadata: /tf_static is transient-local, so `ros2 bag play` latches it
-_LATCHED_QOS = (
-    "- history: 3\n  depth: 0\n  reliability: 1\n  durability: 1\n"
-    "  deadline:\n    sec: 2147483647\n    nsec: 4294967295\n"
-    "  lifespan:\n    sec: 2147483647\n    nsec: 4294967295\n"
-    "  liveliness: 1\n  liveliness_lease_duration:\n    sec: 2147483647\n    nsec: 4294967295\n"
-    "  avoid_ros_namespace_conventions: false"
-)
+_INFINITE = "    sec: 9223372036\n    nsec: 854775807\n"
+
+
+def qos_yaml(latched: bool) -> str:
+    """rosbag2's ``offered_qos_profiles``: one publisher's QoS (rmw enums: history 1 keep
+    last, reliability 1 reliable, durability 1 transient local / 2 volatile, liveliness 1
+    automatic; infinite durations as rmw's RMW_DURATION_INFINITE)."""
+    return (
+        f"- history: 1\n  depth: {1 if latched else 10}\n  reliability: 1\n"
+        f"  durability: {1 if latched else 2}\n"
+        f"  deadline:\n{_INFINITE}  lifespan:\n{_INFINITE}"
+        f"  liveliness: 1\n  liveliness_lease_duration:\n{_INFINITE}"
+        "  avoid_ros_namespace_conventions: false"
+    )
 
 
 class Ros2McapSink(McapSink):
@@ -59,22 +73,38 @@ class Ros2McapSink(McapSink):
         *,
         frame_id: str = "spiel",
         transforms: list[cdr.StaticTransform] | tuple = (),
+        ros2: Any = None,
         metadata: dict[str, Any] | None = None,
+        transforms_now: bool = True,
         **options: Any,
     ):
-        self.encoder = cdr.Ros2Encoder(frame_id)
-        super().__init__(path, metadata={**(metadata or {}), "frame_id": frame_id}, **options)
-        if transforms:
-            self.write_transforms(transforms, time.time())
+        from spiel_edge.outputs.ros2 import Ros2Settings
 
-    def write_transforms(self, transforms, stamp_s: float) -> None:
-        """The static transforms, once, on /tf_static (latched by its QoS metadata)."""
-        message = self.encoder.tf_message(list(transforms), stamp_s)
+        if ros2 is None:
+            ros2 = Ros2Settings(frame_id, tuple(transforms))
+        self.messages = rm.Ros2Messages(ros2)
+        self.encoder = self.messages.encoder.cdr
+        super().__init__(path, metadata={**(metadata or {}), "frame_id": ros2.frame_id}, **options)
+        self._transforms_written = False
+        if transforms_now:
+            self.write_transforms(time.time())
+
+    def set_status_provider(self, provider) -> None:
+        self.messages.status_provider = provider
+
+    def write_transforms(self, stamp_s: float, transforms=None) -> None:
+        """/tf_static once (latched by its QoS metadata): the mount and the optical frame."""
+        if self._transforms_written:
+            return
+        self._transforms_written = True
+        message = self.messages.tf_message(stamp_s)
         self._add(TF_STATIC_TOPIC, message, int(stamp_s * 1e9))
 
     def _register_channels(self) -> dict[str, int]:
         schemas = {
-            name: self._writer.register_schema(name, "ros2msg", cdr.DEFINITIONS[name].encode())
+            name: self._writer.register_schema(
+                name, "ros2msg", ros2_types.rosbag2_definition(name).encode()
+            )
             for name in sorted(set(TOPIC_TYPES.values()))
         }
         return {
@@ -82,7 +112,10 @@ class Ros2McapSink(McapSink):
                 topic,
                 "cdr",
                 schemas[name],
-                {"offered_qos_profiles": _LATCHED_QOS} if topic == TF_STATIC_TOPIC else {},
+                {
+                    "offered_qos_profiles": qos_yaml(topic == TF_STATIC_TOPIC),
+                    "topic_type_hash": ros2_types.type_hash(name),
+                },
             )
             for topic, name in TOPIC_TYPES.items()
         }
@@ -94,6 +127,8 @@ class Ros2McapSink(McapSink):
         if isinstance(synced, int) and synced > 0:
             stamp = synced
         seconds = stamp / 1e9 if stamp else None
+        if not self._transforms_written:  # a replay: stamped with its first acquisition
+            self.write_transforms(seconds or time.time())
         background = acquisition.get("background")
         if background is not None and (
             self._background is None or not np.array_equal(background, self._background)
@@ -115,11 +150,15 @@ class Ros2McapSink(McapSink):
     def write(self, record: dict) -> None:
         seconds = record.get("stamp_host") or record.get("host_time")  # synced board time first
         stamp = int(seconds * 1e9) if isinstance(seconds, (int, float)) and seconds > 0 else 0
-        best = record.get("position_mm")
-        if best is not None:
-            self._add(POINT_TOPIC, self.encoder.point_stamped(best, seconds), stamp)
-        targets = record.get("targets") or []
-        self._add(TARGETS_TOPIC, self.encoder.targets_cloud(targets, seconds), stamp)
+        if not self._transforms_written:  # a replay: stamped with its first record
+            self.write_transforms(seconds if stamp else time.time())
+        for topic, message in self.messages.of_record(record):
+            self._add(topic_name(topic), message, stamp)
         text = json.dumps(record, separators=(",", ":"), allow_nan=False, default=_default)
         self._add(POSITION_TOPIC, cdr.string_message(text), stamp)
         self.counts["records"] += 1
+
+    def _close(self) -> None:
+        if not self.closed and not self._transforms_written:
+            self.write_transforms(time.time())  # an empty recording has them too
+        super()._close()

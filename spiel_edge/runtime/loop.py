@@ -174,6 +174,9 @@ class LiveRunner:
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
         self._warned_no_background = False
         self.problems = OncePerProblem(log)
+        hook = getattr(sink, "set_status_provider", None)
+        if hook is not None:  # ROS 2 sinks publish it on /diagnostics
+            hook(self.diagnostics)
 
     def run(
         self,
@@ -265,7 +268,10 @@ class LiveRunner:
         """Track on the board's clock (sets the result's targets' track ids)."""
         if self.tracker is None:
             return None
-        return track_records(self.tracker.update(result, acq.timestamp_us / 1e6))
+        captured = (
+            self.background is not None or acq.background is not None
+        ) and self.pipeline.profile.preprocess.background_subtraction
+        return track_records(self.tracker.update(result, acq.timestamp_us / 1e6, captured))
 
     def _background_for(self, acq: LiveAcquisition) -> np.ndarray | None:
         if self.background is not None:
@@ -289,6 +295,40 @@ class LiveRunner:
             self.session.stream_status()
         except DeviceError as exc:
             log.debug("stream status: %s", exc)
+
+    def diagnostics(self) -> dict:
+        """The session's counters and the board's state, for diagnostic_msgs/DiagnosticStatus:
+        level 0 OK, 1 WARN (acquisitions lost, damaged or rejected so far, or the link was
+        lost and came back), 2 ERROR (waiting for the board)."""
+        s, c = self.stats, self.session.counts()
+        hello = getattr(self.session, "hello", None)
+        serial = str(getattr(hello, "serial", "") or "") if hello is not None else ""
+        waiting = c.get("disconnects", 0) > c.get("reconnects", 0)
+        trouble = any(c.get(k, 0) for k in ("lost", "damaged", "crc_errors", "overruns"))
+        level = 2 if waiting else 1 if trouble or s.errors or c.get("disconnects", 0) else 0
+        message = (
+            "waiting for the board"
+            if waiting
+            else "acquisitions lost or damaged"
+            if trouble
+            else "streaming"
+        )
+        values = {
+            "port": self.session.url,
+            "records": s.records,
+            "fixes": s.fixes,
+            "rejected": s.errors,
+            **c,
+        }
+        if hello is not None:
+            values["firmware"] = getattr(hello, "firmware_version", "")
+        return {
+            "name": "spiel-edge: ultrasonic array",
+            "hardware_id": serial or self.session.url,
+            "level": level,
+            "message": message,
+            "values": values,
+        }
 
     # --- text for people -----------------------------------------------------------------
 

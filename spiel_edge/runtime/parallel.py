@@ -223,7 +223,7 @@ def run_task(
     early, between two files, once ``stopped()`` is true (the caller then drops it)."""
     recordings = _read_until_stopped(task, stopped)
     if task.track:
-        tracker = ResultTracker(pipeline.profile.track)
+        tracker = ResultTracker(pipeline.profile.track, pipeline.profile.scene)
         items = list(replay_tracked(pipeline, recordings, tracker=tracker))
         issued = tracker.tracker.ids_issued
     else:

@@ -108,6 +108,10 @@ class Track:
             "position_mm": [round(v, 2) for v in row[0:3]],
             "velocity_mm_s": [round(v, 2) for v in row[3:6]],
             "covariance_mm2": [[round(v, 3) for v in row[at : at + 3]] for at in (6, 12, 18)],
+            # the velocity block of the 6 x 6 covariance: rows and columns 3-5
+            "velocity_covariance_mm2_s2": [
+                [round(v, 3) for v in row[at : at + 3]] for at in (27, 33, 39)
+            ],
             "age": int(self.age),
             "hits": int(self.hits),
         }

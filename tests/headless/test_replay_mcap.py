@@ -114,15 +114,16 @@ def test_ros2_mcap_with_profile_frame_read_by_rosbags_and_replayed(recorded, rep
         ]
         first = next(reader.messages())
     assert len(points) == len(fixes) > 40
-    assert all(p.header.frame_id == "sonar" for p in points)
+    assert all(p.header.frame_id == "sonar_optical" for p in points)  # REP 103: z forward
     np.testing.assert_allclose(
         [[p.point.x, p.point.y, p.point.z] for p in points], np.array(fixes) / 1e3, atol=1e-9
     )
     stamp = points[0].header.stamp
     assert stamp.sec == T0_NS // 10**9  # the recorded capture time, not the replay's
     assert first[0].topic == "/tf_static"  # first in the file, at the first acquisition's time
-    (tf,) = tf_message.transforms
+    tf, optical = tf_message.transforms
     assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", "sonar")
+    assert (optical.header.frame_id, optical.child_frame_id) == ("sonar", "sonar_optical")
     assert (tf.transform.translation.x, tf.transform.translation.z) == (0.1, 0.25)
     q = tf.transform.rotation
     np.testing.assert_allclose([q.x, q.y, q.z, q.w], [0, 0, math.sqrt(0.5), math.sqrt(0.5)])
@@ -139,7 +140,7 @@ def test_options_override_the_profile_frame(recorded, tmp_path):
     with AnyReader([out]) as reader:
         statics = [c for c in reader.connections if c.topic == "/tf_static"]
         (message,) = [reader.deserialize(r, c.msgtype) for c, _t, r in reader.messages(statics)]
-    (tf,) = message.transforms
+    tf, _optical = message.transforms
     assert (tf.header.frame_id, tf.child_frame_id) == ("odom", "spiel")
     assert tf.transform.rotation.z == pytest.approx(math.sqrt(0.5), abs=1e-7)
 

@@ -15,6 +15,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from spiel_edge.cli import main  # noqa: E402
 from spiel_edge.data import load_subset  # noqa: E402
 from spiel_edge.errors import ConfigError  # noqa: E402
+from spiel_edge.outputs import ros2_types  # noqa: E402
 from spiel_edge.outputs.ros2 import frame_settings, parse_static_tf, settings  # noqa: E402
 from spiel_edge.profile.frame_section import FrameSpec  # noqa: E402
 from spiel_edge.recordings import cdr  # noqa: E402
@@ -67,11 +68,12 @@ def test_targets_cloud_fields(typestore):
         cdr.Ros2Encoder().targets_cloud(TARGETS, STAMP), cdr.POINT_CLOUD2
     )
     names = [f.name for f in cloud.fields]
-    assert names == ["x", "y", "z", "score", "track_id", "var_x", "var_y", "var_z"]
+    assert names[:5] == ["x", "y", "z", "score", "track_id"]
+    assert names[5:] == ["cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz"]
     dtype = np.dtype(
         {
             "names": names,
-            "formats": ["<f4"] * 4 + ["<i4"] + ["<f4"] * 3,
+            "formats": ["<f4"] * 4 + ["<i4"] + ["<f4"] * 6,
             "offsets": [f.offset for f in cloud.fields],
             "itemsize": cloud.point_step,
         }
@@ -79,7 +81,8 @@ def test_targets_cloud_fields(typestore):
     points = np.frombuffer(cloud.data.tobytes(), dtype)
     np.testing.assert_allclose(points["z"], [0.150, 0.090], rtol=1e-6)
     assert points["track_id"].tolist() == [7, -1]
-    np.testing.assert_allclose(points["var_y"], [9e-6, 1e-6], rtol=1e-6)
+    np.testing.assert_allclose(points["cov_yy"], [9e-6, 1e-6], rtol=1e-6)
+    np.testing.assert_allclose(points["cov_xy"], [1e-7, 0.0], rtol=1e-6)
 
 
 def test_static_transform_flag(typestore):
@@ -99,7 +102,7 @@ def test_static_transform_flag(typestore):
 def test_recording_read_by_rosbags_and_replayed(tmp_path):
     subset = load_subset()
     path = tmp_path / "r.mcap"
-    tf = parse_static_tf("base_link:0.1,0,0.2")
+    tf = parse_static_tf("base_link:0.1,0,0.2", "sonar")
     n = 50
     with Ros2McapSink(path, frame_id="sonar", transforms=[tf]) as sink:
         for i in range(n):
@@ -110,9 +113,9 @@ def test_recording_read_by_rosbags_and_replayed(tmp_path):
             }
             sink.write_acquisition(acq, subset.frames[i])
             best = None if i % 10 == 3 else [float(i), 0.0, 100.0]
-            sink.write(
-                {"seq": i, "host_time": i + 1.0, "position_mm": best, "targets": TARGETS[: i % 3]}
-            )
+            first = [{"position_mm": best, "covariance_mm2": np.eye(3).tolist(), "score": 1.0}]
+            targets = first + TARGETS[: i % 3] if best else []
+            sink.write({"seq": i, "host_time": i + 1.0, "position_mm": best, "targets": targets})
     with AnyReader([path]) as reader:
         assert reader.connections  # profile ros2, CDR: rosbags accepts it
         points = [c for c in reader.connections if c.topic == "/spiel/point"]
@@ -120,7 +123,7 @@ def test_recording_read_by_rosbags_and_replayed(tmp_path):
             reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages(connections=points)
         ]
         assert len(got) == n - 5
-        assert all(m.header.frame_id == "sonar" for m in got)
+        assert all(m.header.frame_id == "sonar_optical" for m in got)
         assert [m.point.x for m in got] == [i / 1e3 for i in range(n) if i % 10 != 3]
         assert got[0].header.stamp.sec == 1
         clouds = [c for c in reader.connections if c.topic == "/spiel/targets"]
@@ -128,16 +131,28 @@ def test_recording_read_by_rosbags_and_replayed(tmp_path):
             reader.deserialize(raw, c.msgtype).width
             for c, _t, raw in reader.messages(connections=clouds)
         ]
-        assert widths == [i % 3 for i in range(n)]
+        assert widths == [0 if i % 10 == 3 else 1 + i % 3 for i in range(n)]
         statics = [c for c in reader.connections if c.topic == "/tf_static"]
         (tf_message,) = [
             reader.deserialize(raw, c.msgtype)
             for c, _t, raw in reader.messages(connections=statics)
         ]
         assert tf_message.transforms[0].transform.translation.x == 0.1
+        assert [t.child_frame_id for t in tf_message.transforms] == ["sonar", "sonar_optical"]
+        for connection in reader.connections:  # as rosbag2 writes them
+            assert connection.ext.offered_qos_profiles
         records = [c for c in reader.connections if c.topic == "/spiel/position"]
         first = next(reader.messages(connections=records))
         assert json.loads(reader.deserialize(first[2], first[0].msgtype).data)["seq"] == 0
+    with open(path, "rb") as f:
+        from mcap.reader import make_reader
+
+        summary = make_reader(f).get_summary()
+    for channel in summary.channels.values():
+        schema = summary.schemas[channel.schema_id]
+        assert channel.metadata["topic_type_hash"] == ros2_types.type_hash(schema.name)
+        latched = "durability: 1" in channel.metadata["offered_qos_profiles"]
+        assert latched == (channel.topic == "/tf_static")
     recordings = list(iter_mcap_recordings(path))
     assert len(recordings) == n and all(r.error is None for r in recordings)
     for i, recording in enumerate(recordings):
@@ -176,57 +191,14 @@ def test_run_records_ros2_profile(tmp_path):
         assert [(t.header.frame_id, t.child_frame_id) for t in tf.transforms] == [
             ("base_link", "sonar"),
             ("odom", "sonar"),
+            ("sonar", "sonar_optical"),
         ]
+        diagnostics = [c for c in reader.connections if c.topic == "/diagnostics"]
+        first = next(reader.messages(diagnostics))
+        (status,) = reader.deserialize(first[2], first[0].msgtype).status
+        values = {kv.key: kv.value for kv in status.values}
+        assert status.level == 0 and status.message == "streaming" and status.hardware_id
+        assert {"records", "lost", "crc_errors", "reconnects", "firmware"} <= set(values)
+        ranges = [c for c in reader.connections if c.topic == "/spiel/range"]
+        assert sum(c.msgcount for c in ranges) == 20
     assert main(["replay", str(path), "-o", str(tmp_path / "replayed.ndjson")]) == 0
-
-
-def test_zenoh_cdr_publishes_ros2_messages_on_bridge_keys(typestore):
-    zenoh = pytest.importorskip("zenoh", reason="extra 'zenoh' not installed")
-    import socket
-    import time
-
-    from spiel_edge.outputs.zenoh_ros2 import ZenohRos2Sink
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    quiet = {"scouting": {"multicast": {"enabled": False}}}
-    pub = zenoh.Config.from_json5(
-        json.dumps({**quiet, "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
-    )
-    sub = zenoh.Config.from_json5(
-        json.dumps({**quiet, "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
-    )
-    mount = FrameSpec(parent="base_link", translation_m=(0.0, 0.0, 0.3))
-    ros2 = frame_settings(mount, rotation_rpy_deg=(0.0, 90.0, 0.0))  # as --rotation-rpy-deg
-    sink = ZenohRos2Sink("robot1/spiel", ros2, pub)
-    received: dict[str, bytes] = {}
-    session = zenoh.open(sub)
-    try:
-        session.declare_subscriber(
-            "**", lambda s: received.setdefault(str(s.key_expr), s.payload.to_bytes())
-        )
-        record = {"host_time": STAMP, "position_mm": [1.0, 2.0, 3.0], "targets": TARGETS}
-        deadline = time.monotonic() + 10
-        while len(received) < 3 and time.monotonic() < deadline:  # tf_static: within 1 s
-            sink.write(record)  # until the subscriber's declaration has reached the publisher
-            time.sleep(0.02)
-        point = typestore.deserialize_cdr(received["robot1/spiel/point"], cdr.POINT_STAMPED)
-        assert (point.point.z, point.header.frame_id) == (0.003, "spiel")
-        cloud = typestore.deserialize_cdr(received["robot1/spiel/targets"], cdr.POINT_CLOUD2)
-        assert cloud.width == 2
-        _check_mount(typestore.deserialize_cdr(received["tf_static"], cdr.TF_MESSAGE))
-        # the bridge's history query for a transient-local reader gets it at once
-        (reply,) = session.get("@ros2_pub_cache/*/tf_static", timeout=10)
-        _check_mount(typestore.deserialize_cdr(reply.ok.payload.to_bytes(), cdr.TF_MESSAGE))
-    finally:
-        session.close()
-        sink.close()
-
-
-def _check_mount(message):
-    (tf,) = message.transforms
-    assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", "spiel")
-    assert tf.transform.translation.z == 0.3
-    q = tf.transform.rotation
-    np.testing.assert_allclose([q.x, q.y, q.z, q.w], [0, math.sqrt(0.5), 0, math.sqrt(0.5)])

@@ -37,6 +37,7 @@ def test_run_tracks_movers_and_carries_every_truth(sim_url, tmp_path):
                 "position_mm",
                 "velocity_mm_s",
                 "covariance_mm2",
+                "velocity_covariance_mm2_s2",
                 "age",
                 "hits",
             }

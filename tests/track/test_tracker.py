@@ -30,6 +30,7 @@ def _check_tracks(tracks):
             "position_mm",
             "velocity_mm_s",
             "covariance_mm2",
+            "velocity_covariance_mm2_s2",
             "age",
             "hits",
         }

@@ -150,3 +150,45 @@ def test_tracked_errors_keep_the_static_track_when_one_acquisition_goes_astray()
     assert got["tracked_mean_mm"] == pytest.approx((6 + 2 + 200) / 3, abs=0.01)
     assert got["static_track_mean_mm"] == pytest.approx((6 + 2 + 2) / 3, abs=0.01)
     assert got["on_track_share"] == pytest.approx(1 / 3, abs=1e-3)
+
+
+def test_tracker_is_fed_the_covariance_in_its_own_calibration():
+    """The published covariance s^2 L + f^2 I (issue 26's calibration) reaches the tracker as
+    0.95^2 L + 8^2 I, the calibration its settings were chosen with; track ids still land on
+    the result's own targets."""
+    from spiel_edge.pipeline.staged import Result, Target
+    from spiel_edge.profile.schema import load_profile
+    from spiel_edge.runtime.tracking import (
+        TRACKER_COVARIANCE_FLOOR_MM,
+        TRACKER_COVARIANCE_SCALE,
+        ResultTracker,
+        tracker_covariance,
+    )
+
+    linear = np.array([[4.0, 1.0, 0.0], [1.0, 9.0, 0.5], [0.0, 0.5, 16.0]])
+    published = 7.55**2 * linear + 20.0**2 * np.eye(3)
+    expected = TRACKER_COVARIANCE_SCALE**2 * linear + TRACKER_COVARIANCE_FLOOR_MM**2 * np.eye(3)
+    np.testing.assert_allclose(tracker_covariance(published, 7.55, 20.0), expected, rtol=1e-12)
+    np.testing.assert_allclose(  # the tracker's own calibration passes unchanged
+        tracker_covariance(expected, TRACKER_COVARIANCE_SCALE, TRACKER_COVARIANCE_FLOOR_MM),
+        expected,
+        rtol=1e-12,
+    )
+    profile = load_profile()
+    runs = {}
+    for scene in (None, profile.scene):
+        tracker = ResultTracker(profile.track, scene)
+        for k in range(12):
+            p = np.array([0.0, 0.0, 200.0 + k])
+            s, f = profile.scene.covariance_scale_no_background, profile.scene.covariance_floor_mm
+            cov = s**2 * linear + f**2 * np.eye(3)
+            target = Target(p, cov, 1.0, [0, 0, 0, 0], 1.0)
+            empty = np.zeros((4, 1, 8)), np.zeros(4, dtype=np.int64)
+            result = Result(p, None, 1.0, [[]] * 4, [0] * 4, *empty, targets=[target])
+            tracks = tracker.update(result, 0.02 * k, captured=False)
+        runs[scene is None] = (tracks, target.track_id)
+    fed_tracks, fed_id = runs[False]
+    assert fed_id is not None and fed_tracks and fed_tracks[0].track_id == fed_id
+    # recalibrated: the track's position covariance follows the tracker's scale, not 7.55's
+    raw_tracks, _ = runs[True]
+    assert np.trace(fed_tracks[0].covariance_mm2) < np.trace(raw_tracks[0].covariance_mm2)
