@@ -8,18 +8,40 @@ maps SpielError to a one-line message and exit status 2.
 
 from __future__ import annotations
 
-import contextlib
-import gc
-import importlib
-import logging
 import os
+import signal
 import sys
 
-import click
+# Signals from the first instruction: the process's own command line (the console script or
+# ``python -m spiel_edge.cli``) records INT, TERM and HUP from here on, before the imports that
+# take time; main() turns a recorded one into its documented status. Imported as a library
+# (tests, other programs), nothing is installed.
+_OWN_PROCESS = os.path.basename(sys.argv[0] if sys.argv else "") in ("spiel-edge", "-m") and (
+    os.path.basename(sys.argv[0]) == "spiel-edge"
+    or list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "spiel_edge.cli"]
+)
+_EARLY_SIGNALS: list[int] = []
+_CATCH = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
-from spiel_edge import __version__
-from spiel_edge.errors import SpielError
-from spiel_edge.io.guard import shorten, shorten_tokens
+
+def _record_signal(signum: int, frame: object) -> None:
+    _EARLY_SIGNALS.append(signum)
+
+
+if _OWN_PROCESS:
+    for _sig in _CATCH:
+        signal.signal(_sig, _record_signal)
+
+import contextlib  # noqa: E402
+import gc  # noqa: E402
+import importlib  # noqa: E402
+import logging  # noqa: E402
+
+import click  # noqa: E402
+
+from spiel_edge import __version__  # noqa: E402
+from spiel_edge.errors import SpielError  # noqa: E402
+from spiel_edge.io.guard import escape, release_claims, shorten, shorten_tokens  # noqa: E402
 
 EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
 
@@ -123,11 +145,94 @@ def main(argv: list[str] | None = None) -> int:
     No traceback reaches a user: anything unexpected is one line, a bug-report hint and
     status 2 (the traceback only with ``-vv``)."""
     args = sys.argv[1:] if argv is None else list(argv)
+    own = _OWN_PROCESS and argv is None
+    status = EXIT_ERROR
     try:
-        return _main(args)
+        if own:
+            _SignalPhase.start()
+        _occupy_closed_stdio()
+        status = _main(args)
+    except KeyboardInterrupt:  # a signal between the command's end and here
+        status = 130
     finally:
+        if own:
+            _SignalPhase.ending = True  # from here a signal changes nothing: the status stays
+        release_claims()
         if args == sys.argv[1:]:  # the process's own command line: it ends now, so skip the
             gc.freeze()  # final GC of numba's and scipy's objects (seconds on a loaded host)
+    return status
+
+
+class _SignalPhase:
+    """The process's handlers outside a command's own: INT raises KeyboardInterrupt, TERM and
+    HUP raise Terminated (both status 130, the finally blocks clean up); once main is
+    ending, a signal is ignored so the status it computed is the one the process exits with
+    (a second Ctrl-C during shutdown used to kill it by the signal, status -2)."""
+
+    ending = False
+
+    @classmethod
+    def start(cls) -> None:
+        for sig in _CATCH:
+            signal.signal(sig, cls.handler)
+        if _EARLY_SIGNALS:  # a signal arrived while the program was still loading
+            cls.handler(_EARLY_SIGNALS[0], None)
+
+    @classmethod
+    def handler(cls, signum: int, frame: object) -> None:
+        if cls.ending:
+            return
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        from spiel_edge.cli._signals import Terminated
+
+        raise Terminated(f"signal {signum}")
+
+
+class _ClosedStream:
+    """What sys.stdout is when the process was started with stdout closed (``>&-``):
+    writing is an error naming it (one line, status 2) instead of a crash."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def write(self, text: str) -> int:
+        raise OSError(9, f"{self.name} is closed; redirect it (> FILE or > /dev/null)")
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+    def fileno(self) -> int:
+        raise OSError(9, f"{self.name} is closed")
+
+
+def _occupy_closed_stdio() -> None:
+    """A closed standard descriptor is taken by /dev/null, so no file this command opens
+    becomes its fd 1 by accident; a closed stdout raises on write, a closed stderr is quiet."""
+    for fd, name in ((0, "stdin"), (1, "stdout"), (2, "stderr")):
+        try:
+            os.fstat(fd)
+            continue
+        except OSError:
+            pass
+        try:
+            devnull = os.open(os.devnull, os.O_RDWR)
+            if devnull != fd:
+                os.dup2(devnull, fd)
+                os.close(devnull)
+        except OSError:
+            continue
+        if name == "stdout":
+            sys.stdout = _ClosedStream("stdout")  # type: ignore[assignment]
+        elif name == "stderr":
+            sys.stderr = open(os.devnull, "w")  # noqa: SIM115
+    if sys.stdout is None:
+        sys.stdout = _ClosedStream("stdout")  # type: ignore[assignment]
+    if sys.stderr is None:
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115
 
 
 def _main(args: list[str]) -> int:
@@ -154,7 +259,7 @@ def _main(args: list[str]) -> int:
         _error(f"error: {exc.strerror or exc}{where}", args, exc)
         return EXIT_ERROR
     except MemoryError as exc:
-        _error("error: out of memory", args, exc)
+        _error("error: out of memory (an input too large for this machine?)", args, exc)
         return EXIT_ERROR
     except Exception as exc:  # the last resort: a bug
         _error(f"internal error: {type(exc).__name__}: {shorten(exc, 200)}", args, exc)
@@ -178,7 +283,7 @@ def _show_click(exc: click.ClickException) -> None:
 
 def _error(line: str, args: list[str], exc: BaseException) -> None:
     try:
-        click.echo(shorten_tokens(line), err=True)
+        click.echo(shorten_tokens(escape(line)), err=True)
         if _verbosity(args) >= 2:
             import traceback
 

@@ -26,7 +26,7 @@ class NdjsonSink:
         elif exclusive:
             self._fh = open_exclusive(target, force=False, text=True)
         else:
-            self._fh = open(target, "w", encoding="utf-8")  # noqa: SIM115
+            self._fh = open_exclusive(target, force=True, text=True)
 
     def write(self, record: dict) -> None:
         self._fh.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
