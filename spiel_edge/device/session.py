@@ -43,6 +43,7 @@ from firmware_protocol.errors import ErrorCode
 from firmware_protocol.framing import Frame
 from spiel_edge.device.config import ConfigTransferMixin
 from spiel_edge.device.hello import MIN_PROTOCOL_VERSION, check_hello, version_refused
+from spiel_edge.device.sanity import sanitized_hello
 from spiel_edge.device.stream import StreamTracker
 from spiel_edge.device.streaming import StreamingMixin
 from spiel_edge.errors import (
@@ -151,6 +152,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
         if not isinstance(hello, HelloResponse):
             raise DeviceError(f"{self.url}: the board answered HELLO with {type(hello).__name__}")
         check_hello(self.url, hello)
+        hello = sanitized_hello(hello)  # a board's strings never reach a terminal raw
         previous = self.hello
         if previous is not None and previous.serial and hello.serial != previous.serial:
             raise DeviceError(
