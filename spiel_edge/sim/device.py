@@ -17,6 +17,7 @@ from collections.abc import Callable
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.faults import LineFaults
 from spiel_edge.sim.flash import Flash, PowerCut
+from spiel_edge.sim.lies import install as install_lie
 from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
 
@@ -47,6 +48,7 @@ class SimDevice:
             seed=options.seed,
             now=now,
         )
+        install_lie(self.board, options.lie)  # a hostile firmware mode, when asked
         self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
         self.generation = 1  # +1 each time it comes back
         self.plugged = True
