@@ -8,42 +8,28 @@ maps SpielError to a one-line message and exit status 2.
 
 from __future__ import annotations
 
+import contextlib
+import gc
+import importlib
+import logging
 import os
 import signal
 import sys
+import warnings
 
-# Signals from the first instruction: the process's own command line (the console script or
-# ``python -m spiel_edge.cli``) records INT, TERM and HUP from here on, before the imports that
-# take time; main() turns a recorded one into its documented status. Imported as a library
-# (tests, other programs), nothing is installed.
-_OWN_PROCESS = os.path.basename(sys.argv[0] if sys.argv else "") in ("spiel-edge", "-m") and (
-    os.path.basename(sys.argv[0]) == "spiel-edge"
-    or list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "spiel_edge.cli"]
-)
-_EARLY_SIGNALS: list[int] = []
-_CATCH = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+import click
 
-
-def _record_signal(signum: int, frame: object) -> None:
-    _EARLY_SIGNALS.append(signum)
-
-
-if _OWN_PROCESS:
-    for _sig in _CATCH:
-        signal.signal(_sig, _record_signal)
-
-import contextlib  # noqa: E402
-import gc  # noqa: E402
-import importlib  # noqa: E402
-import logging  # noqa: E402
-
-import click  # noqa: E402
-
-from spiel_edge import __version__  # noqa: E402
-from spiel_edge.errors import SpielError  # noqa: E402
-from spiel_edge.io.guard import escape, release_claims, shorten, shorten_tokens  # noqa: E402
+from spiel_edge import __version__
+from spiel_edge.errors import SpielError
+from spiel_edge.io.guard import escape, release_claims, shorten, shorten_tokens
 
 EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
+
+# Signals from the first instruction: the command's own process records INT, TERM and HUP
+# from the package's first line (spiel_edge/_early.py); main() turns a recorded one into its
+# documented status. Imported as a library (tests, other programs), nothing is installed.
+_OWN_PROCESS = "spiel_edge._early" in sys.modules
+_CATCH = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def setup_logging(verbosity: int) -> None:
@@ -151,7 +137,9 @@ def main(argv: list[str] | None = None) -> int:
         if own:
             _SignalPhase.start()
         _occupy_closed_stdio()
-        status = _main(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_line  # a library's warning: one line of ours
+            status = _main(args)
     except KeyboardInterrupt:  # a signal between the command's end and here
         status = 130
     finally:
@@ -160,7 +148,30 @@ def main(argv: list[str] | None = None) -> int:
         release_claims()
         if args == sys.argv[1:]:  # the process's own command line: it ends now, so skip the
             gc.freeze()  # final GC of numba's and scipy's objects (seconds on a loaded host)
+    if own:
+        _exit_now(status)
     return status
+
+
+def _exit_now(status: int) -> None:
+    """End the process with ``status`` and nothing else: the interpreter's own finalization
+    puts the default handlers back, so a Ctrl-C during it ended the process by the signal
+    (status -2) after main had said 130. Every output is closed by its command; the standard
+    streams and the log are flushed here."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(Exception):
+        logging.shutdown()
+    os._exit(status)
+
+
+def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning from a library (numpy, numba, ...) as one escaped log line, without the
+    source line Python would print under it."""
+    logging.getLogger("spiel_edge.warnings").warning(
+        "%s: %s", category.__name__, shorten(message, 300)
+    )
 
 
 class _SignalPhase:
@@ -175,8 +186,9 @@ class _SignalPhase:
     def start(cls) -> None:
         for sig in _CATCH:
             signal.signal(sig, cls.handler)
-        if _EARLY_SIGNALS:  # a signal arrived while the program was still loading
-            cls.handler(_EARLY_SIGNALS[0], None)
+        early = sys.modules["spiel_edge._early"].received
+        if early:  # a signal arrived while the program was still loading
+            cls.handler(early[0], None)
 
     @classmethod
     def handler(cls, signum: int, frame: object) -> None:
@@ -261,11 +273,28 @@ def _main(args: list[str]) -> int:
     except MemoryError as exc:
         _error("error: out of memory (an input too large for this machine?)", args, exc)
         return EXIT_ERROR
-    except Exception as exc:  # the last resort: a bug
+    except Exception as exc:  # the last resort: a bug, or a library's error we know
+        known = _library_error(exc)
+        if known:
+            _error(f"error: {known}", args, exc)
+            return EXIT_ERROR
         _error(f"internal error: {type(exc).__name__}: {shorten(exc, 200)}", args, exc)
         click.echo(BUG_HINT, err=True)
         return EXIT_ERROR
     return _status(result)
+
+
+def _library_error(exc: Exception) -> str | None:
+    """A library's error we can name in our own words (one line with a fix), else None."""
+    text = str(exc)
+    if isinstance(exc, RuntimeError) and "no locator available" in text:
+        return (
+            "numba cannot write its cache beside spiel-edge nor in NUMBA_CACHE_DIR; set "
+            "NUMBA_CACHE_DIR to a folder you can write (e.g. ~/.cache/spiel-edge/numba)"
+        )
+    if isinstance(exc, RecursionError):
+        return "an input is nested too deeply to read"
+    return None
 
 
 def _status(result: object) -> int:
