@@ -34,7 +34,11 @@ STDIO = "-"
 MAX_SHOWN = 80  # characters of user-supplied text echoed into a message
 
 
-_UNPRINTABLE = re.compile(r"[\x00-\x1f\x7f-\x9f\ud800-\udfff\u2028\u2029]")
+# control characters, lone surrogates (bytes that were not UTF-8), line and paragraph
+# separators and the bidirectional overrides that make a name read differently than it is
+_UNPRINTABLE = re.compile(
+    r"[\x00-\x1f\x7f-\x9f\ud800-\udfff\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]"
+)
 
 
 def _escape_char(match: re.Match) -> str:
@@ -59,7 +63,10 @@ def shorten(text: object, limit: int = MAX_SHOWN) -> str:
     """``text`` for an error message: escaped (:func:`escape`) and at most ``limit``
     characters (a 10 MB token is not echoed back)."""
     text = escape(text)
-    return text if len(text) <= limit else f"{text[: limit - 20]}... ({len(text)} characters)"
+    if len(text) <= limit:
+        return text
+    tail = limit // 3  # a path's end (the file's own name) says the most
+    return f"{text[: limit - 20 - tail]}...{text[-tail:]} ({len(text)} characters)"
 
 
 _LONG_TOKEN = re.compile(rf"\S{{{MAX_SHOWN + 1},}}")
