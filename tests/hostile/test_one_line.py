@@ -183,3 +183,20 @@ def test_closed_stderr_keeps_the_status(tmp_path):
         preexec_fn=lambda: os.close(2),
     )
     assert proc.returncode == 2
+
+
+def test_numba_without_a_writable_cache_is_our_message(cli, monkeypatch):
+    """numba's own error (its exact words) when neither the source tree nor NUMBA_CACHE_DIR
+    can be written: one line saying what to set, not `internal error`."""
+    from spiel_edge.cli import profile as profile_cli
+
+    listing = profile_cli.command.commands["list"]
+
+    def no_cache(*args, **kwargs):
+        raise RuntimeError(
+            "cannot cache function 'kernel': no locator available for file '/usr/lib/x.py'"
+        )
+
+    monkeypatch.setattr(listing, "callback", no_cache)
+    ran = cli("profile", "list")
+    assert ran.status == 2 and "NUMBA_CACHE_DIR" in _clean_line(ran.err), ran
