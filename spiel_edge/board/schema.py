@@ -30,7 +30,8 @@ from firmware_protocol.config_blob import (
 )
 from spiel_edge.compat import tomllib
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import loads_toml, read_config_text, shorten
+from spiel_edge.io.guard import read_config_text, shorten
+from spiel_edge.io.limits import loads_toml
 from spiel_edge.profile.ranges import RANGES
 from spiel_edge.profile.schema import (
     Profile,

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import read_input_text
+from spiel_edge.io.limits import read_input_text
 from spiel_edge.io.spiel_csv import iter_recordings, position_key, read_truth
 
 log = logging.getLogger(__name__)

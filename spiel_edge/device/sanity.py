@@ -13,7 +13,7 @@ import dataclasses
 
 from firmware_protocol import SAMPLE_SIZE, HelloResponse, StreamData, StreamStartResponse
 from spiel_edge.errors import DeviceError
-from spiel_edge.io.guard import escape
+from spiel_edge.io.shown import escape
 
 _MASK = 0xFFFFFFFF
 MAX_CONTRADICTIONS = 3  # restarts or repeats of a counter before the stream is refused

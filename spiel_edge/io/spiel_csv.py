@@ -18,8 +18,8 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import decode_text, read_bytes_bounded, read_input_text, shorten
-from spiel_edge.io.limits import InputLimits
+from spiel_edge.io.guard import decode_text, read_bytes_bounded, shorten
+from spiel_edge.io.limits import InputLimits, read_input_text
 
 FRAMES_SUFFIX = "_frames.csv"
 LABELS_SUFFIX = "_labels.csv"

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import load_npz_bounded
+from spiel_edge.io.limits import load_npz_bounded
 from spiel_edge.pipeline.run import Pipeline, Result
 from spiel_edge.pipeline.uncertainty import CHI2_95_3DOF, mahalanobis2
 

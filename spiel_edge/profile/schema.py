@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import load_npz_bounded, loads_toml, read_config_text, shorten
+from spiel_edge.io.guard import read_config_text, shorten
+from spiel_edge.io.limits import load_npz_bounded, loads_toml
 from spiel_edge.profile.frame_section import FrameSpec, validate_frame
 from spiel_edge.profile.geometry_checks import check_geometry
 from spiel_edge.profile.ranges import check_number, check_range
@@ -93,9 +94,9 @@ def check_static_model(name: str, origin: str) -> None:
     FIFO, a .npy, a zip bomb or a string array is refused here, naming the key)."""
     if not name:
         return
-    from spiel_edge.pipeline.static_scene import model_path
-
-    path = model_path(name)
+    path = Path(name)  # as pipeline/static_scene.model_path finds it
+    if not (path.is_absolute() or path.exists()):
+        path = Path(str(resources.files("spiel_edge") / "models" / name))
     if not os.path.lexists(path):
         return  # the pipeline says it runs without one
     try:

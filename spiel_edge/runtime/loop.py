@@ -20,7 +20,7 @@ import numpy as np
 from spiel_edge.board.flash import run_profile
 from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
-from spiel_edge.io.guard import load_npy_bounded
+from spiel_edge.io.limits import load_npy_bounded
 from spiel_edge.outputs import Sink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.run import Pipeline

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import SpielError
-from spiel_edge.io import guard
+from spiel_edge.io import limits
 from spiel_edge.runtime.loop import load_background
 
 GIB = 1 << 30
@@ -353,7 +353,7 @@ def _hostile_text(tmp_path, how: str):
 @pytest.mark.parametrize("kind", TEXT_KINDS)
 def test_text_inputs_bounded_and_regular(tmp_path, kind, how):
     path = _hostile_text(tmp_path, how)
-    message = _bounded(guard.read_input_text, path, kind)
+    message = _bounded(limits.read_input_text, path, kind)
     assert kind in message
 
 
