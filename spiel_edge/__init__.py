@@ -7,8 +7,16 @@ associations (pipeline/associate, scene) -> positions (pipeline/echo_timing, loc
 tracks (track/) -> outputs (outputs/); runtime/ runs it, cli/ is the command line.
 """
 
-from spiel_edge import _shipped
-from spiel_edge.errors import SpielError
+import os as _os
+import sys as _sys
+
+if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "spiel-edge" or list(
+    getattr(_sys, "orig_argv", [])[1:3]
+) == ["-m", "spiel_edge.cli"]:
+    from spiel_edge import _early  # noqa: F401  # the command itself: signals recorded from here
+
+from spiel_edge import _shipped  # noqa: E402
+from spiel_edge.errors import SpielError  # noqa: E402
 
 _shipped.select_cpu()  # before anything imports numba: a wheel's prebuilt kernels need it
 

@@ -30,7 +30,8 @@ from firmware_protocol.config_blob import (
 )
 from spiel_edge.compat import tomllib
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import read_config_text
+from spiel_edge.io.guard import read_config_text, shorten
+from spiel_edge.io.limits import loads_toml
 from spiel_edge.profile.ranges import RANGES
 from spiel_edge.profile.schema import (
     Profile,
@@ -295,6 +296,8 @@ def decode(blob: bytes, origin: str = "board") -> dict[str, Any]:
         data = tomllib.loads(blob[size:].decode("utf-8"))
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"{origin}: stored config is not valid TOML: {exc}") from exc
+    except RecursionError:
+        raise ConfigError(f"{origin}: stored config is not valid TOML: nested too deeply") from None
     config = validate(data, origin)
     stored = pack_header(config["acquisition"], length)
     _need(
@@ -308,10 +311,7 @@ def decode(blob: bytes, origin: str = "board") -> dict[str, Any]:
 def read_file(path: str | Path) -> dict[str, Any]:
     """A TOML file as a dict (full board config or a partial one such as a calibration)."""
     path = Path(path)
-    try:
-        return tomllib.loads(read_config_text(path, "config"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: cannot read TOML: {exc}") from exc
+    return loads_toml(read_config_text(path, "config"), ConfigError, shorten(path))
 
 
 def diff(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
+from spiel_edge.io.limits import read_input_text
 from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_truth
 
 log = logging.getLogger(__name__)
@@ -64,10 +65,7 @@ def read_positions(path: str | Path) -> np.ndarray:
     """Target positions (P, 3) in mm from a CSV with x, y, z per row (a header and # comments
     are allowed)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read positions: {exc}") from exc
+    text = read_input_text(path, "positions")
     rows: list[list[float]] = []
     header_allowed = True
     for lineno, row in enumerate(csv.reader(line for line in text.splitlines()), start=1):

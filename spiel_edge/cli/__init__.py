@@ -13,15 +13,23 @@ import gc
 import importlib
 import logging
 import os
+import signal
 import sys
+import warnings
 
 import click
 
 from spiel_edge import __version__
 from spiel_edge.errors import SpielError
-from spiel_edge.io.guard import shorten, shorten_tokens
+from spiel_edge.io.guard import escape, release_claims, shorten, shorten_tokens
 
 EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
+
+# Signals from the first instruction: the command's own process records INT, TERM and HUP
+# from the package's first line (spiel_edge/_early.py); main() turns a recorded one into its
+# documented status. Imported as a library (tests, other programs), nothing is installed.
+_OWN_PROCESS = "spiel_edge._early" in sys.modules
+_CATCH = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def setup_logging(verbosity: int) -> None:
@@ -124,11 +132,120 @@ def main(argv: list[str] | None = None) -> int:
     No traceback reaches a user: anything unexpected is one line, a bug-report hint and
     status 2 (the traceback only with ``-vv``)."""
     args = sys.argv[1:] if argv is None else list(argv)
+    own = _OWN_PROCESS and argv is None
+    status = EXIT_ERROR
     try:
-        return _main(args)
+        if own:
+            _SignalPhase.start()
+        _occupy_closed_stdio()
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_line  # a library's warning: one line of ours
+            status = _main(args)
+    except KeyboardInterrupt:  # a signal between the command's end and here
+        status = 130
     finally:
+        if own:
+            _SignalPhase.ending = True  # from here a signal changes nothing: the status stays
+        release_claims()
         if args == sys.argv[1:]:  # the process's own command line: it ends now, so skip the
             gc.freeze()  # final GC of numba's and scipy's objects (seconds on a loaded host)
+    if own:
+        _exit_now(status)
+    return status
+
+
+def _exit_now(status: int) -> None:
+    """End the process with ``status`` and nothing else: the interpreter's own finalization
+    puts the default handlers back, so a Ctrl-C during it ended the process by the signal
+    (status -2) after main had said 130. Every output is closed by its command; the standard
+    streams and the log are flushed here."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(Exception):
+        logging.shutdown()
+    os._exit(status)
+
+
+def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning from a library (numpy, numba, ...) as one escaped log line, without the
+    source line Python would print under it."""
+    logging.getLogger("spiel_edge.warnings").warning(
+        "%s: %s", category.__name__, shorten(message, 300)
+    )
+
+
+class _SignalPhase:
+    """The process's handlers outside a command's own: INT raises KeyboardInterrupt, TERM and
+    HUP raise Terminated (both status 130, the finally blocks clean up); once main is
+    ending, a signal is ignored so the status it computed is the one the process exits with
+    (a second Ctrl-C during shutdown used to kill it by the signal, status -2)."""
+
+    ending = False
+
+    @classmethod
+    def start(cls) -> None:
+        for sig in _CATCH:
+            signal.signal(sig, cls.handler)
+        early = sys.modules["spiel_edge._early"].received
+        if early:  # a signal arrived while the program was still loading
+            cls.handler(early[0], None)
+
+    @classmethod
+    def handler(cls, signum: int, frame: object) -> None:
+        if cls.ending:
+            return
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        from spiel_edge.cli._signals import Terminated
+
+        raise Terminated(f"signal {signum}")
+
+
+class _ClosedStream:
+    """What sys.stdout is when the process was started with stdout closed (``>&-``):
+    writing is an error naming it (one line, status 2) instead of a crash."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def write(self, text: str) -> int:
+        raise OSError(9, f"{self.name} is closed; redirect it (> FILE or > /dev/null)")
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+    def fileno(self) -> int:
+        raise OSError(9, f"{self.name} is closed")
+
+
+def _occupy_closed_stdio() -> None:
+    """A closed standard descriptor is taken by /dev/null, so no file this command opens
+    becomes its fd 1 by accident; a closed stdout raises on write, a closed stderr is quiet."""
+    for fd, name in ((0, "stdin"), (1, "stdout"), (2, "stderr")):
+        try:
+            os.fstat(fd)
+            continue
+        except OSError:
+            pass
+        try:
+            devnull = os.open(os.devnull, os.O_RDWR)
+            if devnull != fd:
+                os.dup2(devnull, fd)
+                os.close(devnull)
+        except OSError:
+            continue
+        if name == "stdout":
+            sys.stdout = _ClosedStream("stdout")  # type: ignore[assignment]
+        elif name == "stderr":
+            sys.stderr = open(os.devnull, "w")  # noqa: SIM115
+    if sys.stdout is None:
+        sys.stdout = _ClosedStream("stdout")  # type: ignore[assignment]
+    if sys.stderr is None:
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115
 
 
 def _main(args: list[str]) -> int:
@@ -155,13 +272,30 @@ def _main(args: list[str]) -> int:
         _error(f"error: {exc.strerror or exc}{where}", args, exc)
         return EXIT_ERROR
     except MemoryError as exc:
-        _error("error: out of memory", args, exc)
+        _error("error: out of memory (an input too large for this machine?)", args, exc)
         return EXIT_ERROR
-    except Exception as exc:  # the last resort: a bug
+    except Exception as exc:  # the last resort: a bug, or a library's error we know
+        known = _library_error(exc)
+        if known:
+            _error(f"error: {known}", args, exc)
+            return EXIT_ERROR
         _error(f"internal error: {type(exc).__name__}: {shorten(exc, 200)}", args, exc)
         click.echo(BUG_HINT, err=True)
         return EXIT_ERROR
     return _status(result)
+
+
+def _library_error(exc: Exception) -> str | None:
+    """A library's error we can name in our own words (one line with a fix), else None."""
+    text = str(exc)
+    if isinstance(exc, RuntimeError) and "no locator available" in text:
+        return (
+            "numba cannot write its cache beside spiel-edge nor in NUMBA_CACHE_DIR; set "
+            "NUMBA_CACHE_DIR to a folder you can write (e.g. ~/.cache/spiel-edge/numba)"
+        )
+    if isinstance(exc, RecursionError):
+        return "an input is nested too deeply to read"
+    return None
 
 
 def _status(result: object) -> int:
@@ -179,7 +313,7 @@ def _show_click(exc: click.ClickException) -> None:
 
 def _error(line: str, args: list[str], exc: BaseException) -> None:
     try:
-        click.echo(shorten_tokens(line), err=True)
+        click.echo(shorten_tokens(escape(line)), err=True)
         if _verbosity(args) >= 2:
             import traceback
 

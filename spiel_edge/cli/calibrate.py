@@ -159,6 +159,19 @@ def open_session(port: str):
     return session
 
 
+def _wait_for_enter(message: str) -> None:
+    """The operator's Enter; stdin at its end (closed, a script that ran out of lines) is an
+    error saying what to do, not an interruption (Ctrl-C stays one: status 130)."""
+    click.echo(message + ": ", err=True, nl=False)
+    line = sys.stdin.readline() if sys.stdin is not None else ""
+    if not line:
+        click.echo("", err=True)
+        raise ConfigError(
+            "stdin ended before every position was confirmed; nothing was written "
+            "(use --no-prompt when a robot moves the target)"
+        )
+
+
 def _capture_live(port: str, profile, positions, captures: int, prompt: bool):
     from spiel_edge.calibrate.capture import capture_positions
 
@@ -168,7 +181,7 @@ def _capture_live(port: str, profile, positions, captures: int, prompt: bool):
         else:
             where = f"Place the target at position {i + 1}/{len(positions)}: x={p[0]:g} y={p[1]:g} z={p[2]:g} mm"
         if prompt:
-            click.prompt(where + ", then press Enter", default="", show_default=False, err=True)
+            _wait_for_enter(where + ", then press Enter")
         else:
             click.echo(where, err=True)
 

@@ -42,7 +42,11 @@ from spiel_edge.service.doctor import CONFIG_DIR, run_checks
 @click.option("--json", "as_json", is_flag=True, help="One JSON document instead of text.")
 def command(profile_name, calibration, config_dir, skip_numba, port, as_json) -> int:
     """Check what the service needs; print a fix for each problem. Exit status 1 on any problem."""
-    checks = run_checks(profile_name, calibration, config_dir, skip_numba=skip_numba, port=port)
+    try:
+        checks = run_checks(profile_name, calibration, config_dir, skip_numba=skip_numba, port=port)
+    except MemoryError:  # a check that cannot finish is a problem found, not a crash (status 1)
+        click.echo("[FAIL] doctor: out of memory while checking; free some memory and run it again")
+        return 1
     ok = all(c.ok for c in checks)
     if as_json:
         click.echo(json.dumps({"ok": ok, "checks": [c.as_dict() for c in checks]}, indent=2))

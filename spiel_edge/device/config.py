@@ -4,6 +4,7 @@ config schema's business (:mod:`spiel_edge.board.schema`); here it is bytes."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 from firmware_protocol import (
@@ -18,9 +19,35 @@ from firmware_protocol import (
     ConfigWriteResponse,
     Message,
 )
+from spiel_edge.device.sanity import (
+    CONFIG_READ_TIMEOUT_S,
+    MAX_BOARD_CONFIG_BYTES,
+    FirmwareError,
+    board_name,
+)
 from spiel_edge.errors import DeviceError
 
 CHUNK_OVERHEAD = 6  # CONFIG_READ response / CONFIG_WRITE request: u32 offset, u16 length
+
+
+def _check_config_chunk(session, offset: int, got: int, asked: int, deadline: float) -> None:
+    """An endless or oversized config (a firmware that answers every CONFIG_READ with a full
+    chunk), or a read that takes too long, is a FirmwareError naming the board."""
+    who = board_name(getattr(session, "url", "board"), getattr(session, "hello", None))
+    if got > asked:
+        raise FirmwareError(
+            f"{who}: CONFIG_READ answered {got} bytes, {asked} were asked: a firmware bug"
+        )
+    if offset + got > MAX_BOARD_CONFIG_BYTES:
+        raise FirmwareError(
+            f"{who}: its config goes on beyond {MAX_BOARD_CONFIG_BYTES} bytes (a board config is "
+            "a few kB): a firmware bug; stopped reading"
+        )
+    if time.monotonic() > deadline:
+        raise FirmwareError(
+            f"{who}: reading its config took more than {CONFIG_READ_TIMEOUT_S:g} s "
+            f"({offset + got} bytes so far); stopped reading"
+        )
 
 
 class ConfigTransferMixin:
@@ -44,14 +71,14 @@ class ConfigTransferMixin:
         """The active config (DeviceRequestError NOT_FOUND when there is none) or the staging."""
         data = bytearray()
         chunk = self.config_chunk
+        deadline = time.monotonic() + CONFIG_READ_TIMEOUT_S
         while True:
             answer = self.request(ConfigRead(len(data), chunk, source))
             assert isinstance(answer, ConfigReadResponse)
             if answer.offset != len(data):
                 raise DeviceError(f"CONFIG_READ answered offset {answer.offset}, asked {len(data)}")
+            _check_config_chunk(self, len(data), len(answer.data), chunk, deadline)
             data += answer.data
-            if len(answer.data) > chunk:
-                raise DeviceError(f"CONFIG_READ answered {len(answer.data)} bytes, asked {chunk}")
             if len(answer.data) < chunk:
                 return bytes(data)
 

@@ -44,6 +44,7 @@ from firmware_protocol.errors import ErrorCode
 from firmware_protocol.framing import Frame
 from spiel_edge.device.config import ConfigTransferMixin
 from spiel_edge.device.hello import check_hello, link_payload, version_refused
+from spiel_edge.device.sanity import sanitized_hello
 from spiel_edge.device.stream import StreamTracker
 from spiel_edge.device.streaming import StreamingMixin
 from spiel_edge.device.v2 import SessionV2Mixin
@@ -163,6 +164,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         if not isinstance(hello, HelloResponse):
             raise DeviceError(f"{self.url}: the board answered HELLO with {type(hello).__name__}")
         check_hello(self.url, hello)
+        hello = sanitized_hello(hello)  # a board's strings never reach a terminal raw
         previous = self.hello
         if previous is not None and previous.serial and hello.serial != previous.serial:
             raise DeviceError(

@@ -19,6 +19,7 @@ from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, Sampl
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import ANNOTATION_TYPE, TARGETS_TYPE, Annotation, TruthTargets
 from spiel_edge.device.iq import iq_envelope
+from spiel_edge.device.sanity import StreamSanity
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +67,10 @@ class StreamTracker:
         self._first_delivered: int | None = None
         # board time (us) -> (Unix s, uncertainty us) or None; set by the session
         self.stamp: Callable[[int], tuple[float, float] | None] = lambda board_us: None
+        self.sanity = StreamSanity()  # a lying firmware: checked frame by frame
+        self.progress_at = time.monotonic()  # the last acquisition assembled (or stream begun)
+        self.frame_at = time.monotonic()  # the last stream frame
+        self.frames_since = 0  # stream frames since the last acquisition assembled
 
     def begin(self, channel_mask: int = 0) -> None:
         """A new stream is being requested: forget the old one's leftovers. Its first
@@ -77,6 +82,9 @@ class StreamTracker:
         self._truth_targets.clear()
         self._last_index = None
         self._first_delivered: int | None = None
+        self.sanity.n_channels = None  # until the board's answer says what to expect
+        self.progress_at = self.frame_at = time.monotonic()
+        self.frames_since = 0
 
     def pop(self) -> LiveAcquisition:
         """The next ready acquisition, counted as delivered."""
@@ -123,9 +131,13 @@ class StreamTracker:
             self.bad_messages += 1
             log.debug("bad STREAM_DATA: %s", exc)
             return
+        self.frame_at = time.monotonic()
+        self.frames_since += 1
+        self.sanity.frame(msg, frame.aux)  # FirmwareError when the stream contradicts itself
         acq = self.assembler.feed(msg, frame.aux)
         if acq is None:
             return
+        self.progress_at, self.frames_since = self.frame_at, 0
         if self._last_index is not None:
             gap = (acq.index - self._last_index - 1) & _MASK
             if gap < (1 << 31):

@@ -22,6 +22,7 @@ from firmware_protocol import (
 )
 from firmware_protocol.errors import ErrorCode
 from spiel_edge.device.iq import iq_envelope
+from spiel_edge.device.sanity import FirmwareError, board_name
 from spiel_edge.device.stream import LiveAcquisition
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -76,6 +77,7 @@ class StreamingMixin:
         self.tracker.begin(channel_mask)
         answer = self.request(request)
         assert isinstance(answer, StreamStartResponse)
+        self.tracker.sanity.expect(board_name(self.url, self.hello), self.hello, answer)
         self.tracker.started(answer.first_acquisition)
         self.stream, self._stream_request = answer, request
         self._last_data = time.monotonic()
@@ -133,14 +135,42 @@ class StreamingMixin:
         while self._inbox:
             self._dispatch(*self._inbox.popleft())
         self._v2_tick()
+        if self._stream_request is not None:
+            self._check_progress()
         if self._stream_request is not None and time.monotonic() - self._last_data > self.stall_s:
             self._check_alive()
+
+    def no_progress_limit_s(self) -> float:
+        """How long a stream may go without a whole acquisition: 5 stall periods, or 3 of
+        the board's acquisition periods when they are longer (10 s by default)."""
+        request = self._stream_request
+        period = 1.0 / request.rate_hz if request is not None and request.rate_hz > 0 else 0.0
+        return max(5.0 * self.stall_s, 3.0 * period)
+
+    def _check_progress(self) -> None:
+        """A board that sends stream frames from which no acquisition can be assembled is
+        reported (FirmwareError naming it) instead of being waited for without end."""
+        tracker = self.tracker
+        waited = time.monotonic() - tracker.progress_at
+        if tracker.frames_since and waited > self.no_progress_limit_s():
+            stats = tracker.assembler.stats
+            raise FirmwareError(
+                f"{board_name(self.url, self.hello)}: {tracker.frames_since} stream frames in "
+                f"{waited:.1f} s but no whole acquisition (incomplete {stats.incomplete}, duplicates {stats.duplicates}, stale "
+                f"{stats.stale}, inconsistent {stats.inconsistent}): a firmware bug; stopped"
+            )
 
     def _check_alive(self) -> None:
         """No data for a while: a board that does not answer is treated as gone; one that
         stopped streaming by itself is asked to start again."""
         status = self.stream_status()
         self._last_data = time.monotonic()
+        silent = time.monotonic() - self.tracker.frame_at
+        if status.streaming and silent > self.no_progress_limit_s():
+            raise FirmwareError(
+                f"{board_name(self.url, self.hello)}: says it is streaming but sent no stream "
+                f"data for {silent:.1f} s: a firmware bug; stopped"
+            )
         if not status.streaming and self._stream_request is not None:
             log.warning("%s: the board stopped streaming; starting again", self.url)
             self.counters.restarts += 1

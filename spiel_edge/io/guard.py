@@ -1,10 +1,12 @@
 """The file rules every command follows (docs/reliability.md), checked before the work starts.
 
 * no command overwrites a file it did not create in this run unless asked (``--force``), and
-  never one of its own inputs; two outputs on one path are refused;
+  never one of its own inputs (compared by identity: a hard link is the same file); two
+  outputs on one file are refused; two commands on one output cannot both succeed
+  (io/claims.py);
 * an output's folder must exist and be writable before anything is computed or captured;
 * only regular files are read (a FIFO, a device or a folder where a file is expected is an
-  error, never a hang);
+  error, never a hang), each bounded before it is read (io/limits.py);
 * small outputs are written to a temporary file beside the target and renamed into place, so
   a failure or a signal never leaves half a file where a good one was.
 """
@@ -13,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -21,60 +22,72 @@ from pathlib import Path
 from typing import IO
 
 from spiel_edge.errors import ConfigError, InputError
+from spiel_edge.io.claims import (  # noqa: F401  # release_claims, publish: part of the rules
+    Identity,
+    _blocking,
+    _claim_for,
+    _identity,
+    _key,
+    _open_output_fd,
+    _open_special,
+    _reason,
+    check_writable,
+    publish,
+    release_claims,
+)
+from spiel_edge.io.limits import (  # noqa: F401  # the bounded readers, where they were
+    MAX_CONFIG_BYTES,
+    decode_text,
+    read_bytes_bounded,
+    read_config_text,
+    read_text_bounded,
+)
+from spiel_edge.io.shown import MAX_SHOWN, escape, shorten, shorten_tokens  # noqa: F401
 
 STDIO = "-"
-MAX_SHOWN = 80  # characters of user-supplied text echoed into a message
-
-
-def shorten(text: object, limit: int = MAX_SHOWN) -> str:
-    """``text`` for an error message: at most ``limit`` characters (a 10 MB token is not
-    echoed back)."""
-    text = str(text)
-    return text if len(text) <= limit else f"{text[: limit - 20]}... ({len(text)} characters)"
-
-
-_LONG_TOKEN = re.compile(rf"\S{{{MAX_SHOWN + 1},}}")
-
-
-def shorten_tokens(text: str) -> str:
-    """Every over-long word of ``text`` shortened: a message or log line never carries a
-    10 MB token back to the user, whatever raised it."""
-    return _LONG_TOKEN.sub(lambda m: shorten(m.group()), text)
-
-
-def _key(path: Path) -> Path:
-    try:
-        return path.resolve()
-    except (OSError, RuntimeError):  # a symlink loop: compare as written
-        return path.absolute()
 
 
 class FilePlan:
-    """The inputs and outputs of one command, checked together before it does any work."""
+    """The inputs and outputs of one command, checked together before it does any work.
+
+    Files are compared by identity (device and inode) as well as by resolved path, so an
+    output that is a hard link to an input (another name for the same file) is refused too,
+    even with ``--force``."""
 
     def __init__(self, force: bool = False) -> None:
         self.force = force
         self._inputs: dict[Path, str] = {}
         self._outputs: dict[Path, str] = {}
+        self._input_ids: dict[Identity, str] = {}
+        self._output_ids: dict[Identity, str] = {}
 
     def input_file(self, path: str | Path, option: str) -> Path:
         """A file to read: it must exist and be a regular file (InputError otherwise)."""
         path = Path(path)
         try:
-            mode = os.stat(path).st_mode
-        except OSError as exc:
-            raise InputError(f"{option} {shorten(path)}: {exc.strerror or exc}") from exc
-        if not stat.S_ISREG(mode):
+            st = os.stat(path)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{option} {shorten(path)}: {_reason(exc)}") from exc
+        if not stat.S_ISREG(st.st_mode):
             raise InputError(f"{option} {shorten(path)}: not a regular file")
-        self._inputs[_key(path)] = option
+        self._claim_input(path, option, (st.st_dev, st.st_ino))
         return path
 
     def input_folder(self, path: str | Path, option: str) -> Path:
         path = Path(path)
         if not path.is_dir():
             raise InputError(f"{option} {shorten(path)}: not a folder")
-        self._inputs[_key(path)] = option
+        self._claim_input(path, option, _identity(path))
         return path
+
+    def _claim_input(self, path: Path, option: str, ident: Identity | None) -> None:
+        key = _key(path)
+        owner = self._outputs.get(key) or (ident is not None and self._output_ids.get(ident))
+        if owner:
+            raise ConfigError(f"{option} {shorten(path)}: is the output {owner}; choose another")
+        self._inputs[key] = option
+        if ident is not None:
+            self._input_ids[ident] = option
 
     def input_any(self, path: str | Path, option: str) -> Path:
         """A folder or a regular file."""
@@ -83,41 +96,29 @@ class FilePlan:
 
     def output(self, path: str | Path | None, option: str) -> Path | None:
         """A file to write (None or ``-``: stdout, nothing to check). Refused when it is an
-        input, another output, an existing file without --force, or its folder is missing or
-        not writable."""
+        input (by name, symlink or hard link), another output, an existing file without
+        --force, a file another command is writing, something that is not a regular file, a
+        terminal, a pipe with a reader or a null device, or its folder is missing or not
+        writable."""
         if path is None or str(path) == STDIO:
             return None
         path = Path(path)
         shown = f"{option} {shorten(path)}"
         key = _key(path)
-        for owner, claims in (("the input", self._inputs), ("also the output", self._outputs)):
-            if key in claims:
-                raise ConfigError(f"{shown}: is {owner} {claims[key]}; choose another path")
+        ident = _identity(path)
+        for owner, claims, ids in (
+            ("the input", self._inputs, self._input_ids),
+            ("also the output", self._outputs, self._output_ids),
+        ):
+            claimed = claims.get(key) or (ident is not None and ids.get(ident))
+            if claimed:
+                same = "" if key in claims else " (the same file under another name)"
+                raise ConfigError(f"{shown}: is {owner} {claimed}{same}; choose another path")
         check_writable(path, option, self.force)
         self._outputs[key] = option
+        if ident is not None:
+            self._output_ids[ident] = option
         return path
-
-
-def check_writable(path: Path, option: str, force: bool) -> None:
-    shown = f"{option} {shorten(path)}"
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        st = None
-    except OSError as exc:
-        raise ConfigError(f"{shown}: {exc.strerror or exc}") from exc
-    if st is not None:
-        if stat.S_ISDIR(st.st_mode):
-            raise ConfigError(f"{shown}: is a folder")
-        if stat.S_ISREG(st.st_mode) and not force:
-            raise ConfigError(f"{shown}: exists; pass --force to overwrite it")
-    parent = path.parent
-    if not parent.is_dir():
-        raise ConfigError(f"{shown}: folder {shorten(parent)} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK) and not (
-        st is not None and os.access(path, os.W_OK)
-    ):
-        raise ConfigError(f"{shown}: folder {shorten(parent)} is not writable")
 
 
 @contextlib.contextmanager
@@ -125,8 +126,8 @@ def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
     """Write to a temporary file beside ``path`` and rename it into place only when the block
     succeeds; on any failure the temporary file goes and ``path`` is untouched."""
     path = Path(path)
-    if path.exists() and not path.is_file():  # /dev/null, a FIFO: no file to replace
-        with open(path, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as fh:
+    if path.exists() and not path.is_file():  # /dev/null, a pipe: no file to replace
+        with open_exclusive(path, force=True, text="b" not in mode) as fh:
             yield fh
         return
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:40]}.", suffix=".tmp", dir=path.parent)
@@ -136,7 +137,7 @@ def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -151,16 +152,26 @@ def _umask() -> int:
 
 def open_exclusive(path: str | Path, force: bool, text: bool = False) -> IO:
     """Open ``path`` for writing; without ``force`` it must not exist (checked atomically,
-    so a file that appeared since the checks is not overwritten either)."""
+    so a file that appeared since the checks is not overwritten either). Opened without
+    blocking and checked: a regular file (locked: a second command writing it is refused;
+    truncated only once the lock is held), a terminal, a pipe with a reader or a null
+    device; anything else is refused."""
     path = Path(path)
-    special = path.exists() and not path.is_file()  # /dev/null, a FIFO: nothing to destroy
-    mode = ("w" if force or special else "x") + ("" if text else "b")
+    shown = shorten(path)
+    claim = _claim_for(path)
     try:
-        return open(path, mode, **({"encoding": "utf-8"} if text else {}))  # noqa: SIM115
+        if claim is not None and claim.special_fd is not None:
+            fd = os.dup(claim.special_fd)
+        else:
+            fd = _open_output_fd(path, force, shown, claim)
+        _blocking(fd)
     except FileExistsError as exc:
-        raise ConfigError(f"{shorten(path)}: exists; pass --force to overwrite it") from exc
+        raise ConfigError(f"{shown}: exists; pass --force to overwrite it") from exc
     except OSError as exc:
-        raise ConfigError(f"{shorten(path)}: cannot write: {exc.strerror or exc}") from exc
+        raise ConfigError(f"{shown}: cannot write: {_reason(exc)}") from exc
+    if text:
+        return os.fdopen(fd, "w", encoding="utf-8")
+    return os.fdopen(fd, "wb")
 
 
 class AtomicTextFile:
@@ -187,72 +198,15 @@ class AtomicTextFile:
         os.fsync(self.fh.fileno())
         self.fh.close()
         os.chmod(self._tmp, 0o666 & ~_umask())
-        os.replace(self._tmp, self.path)
+        try:
+            publish(self._tmp, self.path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(self._tmp)
+            raise
 
     def discard(self) -> None:
         if not self.fh.closed:
             self.fh.close()
         with contextlib.suppress(OSError):
             os.unlink(self._tmp)
-
-
-_NONBLOCK = getattr(os, "O_NONBLOCK", 0)
-MAX_CONFIG_BYTES = 1 << 20  # a profile, calibration or board config is a few kB
-
-
-def read_config_text(path: str | Path, what: str) -> str:
-    """A small text file (profile, calibration, config): regular, at most MAX_CONFIG_BYTES,
-    UTF-8; ConfigError naming the file otherwise (never blocks on a FIFO)."""
-    path = Path(path)
-    name = f"{shorten(path)}: {what}"
-    return read_text_bounded(path, MAX_CONFIG_BYTES, ConfigError, name, f"a {what} file")
-
-
-def read_text_bounded(
-    path: Path, max_bytes: int, error: type[Exception], name: str, limit: str
-) -> str:
-    """The UTF-8 text of :func:`read_bytes_bounded`'s file, else ``error`` naming ``name``."""
-    return decode_text(read_bytes_bounded(path, max_bytes, error, name, limit), error, name)
-
-
-def decode_text(data: bytes, error: type[Exception], name: str) -> str:
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise error(f"{name}: not text (bytes that are not UTF-8)") from None
-
-
-def read_bytes_bounded(
-    path: Path, max_bytes: int, error: type[Exception], name: str, limit: str
-) -> bytes:
-    """The bytes of a regular file of at most ``max_bytes`` (what ``limit`` can take), else
-    ``error`` naming ``name``. Opened non-blocking and checked with fstat, so a FIFO or a
-    device never hangs the read, and a file too large is refused by its size, unread; plain
-    ``os`` calls (no buffered file object): replay reads thousands of small frames."""
-    try:
-        fd = os.open(path, os.O_RDONLY | _NONBLOCK)
-    except FileNotFoundError:
-        raise error(f"{name}: file not found") from None
-    except OSError as exc:
-        raise error(f"{name}: cannot read: {exc.strerror}") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise error(f"{name}: not a regular file")
-        if st.st_size > max_bytes:
-            raise error(f"{name}: {st.st_size} bytes, more than {limit} can take ({max_bytes})")
-        chunks, size = [], 0
-        while size <= max_bytes:
-            wanted = max_bytes + 1 - size
-            chunk = os.read(fd, wanted)
-            chunks.append(chunk)
-            size += len(chunk)
-            if not chunk or (len(chunk) < wanted and size >= st.st_size):
-                break  # the end: one read when it holds all that fstat counted
-    except OSError as exc:
-        raise error(f"{name}: cannot read: {exc.strerror}") from None
-    finally:
-        os.close(fd)
-    if size > max_bytes:
-        raise error(f"{name}: grew beyond {max_bytes} bytes while read")
-    return chunks[0] if len(chunks) == 1 else b"".join(chunks)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
+from spiel_edge.io.limits import load_npz_bounded
 from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.pipeline.stages.uncertainty import CHI2_95_3DOF, mahalanobis2
 
@@ -104,12 +105,14 @@ def _ratio(a: float, b: float) -> float | None:
 
 
 def load_scenes(path: str | Path) -> dict[str, np.ndarray]:
+    data = load_npz_bounded(
+        path, "scenes", text_ok=True
+    )  # sizes and headers checked before decompression
     try:
-        with np.load(path, allow_pickle=False) as data:
-            scenes = {k: data[k] for k in ("frames", "backgrounds", "truth_mm", "names")}
-            scenes["split"] = str(data["split"]) if "split" in data else "unknown"
-    except (OSError, KeyError, ValueError) as exc:
-        raise InputError(f"{path}: not a scene file ({exc})") from exc
+        scenes = {k: data[k] for k in ("frames", "backgrounds", "truth_mm", "names")}
+        scenes["split"] = str(data["split"]) if "split" in data else "unknown"
+    except KeyError as exc:
+        raise InputError(f"{path}: not a scene file (no {exc} array)") from None
     n = len(scenes["frames"])
     if scenes["backgrounds"].shape != scenes["frames"].shape or len(scenes["truth_mm"]) != n:
         raise InputError(f"{path}: frames, backgrounds and truth_mm disagree in shape")

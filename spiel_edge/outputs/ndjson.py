@@ -28,7 +28,7 @@ class NdjsonSink(Sink):
         elif exclusive:
             self._fh = open_exclusive(target, force=False, text=True)
         else:
-            self._fh = open(target, "w", encoding="utf-8")  # noqa: SIM115
+            self._fh = open_exclusive(target, force=True, text=True)
 
     hold = False  # True: write() leaves flushing to flush() (a live run flushes when caught up)
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import _umask, shorten
+from spiel_edge.io.guard import _umask, publish, shorten
 from spiel_edge.outputs.ndjson import NdjsonSink
 from spiel_edge.runtime.replay import Replayed
 from spiel_edge.runtime.tracking import NOMINAL_PERIOD_S
@@ -178,24 +178,7 @@ def _publish(tmp: Path, path: Path, force: bool) -> None:
     finally:
         os.close(fd)
     os.chmod(tmp, 0o666 & ~_umask())
-    if force:
-        os.replace(tmp, path)
-        return
-    try:
-        os.link(tmp, path)
-    except FileExistsError:
-        raise ConfigError(
-            f"--output {shorten(path)}: appeared during the replay; pass --force to overwrite "
-            "it (the replay was not kept)"
-        ) from None
-    except OSError:  # no hard links here (some network or FAT file systems): reserve, replace
-        try:
-            os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-        except FileExistsError:
-            raise ConfigError(
-                f"--output {shorten(path)}: appeared during the replay; pass --force"
-            ) from None
-        os.replace(tmp, path)
+    publish(tmp, path, "the replay", force=force)
 
 
 def open_replay_output(

@@ -3,12 +3,29 @@ board's stored config, so both say the same thing about the same key."""
 
 from __future__ import annotations
 
+import math
+
 from spiel_edge.errors import ConfigError
 
 # "section.key" -> (low, high), inclusive
 RANGES: dict[str, tuple[float, float]] = {
     "acquisition.n_samples": (8, 4096),
     "acquisition.sample_rate_hz": (1e3, 1e7),
+    "acquisition.carrier_hz": (0.0, 5e6),
+    "preprocess.blind_zone_samples": (0, 4096),
+    "detect.threshold": (1e-6, 1e6),
+    "detect.min_amplitude": (0.0, 1e6),
+    "associate.tolerance_mm": (0.0, 1000.0),
+    "associate.max_residual_mm": (1e-3, 1000.0),
+    "associate.missing_penalty_mm": (0.0, 1000.0),
+    "associate.strength_weight_mm": (0.0, 1000.0),
+    "associate.range_weight": (0.0, 100.0),
+    "associate.min_channels": (3, 64),
+    "locate.toa_sigma_samples": (1e-6, 100.0),
+    "locate.toa_sigma_per_background": (0.0, 100.0),
+    "locate.toa_sigma_alpha_counts": (0.0, 1e6),
+    "locate.toa_shift_background_after": (-5.0, 5.0),
+    "locate.toa_shift_background_before": (-5.0, 5.0),
     "geometry.speed_of_sound_m_s": (200.0, 2000.0),
     "detect.hysteresis": (0.0, 1.0),
     "detect.max_echoes": (1, 16),
@@ -47,6 +64,27 @@ RANGES: dict[str, tuple[float, float]] = {
     "track.running_background_window": (0, 256),
     "track.running_background_guard_samples": (0.0, 64.0),
 }
+
+
+# any other number a profile, calibration or board config holds (a key added later, before it
+# gets its own row above): finite and within this magnitude, so no value can make every
+# acquisition fail silently
+GENERIC_LIMIT = 1e6
+
+
+def check_number(key: str, value: object, origin: str) -> None:
+    """Every number: finite; within RANGES[key] when listed, else within +-GENERIC_LIMIT.
+    ConfigError naming the key otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    if key in RANGES:
+        check_range(key, value, origin)
+        return
+    if not math.isfinite(value) or abs(value) > GENERIC_LIMIT:
+        raise ConfigError(
+            f"{origin}: {key} must be a finite number in [-{GENERIC_LIMIT:g}, "
+            f"{GENERIC_LIMIT:g}], got {value!r}"
+        )
 
 
 def in_range(key: str, value: object) -> bool:

@@ -9,18 +9,19 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from spiel_edge.compat import tomllib
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import read_config_text
+from spiel_edge.io.guard import read_config_text, shorten
+from spiel_edge.io.limits import load_npz_bounded, loads_toml
 from spiel_edge.profile.frame_section import FrameSpec, validate_frame
 from spiel_edge.profile.geometry_checks import check_geometry
-from spiel_edge.profile.ranges import check_range
+from spiel_edge.profile.ranges import check_number, check_range
 from spiel_edge.profile.specs import (
     ASSOCIATION_METHODS,
     ECHO_TIMING_ESTIMATORS,
@@ -65,27 +66,48 @@ def builtin_profiles() -> list[str]:
 def load_profile(name_or_path: str | Path = "spiel-icra23") -> Profile:
     """Load a built-in profile by name, or a profile TOML file by path."""
     text, origin = _read_profile_text(name_or_path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{origin}: not valid TOML: {exc}") from exc
-    return profile_from_dict(data, origin=origin)
+    data = loads_toml(text, ConfigError, shorten(origin))
+    profile = profile_from_dict(data, origin=origin)
+    check_static_model(profile.scene.static_model, shorten(origin))
+    return profile
 
 
 def apply_calibration(profile: Profile, path: str | Path) -> Profile:
     """Overlay a calibration (a partial profile TOML, e.g. only [geometry]) on ``profile``."""
     path = Path(path)
-    try:
-        data = tomllib.loads(read_config_text(path, "calibration"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: cannot read calibration: {exc}") from exc
+    data = loads_toml(read_config_text(path, "calibration"), ConfigError, shorten(path))
     merged = profile_to_dict(profile)
     for key, value in data.items():
         if isinstance(value, dict) and isinstance(merged.get(key), dict):
             merged[key].update(value)
         else:
             merged[key] = value
-    return profile_from_dict(merged, origin=str(path))
+    calibrated = profile_from_dict(merged, origin=str(path))
+    if calibrated.scene.static_model != profile.scene.static_model:
+        check_static_model(calibrated.scene.static_model, shorten(path))
+    return calibrated
+
+
+def check_static_model(name: str, origin: str) -> None:
+    """``[scene] static_model``, when it names a file that exists: a .npz archive within its
+    bound holding numeric ``median`` and ``mad`` arrays, checked by their headers at load (a
+    FIFO, a .npy, a zip bomb or a string array is refused here, naming the key)."""
+    if not name:
+        return
+    path = Path(name)  # as pipeline/static_scene.model_path finds it
+    if not (path.is_absolute() or path.exists()):
+        path = Path(str(resources.files("spiel_edge") / "models" / name))
+    if not os.path.lexists(path):
+        return  # the pipeline says it runs without one
+    try:
+        members = load_npz_bounded(path, "static model", ConfigError, headers_only=True)
+    except ConfigError as exc:
+        raise ConfigError(f"{origin}: scene.static_model: {exc}") from None
+    missing = {"median", "mad"} - set(members)
+    if missing:
+        raise ConfigError(
+            f"{origin}: scene.static_model {shorten(path)}: no {' or '.join(sorted(missing))} array"
+        )
 
 
 def resolve_profile(name_or_path: str | Path, calibration: str | Path | None = None) -> Profile:
@@ -149,6 +171,11 @@ def _section(origin: str, key: str, cls: type, values: Any) -> Any:
             value = _number_tuple(origin, f"{key}.{name}", value)
         if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
             raise ConfigError(f"{origin}: {key}.{name} must be {expected.__name__}, got {value!r}")
+        if isinstance(value, tuple):
+            for item in value:
+                check_number(f"{key}.{name}", item, origin)
+        else:
+            check_number(f"{key}.{name}", value, origin)
         converted[name] = value
     return cls(**converted)
 

@@ -9,6 +9,7 @@ frames under the same names.
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +19,7 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.io.guard import decode_text, read_bytes_bounded, shorten
-from spiel_edge.io.limits import InputLimits
+from spiel_edge.io.limits import InputLimits, read_input_text
 
 FRAMES_SUFFIX = "_frames.csv"
 LABELS_SUFFIX = "_labels.csv"
@@ -179,13 +180,16 @@ def read_truth(frames_path: str | Path) -> np.ndarray | None:
     """Ground-truth position (mm) from the labels file beside a frames file, else from its name."""
     frames_path = Path(frames_path)
     labels = frames_path.with_name(frames_path.name[: -len(FRAMES_SUFFIX)] + LABELS_SUFFIX)
-    if labels.is_file() and labels.stat().st_size <= MAX_LABELS_BYTES:
+    if labels.is_file():
         try:
-            rows = np.loadtxt(labels, ndmin=2)
+            text = read_input_text(labels, "labels")
+            with warnings.catch_warnings():  # an empty file: numpy's own warning, not ours
+                warnings.simplefilter("ignore")
+                rows = np.loadtxt(text.splitlines(), ndmin=2)
             if rows.shape[1] >= 6 and np.all(np.isfinite(rows[0, 3:6])):
                 return rows[0, 3:6].astype(np.float64)
-        except (ValueError, OSError, UnicodeDecodeError):
-            pass
+        except (ValueError, OSError, InputError):
+            pass  # unreadable labels: the position in the file name, if any
     m = _POSITION_RE.match(frames_path.name)
     return np.array([float(v) for v in m.groups()]) if m else None
 

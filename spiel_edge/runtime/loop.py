@@ -20,6 +20,7 @@ import numpy as np
 from spiel_edge.board.flash import run_profile
 from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
+from spiel_edge.io.limits import load_npy_bounded
 from spiel_edge.outputs import Sink
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.staged import Pipeline
@@ -49,10 +50,7 @@ def load_background(path: str | Path) -> np.ndarray:
     """A target-free capture (channels, samples) from a .npy file or a spiel-csv frames file."""
     path = Path(path)
     if path.suffix == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{path}: cannot read background: {exc}") from exc
+        arr = load_npy_bounded(path, "background")  # header checked before the data is read
     else:
         from spiel_edge.recordings.spiel_csv import read_frames
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from spiel_edge.errors import SpielError
+from spiel_edge.io.limits import read_input_text
 from spiel_edge.service.host_checks import (
     Check,
     check_board,
@@ -38,7 +39,7 @@ CONFIG_DIR = "/etc/spiel-edge"
 def read_env_file(path: str | Path) -> dict[str, str]:
     """KEY=VALUE lines as systemd's EnvironmentFile= reads them (comments, optional quotes)."""
     values = {}
-    for line in Path(path).read_text().splitlines():
+    for line in read_input_text(Path(path), "env").splitlines():
         line = line.strip()
         if not line or line.startswith(("#", ";")) or "=" not in line:
             continue

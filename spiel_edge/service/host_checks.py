@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from spiel_edge.io.guard import escape
+
 UDEV_RULE_DIRS = (
     "/etc/udev/rules.d",
     "/run/udev/rules.d",
@@ -44,7 +46,7 @@ def check_board(boards: Sequence[Any], ids: Iterable[tuple[int, int]]) -> Check:
             f"no board with USB id {wanted} found",
             "plug the board in and check `lsusb`; a charge-only cable or an unpowered hub also hide it",
         )
-    listed = ", ".join(f"{b.url} (serial {b.serial or '?'})" for b in boards)
+    listed = ", ".join(f"{escape(b.url)} (serial {escape(b.serial or '?')})" for b in boards)
     return Check("board", True, f"found {listed}")
 
 

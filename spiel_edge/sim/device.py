@@ -19,6 +19,7 @@ from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.faults import LineFaults
 from spiel_edge.sim.firmware_slots import FirmwareFlash
 from spiel_edge.sim.flash import Flash, PowerCut
+from spiel_edge.sim.lies import install as install_lie
 from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
 
@@ -56,6 +57,7 @@ class SimDevice:
             log_flood=options.log_flood,
             max_payload=options.max_payload,
         )
+        install_lie(self.board, options.lie)  # a hostile firmware mode, when asked
         self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
         self.generation = 1  # +1 each time it comes back
         self.plugged = True

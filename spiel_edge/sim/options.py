@@ -55,6 +55,7 @@ class SimOptions:
     noise: float = 20.0  # model: Gaussian noise (counts, std)
     speed: float = 0.0  # model: speed of sound in m/s (0: the profile's)
     shuffle: bool = False  # replay: random order instead of the recorded one
+    lie: str = ""  # a hostile firmware mode (sim/lies.py): the board contradicts itself
 
     @classmethod
     def from_url(cls, url: str) -> SimOptions:
@@ -96,6 +97,9 @@ class SimOptions:
             "noise >= 0, speed in [200, 2000]",
         )
         need(0 <= self.movers <= 8, f"movers must be in [0, 8], got {self.movers}")
+        from spiel_edge.sim.lies import LIES
+
+        need(self.lie in ("", *LIES), f"lie must be one of {', '.join(LIES)}, got {self.lie!r}")
         need(0 < len(self.serial.encode()) <= 16, "serial must be 1 to 16 bytes")
         need(
             abs(self.drift_ppm) <= 1000, f"drift_ppm must be in [-1000, 1000], got {self.drift_ppm}"
