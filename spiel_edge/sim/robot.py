@@ -1,0 +1,469 @@
+"""The virtual robot: N boards on one robot moving through a room, hearing each other.
+
+One :class:`RobotWorld` holds the robot (its boards' mounts from a robot description,
+robot/description.py), its path through a room of static reflectors (posts) in ``odom``,
+and movers walking around it. Each board hears
+
+- its own pulse's echoes off every post and mover (the board's echo model of sim/scenes.py,
+  weighted by a beam pattern: ``exp(-(theta / BEAM_WIDTH)^2)`` off the board's facing on the
+  way out and back, nothing behind the board, and air absorption);
+- every *other* board's pulse: the direct path from that emitter to its receivers (coupling
+  through the robot's body and the air, ``direct_gain / d``) and that pulse's echoes
+  (emitter j -> object -> receiver of i), shifted by the time between the two pulses.
+
+So several boards around one scene show the cross-talk problem, and a schedule
+(robot/schedule.py) shows its cure. Truth is in ``base_link`` (the robot's frame) and per
+board in its own frame.
+
+Reached as ``sim://NAME?scene=robot&robot=FILE&board=NAME&movers=N&seed=S`` (one shared world
+per robot file, movers and seed in a process, so several boards' URLs see one scene), or
+offline through :func:`simulate` (tools/robot_eval.py, tests/robot/): pulses in virtual time,
+each board with its own clock (offset and drift) and a link latency.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.robot.description import RobotSpec
+from spiel_edge.sim.scenes import (
+    U16_MAX,
+    EchoModel,
+    EchoModelScene,
+    SceneFrame,
+    _emg_mode,
+    _erf,
+)
+
+BEAM_WIDTH_DEG = 80.0  # e-folding half-angle of the transducer's beam (each way)
+ABSORPTION_PER_M = 0.6  # air at 175 kHz: about 5 dB per metre of path
+MOVER_REFLECTIVITY = 3.0e7  # a person's leg or a box: stronger than the lab's target
+POST_REFLECTIVITY = 2.0e7
+DIRECT_GAIN = 2.0e4  # another board's pulse heard directly: amplitude x distance (counts mm)
+AUDIBLE_COUNTS = 60.0  # a foreign arrival at least this strong in the window contaminates it
+
+
+@dataclass(frozen=True)
+class Room:
+    """Static reflectors (posts) in odom, mm; the robot drives a circle among them."""
+
+    posts_mm: np.ndarray = field(
+        default_factory=lambda: np.array(
+            [
+                [480.0 * math.cos(a), 480.0 * math.sin(a), 0.0]
+                for a in np.radians([20, 95, 160, 215, 290, 340])
+            ]
+        )
+    )
+    path_radius_mm: float = 150.0  # the robot's centre drives this circle ...
+    path_period_s: float = 60.0  # ... once in this long, facing along it
+
+
+class Movers:
+    """Targets walking around the robot: azimuth, radius (from the robot's centre) and height
+    each a smooth seeded function of time; they follow the robot (they are curious) and pass
+    from one board's field of view into the next."""
+
+    def __init__(self, n: int, *, seed: int = 0, height_mm: float = 0.0):
+        rng = np.random.default_rng([seed, 0x20B07])
+        self.n = n
+        self.phi0 = rng.uniform(0, 2 * np.pi, n)
+        self.omega = rng.uniform(0.25, 0.8, n) * rng.choice([-1.0, 1.0], n)  # rad/s
+        self.r0 = rng.uniform(230.0, 330.0, n)
+        self.r_amp = rng.uniform(10.0, 50.0, n)
+        self.r_rate = rng.uniform(0.2, 0.6, n)
+        self.z_amp = rng.uniform(10.0, 40.0, n)
+        self.z_rate = rng.uniform(0.2, 0.5, n)
+        self.phase = rng.uniform(0, 2 * np.pi, (n, 2))
+        self.height_mm = height_mm
+
+    def relative(self, t: float) -> np.ndarray:
+        """(n, 3) mm from the robot's centre, in odom's axes."""
+        phi = self.phi0 + self.omega * t
+        r = self.r0 + self.r_amp * np.sin(self.r_rate * t + self.phase[:, 0])
+        z = self.height_mm + self.z_amp * np.sin(self.z_rate * t + self.phase[:, 1])
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+@dataclass
+class BoardFrame:
+    samples: np.ndarray  # (channels, n) uint16
+    background: np.ndarray  # (channels, n) uint16: the board's own static scene
+    truth_board_mm: np.ndarray  # (K, 3) movers in the board's frame
+    foreign_peak: float  # strongest foreign arrival inside the window (after the blind zone)
+    clean: np.ndarray | None = None  # the same frame without foreign pulses (when they mattered)
+
+
+class RobotWorld:
+    """See the module docstring."""
+
+    def __init__(
+        self,
+        robot: RobotSpec,
+        *,
+        movers: int = 5,
+        seed: int = 0,
+        room: Room | None = None,
+        noise: float = 20.0,
+        profile: str | None = None,
+        moving: bool = True,
+    ):
+        self.robot = robot
+        self.names = [b.name for b in robot.boards]
+        self.room = room or Room()
+        self.moving = moving
+        self.movers = Movers(movers, seed=seed)
+        self.noise = noise
+        prof = load_profile(profile or robot.boards[0].profile)
+        self.geometry = g = prof.geometry
+        self.sample_rate_hz = prof.acquisition.sample_rate_hz
+        self.n_samples = prof.acquisition.n_samples
+        self.mm_per_sample = g.speed_of_sound_m_s * 1000.0 / self.sample_rate_hz
+        self.blind = prof.preprocess.blind_zone_samples
+        self.delays = g.delays()
+        self.listening = g.listening_mask()
+        self._model = EchoModel()
+        self._scene = EchoModelScene(
+            g, sample_rate_hz=self.sample_rate_hz, n_samples=self.n_samples
+        )
+        self.mounts = {b.name: b.mount for b in robot.boards}
+        self.emitters = {n: m.to_base(g.emitter_mm) for n, m in self.mounts.items()}
+        self.receivers = {n: m.to_base(g.channels_mm) for n, m in self.mounts.items()}
+        self.facing = {n: m.facing for n, m in self.mounts.items()}
+        # the EMG pulse shape on a fine grid: interpolated instead of erf per sample
+        mode = _emg_mode(self._model.sigma, self._model.eta)
+        self._grid = np.linspace(-12.0, 24.0, 3601)
+        u = (self._grid + mode) / self._model.sigma
+        raw = np.exp(-0.5 * u * u) * (1.0 + _erf(self._model.eta * u / math.sqrt(2.0)))
+        self._shape = raw / raw.max()
+        self._rng = np.random.default_rng([seed, 0x5EED])
+        self._lock = threading.Lock()
+        self._pulses: dict[str, deque[float]] = {n: deque(maxlen=4) for n in self.names}
+
+    # --- where things are --------------------------------------------------------------
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t) of base_link in odom: the robot drives its circle, facing along it."""
+        room = self.room
+        a = 2 * math.pi * t / room.path_period_s if self.moving else 0.0
+        x, y = room.path_radius_mm * math.cos(a), room.path_radius_mm * math.sin(a)
+        yaw = a + math.pi / 2
+        c, s = math.cos(yaw), math.sin(yaw)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([x, y, 0.0])
+
+    def movers_base(self, t: float) -> np.ndarray:
+        """(n, 3) movers in base_link, mm."""
+        rot, _ = self.pose(t)
+        return self.movers.relative(t) @ rot  # R^T v for each row
+
+    def posts_base(self, t: float) -> np.ndarray:
+        rot, trans = self.pose(t)
+        return (self.room.posts_mm - trans) @ rot
+
+    def in_view(self, board: str, p_base: np.ndarray, half_angle_deg: float = 50.0) -> np.ndarray:
+        v = np.atleast_2d(p_base) - self.emitters[board]
+        cos = v @ self.facing[board] / np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+        return cos >= math.cos(math.radians(half_angle_deg))
+
+    def _beam(self, board: str, p: np.ndarray) -> np.ndarray:
+        v = p - self.emitters[board]
+        d = np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+        cos = np.clip(v @ self.facing[board] / d, -1.0, 1.0)
+        theta = np.degrees(np.arccos(cos))
+        return np.where(cos > 0, np.exp(-((theta / BEAM_WIDTH_DEG) ** 2)), 0.0)
+
+    # --- what a board hears ------------------------------------------------------------
+
+    def frame(
+        self,
+        board: str,
+        t_fire: float,
+        pulses: list[tuple[str, float]],
+        *,
+        crosstalk: bool = True,
+        want_clean: bool = False,
+    ) -> BoardFrame:
+        """Board ``board``'s acquisition with its pulse at ``t_fire`` (seconds, true time),
+        hearing the other boards' ``pulses`` ((board, time) pairs)."""
+        n = self.n_samples
+        background = self._scene.background(n)
+        objects = np.vstack([self.movers_base(t_fire), self.posts_base(t_fire)])
+        refl = np.concatenate(
+            [
+                np.full(self.movers.n, MOVER_REFLECTIVITY),
+                np.full(len(self.room.posts_mm), POST_REFLECTIVITY),
+            ]
+        )
+        own = np.zeros((len(self.delays), n))
+        self._echoes(own, board, board, objects, refl, 0.0)
+        foreign = np.zeros_like(own)
+        if crosstalk:
+            for other, t_other in pulses:
+                if other == board:
+                    continue
+                shift = (t_other - t_fire) * self.sample_rate_hz
+                if shift > n + 4 or shift < -2 * n:
+                    continue
+                self._echoes(foreign, other, board, objects, refl, shift)
+                self._direct(foreign, other, board, shift)
+        noise = self._rng.normal(0.0, self.noise, own.shape) if self.noise else 0.0
+        base = background + own + noise
+        samples = _u16(base + foreign)
+        peak = float(foreign[:, self.blind :].max()) if foreign.size else 0.0
+        clean = _u16(base) if want_clean and peak >= AUDIBLE_COUNTS else None
+        truth = self.mounts[board].to_board(self.movers_base(t_fire))
+        return BoardFrame(samples, background, truth, peak, clean)
+
+    def _echoes(self, out, emitter_board, board, objects, refl, shift) -> None:
+        e = self.emitters[emitter_board]
+        rx = self.receivers[board]
+        d_tx = np.maximum(np.linalg.norm(objects - e, axis=1), 1.0)
+        gain = refl * self._beam(emitter_board, objects) * self._beam(board, objects)
+        for k in np.nonzero(gain > 0)[0]:
+            d_rx = np.maximum(np.linalg.norm(objects[k] - rx, axis=1), 1.0)
+            path = d_tx[k] + d_rx
+            amp = gain[k] * np.exp(-ABSORPTION_PER_M * path / 1000.0) / (d_tx[k] * d_rx)
+            toa = path / self.mm_per_sample + self.delays + shift
+            self._add(out, toa, amp)
+
+    def _direct(self, out, emitter_board, board, shift) -> None:
+        d = np.maximum(
+            np.linalg.norm(self.receivers[board] - self.emitters[emitter_board], axis=1), 1.0
+        )
+        self._add(out, d / self.mm_per_sample + 2.0 + shift, DIRECT_GAIN / d)
+
+    def _add(self, out, toa, amp) -> None:
+        t = np.arange(out.shape[1], dtype=np.float64)
+        for c in range(out.shape[0]):
+            if not self.listening[c] or amp[c] < 1.0:
+                continue
+            if toa[c] < -24 or toa[c] > out.shape[1] + 12:
+                continue
+            out[c] += amp[c] * np.interp(t - toa[c], self._grid, self._shape, left=0.0, right=0.0)
+
+    # --- live: one board of the world behind sim:// ------------------------------------
+
+    def live_frame(self, board: str, t_fire: float) -> BoardFrame:
+        """For :class:`RobotBoardScene`: the other boards' pulses as they happened (and each
+        one's next, one interval after its last), on the host's clock."""
+        with self._lock:
+            pulses = []
+            for other, seen in self._pulses.items():
+                if other == board or not seen:
+                    continue
+                pulses += [(other, t) for t in seen]
+                if len(seen) >= 2:
+                    pulses.append((other, seen[-1] + (seen[-1] - seen[-2])))
+            self._pulses[board].append(t_fire)
+            return self.frame(board, t_fire, pulses)
+
+
+def _u16(x: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(x), 0, U16_MAX).astype(np.uint16)
+
+
+class RobotBoardScene:
+    """One board of a shared :class:`RobotWorld`, as a virtual board's scene."""
+
+    def __init__(self, world: RobotWorld, board: str):
+        if board not in world.names:
+            from spiel_edge.errors import ConfigError
+
+            raise ConfigError(
+                f"sim: scene=robot: no board {board!r} in the robot ({', '.join(world.names)})"
+            )
+        self.world, self.board = world, board
+        self.geometry = world.geometry
+        self.n_channels = len(world.delays)
+        self.n_samples = world.n_samples
+        self.sample_rate_hz = int(round(world.sample_rate_hz))
+        self.speed = world.geometry.speed_of_sound_m_s
+        self._boot = 0.0
+
+    def on_boot(self, now: float) -> None:
+        """The virtual board (re)booted at host time ``now``: its stamps count from there."""
+        self._boot = now
+
+    def supports(self, n_samples: int) -> bool:
+        return n_samples == self.n_samples
+
+    def frame(self, index: int, n_samples: int, time_s: float) -> SceneFrame:
+        del index, n_samples
+        f = self.world.live_frame(self.board, self._boot + time_s)
+        truth = f.truth_board_mm
+        return SceneFrame(f.samples, f.background, truth[0].copy() if len(truth) else None, truth)
+
+
+_WORLDS: dict[tuple, RobotWorld] = {}
+_WORLDS_LOCK = threading.Lock()
+
+
+def board_scene(options) -> RobotBoardScene:
+    """The scene of ``sim://...?scene=robot&robot=FILE&board=NAME`` (one world per robot file,
+    movers and seed in this process)."""
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.robot.description import load_robot
+
+    if not options.robot or not options.board:
+        raise ConfigError("sim: scene=robot needs robot=FILE and board=NAME")
+    key = (options.robot, options.movers, options.seed, options.noise)
+    with _WORLDS_LOCK:
+        world = _WORLDS.get(key)
+        if world is None:
+            world = _WORLDS[key] = RobotWorld(
+                load_robot(options.robot),
+                movers=options.movers,
+                seed=options.seed,
+                noise=options.noise,
+            )
+    return RobotBoardScene(world, options.board)
+
+
+# --- offline: pulses in virtual time -------------------------------------------------------
+
+
+@dataclass
+class BoardClockTruth:
+    """A board's clock: ``board_s = (t - boot_s) * (1 + drift)``."""
+
+    boot_s: float
+    drift: float
+
+    def board_time(self, t: float) -> float:
+        return (t - self.boot_s) * (1.0 + self.drift)
+
+    def true_time(self, board_s: float) -> float:
+        return self.boot_s + board_s / (1.0 + self.drift)
+
+
+@dataclass
+class Acquisition:
+    board: str
+    index: int
+    t_fire: float  # true time of the pulse
+    board_us: int  # the board's stamp
+    arrival: float  # host time its last byte arrived
+    frame: BoardFrame
+
+
+def simulate(
+    world: RobotWorld,
+    *,
+    cycles: int,
+    scheduled: bool,
+    seed: int = 0,
+    drift_ppm: float = 200.0,
+    latency_s: tuple[float, float] = (0.3e-3, 0.5e-3),
+    want_clean: bool = False,
+    crosstalk: bool = True,
+):
+    """Every board's acquisitions over ``cycles`` periods, in arrival order.
+
+    Unscheduled, each board streams at the period on its own clock from a random phase
+    (boards free-running side by side). Scheduled, the host starts each board in its slot
+    (robot/schedule.py) and keeps it there: it maps the board's stamps to host time
+    (robot/clock.py, from the arrivals), corrects the board's rate by the estimated drift
+    and restarts it in its slot when its pulse strays more than half the sync margin.
+    Returns (acquisitions, restarts per board)."""
+    from spiel_edge.robot.clock import StampClock
+    from spiel_edge.robot.schedule import Schedule
+
+    rng = np.random.default_rng([seed, 0xC10C])
+    sched = Schedule.from_robot(world.robot, window_s=world.n_samples / world.sample_rate_hz)
+    period = sched.period_s
+    window = sched.window_s
+    names = world.names
+    clocks = {
+        n: BoardClockTruth(rng.uniform(-5.0, 5.0), rng.uniform(-drift_ppm, drift_ppm) * 1e-6)
+        for n in names
+    }
+    host_clock = {n: StampClock() for n in names}
+    t0 = 1.0
+    # per board: the stream: start true time, board-time period
+    stream = {}
+    for n in names:
+        if scheduled:
+            stream[n] = (t0 + sched.slots[n].offset_s, period)
+        else:
+            stream[n] = (t0 + rng.uniform(0, period), period)
+    # board clock -> true time of the k-th pulse of the current stream
+    count = {n: 0 for n in names}
+    restarts = {n: 0 for n in names}
+    end = t0 + cycles * period
+    pending: list[tuple[float, str]] = []
+
+    def next_pulse(n: str) -> float:
+        start, p_board = stream[n]
+        c = clocks[n]
+        b0 = c.board_time(start)
+        return c.true_time(b0 + count[n] * p_board)
+
+    out: list[Acquisition] = []
+    fired: dict[str, list[float]] = {n: [] for n in names}
+    # generate pulses in true-time order
+    nxt = {n: next_pulse(n) for n in names}
+    index = {n: 0 for n in names}
+    while True:
+        n = min(nxt, key=nxt.get)
+        t = nxt[n]
+        if t >= end:
+            break
+        fired[n].append(t)
+        count[n] += 1
+        nxt[n] = next_pulse(n)
+        pending.append((t, n))
+        # a pulse's frame is made once every pulse that could reach its window is known
+        horizon = min(nxt.values())
+        while pending and pending[0][0] + window < horizon:
+            tp, bp = pending.pop(0)
+            pulses = [
+                (o, tt)
+                for o in names
+                if o != bp
+                for tt in _near(fired[o], tp - 2 * window - sched.guard_s, tp + window)
+            ]
+            frame = world.frame(bp, tp, pulses, crosstalk=crosstalk, want_clean=want_clean)
+            stamp = clocks[bp].board_time(tp)
+            arrival = tp + window + latency_s[0] + rng.exponential(latency_s[1])
+            acq = Acquisition(bp, index[bp], tp, int(stamp * 1e6), arrival, frame)
+            index[bp] += 1
+            out.append(acq)
+            hc = host_clock[bp]
+            hc.observe(stamp, arrival)
+            if scheduled and hc.ready and index[bp] % 8 == 0:
+                mapped = hc.to_host(stamp) - window - latency_s[0]
+                err = sched.phase_error(bp, t0, mapped)
+                if abs(err) > sched.margin_s / 2:
+                    # restart in the slot: the next slot start after now, rate corrected
+                    restart_at = sched.next_fire(bp, t0, arrival + 2e-3)
+                    stream[bp] = (restart_at + rng.uniform(0, 0.1e-3), period * (1 + hc.drift))
+                    count[bp] = 0
+                    restarts[bp] += 1
+                    nxt[bp] = next_pulse(bp)
+                elif abs(stream[bp][1] - period * (1 + hc.drift)) > 1e-9 and index[bp] % 64 == 0:
+                    # rate correction alone: continue from the next pulse at the new rate
+                    b_next = clocks[bp].board_time(nxt[bp])
+                    start_true = clocks[bp].true_time(b_next)
+                    stream[bp] = (start_true, period * (1 + hc.drift))
+                    count[bp] = 0
+                    nxt[bp] = next_pulse(bp)
+        if len(out) > cycles * len(names) + 10:
+            break
+    out.sort(key=lambda a: a.arrival)
+    return out, restarts, clocks
+
+
+def _near(times: list[float], lo: float, hi: float) -> list[float]:
+    res = []
+    for t in reversed(times):
+        if t < lo:
+            break
+        if t <= hi:
+            res.append(t)
+    return res
