@@ -123,6 +123,9 @@ class VirtualBoard(BoardConfigMixin):
         self._last_background: np.ndarray | None = None
         self._request_seq = 0
         self.reboot_at = None
+        on_boot = getattr(self.scene, "on_boot", None)  # a scene on the host's clock (robot)
+        if on_boot is not None:
+            on_boot(now)
 
     @property
     def streaming(self) -> bool:

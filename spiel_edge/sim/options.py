@@ -14,7 +14,7 @@ from urllib.parse import parse_qsl, urlsplit
 from spiel_edge.errors import ConfigError
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 
-SCENES = ("replay", "model")
+SCENES = ("replay", "model", "robot")
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,8 @@ class SimOptions:
     noise: float = 20.0  # model: Gaussian noise (counts, std)
     speed: float = 0.0  # model: speed of sound in m/s (0: the profile's)
     shuffle: bool = False  # replay: random order instead of the recorded one
+    robot: str = ""  # robot: the robot file (or built-in name) whose shared scene this board sees
+    board: str = ""  # robot: which of its boards this is (sim/robot.py)
 
     @classmethod
     def from_url(cls, url: str) -> SimOptions:
@@ -95,7 +97,7 @@ def modelled_envelope(url: str) -> bool:
     if not url.lower().startswith("sim:"):
         return False
     try:
-        return SimOptions.from_url(url).scene == "model"
+        return SimOptions.from_url(url).scene in ("model", "robot")
     except ConfigError:
         return False
 
