@@ -13,6 +13,7 @@ spiel_edge/robot. Prints one JSON object per mode.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -32,12 +33,20 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--max-targets", type=int, default=4)
     ap.add_argument("--mode", choices=["scheduled", "free", "both"], default="both")
     ap.add_argument("--keep-marked", action="store_true", help="fuse marked acquisitions too")
+    ap.add_argument(
+        "--track", action="append", default=[], metavar="KEY=VALUE", help="[track] override"
+    )
     ap.add_argument("--no-ghosts", action="store_true", help="skip the clean-frame comparison")
     args = ap.parse_args(argv)
     robot = load_robot(args.robot)
     profile = load_profile(robot.boards[0].profile)
     pipeline = build_pipeline(profile, None, "none")
     pipeline.set_max_targets(args.max_targets)
+    spec = profile.track
+    for item in args.track:
+        key, _, value = item.partition("=")
+        kind = type(getattr(spec, key))
+        spec = dataclasses.replace(spec, **{key: kind(float(value)) if kind is int else kind(value)})
     modes = ["free", "scheduled"] if args.mode == "both" else [args.mode]
     for mode in modes:
         world = RobotWorld(robot, movers=args.movers, seed=args.seed)
@@ -50,6 +59,7 @@ def main(argv: list[str] | None = None) -> None:
             seed=args.seed,
             ghosts=not args.no_ghosts,
             drop_marked=not args.keep_marked,
+            spec=spec,
         )
         out = {"mode": mode, "seed": args.seed, "movers": args.movers, **figs.summary()}
         out["wall_s"] = round(time.time() - t, 1)

@@ -22,7 +22,9 @@ from typing import Protocol
 import numpy as np
 
 BLOCK = 8  # acquisitions per lower-envelope point
-BLOCKS = 16  # lower-envelope points in the fit
+BLOCKS = 64  # lower-envelope points in the fit
+MIN_DRIFT_SPAN_S = 10.0  # the drift is fitted once the minima span this long (else 0)
+MAX_DRIFT = 1e-3  # a crystal drifts by ppm, never by 0.1 %
 MAX_DISAGREEMENT_S = 1.0  # a mapped time this far from arrival: the clock is not believable
 
 
@@ -67,45 +69,48 @@ class StampClock:
 
     @property
     def drift(self) -> float:
+        """Host seconds per board second, minus 1 (a board clock that runs fast: negative).
+        A board period of ``P / (1 + drift)`` board seconds lasts ``P`` host seconds."""
         return self._drift
 
     @property
     def uncertainty_s(self) -> float:
         return self._spread
 
-    def observe(self, board_s: float, arrival_s: float) -> None:
+    def observe(self, board_s: float, arrival_s: float) -> float:
+        """Take one acquisition's stamp and arrival; returns how late it arrived against the
+        estimate before it (seconds; seconds off: the clocks disagree)."""
         if self._last_board is not None and board_s < self._last_board:
             self.resets += 1
             self._reset()
         self._last_board = board_s
         delay = arrival_s - board_s
-        if self._offset is None or delay < self._offset + self._drift * board_s:
-            # the first point, or one faster than the current line: use it at once
-            if self._offset is None:
-                self._offset = delay
-            elif not self._minima:
-                self._offset = delay - self._drift * board_s
+        if not self._minima:
+            self._offset = delay if self._offset is None else min(self._offset, delay)
+        late = delay - (self._offset + self._drift * board_s)
         self._block.append((board_s, delay))
         if len(self._block) >= BLOCK:
             self._minima.append(min(self._block, key=lambda p: p[1]))
             self._block = []
             self._fit()
+        return late
 
     def _fit(self) -> None:
         pts = np.array(self._minima)
-        if len(pts) == 1:
-            self._offset = pts[0, 1] - self._drift * pts[0, 0]
-            self._spread = 0.0
-            return
         x, y = pts[:, 0], pts[:, 1]
-        xm = x.mean()
-        sxx = float(((x - xm) ** 2).sum())
-        slope = float(((x - xm) * (y - y.mean())).sum() / sxx) if sxx > 0 else 0.0
-        slope = max(-1e-3, min(1e-3, slope))  # a crystal drifts by ppm, never by 0.1 %
+        slope = 0.0
+        if x[-1] - x[0] >= MIN_DRIFT_SPAN_S:
+            xm = x.mean()
+            sxx = float(((x - xm) ** 2).sum())
+            slope = float(((x - xm) * (y - y.mean())).sum() / sxx) if sxx > 0 else 0.0
+            slope = max(-MAX_DRIFT, min(MAX_DRIFT, slope))
+        resid = y - slope * x
+        if slope == 0.0:  # no drift known yet: only the recent points set the level
+            resid = resid[-4:]
+        # the line through the lower envelope: transport only delays, so its lowest point
+        self._offset = float(resid.min())
         self._drift = slope
-        self._offset = float(y.mean() - slope * xm)
-        resid = y - (self._offset + slope * x)
-        self._spread = float(np.max(np.abs(resid)))
+        self._spread = float(np.max(np.abs(resid - self._offset)))
 
     def to_host(self, board_s: float) -> float:
         if self._offset is None:

@@ -144,6 +144,11 @@ class Fuser:
         self.seq = 0
         self.stats = {name: {"reports": 0, "targets": 0, "marked": 0, "late": 0} for name in mounts}
 
+    def set_phase(self, t: float) -> None:
+        """Cycles start at ``t + k * period`` (the schedule's first slot, less the spare time
+        split before and after), instead of around the first report."""
+        self._t0 = t
+
     def drop(self, board: str) -> None:
         """A board gone for good: cycles no longer wait for it."""
         self.expected.discard(board)

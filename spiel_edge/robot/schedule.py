@@ -95,6 +95,12 @@ class Schedule:
                         f"{p * 1e3:g} ms period)"
                     )
 
+    @property
+    def span_s(self) -> float:
+        """From the first slot's start to the last slot's end."""
+        offsets = [s.offset_s for s in self.slots.values()]
+        return max(offsets) - min(offsets) + self.slot_s
+
     def fire_time(self, board: str, t0: float, cycle: int) -> float:
         """Host time of ``board``'s pulse in ``cycle`` of a schedule started at ``t0``."""
         return t0 + cycle * self.period_s + self.slots[board].offset_s

@@ -12,8 +12,9 @@ import numpy as np
 
 from spiel_edge.robot import score
 from spiel_edge.robot.clock import StampClock
-from spiel_edge.robot.fusion import BoardReport, Fuser, reports_targets
+from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser, reports_targets
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
+from spiel_edge.track import Tracker
 
 GHOST_NEW_MM = 30.0  # a target this far from every target of the clean frame ...
 GHOST_TRUTH_MM = 40.0  # ... and from every object is one the other board's pulse made
@@ -28,6 +29,7 @@ class RunFigures:
     ghost_unmarked: int = 0  # ghosts the marking missed (reach the fusion)
     restarts: dict = field(default_factory=dict)
     board_errors: list = field(default_factory=list)
+    board_tracked_errors: list = field(default_factory=list)  # each board's own tracker
     tracked_errors: list = field(default_factory=list)
     crossings: dict = field(default_factory=dict)
     cycles: int = 0
@@ -47,6 +49,7 @@ class RunFigures:
             "ghost_unmarked_share": round(self.ghost_unmarked / n, 4),
             "restarts": self.restarts,
             "board_error_mm": _stats(self.board_errors),
+            "board_tracked_error_mm": _stats(self.board_tracked_errors),
             "tracked_error_mm": _stats(self.tracked_errors),
             "crossings": c,
             "crossings_kept_share_of_tracked": round(c.get("kept", 0) / tracked, 4)
@@ -96,6 +99,7 @@ def run_virtual_robot(
     fuser = Fuser(world.mounts, period_s=sched.period_s, spec=spec, drop_marked=drop_marked)
     fire = {}
     records = []
+    own_trackers = {n: Tracker(spec) for n in world.names}
     for a in acqs:
         t = time.perf_counter()
         res = pipeline.process(
@@ -126,6 +130,13 @@ def run_virtual_robot(
         own = [world.mounts[a.board].to_base(p) for p, _, _ in targets]
         m = score.match(np.array(own).reshape(-1, 3), truth)
         figs.board_errors += [d for _, d in m.values()]
+        own_tracks = own_trackers[a.board].update(
+            [BaseTarget(p, c, [a.board]) for p, c, _ in targets], a.board_us / 1e6
+        )
+        pos = np.array([world.mounts[a.board].to_base(t.position_mm) for t in own_tracks])
+        in_view = truth[world.in_view(a.board, truth)]
+        m = score.match(pos.reshape(-1, 3), in_view)
+        figs.board_tracked_errors += [d for _, d in m.values()]
         out = fuser.add(
             BoardReport(
                 a.board,

@@ -369,7 +369,8 @@ def simulate(
     (boards free-running side by side). Scheduled, the host starts each board in its slot
     (robot/schedule.py) and keeps it there: it maps the board's stamps to host time
     (robot/clock.py, from the arrivals), corrects the board's rate by the estimated drift
-    and restarts it in its slot when its pulse strays more than half the sync margin.
+    and restarts it in its slot when its pulses (the median of the last 8) stray more than the
+    sync margin.
     Returns (acquisitions, restarts per board)."""
     from spiel_edge.robot.clock import StampClock
     from spiel_edge.robot.schedule import Schedule
@@ -405,6 +406,7 @@ def simulate(
         return c.true_time(b0 + count[n] * p_board)
 
     out: list[Acquisition] = []
+    recent = {n: deque(maxlen=8) for n in names}
     fired: dict[str, list[float]] = {n: [] for n in names}
     # generate pulses in true-time order
     nxt = {n: next_pulse(n) for n in names}
@@ -436,21 +438,24 @@ def simulate(
             out.append(acq)
             hc = host_clock[bp]
             hc.observe(stamp, arrival)
-            if scheduled and hc.ready and index[bp] % 8 == 0:
+            if scheduled and hc.ready:
                 mapped = hc.to_host(stamp) - window - latency_s[0]
-                err = sched.phase_error(bp, t0, mapped)
-                if abs(err) > sched.margin_s / 2:
+                recent[bp].append(sched.phase_error(bp, t0, mapped))
+            if scheduled and hc.ready and index[bp] % 8 == 0:
+                err = float(np.median(recent[bp]))
+                if abs(err) > sched.margin_s:
                     # restart in the slot: the next slot start after now, rate corrected
                     restart_at = sched.next_fire(bp, t0, arrival + 2e-3)
-                    stream[bp] = (restart_at + rng.uniform(0, 0.1e-3), period * (1 + hc.drift))
+                    stream[bp] = (restart_at + rng.uniform(0, 0.1e-3), period / (1 + hc.drift))
                     count[bp] = 0
                     restarts[bp] += 1
+                    recent[bp].clear()
                     nxt[bp] = next_pulse(bp)
-                elif abs(stream[bp][1] - period * (1 + hc.drift)) > 1e-9 and index[bp] % 64 == 0:
+                elif abs(stream[bp][1] - period / (1 + hc.drift)) > 1e-9 and index[bp] % 64 == 0:
                     # rate correction alone: continue from the next pulse at the new rate
                     b_next = clocks[bp].board_time(nxt[bp])
                     start_true = clocks[bp].true_time(b_next)
-                    stream[bp] = (start_true, period * (1 + hc.drift))
+                    stream[bp] = (start_true, period / (1 + hc.drift))
                     count[bp] = 0
                     nxt[bp] = next_pulse(bp)
         if len(out) > cycles * len(names) + 10:
