@@ -114,7 +114,7 @@ class BoardReport:
     crosstalk: list[str] = field(default_factory=list)  # boards whose pulse reached its window
     error: str | None = None
     truth_mm: np.ndarray | None = None  # (K, 3) in base_link, when the source knows it
-    arrived: float | None = None  # when the report reached the fuser (perf_counter seconds)
+    acquired_unix: float | None = None  # when the acquisition reached its host (Unix time)
 
 
 class Fuser:
@@ -139,10 +139,10 @@ class Fuser:
         self.tracker = Tracker(spec) if track else None
         self.expected = set(mounts)  # boards a cycle waits for (dropped boards leave it)
         self._t0: float | None = None
-        self._cycle: int | None = None
+        self._first = 0.0  # host time of the open cycle's first report
         self._reports: dict[str, BoardReport] = {}
         self.seq = 0
-        self.stats = {name: {"reports": 0, "targets": 0, "marked": 0, "late": 0} for name in mounts}
+        self.stats = {name: {"reports": 0, "targets": 0, "marked": 0} for name in mounts}
 
     def set_phase(self, t: float) -> None:
         """Cycles start at ``t + k * period`` (the schedule's first slot, less the spare time
@@ -153,30 +153,36 @@ class Fuser:
         """A board gone for good: cycles no longer wait for it."""
         self.expected.discard(board)
 
-    def _cycle_of(self, t: float) -> int:
-        if self._t0 is None:
-            self._t0 = t - 0.5 * self.period_s  # the first report sits mid-cycle
-        return math.floor((t - self._t0) / self.period_s)
-
     def add(self, report: BoardReport) -> list[dict]:
+        """Take one board's acquisition. A cycle holds one report per board: it is fused when
+        every board expected has reported, or before a board reports a second time, or
+        before a report a period or more after the cycle's first (a board gone quiet)."""
         if report.board not in self.mounts:
             raise KeyError(report.board)
         st = self.stats[report.board]
         st["reports"] += 1
         st["targets"] += len(report.targets)
         st["marked"] += bool(report.crosstalk)
-        cycle = self._cycle_of(report.host_time)
         out: list[dict] = []
-        if self._cycle is not None and cycle < self._cycle:
-            st["late"] += 1  # its cycle was already fused: too late to use
-            return out
-        if self._cycle is not None and (cycle > self._cycle or report.board in self._reports):
+        if self._reports and (
+            report.board in self._reports
+            or report.host_time - self._first >= self.period_s * (1 - 1e-6)
+            or self._before_cycle(report.host_time)
+        ):
             out += self.flush()
-        self._cycle = cycle
+        if not self._reports:
+            self._first = report.host_time
         self._reports[report.board] = report
         if self.expected <= set(self._reports):
             out += self.flush()
         return out
+
+    def _before_cycle(self, t: float) -> bool:
+        """With the schedule's phase known: ``t`` starts a new cycle."""
+        if self._t0 is None or not self._reports:
+            return False
+        k_first = math.floor((self._first - self._t0) / self.period_s)
+        return math.floor((t - self._t0) / self.period_s) != k_first
 
     def flush(self) -> list[dict]:
         """Fuse the open cycle (if any) into one record."""
@@ -234,6 +240,8 @@ def _board_summary(r: BoardReport) -> dict:
     }
     if r.device_time_us is not None:
         out["device_time_us"] = r.device_time_us
+    if r.acquired_unix is not None:
+        out["acquired"] = round(r.acquired_unix, 6)
     if r.error:
         out["error"] = r.error
     return out

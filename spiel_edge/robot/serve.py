@@ -193,7 +193,7 @@ class BoardWorker(threading.Thread):
             device_time_us=acq.timestamp_us,
             error=error,
             truth_mm=truth,
-            arrived=arrival,
+            acquired_unix=acq.host_time,
         )
 
     def _off_slot(self, pulse: float) -> bool:
@@ -335,9 +335,9 @@ class RobotRunner:
             w.go.set()
 
     def _write(self, record: dict, last: BoardReport) -> None:
-        now = time.perf_counter()
-        if last.arrived is not None:
-            latency = (now - last.arrived) * 1e3
+        acquired = [b["acquired"] for b in record["boards"].values() if "acquired" in b]
+        if acquired:  # after the last board's acquisition reached this host
+            latency = (time.time() - max(acquired)) * 1e3
             record["latency_ms"] = round(latency, 3)
             self.latencies_ms.append(latency)
         for name, diag in record["boards"].items():
