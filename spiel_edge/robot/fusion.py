@@ -31,6 +31,8 @@ from spiel_edge.track import Tracker
 
 log = logging.getLogger(__name__)
 
+WAIT_CYCLES = 3  # an incomplete cycle is fused once a report this many cycles later arrives
+QUIET_CYCLES = 3  # a board missing this many cycles in a row is not waited for
 MERGE_CHI2 = 11.34  # two boards' targets closer than this (3 dof, 99 %) are one object
 
 
@@ -138,57 +140,77 @@ class Fuser:
         self.drop_marked = drop_marked  # targets of an acquisition marked with cross-talk
         self.tracker = Tracker(spec) if track else None
         self.expected = set(mounts)  # boards a cycle waits for (dropped boards leave it)
-        self._t0: float | None = None
-        self._first = 0.0  # host time of the open cycle's first report
-        self._reports: dict[str, BoardReport] = {}
+        self._gone: set[str] = set()  # dropped for good
+        self._misses = dict.fromkeys(mounts, 0)  # cycles fused without the board, in a row
+        self._t_ref: float | None = None
+        self._phase: dict[str, float] = {}  # each board's pulse within the cycle (s)
+        self._open: dict[int, dict[str, BoardReport]] = {}
+        self._done = -1  # cycles up to this one are fused
         self.seq = 0
-        self.stats = {name: {"reports": 0, "targets": 0, "marked": 0} for name in mounts}
-
-    def set_phase(self, t: float) -> None:
-        """Cycles start at ``t + k * period`` (the schedule's first slot, less the spare time
-        split before and after), instead of around the first report."""
-        self._t0 = t
+        self.stats = {name: {"reports": 0, "targets": 0, "marked": 0, "late": 0} for name in mounts}
 
     def drop(self, board: str) -> None:
         """A board gone for good: cycles no longer wait for it."""
+        self._gone.add(board)
         self.expected.discard(board)
 
+    def _cycle(self, board: str, t: float) -> int:
+        """The cycle of a report: each board keeps its place (phase) within the period,
+        learned from its first report and followed slowly (clocks drift), so reports that
+        arrive out of order or late still land in their own cycle."""
+        p = self.period_s
+        if self._t_ref is None:
+            self._t_ref = t
+        x = t - self._t_ref
+        if board not in self._phase:
+            self._phase[board] = x % p
+        k = round((x - self._phase[board]) / p)
+        resid = x - self._phase[board] - k * p
+        self._phase[board] += 0.05 * resid
+        return k
+
     def add(self, report: BoardReport) -> list[dict]:
-        """Take one board's acquisition. A cycle holds one report per board: it is fused when
-        every board expected has reported, or before a board reports a second time, or
-        before a report a period or more after the cycle's first (a board gone quiet)."""
+        """Take one board's acquisition; the fused records it completes. A cycle is fused
+        when every board expected has reported for it, or once a report ``WAIT_CYCLES`` cycles
+        later arrives (a board is missing). A board missing from ``QUIET_CYCLES`` cycles in a row
+        is not waited for until it reports again."""
         if report.board not in self.mounts:
             raise KeyError(report.board)
         st = self.stats[report.board]
         st["reports"] += 1
         st["targets"] += len(report.targets)
         st["marked"] += bool(report.crosstalk)
+        k = self._cycle(report.board, report.host_time)
+        if k <= self._done:
+            st["late"] += 1  # its cycle is already out
+            return []
+        if report.board not in self._gone:
+            self.expected.add(report.board)
+            self._misses[report.board] = 0
+        self._open.setdefault(k, {})[report.board] = report
         out: list[dict] = []
-        if self._reports and (
-            report.board in self._reports
-            or report.host_time - self._first >= self.period_s * (1 - 1e-6)
-            or self._before_cycle(report.host_time)
-        ):
-            out += self.flush()
-        if not self._reports:
-            self._first = report.host_time
-        self._reports[report.board] = report
-        if self.expected <= set(self._reports):
-            out += self.flush()
+        for c in sorted(self._open):
+            if c <= k - WAIT_CYCLES or self.expected <= set(self._open[c]):
+                out += self._fuse_upto(c)
         return out
 
-    def _before_cycle(self, t: float) -> bool:
-        """With the schedule's phase known: ``t`` starts a new cycle."""
-        if self._t0 is None or not self._reports:
-            return False
-        k_first = math.floor((self._first - self._t0) / self.period_s)
-        return math.floor((t - self._t0) / self.period_s) != k_first
+    def _fuse_upto(self, k: int) -> list[dict]:
+        out = []
+        for c in sorted(c for c in self._open if c <= k):
+            reports = self._open.pop(c)
+            for name in self.expected - set(reports):
+                self._misses[name] += 1
+                if self._misses[name] >= QUIET_CYCLES:
+                    self.expected.discard(name)
+            out += self._fuse(reports)
+            self._done = c
+        return out
 
     def flush(self) -> list[dict]:
-        """Fuse the open cycle (if any) into one record."""
-        if not self._reports:
-            return []
-        reports, self._reports = self._reports, {}
+        """Fuse every open cycle (the end of a stream)."""
+        return self._fuse_upto(max(self._open)) if self._open else []
+
+    def _fuse(self, reports: dict[str, BoardReport]) -> list[dict]:
         t = float(np.mean([r.host_time for r in reports.values()]))
         targets: list[BaseTarget] = []
         truths = []
@@ -221,7 +243,7 @@ class Fuser:
             "frame_id": frame,
             "targets": [f.record() for f in fused],
             "boards": {name: _board_summary(r) for name, r in sorted(reports.items())},
-            "missing": sorted(self.expected - set(reports)),
+            "missing": sorted(set(self.mounts) - self._gone - set(reports)),
         }
         if tracks is not None:
             record["tracks"] = tracks

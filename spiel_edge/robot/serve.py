@@ -320,7 +320,6 @@ class RobotRunner:
         for w in self.workers:
             w.t0 = t0
         self.t0 = t0
-        self.fuser.set_phase(t0 - (self.schedule.period_s - self.schedule.span_s) / 2)
         order = sorted(self.workers, key=lambda w: self.schedule.slots[w.board.name].offset_s)
         for w in order:
             if w.stats.dropped or w.pipeline is None:

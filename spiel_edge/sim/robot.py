@@ -200,9 +200,8 @@ class RobotWorld:
                 np.full(len(self.room.posts_mm), POST_REFLECTIVITY),
             ]
         )
-        own = np.zeros((len(self.delays), n))
-        self._echoes(own, board, board, objects, refl, 0.0)
-        foreign = np.zeros_like(own)
+        own = self._render(*self._echoes(board, board, objects, refl, 0.0))
+        parts = []
         if crosstalk:
             for other, t_other in pulses:
                 if other == board:
@@ -210,8 +209,14 @@ class RobotWorld:
                 shift = (t_other - t_fire) * self.sample_rate_hz
                 if shift > n + 4 or shift < -2 * n:
                     continue
-                self._echoes(foreign, other, board, objects, refl, shift)
-                self._direct(foreign, other, board, shift)
+                parts.append(self._echoes(other, board, objects, refl, shift))
+                parts.append(self._direct(other, board, shift))
+        if parts:
+            foreign = self._render(
+                np.vstack([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+            )
+        else:
+            foreign = np.zeros_like(own)
         noise = self._rng.normal(0.0, self.noise, own.shape) if self.noise else 0.0
         base = background + own + noise
         samples = _u16(base + foreign)
@@ -220,32 +225,32 @@ class RobotWorld:
         truth = self.mounts[board].to_board(self.movers_base(t_fire))
         return BoardFrame(samples, background, truth, peak, clean)
 
-    def _echoes(self, out, emitter_board, board, objects, refl, shift) -> None:
+    def _echoes(self, emitter_board, board, objects, refl, shift):
+        """Arrival (samples) and amplitude (counts) per object and channel: (K, C) each."""
         e = self.emitters[emitter_board]
         rx = self.receivers[board]
-        d_tx = np.maximum(np.linalg.norm(objects - e, axis=1), 1.0)
-        gain = refl * self._beam(emitter_board, objects) * self._beam(board, objects)
-        for k in np.nonzero(gain > 0)[0]:
-            d_rx = np.maximum(np.linalg.norm(objects[k] - rx, axis=1), 1.0)
-            path = d_tx[k] + d_rx
-            amp = gain[k] * np.exp(-ABSORPTION_PER_M * path / 1000.0) / (d_tx[k] * d_rx)
-            toa = path / self.mm_per_sample + self.delays + shift
-            self._add(out, toa, amp)
+        d_tx = np.maximum(np.linalg.norm(objects - e, axis=1), 1.0)[:, None]
+        gain = (refl * self._beam(emitter_board, objects) * self._beam(board, objects))[:, None]
+        d_rx = np.maximum(np.linalg.norm(objects[:, None, :] - rx[None], axis=2), 1.0)
+        path = d_tx + d_rx
+        amp = gain * np.exp(-ABSORPTION_PER_M * path / 1000.0) / (d_tx * d_rx)
+        return path / self.mm_per_sample + self.delays + shift, amp
 
-    def _direct(self, out, emitter_board, board, shift) -> None:
+    def _direct(self, emitter_board, board, shift):
         d = np.maximum(
             np.linalg.norm(self.receivers[board] - self.emitters[emitter_board], axis=1), 1.0
         )
-        self._add(out, d / self.mm_per_sample + 2.0 + shift, DIRECT_GAIN / d)
+        return (d / self.mm_per_sample + 2.0 + shift)[None], (DIRECT_GAIN / d)[None]
 
-    def _add(self, out, toa, amp) -> None:
-        t = np.arange(out.shape[1], dtype=np.float64)
-        for c in range(out.shape[0]):
-            if not self.listening[c] or amp[c] < 1.0:
-                continue
-            if toa[c] < -24 or toa[c] > out.shape[1] + 12:
-                continue
-            out[c] += amp[c] * np.interp(t - toa[c], self._grid, self._shape, left=0.0, right=0.0)
+    def _render(self, toa: np.ndarray, amp: np.ndarray) -> np.ndarray:
+        """The sum of EMG pulses at ``toa`` of height ``amp`` ((M, C) each) -> (C, n)."""
+        n = self.n_samples
+        keep = (amp >= 1.0) & self.listening[None, :] & (toa > -24) & (toa < n + 12)
+        amp = np.where(keep, amp, 0.0)
+        t = np.arange(n, dtype=np.float64)
+        x = t[None, None, :] - toa[:, :, None]
+        shape = np.interp(x.ravel(), self._grid, self._shape, left=0.0, right=0.0)
+        return (shape.reshape(x.shape) * amp[:, :, None]).sum(axis=0)
 
     # --- live: one board of the world behind sim:// ------------------------------------
 
