@@ -149,6 +149,12 @@ class Fuser:
         self.seq = 0
         self.stats = {name: {"reports": 0, "targets": 0, "marked": 0, "late": 0} for name in mounts}
 
+    def set_schedule(self, t0: float, offsets: dict[str, float]) -> None:
+        """Boards in trigger slots: cycle k holds every board's pulse at ``t0 + k period +
+        offset`` (instead of phases learned from the first reports)."""
+        self._t_ref = t0
+        self._phase.update(offsets)
+
     def drop(self, board: str) -> None:
         """A board gone for good: cycles no longer wait for it."""
         self._gone.add(board)

@@ -36,6 +36,7 @@ from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
 
 log = logging.getLogger(__name__)
 
+SWITCH_INTERVAL_S = 0.005  # the GIL switch interval while serving (Python default 0.005)
 PHASE_CHECK_EVERY = 8  # acquisitions between slot checks
 PHASE_SETTLE = 8  # acquisitions after a (re)start that fix the link's constant latency
 DISAGREE_LIMIT = 3  # acquisitions in a row seconds off the clock estimate: the board is dropped
@@ -46,7 +47,6 @@ class WorkerStats:
     acquisitions: int = 0
     errors: int = 0
     restarts: int = 0
-    cpu_s: float = 0.0  # thread CPU time in the pipeline and bookkeeping
     dropped: str | None = None
     counts: dict = field(default_factory=dict)
 
@@ -149,7 +149,6 @@ class BoardWorker(threading.Thread):
     def _loop(self) -> None:
         window = self.schedule.window_s
         for acq in self.session.acquisitions(self.stop):
-            c0 = time.thread_time()
             arrival = acq.received_ns / 1e9
             stamp = acq.timestamp_us / 1e6
             late = self.clock.observe(stamp, arrival)
@@ -164,9 +163,8 @@ class BoardWorker(threading.Thread):
                 self._disagree = 0
             pulse = self.clock.to_host(stamp) - window
             off_slot = self._off_slot(pulse)
-            report = self._report(acq, pulse - self._bias_s, arrival)
+            report = self._report(acq, self._on_schedule(pulse - self._bias_s), arrival)
             self.stats.acquisitions += 1
-            self.stats.cpu_s += time.thread_time() - c0
             self.out.put(("report", self.board.name, report))
             if off_slot:
                 self.stats.restarts += 1
@@ -195,6 +193,14 @@ class BoardWorker(threading.Thread):
             truth_mm=truth,
             acquired_unix=acq.host_time,
         )
+
+    def _on_schedule(self, t: float) -> float:
+        """A pulse within the sync margin of its slot is taken to be at the slot's time (the
+        estimate's noise is not the board's); one outside keeps its measured time."""
+        sched, offset = self.schedule, self.schedule.slots[self.board.name].offset_s
+        k = round((t - self.t0 - offset) / sched.period_s)
+        slot = self.t0 + k * sched.period_s + offset
+        return slot if abs(t - slot) <= sched.margin_s else t
 
     def _off_slot(self, pulse: float) -> bool:
         """Whether the board's pulses left its slot. The first ``PHASE_SETTLE`` pulses after a
@@ -274,7 +280,7 @@ class RobotRunner:
         """Until ``stop`` or ``frames`` fused records; returns the records written."""
         stop = stop or threading.Event()
         switch = sys.getswitchinterval()
-        sys.setswitchinterval(0.0005)  # a board's thread waits less for another's
+        sys.setswitchinterval(SWITCH_INTERVAL_S)  # a board's thread waits less for another's
         for w in self.workers:
             w.start()
         alive = {w.board.name for w in self.workers}
@@ -320,6 +326,7 @@ class RobotRunner:
         for w in self.workers:
             w.t0 = t0
         self.t0 = t0
+        self.fuser.set_schedule(t0, {n: s.offset_s for n, s in self.schedule.slots.items()})
         order = sorted(self.workers, key=lambda w: self.schedule.slots[w.board.name].offset_s)
         for w in order:
             if w.stats.dropped or w.pipeline is None:
