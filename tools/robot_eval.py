@@ -42,11 +42,13 @@ def main(argv: list[str] | None = None) -> None:
     profile = load_profile(robot.boards[0].profile)
     pipeline = build_pipeline(profile, None, "none")
     pipeline.set_max_targets(args.max_targets)
-    spec = profile.track
+    spec = robot.track_spec()
     for item in args.track:
         key, _, value = item.partition("=")
         kind = type(getattr(spec, key))
-        spec = dataclasses.replace(spec, **{key: kind(float(value)) if kind is int else kind(value)})
+        spec = dataclasses.replace(
+            spec, **{key: kind(float(value)) if kind is int else kind(value)}
+        )
     modes = ["free", "scheduled"] if args.mode == "both" else [args.mode]
     for mode in modes:
         world = RobotWorld(robot, movers=args.movers, seed=args.seed)

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -107,7 +107,16 @@ class RobotSpec:
     trigger: TriggerSpec
     boards: tuple[BoardSpec, ...]
     origin: str = "robot"
-    extra: dict = field(default_factory=dict)
+    track: dict = field(default_factory=dict)  # [track] keys over the first board's profile's
+
+    def track_spec(self):
+        """The fused tracker's settings: the first board's profile's [track], this file's
+        [track] keys over it."""
+        from spiel_edge.profile.schema import resolve_profile
+
+        first = self.boards[0]
+        base = resolve_profile(first.profile, first.calibration).track
+        return replace(base, **self.track) if self.track else base
 
     def board(self, name: str) -> BoardSpec:
         for b in self.boards:
@@ -169,9 +178,10 @@ def robot_from_dict(data: dict, *, origin: str = "robot") -> RobotSpec:
     def fail(msg: str):
         raise ConfigError(f"{origin}: {msg}")
 
-    unknown = set(data) - {"robot", "trigger", "board"}
+    unknown = set(data) - {"robot", "trigger", "board", "track"}
     if unknown:
-        fail(f"unknown section(s) {sorted(unknown)}; known: robot, trigger, board")
+        fail(f"unknown section(s) {sorted(unknown)}; known: robot, trigger, board, track")
+    track = _track(_table(data.get("track", {}), "[track]", fail), origin)
     head = _table(data.get("robot", {}), "[robot]", fail)
     name = str(head.get("name", "robot"))
     frame_id = head.get("frame_id", "base_link")
@@ -186,7 +196,7 @@ def robot_from_dict(data: dict, *, origin: str = "robot") -> RobotSpec:
         fail(f"at most {MAX_BOARDS} boards, got {len(rows)}")
     boards = tuple(_board(i, _table(row, f"board[{i}]", fail), fail) for i, row in enumerate(rows))
     _check_unique(boards, fail)
-    spec = RobotSpec(name, frame_id, trigger, boards, origin)
+    spec = RobotSpec(name, frame_id, trigger, boards, origin, track=track)
     from spiel_edge.robot.schedule import Schedule  # slots need the trigger settings
 
     Schedule.from_robot(spec)  # overlapping slots: ConfigError
@@ -235,6 +245,26 @@ def _trigger(t: dict, fail) -> TriggerSpec:
         ),
         window_ms=_number(t.get("window_ms", d.window_ms), "trigger.window_ms", fail, 0, 1000),
     )
+
+
+def _track(t: dict, origin: str) -> dict:
+    """[track]: keys of a profile's [track] (profile/track_section.py), each range-checked."""
+    from spiel_edge.profile.track_section import TrackSpec, validate_track
+
+    known = {f.name: f for f in fields(TrackSpec)}
+    for key in t:
+        if key not in known:
+            raise ConfigError(f"{origin}: [track]: unknown key {key!r}; known: {sorted(known)}")
+    values = {}
+    for key, value in t.items():
+        kind = type(getattr(TrackSpec(), key))
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{origin}: track.{key} must be a number, got {value!r}")
+        if kind is int and value != int(value):
+            raise ConfigError(f"{origin}: track.{key} must be an integer, got {value!r}")
+        values[key] = kind(value)
+    validate_track(replace(TrackSpec(), **values), origin)
+    return values
 
 
 def _board(i: int, b: dict, fail) -> BoardSpec:

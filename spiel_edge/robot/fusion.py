@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 
 WAIT_CYCLES = 3  # an incomplete cycle is fused once a report this many cycles later arrives
 QUIET_CYCLES = 3  # a board missing this many cycles in a row is not waited for
+ALIGN_MM = 60.0  # a target this near a confirmed track moves with it to the cycle's time
 MERGE_CHI2 = 11.34  # two boards' targets closer than this (3 dof, 99 %) are one object
 
 
@@ -146,6 +147,7 @@ class Fuser:
         self._phase: dict[str, float] = {}  # each board's pulse within the cycle (s)
         self._open: dict[int, dict[str, BoardReport]] = {}
         self._done = -1  # cycles up to this one are fused
+        self._motion: tuple[float, list] = (0.0, [])  # the last update's confirmed tracks
         self.seq = 0
         self.stats = {name: {"reports": 0, "targets": 0, "marked": 0, "late": 0} for name in mounts}
 
@@ -154,6 +156,18 @@ class Fuser:
         offset`` (instead of phases learned from the first reports)."""
         self._t_ref = t0
         self._phase.update(offsets)
+
+    def _align(self, p: np.ndarray, t_b: float, t: float) -> np.ndarray:
+        """A target seen at ``t_b`` moved to the cycle's time ``t`` with the velocity of the
+        confirmed track it is nearest to (within ``ALIGN_MM`` of that track at ``t_b``); the
+        boards of one cycle fire up to a period apart."""
+        t_last, motion = self._motion
+        best, v_best = ALIGN_MM, None
+        for pos, vel in motion:
+            d = float(np.linalg.norm(pos + vel * (t_b - t_last) - p))
+            if d < best:
+                best, v_best = d, vel
+        return p if v_best is None else p + v_best * (t - t_b)
 
     def drop(self, board: str) -> None:
         """A board gone for good: cycles no longer wait for it."""
@@ -220,29 +234,31 @@ class Fuser:
         t = float(np.mean([r.host_time for r in reports.values()]))
         targets: list[BaseTarget] = []
         truths = []
+        frame = self.frame_id if self.odometry is None else "odom"
         for r in reports.values():
             if r.truth_mm is not None and len(r.truth_mm):
                 truths.append(np.asarray(r.truth_mm, float))
             if r.crosstalk and self.drop_marked:
                 continue
             mount = self.mounts[r.board]
+            pose = self.odometry(r.host_time) if self.odometry is not None else None
             for pos, cov, score in r.targets:
                 p, c = to_base(mount, pos, cov)
+                if pose is not None:  # into odom at the acquisition's own time
+                    rot, trans = pose
+                    p, c = rot @ p + trans, rot @ c @ rot.T
                 if not (np.all(np.isfinite(p)) and np.all(np.isfinite(c))):
                     continue
-                targets.append(BaseTarget(p, c, [r.board], score))
+                targets.append(BaseTarget(self._align(p, r.host_time, t), c, [r.board], score))
         fused = merge_targets(targets)
-        frame = self.frame_id
-        pose = self.odometry(t) if self.odometry is not None else None
-        if pose is not None:
-            rot, trans = pose
-            for f in fused:
-                f.position_mm = rot @ f.position_mm + trans
-                f.covariance_mm2 = rot @ f.covariance_mm2 @ rot.T
-            frame = "odom"
         tracks = None
         if self.tracker is not None:
-            tracks = [tr.record() for tr in self.tracker.update(fused, t)]
+            confirmed = self.tracker.update(fused, t)
+            tracks = [tr.record() for tr in confirmed]
+            self._motion = (
+                t,
+                [(tr.position_mm.copy(), tr.velocity_mm_s.copy()) for tr in confirmed],
+            )
         record = {
             "seq": self.seq,
             "host_time": round(t, 6),

@@ -3,9 +3,7 @@ records and the world's truth.
 
 - *Crossings*: a mover's primary board (the one that sees it nearest its facing, among those
   with the mover within ``VIEW_DEG`` of their facing) changes and the new one stays primary for
-  ``HOLD`` cycles. The crossing keeps its id when the track covering the mover in the last
-  covered cycle before it (at most ``LOOK`` cycles back) is the track covering it in the first
-  covered cycle after it (at most ``LOOK`` cycles on).
+  ``HOLD`` cycles; see :func:`crossing_ids` for how each is counted.
 - *Coverage*: per cycle, confirmed tracks matched one-to-one to movers within ``GATE_MM``
   (nearest pairs first); the tracked error is the matched distance.
 """
@@ -90,16 +88,19 @@ def crossings(primary: np.ndarray) -> list[tuple[int, int]]:
 
 
 def crossing_ids(ids: list[dict[int, int]], events: list[tuple[int, int]]) -> dict[str, int]:
-    kept = changed = untracked = 0
+    """Per crossing: ``untracked`` (no track covered the mover in the ``LOOK`` cycles before
+    it: no id to keep), else ``kept`` (the first track covering it in the ``LOOK`` cycles
+    after is the same), ``changed`` (another track) or ``lost`` (none)."""
+    out = {"crossings": len(events), "untracked": 0, "kept": 0, "changed": 0, "lost": 0}
     for c, j in events:
         before = next(
             (ids[k][j] for k in range(c - 1, max(c - 1 - LOOK, -1), -1) if j in ids[k]), None
         )
         after = next((ids[k][j] for k in range(c, min(c + LOOK, len(ids))) if j in ids[k]), None)
-        if before is None or after is None:
-            untracked += 1
-        elif before == after:
-            kept += 1
+        if before is None:
+            out["untracked"] += 1
+        elif after is None:
+            out["lost"] += 1
         else:
-            changed += 1
-    return {"crossings": len(events), "kept": kept, "changed": changed, "untracked": untracked}
+            out["kept" if before == after else "changed"] += 1
+    return out

@@ -269,9 +269,9 @@ class RobotRunner:
         self.fuser = Fuser(
             {b.name: b.mount for b in robot.boards},
             period_s=self.schedule.period_s,
-            spec=spec,
             frame_id=robot.frame_id,
             track=track,
+            spec=spec or robot.track_spec(),
         )
         self.records = 0
         self.latencies_ms: list[float] = []

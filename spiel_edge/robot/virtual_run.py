@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spiel_edge.profile.schema import load_profile
 from spiel_edge.robot import score
 from spiel_edge.robot.clock import StampClock
 from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser, reports_targets
@@ -31,6 +32,7 @@ class RunFigures:
     board_errors: list = field(default_factory=list)
     board_tracked_errors: list = field(default_factory=list)  # each board's own tracker
     tracked_errors: list = field(default_factory=list)
+    tracked_errors_in_view: list = field(default_factory=list)  # movers some board faces
     crossings: dict = field(default_factory=dict)
     cycles: int = 0
     covered: float = 0.0
@@ -40,7 +42,7 @@ class RunFigures:
     def summary(self) -> dict:
         n = max(self.acquisitions, 1)
         c = self.crossings
-        tracked = c.get("kept", 0) + c.get("changed", 0)
+        tracked = c.get("kept", 0) + c.get("changed", 0) + c.get("lost", 0)
         return {
             "acquisitions": self.acquisitions,
             "audible_crosstalk_share": round(self.audible / n, 4),
@@ -51,10 +53,9 @@ class RunFigures:
             "board_error_mm": _stats(self.board_errors),
             "board_tracked_error_mm": _stats(self.board_tracked_errors),
             "tracked_error_mm": _stats(self.tracked_errors),
+            "tracked_error_in_view_mm": _stats(self.tracked_errors_in_view),
             "crossings": c,
-            "crossings_kept_share_of_tracked": round(c.get("kept", 0) / tracked, 4)
-            if tracked
-            else None,
+            "crossings_kept_share": round(c.get("kept", 0) / tracked, 4) if tracked else None,
             "crossings_kept_share_of_all": round(c.get("kept", 0) / c["crossings"], 4)
             if c.get("crossings")
             else None,
@@ -99,7 +100,8 @@ def run_virtual_robot(
     fuser = Fuser(world.mounts, period_s=sched.period_s, spec=spec, drop_marked=drop_marked)
     fire = {}
     records = []
-    own_trackers = {n: Tracker(spec) for n in world.names}
+    own = load_profile(world.robot.boards[0].profile).track  # what `run` tracks one board with
+    own_trackers = {n: Tracker(own) for n in world.names}
     for a in acqs:
         t = time.perf_counter()
         res = pipeline.process(
@@ -156,6 +158,8 @@ def run_virtual_robot(
         ts = [fire[(name, b["acquisition"])] for name, b in rec["boards"].items()]
         truths.append(world.movers_base(float(np.mean(ts))))
     ids, figs.tracked_errors = score.coverage(records, truths)
+    seen = [t[np.any([world.in_view(n, t) for n in world.names], axis=0)] for t in truths]
+    _, figs.tracked_errors_in_view = score.coverage(records, seen)
     figs.covered = (
         float(np.mean([len(i) / max(len(t), 1) for i, t in zip(ids, truths, strict=True)]))
         if ids

@@ -67,7 +67,7 @@ class ZenohFuse:
         self.fuser = Fuser(
             {b.name: b.mount for b in robot.boards},
             period_s=robot.trigger.period_ms / 1000.0,
-            spec=spec,
+            spec=spec or robot.track_spec(),
             frame_id=robot.frame_id,
             track=track,
         )
