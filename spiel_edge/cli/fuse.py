@@ -26,8 +26,7 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
     "--idle",
     type=click.FloatRange(min=0.1),
     default=None,
-    help="Stop after this many seconds without a board record, once records came "
-    "(default: wait).",
+    help="Stop after this many seconds without a board record, once records came (default: wait).",
 )
 @click.option(
     "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."

@@ -127,7 +127,6 @@ def run_virtual_robot(
         figs.marked += bool(heard)
         figs.ghost_unmarked += ghost and not heard
         fire[(a.board, a.index)] = a.t_fire
-        t = time.perf_counter()
         truth = world.movers_base(a.t_fire)
         own = [world.mounts[a.board].to_base(p) for p, _, _ in targets]
         m = score.match(np.array(own).reshape(-1, 3), truth)
@@ -139,6 +138,7 @@ def run_virtual_robot(
         in_view = truth[world.in_view(a.board, truth)]
         m = score.match(pos.reshape(-1, 3), in_view)
         figs.board_tracked_errors += [d for _, d in m.values()]
+        t = time.perf_counter()
         out = fuser.add(
             BoardReport(
                 a.board,
