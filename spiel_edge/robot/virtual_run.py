@@ -88,7 +88,7 @@ def run_virtual_robot(
     drop_marked: bool = True,
     spec=None,
 ) -> tuple[RunFigures, list[dict]]:
-    from spiel_edge.sim.robot import simulate
+    from spiel_edge.sim.robot_offline import simulate
 
     figs = RunFigures()
     acqs, figs.restarts, _ = simulate(

@@ -228,14 +228,10 @@ def parse_orbit(text: str) -> tuple[float, float, float]:
     return radius, height, period
 
 
-def build_scene(options):
+def build_scene(options) -> ReplayScene | EchoModelScene:
     """The scene a SimOptions asks for."""
     if options.scene == "replay":
         return ReplayScene(shuffle=options.shuffle, seed=options.seed)
-    if options.scene == "robot":  # one board of a virtual robot's shared scene
-        from spiel_edge.sim.robot import board_scene
-
-        return board_scene(options)
     profile = load_profile(options.profile)
     return EchoModelScene(
         profile.geometry,
