@@ -53,6 +53,7 @@ _BOARD_KEYS = {
     "rotation_matrix",
     "slot",
     "slot_ms",
+    "field_of_view_deg",
 }
 
 
@@ -89,6 +90,7 @@ class BoardSpec:
     slot: int | None  # slot index, or None when slot_ms is given
     slot_ms: float | None
     key: str = ""  # the Zenoh key its records come on (``fuse``); default robot/<name>
+    field_of_view_deg: float = 90.0  # half-angle off its facing within which targets are fused
 
 
 @dataclass(frozen=True)
@@ -325,8 +327,11 @@ def _board(i: int, b: dict, fail) -> BoardSpec:
         slot = i
     if slot_ms is not None:
         slot_ms = _number(slot_ms, f"{where}.slot_ms", fail, 0, 10000)
+    fov = _number(b.get("field_of_view_deg", 90.0), f"{where}.field_of_view_deg", fail, 5, 90)
     mount = Mount(rotation, np.array(translation) * 1000.0)
-    return BoardSpec(name, port, profile, calibration, mount, slot, slot_ms, key or f"robot/{name}")
+    return BoardSpec(
+        name, port, profile, calibration, mount, slot, slot_ms, key or f"robot/{name}", fov
+    )
 
 
 def _check_unique(boards: tuple[BoardSpec, ...], fail) -> None:

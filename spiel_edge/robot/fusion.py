@@ -141,8 +141,12 @@ class Fuser:
         odometry: Callable[[float], tuple[np.ndarray, np.ndarray] | None] | None = None,
         drop_marked: bool = True,
         track: bool = True,
+        field_of_view_deg: dict[str, float] | None = None,
     ):
         self.mounts = dict(mounts)
+        fov = field_of_view_deg or {}
+        # a target further off its board's facing than this is not fused (cosine, board frame)
+        self._fov_cos = {n: math.cos(math.radians(fov.get(n, 90.0))) for n in mounts}
         self.period_s = period_s
         self.frame_id = frame_id
         self.odometry = odometry
@@ -249,7 +253,10 @@ class Fuser:
                 continue
             mount = self.mounts[r.board]
             pose = self.odometry(r.host_time) if self.odometry is not None else None
+            fov_cos = self._fov_cos[r.board]
             for pos, cov, score in r.targets:
+                if fov_cos > 0 and pos[2] < fov_cos * float(np.linalg.norm(pos)):
+                    continue  # outside the board's field of view: poorly located
                 p, c = to_base(mount, pos, cov)
                 if pose is not None:  # into odom at the acquisition's own time
                     rot, trans = pose

@@ -270,6 +270,7 @@ class RobotRunner:
             {b.name: b.mount for b in robot.boards},
             period_s=self.schedule.period_s,
             frame_id=robot.frame_id,
+            field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
             track=track,
             spec=spec or robot.track_spec(),
         )

@@ -38,6 +38,7 @@ class RunFigures:
     covered: float = 0.0
     pipeline_s: float = 0.0
     fusion_s: float = 0.0
+    truths: list = field(default_factory=list, repr=False)  # per fused record, base_link
 
     def summary(self) -> dict:
         n = max(self.acquisitions, 1)
@@ -97,7 +98,14 @@ def run_virtual_robot(
     sched = Schedule.from_robot(world.robot, window_s=world.n_samples / world.sample_rate_hz)
     clocks = {n: StampClock() for n in world.names}
     marker = CrosstalkMarker(sched, world.names)
-    fuser = Fuser(world.mounts, period_s=sched.period_s, spec=spec, drop_marked=drop_marked)
+    fov = {b.name: b.field_of_view_deg for b in world.robot.boards}
+    fuser = Fuser(
+        world.mounts,
+        period_s=sched.period_s,
+        spec=spec,
+        drop_marked=drop_marked,
+        field_of_view_deg=fov,
+    )
     fire = {}
     records = []
     own = load_profile(world.robot.boards[0].profile).track  # what `run` tracks one board with
@@ -157,6 +165,7 @@ def run_virtual_robot(
     for rec in records:
         ts = [fire[(name, b["acquisition"])] for name, b in rec["boards"].items()]
         truths.append(world.movers_base(float(np.mean(ts))))
+    figs.truths = truths
     ids, figs.tracked_errors = score.coverage(records, truths)
     seen = [t[np.any([world.in_view(n, t) for n in world.names], axis=0)] for t in truths]
     _, figs.tracked_errors_in_view = score.coverage(records, seen)

@@ -69,6 +69,7 @@ class ZenohFuse:
             period_s=robot.trigger.period_ms / 1000.0,
             spec=spec or robot.track_spec(),
             frame_id=robot.frame_id,
+            field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
             track=track,
         )
         self.clocks = {b.name: StampClock() for b in robot.boards}
