@@ -41,6 +41,14 @@ from spiel_edge.service.systemd import Notifier
 
 @click.command("run")
 @port_option
+@click.option(
+    "--robot",
+    "robot_file",
+    default=None,
+    metavar="FILE",
+    help="Serve every board of a robot description (a .toml or a built-in name such as "
+    "virtual-4) from this process, fused in base_link (docs/robot.md); --port is not used.",
+)
 @click.option("--frames", type=click.IntRange(min=1), default=None, help="Stop after N records.")
 @click.option(
     "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
@@ -116,6 +124,7 @@ from spiel_edge.service.systemd import Notifier
 )
 def command(
     port,
+    robot_file,
     frames,
     output,
     udp,
@@ -143,6 +152,23 @@ def command(
     waits for the same board to come back and streams again. SIGINT or SIGTERM stops the
     stream and exits cleanly; SIGINT, SIGTERM or SIGHUP finalize the outputs within 1 s.
     """
+    if robot_file:  # several boards, fused (spiel_edge/robot)
+        from spiel_edge.cli._robot import run_robot
+
+        outputs = dict(output=output, record=record, udp=udp, foxglove=foxglove, zenoh=zenoh)
+        outputs.update(record_profile=ros2["record_profile"], zenoh_encoding=ros2["zenoh_encoding"])
+        return run_robot(
+            robot_file,
+            outputs=outputs,
+            frames=frames,
+            force=force,
+            association=association,
+            max_targets=max_targets,
+            toa_correction=toa_correction,
+            reconnect_timeout=reconnect_timeout,
+            track=track,
+            show_status=show_status,
+        )
     plan = FilePlan(force)  # every file checked before the board is touched
     for path, option in ((background, "--background"), (calibration, "--calibration")):
         if path:

@@ -155,6 +155,9 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
             except PowerCut as exc:
                 log.info("%s: %s during boot", self.serial, exc)
         self._v2_boot(now)
+        on_boot = getattr(self.scene, "on_boot", None)  # a scene on the host's clock (robot)
+        if on_boot is not None:
+            on_boot(now)
 
     @property
     def streaming(self) -> bool:

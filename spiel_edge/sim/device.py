@@ -36,13 +36,21 @@ class DeviceGone(OSError):
         super().__init__(errno.ENODEV, what)
 
 
+def _scene(options: SimOptions):
+    if options.scene == "robot":  # one board of a virtual robot's shared scene (sim/robot.py)
+        from spiel_edge.sim.robot import board_scene
+
+        return board_scene(options)
+    return build_scene(options)
+
+
 class SimDevice:
     def __init__(self, options: SimOptions, *, clock: Callable[[], float] = time.monotonic):
         now = clock()
         self.options = options
         self.clock = clock
         self.board = VirtualBoard(
-            build_scene(options),
+            _scene(options),
             serial=options.serial,
             vid=options.vid,
             pid=options.pid,

@@ -14,7 +14,7 @@ from urllib.parse import parse_qsl, urlsplit
 from spiel_edge.errors import ConfigError
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 
-SCENES = ("replay", "model")
+SCENES = ("replay", "model", "robot")
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,8 @@ class SimOptions:
     speed: float = 0.0  # model: speed of sound in m/s (0: the profile's)
     shuffle: bool = False  # replay: random order instead of the recorded one
     lie: str = ""  # a hostile firmware mode (sim/lies.py): the board contradicts itself
+    robot: str = ""  # robot: the robot file (or built-in name) whose shared scene this board sees
+    board: str = ""  # robot: which of its boards this is (sim/robot.py)
 
     @classmethod
     def from_url(cls, url: str) -> SimOptions:
@@ -125,7 +127,7 @@ def modelled_envelope(url: str) -> bool:
     if not url.lower().startswith("sim:"):
         return False
     try:
-        return SimOptions.from_url(url).scene == "model"
+        return SimOptions.from_url(url).scene in ("model", "robot")
     except ConfigError:
         return False
 

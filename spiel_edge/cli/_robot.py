@@ -1,0 +1,127 @@
+"""`spiel-edge run --robot FILE` (and the outputs `spiel-edge fuse` shares): thin over
+spiel_edge.robot."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+import threading
+
+import click
+import numpy as np
+
+from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
+from spiel_edge.cli._signals import Finalizers, stop_on_signals
+from spiel_edge.io.guard import FilePlan
+from spiel_edge.outputs import check_outputs, open_outputs
+from spiel_edge.robot.description import RobotSpec, load_robot
+
+log = logging.getLogger(__name__)
+
+
+def robot_ros2(robot: RobotSpec):
+    """The fused records' ROS 2 frame (base_link) and every board's mount on /tf_static."""
+    from spiel_edge.outputs.ros2 import Ros2Settings, StaticTransform
+
+    transforms = tuple(
+        StaticTransform(
+            robot.frame_id,
+            b.name,
+            tuple(float(v) / 1000.0 for v in b.mount.translation_mm),
+            quaternion_from_matrix(b.mount.rotation),
+        )
+        for b in robot.boards
+    )
+    return Ros2Settings(frame_id=robot.frame_id, transforms=transforms)
+
+
+def quaternion_from_matrix(r: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a proper rotation matrix (Shepperd's method)."""
+    m = np.asarray(r, float)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s)
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = (0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = ((m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s)
+    n = float(np.linalg.norm(q))
+    return tuple(float(v) / n for v in q)  # type: ignore[return-value]
+
+
+def open_fused_outputs(robot: RobotSpec, plan_force: bool, outputs: dict, metadata: dict):
+    """The sinks of a fused run (NDJSON, MCAP, UDP, Foxglove, Zenoh) in the robot's frame."""
+    plan = FilePlan(plan_force)
+    record = check_outputs(plan, outputs["output"], outputs["record"])
+    return open_outputs(
+        outputs["output"],
+        record,
+        outputs["udp"],
+        outputs["foxglove"],
+        outputs["zenoh"],
+        metadata=metadata,
+        force=plan_force,
+        record_profile=outputs.get("record_profile", "json"),
+        zenoh_encoding=outputs.get("zenoh_encoding", "json"),
+        ros2=robot_ros2(robot),
+    )
+
+
+def run_robot(
+    robot_file: str,
+    *,
+    outputs: dict,
+    frames: int | None,
+    force: bool,
+    association: str | None,
+    max_targets: int | None,
+    toa_correction: str | None,
+    reconnect_timeout: float | None,
+    track: bool,
+    show_status: bool | None,
+) -> int:
+    from spiel_edge.robot.serve import RobotRunner
+
+    robot = load_robot(robot_file)  # every problem of the file: one line, before any board
+    sink = open_fused_outputs(
+        robot,
+        force,
+        outputs,
+        {
+            "robot": robot.name,
+            "robot_file": str(robot_file),
+            "boards": ",".join(b.name for b in robot.boards),
+        },
+    )
+    stop = threading.Event()
+    finalizers = Finalizers()
+    finalizers.add(sink.close_files)
+    runner = RobotRunner(
+        robot,
+        sink,
+        association=association,
+        max_targets=max_targets,
+        toa_correction=toa_correction,
+        reconnect_timeout=reconnect_timeout,
+        track=track,
+    )
+    with stop_on_signals(stop, finalizers):
+        try:
+            runner.run(stop, frames=frames)
+        except BrokenPipeError:
+            sys.stdout = None  # type: ignore[assignment]
+        finally:
+            finalizers.run_all()
+            with contextlib.suppress(BrokenPipeError, ValueError):
+                sink.close()
+            with contextlib.suppress(OSError):
+                click.echo(runner.summary(), err=True)
+    dropped = any(w.stats.dropped for w in runner.workers)
+    return EXIT_PARTIAL if sink.failed or dropped else EXIT_OK

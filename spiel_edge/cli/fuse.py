@@ -1,0 +1,128 @@
+"""``spiel-edge fuse``: the targets of several boards' processes, fused, over Zenoh."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import threading
+
+import click
+
+from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
+from spiel_edge.cli._options import force_option
+from spiel_edge.cli._signals import Finalizers, stop_on_signals
+
+
+@click.command("fuse")
+@click.option(
+    "--robot",
+    "robot_file",
+    required=True,
+    metavar="FILE",
+    help="Robot description (.toml, or a built-in name): the boards, their Zenoh keys and mounts.",
+)
+@click.option("--frames", type=click.IntRange(min=1), default=None, help="Stop after N records.")
+@click.option(
+    "--idle",
+    type=click.FloatRange(min=0.1),
+    default=None,
+    help="Stop after this many seconds without a board record, once records came (default: wait).",
+)
+@click.option(
+    "--output", "-o", default="-", show_default=True, help="NDJSON file, or - for stdout."
+)
+@click.option("--udp", multiple=True, metavar="HOST:PORT", help="Also send each record by UDP.")
+@click.option("--record", type=click.Path(dir_okay=False), default=None, help="Also to FILE.mcap.")
+@click.option(
+    "--foxglove", default=None, metavar="[HOST:]PORT", help="Live view (extra 'foxglove')."
+)
+@click.option("--zenoh", default=None, metavar="KEY", help="Publish the fused records on KEY too.")
+@click.option(
+    "--record-profile", type=click.Choice(["json", "ros2"]), default="json", show_default=True
+)
+@click.option(
+    "--zenoh-encoding", type=click.Choice(["json", "cdr"]), default="json", show_default=True
+)
+@click.option(
+    "--connect",
+    multiple=True,
+    metavar="ENDPOINT",
+    help="Zenoh endpoint to connect to, e.g. "
+    "tcp/192.168.1.2:7447 (a router, or a peer); repeatable.",
+)
+@click.option(
+    "--listen", multiple=True, metavar="ENDPOINT", help="Zenoh endpoint to listen on; repeatable."
+)
+@click.option(
+    "--mode",
+    type=click.Choice(["peer", "client"]),
+    default=None,
+    help="Zenoh mode (default: the configuration's, peer).",
+)
+@click.option(
+    "--zenoh-config",
+    default=None,
+    metavar="FILE",
+    help="Zenoh JSON5 configuration (default: $ZENOH_CONFIG, else Zenoh's defaults).",
+)
+@click.option("--track/--no-track", default=True, show_default=True, help="One tracker over all.")
+@force_option
+def command(
+    robot_file,
+    frames,
+    idle,
+    output,
+    udp,
+    record,
+    foxglove,
+    zenoh,
+    record_profile,
+    zenoh_encoding,
+    connect,
+    listen,
+    mode,
+    zenoh_config,
+    track,
+    force,
+) -> int:
+    """Subscribe to every board of a robot on Zenoh (each published by its own `spiel-edge run
+    --zenoh KEY`, on this computer or another) and write their targets fused in the robot's
+    frame, one record per trigger cycle (docs/robot.md)."""
+    from spiel_edge.cli._robot import open_fused_outputs
+    from spiel_edge.robot.description import load_robot
+    from spiel_edge.robot.zenoh_fuse import ZenohFuse
+    from spiel_edge.robot.zenoh_fuse import zenoh_config as make_config
+
+    robot = load_robot(robot_file)
+    config = make_config(connect, listen, mode, zenoh_config)
+    outputs = dict(
+        output=output,
+        record=record,
+        udp=udp,
+        foxglove=foxglove,
+        zenoh=zenoh,
+        record_profile=record_profile,
+        zenoh_encoding=zenoh_encoding,
+    )
+    sink = open_fused_outputs(robot, force, outputs, {"robot": robot.name, "fused_over": "zenoh"})
+    stop = threading.Event()
+    finalizers = Finalizers()
+    finalizers.add(sink.close_files)
+    fuse = None
+    with stop_on_signals(stop, finalizers):
+        try:
+            fuse = ZenohFuse(robot, sink, config=config, track=track)
+            fuse.run(stop, frames=frames, idle_s=idle)
+        except BrokenPipeError:
+            sys.stdout = None  # type: ignore[assignment]
+        finally:
+            finalizers.run_all()
+            if fuse is not None:
+                fuse.close()
+            with contextlib.suppress(BrokenPipeError, ValueError):
+                sink.close()
+            if fuse is not None:
+                with contextlib.suppress(OSError):
+                    click.echo(fuse.summary(), err=True)
+    failed = bool(sink.failed) or (fuse is not None and bool(fuse.dropped))
+    return EXIT_PARTIAL if failed else EXIT_OK

@@ -1,0 +1,118 @@
+"""Per-board clocks: a board's time (its acquisition stamps) mapped to the host's.
+
+Fusion and scheduling need every board's acquisitions on one time axis. :class:`BoardClock` is
+the small interface they use: ``to_host(board_s) -> host_s`` with an ``uncertainty_s``.
+
+:class:`StampClock` is the estimator used when the board offers no TIME_SYNC exchange (protocol
+version 1): it learns ``host = offset + (1 + drift) * board`` from the stamps of the
+acquisitions and the host times they arrived. Transport only ever delays, so the line is fitted
+to the lower envelope of the (board, arrival - board) points: the minimum of each block of
+``BLOCK`` acquisitions, a least-squares line through the last ``BLOCKS`` minima. The mapped
+time is therefore the acquisition's time plus the link's *smallest* latency (a constant bias
+the estimator cannot see), and a delayed acquisition does not move it. A board whose clock
+goes back (a reset) starts the estimate afresh. When protocol version 2's TIME_SYNC estimator
+is on the branch, its per-board estimate takes this one's place behind the same interface.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Protocol
+
+import numpy as np
+
+BLOCK = 8  # acquisitions per lower-envelope point
+BLOCKS = 64  # lower-envelope points in the fit
+MIN_DRIFT_SPAN_S = 10.0  # the drift is fitted once the minima span this long (else 0)
+MAX_DRIFT = 1e-3  # a crystal drifts by ppm, never by 0.1 %
+MAX_DISAGREEMENT_S = 1.0  # a mapped time this far from arrival: the clock is not believable
+
+
+class BoardClock(Protocol):
+    def to_host(self, board_s: float) -> float: ...
+
+    @property
+    def uncertainty_s(self) -> float: ...
+
+
+class HostClock:
+    """Board time is host time (one process simulating boards on the host's clock)."""
+
+    uncertainty_s = 0.0
+
+    def to_host(self, board_s: float) -> float:
+        return board_s
+
+    def observe(self, board_s: float, arrival_s: float) -> None:
+        del board_s, arrival_s
+
+
+class StampClock:
+    """See the module docstring. ``observe`` every acquisition, then ``to_host``."""
+
+    def __init__(self) -> None:
+        self.resets = 0
+        self._reset()
+
+    def _reset(self) -> None:
+        self._block: list[tuple[float, float]] = []
+        self._minima: deque[tuple[float, float]] = deque(maxlen=BLOCKS)
+        self._offset = None  # host = offset + (1 + drift) * board
+        self._drift = 0.0
+        self._last_board = None
+        self._spread = float("inf")
+        self._first_min: tuple[float, float] | None = None
+
+    @property
+    def ready(self) -> bool:
+        return self._offset is not None
+
+    @property
+    def drift(self) -> float:
+        """Host seconds per board second, minus 1 (a board clock that runs fast: negative).
+        A board period of ``P / (1 + drift)`` board seconds lasts ``P`` host seconds."""
+        return self._drift
+
+    @property
+    def uncertainty_s(self) -> float:
+        return self._spread
+
+    def observe(self, board_s: float, arrival_s: float) -> float:
+        """Take one acquisition's stamp and arrival; returns how late it arrived against the
+        estimate before it (seconds; seconds off: the clocks disagree)."""
+        if self._last_board is not None and board_s < self._last_board:
+            self.resets += 1
+            self._reset()
+        self._last_board = board_s
+        delay = arrival_s - board_s
+        if not self._minima:
+            self._offset = delay if self._offset is None else min(self._offset, delay)
+        late = delay - (self._offset + self._drift * board_s)
+        self._block.append((board_s, delay))
+        if len(self._block) >= BLOCK:
+            self._minima.append(min(self._block, key=lambda p: p[1]))
+            self._block = []
+            self._fit()
+        return late
+
+    def _fit(self) -> None:
+        pts = np.array(self._minima)
+        x, y = pts[:, 0], pts[:, 1]
+        slope = 0.0
+        if x[-1] - x[0] >= MIN_DRIFT_SPAN_S:
+            xm = x.mean()
+            sxx = float(((x - xm) ** 2).sum())
+            slope = float(((x - xm) * (y - y.mean())).sum() / sxx) if sxx > 0 else 0.0
+            slope = max(-MAX_DRIFT, min(MAX_DRIFT, slope))
+        resid = y - slope * x
+        if slope == 0.0:  # no drift known yet: only the recent points set the level
+            resid = resid[-4:]
+        # the line through the lower envelope: transport only delays, so its lowest point
+        self._offset = float(resid.min())
+        self._drift = slope
+        self._spread = float(np.max(np.abs(resid - self._offset)))
+
+    def to_host(self, board_s: float) -> float:
+        if self._offset is None:
+            raise ValueError("no acquisition observed yet")
+        return board_s + self._offset + self._drift * board_s

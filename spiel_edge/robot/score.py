@@ -1,0 +1,106 @@
+"""Scoring the virtual robot (tools/robot_eval.py, tests/robot/): pure functions over fused
+records and the world's truth.
+
+- *Crossings*: a mover's primary board (the one that sees it nearest its facing, among those
+  with the mover within ``VIEW_DEG`` of their facing) changes and the new one stays primary for
+  ``HOLD`` cycles; see :func:`crossing_ids` for how each is counted.
+- *Coverage*: per cycle, confirmed tracks matched one-to-one to movers within ``GATE_MM``
+  (nearest pairs first); the tracked error is the matched distance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+GATE_MM = 40.0
+VIEW_DEG = 50.0
+HOLD = 4
+LOOK = 12
+
+
+def match(
+    points: np.ndarray, truths: np.ndarray, gate: float = GATE_MM
+) -> dict[int, tuple[int, float]]:
+    """One-to-one, nearest pairs first: {truth index: (point index, distance)}."""
+    if not len(points) or not len(truths):
+        return {}
+    d = np.linalg.norm(np.asarray(points)[:, None, :] - np.asarray(truths)[None, :, :], axis=2)
+    out: dict[int, tuple[int, float]] = {}
+    used: set[int] = set()
+    for flat in np.argsort(d, axis=None):
+        i, j = divmod(int(flat), d.shape[1])
+        if d[i, j] > gate:
+            break
+        if i in used or j in out:
+            continue
+        used.add(i)
+        out[j] = (i, float(d[i, j]))
+    return out
+
+
+def coverage(
+    records: list[dict], truths: list[np.ndarray]
+) -> tuple[list[dict[int, int]], list[float]]:
+    """Per cycle {mover: track id} of the covering tracks, and every matched distance."""
+    ids, errors = [], []
+    for rec, truth in zip(records, truths, strict=True):
+        tracks = rec.get("tracks") or []
+        pos = np.array([t["position_mm"] for t in tracks]).reshape(-1, 3)
+        m = match(pos, truth)
+        ids.append({j: int(tracks[i]["track_id"]) for j, (i, _) in m.items()})
+        errors += [d for _, d in m.values()]
+    return ids, errors
+
+
+def primary_boards(world, truths: list[np.ndarray]) -> np.ndarray:
+    """(cycles, movers) index of the board seeing each mover nearest its facing, -1: none."""
+    names = world.names
+    out = np.full((len(truths), len(truths[0]) if truths else 0), -1)
+    cos_view = np.cos(np.radians(VIEW_DEG))
+    for c, truth in enumerate(truths):
+        best = np.full(len(truth), cos_view)
+        for b, name in enumerate(names):
+            v = truth - world.emitters[name]
+            cos = v @ world.facing[name] / np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+            better = cos > best
+            out[c, better] = b
+            best = np.maximum(best, cos)
+    return out
+
+
+def crossings(primary: np.ndarray) -> list[tuple[int, int]]:
+    """(cycle, mover) of every crossing (see the module docstring)."""
+    out = []
+    for j in range(primary.shape[1]):
+        col = primary[:, j]
+        current, since = -1, 0
+        for c in range(len(col)):
+            b = col[c]
+            if b < 0 or b == current:
+                continue
+            hold = col[c : c + HOLD]
+            if len(hold) == HOLD and np.all(hold == b):
+                if current >= 0:
+                    out.append((c, j))
+                current, since = b, c
+    del since
+    return out
+
+
+def crossing_ids(ids: list[dict[int, int]], events: list[tuple[int, int]]) -> dict[str, int]:
+    """Per crossing: ``untracked`` (no track covered the mover in the ``LOOK`` cycles before
+    it: no id to keep), else ``kept`` (the first track covering it in the ``LOOK`` cycles
+    after is the same), ``changed`` (another track) or ``lost`` (none)."""
+    out = {"crossings": len(events), "untracked": 0, "kept": 0, "changed": 0, "lost": 0}
+    for c, j in events:
+        before = next(
+            (ids[k][j] for k in range(c - 1, max(c - 1 - LOOK, -1), -1) if j in ids[k]), None
+        )
+        after = next((ids[k][j] for k in range(c, min(c + LOOK, len(ids))) if j in ids[k]), None)
+        if before is None:
+            out["untracked"] += 1
+        elif after is None:
+            out["lost"] += 1
+        else:
+            out["kept" if before == after else "changed"] += 1
+    return out

@@ -1,0 +1,375 @@
+"""``spiel-edge run --robot FILE``: every board of a robot served from one process.
+
+One thread per board (the GIL keeps them on one core) owns the board's link and session, its
+pipeline and its clock estimate, so a board that is unplugged, slow or gone stalls nobody
+else: its session waits for it to come back (docs/integrator.md) while the others stream.
+Each thread starts its board's stream in the board's trigger slot (robot/schedule.py) and
+keeps it there: it maps the board's stamps to the host's clock (robot/clock.py), and when a
+pulse strays more than half the sync margin from the slot, it restarts the stream at the
+slot's next start. The main thread marks acquisitions another board's pulse reached, fuses
+every board's targets in ``base_link`` (robot/fusion.py) and writes the fused records.
+
+A board that never answers (its HELLO times out) is dropped with a warning and the rest go on;
+a board whose clock disagrees with the host's by seconds is dropped the same way; when no
+board is left the command fails with one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spiel_edge.device import DeviceSession
+from spiel_edge.errors import DeviceError, SpielError
+from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
+from spiel_edge.robot.description import BoardSpec, RobotSpec
+from spiel_edge.robot.fusion import BoardReport, Fuser, reports_targets
+from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
+
+log = logging.getLogger(__name__)
+
+SWITCH_INTERVAL_S = 0.005  # the GIL switch interval while serving (Python default 0.005)
+PHASE_CHECK_EVERY = 8  # acquisitions between slot checks
+PHASE_SETTLE = 8  # acquisitions after a (re)start that fix the link's constant latency
+DISAGREE_LIMIT = 3  # acquisitions in a row seconds off the clock estimate: the board is dropped
+
+
+@dataclass
+class WorkerStats:
+    acquisitions: int = 0
+    errors: int = 0
+    restarts: int = 0
+    dropped: str | None = None
+    counts: dict = field(default_factory=dict)
+
+
+class BoardWorker(threading.Thread):
+    """One board: session, pipeline, clock, slot keeping. Reports go to ``out``."""
+
+    def __init__(
+        self,
+        board: BoardSpec,
+        schedule: Schedule,
+        t0: float,
+        out: queue.Queue,
+        stop: threading.Event,
+        *,
+        association: str | None = None,
+        max_targets: int | None = None,
+        toa_correction: str | None = None,
+        reconnect_timeout: float | None = None,
+        open_timeout_s: float = 5.0,
+    ):
+        super().__init__(name=f"board-{board.name}", daemon=True)
+        self.board = board
+        self.schedule = schedule
+        self.t0 = t0
+        self.out = out
+        self.stop = stop
+        self.association = association
+        self.max_targets = max_targets
+        self.toa_correction = toa_correction
+        self.open_timeout_s = open_timeout_s
+        self.session = DeviceSession(board.port, reconnect_timeout_s=reconnect_timeout)
+        self.clock = StampClock()
+        self.stats = WorkerStats()
+        self.pipeline = None
+        self.ready = threading.Event()  # set once the board is open (or dropped)
+        self.go = threading.Event()  # set by the runner once every stream started in its slot
+        self._bias: list[float] = []
+        self._bias_s = 0.0
+        self._recent: deque[float] = deque(maxlen=PHASE_CHECK_EVERY)
+        self._disagree = 0
+
+    # --- thread ------------------------------------------------------------------------
+
+    def run(self) -> None:
+        try:
+            self._open()
+            self.ready.set()  # the runner starts the stream in the slot, then says go
+            while not self.go.wait(0.1):
+                if self.stop.is_set():
+                    return
+            if self.session.stream is None:
+                raise DeviceError(self.stats.dropped or "its stream did not start")
+            self._loop()
+        except SpielError as exc:
+            self._drop(str(exc))
+        except Exception as exc:  # a bug in one board's thread must not take the others
+            log.debug("board %s", self.board.name, exc_info=True)
+            self._drop(f"unexpected error: {type(exc).__name__}: {exc}")
+        finally:
+            self.ready.set()
+            with contextlib.suppress(DeviceError):
+                self.session.close()
+
+    def _drop(self, why: str) -> None:
+        self.stats.dropped = why
+        log.warning("board %s dropped, the others go on: %s", self.board.name, why)
+        self.out.put(("drop", self.board.name, why))
+
+    def _open(self) -> None:
+        from spiel_edge.runtime.loop import open_pipeline
+
+        b = self.board
+        pipeline, _ = open_pipeline(
+            self.session,
+            b.profile,
+            b.calibration,
+            self.association,
+            use_board=b.calibration is None,
+            toa_correction=self.toa_correction,
+        )
+        if self.max_targets:
+            pipeline.set_max_targets(self.max_targets)
+        self.pipeline = pipeline
+
+    def _start_in_slot(self) -> None:
+        """(Re)start the stream at the slot's next start (from the board's own thread)."""
+        at = self.schedule.next_fire(self.board.name, self.t0, time.perf_counter() + 0.01)
+        if wait_until(at, self.stop):
+            self.start_stream_now()
+
+    def start_stream_now(self) -> None:
+        sched = self.schedule
+        n_samples = self.pipeline.profile.acquisition.n_samples
+        period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
+        self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
+        self._bias = []
+        self._recent.clear()
+
+    def _loop(self) -> None:
+        window = self.schedule.window_s
+        for acq in self.session.acquisitions(self.stop):
+            arrival = acq.received_ns / 1e9
+            stamp = acq.timestamp_us / 1e6
+            late = self.clock.observe(stamp, arrival)
+            if self.clock.ready and abs(late) > MAX_DISAGREEMENT_S:
+                self._disagree += 1
+                if self._disagree >= DISAGREE_LIMIT:
+                    raise DeviceError(
+                        f"its clock disagrees with the host's by {late:+.1f} s "
+                        f"(stamps not in microseconds, or a clock that jumps)"
+                    )
+            else:
+                self._disagree = 0
+            pulse = self.clock.to_host(stamp) - window
+            off_slot = self._off_slot(pulse)
+            report = self._report(acq, self._on_schedule(pulse - self._bias_s), arrival)
+            self.stats.acquisitions += 1
+            self.out.put(("report", self.board.name, report))
+            if off_slot:
+                self.stats.restarts += 1
+                log.info("board %s left its slot; restarting it in the slot", self.board.name)
+                self._start_in_slot()
+
+    def _report(self, acq, pulse: float, arrival: float) -> BoardReport:
+        error = None
+        result = None
+        try:
+            background = None if acq.background is None else acq.background.astype(np.float64)
+            result = self.pipeline.process(acq.samples.astype(np.float64), background)
+        except SpielError as exc:
+            self.stats.errors += 1
+            error = str(exc)
+        truth = acq.truth_targets_mm
+        if truth is not None:
+            truth = self.board.mount.to_base(np.asarray(truth, float))
+        return BoardReport(
+            self.board.name,
+            pulse,
+            reports_targets(result),
+            acquisition=acq.index,
+            device_time_us=acq.timestamp_us,
+            error=error,
+            truth_mm=truth,
+            acquired_unix=acq.host_time,
+        )
+
+    def _on_schedule(self, t: float) -> float:
+        """A pulse within the sync margin of its slot is taken to be at the slot's time (the
+        estimate's noise is not the board's); one outside keeps its measured time."""
+        sched, offset = self.schedule, self.schedule.slots[self.board.name].offset_s
+        k = round((t - self.t0 - offset) / sched.period_s)
+        slot = self.t0 + k * sched.period_s + offset
+        return slot if abs(t - slot) <= sched.margin_s else t
+
+    def _off_slot(self, pulse: float) -> bool:
+        """Whether the board's pulses left its slot. The first ``PHASE_SETTLE`` pulses after a
+        start the host timed fix the board's bias (the link's smallest latency, which one-way
+        stamps cannot see, plus how late the start landed): pulses are reported less it, and
+        only a change of phase (the median of the last few) beyond the sync margin counts."""
+        if not self.clock.ready:
+            return False
+        err = self.schedule.phase_error(self.board.name, self.t0, pulse)
+        if len(self._bias) < PHASE_SETTLE:
+            self._bias.append(err)
+            self._bias_s = float(np.median(self._bias))
+            return False
+        self._recent.append(err)
+        if self.stats.acquisitions % PHASE_CHECK_EVERY:
+            return False
+        return abs(float(np.median(self._recent)) - self._bias_s) > self.schedule.margin_s
+
+
+def wait_until(at: float, stop: threading.Event) -> bool:
+    """Sleep until perf_counter() reaches ``at`` (spinning the last 2 ms); False if stopped."""
+    while not stop.is_set():
+        wait = at - time.perf_counter()
+        if wait <= 0:
+            return True
+        time.sleep(wait - 0.002 if wait > 0.003 else 0)
+    return False
+
+
+class RobotRunner:
+    """Every board of ``robot`` in its thread; fused records to ``sink``."""
+
+    def __init__(
+        self,
+        robot: RobotSpec,
+        sink,
+        *,
+        association: str | None = None,
+        max_targets: int | None = None,
+        toa_correction: str | None = None,
+        reconnect_timeout: float | None = None,
+        track: bool = True,
+        spec=None,
+    ):
+        self.robot = robot
+        self.sink = sink
+        self.schedule = Schedule.from_robot(robot)
+        self.stop = threading.Event()
+        self.queue: queue.Queue = queue.Queue(maxsize=1024)
+        self.t0 = 0.0  # slots count from here: set once every board is open
+        self.workers = [
+            BoardWorker(
+                b,
+                self.schedule,
+                self.t0,
+                self.queue,
+                self.stop,
+                association=association,
+                max_targets=max_targets,
+                toa_correction=_toa(b.port, toa_correction),
+                reconnect_timeout=reconnect_timeout,
+            )
+            for b in robot.boards
+        ]
+        self.marker = CrosstalkMarker(self.schedule, [b.name for b in robot.boards])
+        self.fuser = Fuser(
+            {b.name: b.mount for b in robot.boards},
+            period_s=self.schedule.period_s,
+            frame_id=robot.frame_id,
+            field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
+            track=track,
+            spec=spec or robot.track_spec(),
+        )
+        self.records = 0
+        self.latencies_ms: list[float] = []
+
+    def run(self, stop: threading.Event | None = None, *, frames: int | None = None) -> int:
+        """Until ``stop`` or ``frames`` fused records; returns the records written."""
+        stop = stop or threading.Event()
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL_S)  # a board's thread waits less for another's
+        for w in self.workers:
+            w.start()
+        alive = {w.board.name for w in self.workers}
+        try:
+            self._start_streams(stop)
+            while not stop.is_set() and alive:
+                try:
+                    kind, name, payload = self.queue.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                if kind == "drop":
+                    alive.discard(name)
+                    self.fuser.drop(name)
+                    continue
+                report: BoardReport = payload
+                report.crosstalk = self.marker.observe(name, report.host_time)
+                for record in self.fuser.add(report):
+                    self._write(record, report)
+                if frames is not None and self.records >= frames:
+                    break
+            if not alive:
+                from spiel_edge.errors import DeviceError
+
+                raise DeviceError(
+                    "no board is left: "
+                    + "; ".join(f"{w.board.name}: {w.stats.dropped}" for w in self.workers)
+                )
+        finally:
+            self.stop.set()
+            for w in self.workers:
+                w.join(timeout=3.0)
+            sys.setswitchinterval(switch)
+        return self.records
+
+    def _start_streams(self, stop: threading.Event) -> None:
+        """Every open board's stream started in its slot of one cycle, from this thread while
+        the boards' threads wait (nothing else runs, so each start lands on time)."""
+        for w in self.workers:
+            while not w.ready.wait(0.1):
+                if stop.is_set():
+                    return
+        t0 = time.perf_counter() + 0.02
+        for w in self.workers:
+            w.t0 = t0
+        self.t0 = t0
+        self.fuser.set_schedule(t0, {n: s.offset_s for n, s in self.schedule.slots.items()})
+        order = sorted(self.workers, key=lambda w: self.schedule.slots[w.board.name].offset_s)
+        for w in order:
+            if w.stats.dropped or w.pipeline is None:
+                continue
+            if not wait_until(self.schedule.fire_time(w.board.name, t0, 0), stop):
+                return
+            try:
+                w.start_stream_now()
+            except SpielError as exc:
+                w.stats.dropped = str(exc)  # its thread reports the drop
+        for w in self.workers:
+            w.go.set()
+
+    def _write(self, record: dict, last: BoardReport) -> None:
+        acquired = [b["acquired"] for b in record["boards"].values() if "acquired" in b]
+        if acquired:  # after the last board's acquisition reached this host
+            latency = (time.time() - max(acquired)) * 1e3
+            record["latency_ms"] = round(latency, 3)
+            self.latencies_ms.append(latency)
+        for name, diag in record["boards"].items():
+            w = next(w for w in self.workers if w.board.name == name)
+            diag["restarts"] = w.stats.restarts
+        self.sink.write(record)
+        self.records += 1
+
+    def summary(self) -> str:
+        parts = []
+        for w in self.workers:
+            s = w.stats
+            state = f"dropped ({s.dropped})" if s.dropped else f"{s.acquisitions} acquisitions"
+            marked = self.marker.marked.get(w.board.name, 0)
+            parts.append(f"{w.board.name}: {state}, {marked} marked, {s.restarts} restarts")
+        lat = np.array(self.latencies_ms)
+        latency = (
+            f"; latency median {np.median(lat):.2f} ms, p95 {np.percentile(lat, 95):.2f} ms"
+            if lat.size
+            else ""
+        )
+        return f"{self.records} fused records{latency}; " + "; ".join(parts)
+
+
+def _toa(port: str, requested: str | None) -> str | None:
+    from spiel_edge.runtime.loop import live_toa_correction
+
+    return live_toa_correction(port, requested)

@@ -1,0 +1,196 @@
+"""The virtual robot end to end, offline: simulated acquisitions (sim/robot.py) -> each
+board's pipeline -> host side (clocks, cross-talk marking) -> fusion -> scores.
+
+Used by tools/robot_eval.py (the issue's figures) and tests/robot/ (a short run)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.robot import score
+from spiel_edge.robot.clock import StampClock
+from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser, reports_targets
+from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
+from spiel_edge.track import Tracker
+
+GHOST_NEW_MM = 30.0  # a target this far from every target of the clean frame ...
+GHOST_TRUTH_MM = 40.0  # ... and from every object is one the other board's pulse made
+
+
+@dataclass
+class RunFigures:
+    acquisitions: int = 0
+    audible: int = 0  # a foreign arrival >= AUDIBLE_COUNTS in the window
+    ghost: int = 0  # acquisitions with a target made by another board's pulse
+    marked: int = 0
+    ghost_unmarked: int = 0  # ghosts the marking missed (reach the fusion)
+    restarts: dict = field(default_factory=dict)
+    board_errors: list = field(default_factory=list)
+    board_tracked_errors: list = field(default_factory=list)  # each board's own tracker
+    tracked_errors: list = field(default_factory=list)
+    tracked_errors_in_view: list = field(default_factory=list)  # movers some board faces
+    crossings: dict = field(default_factory=dict)
+    cycles: int = 0
+    covered: float = 0.0
+    pipeline_s: float = 0.0
+    fusion_s: float = 0.0
+    truths: list = field(default_factory=list, repr=False)  # per fused record, base_link
+
+    def summary(self) -> dict:
+        n = max(self.acquisitions, 1)
+        c = self.crossings
+        tracked = c.get("kept", 0) + c.get("changed", 0) + c.get("lost", 0)
+        return {
+            "acquisitions": self.acquisitions,
+            "audible_crosstalk_share": round(self.audible / n, 4),
+            "ghost_share": round(self.ghost / n, 4),
+            "marked_share": round(self.marked / n, 4),
+            "ghost_unmarked_share": round(self.ghost_unmarked / n, 4),
+            "restarts": self.restarts,
+            "board_error_mm": _stats(self.board_errors),
+            "board_tracked_error_mm": _stats(self.board_tracked_errors),
+            "tracked_error_mm": _stats(self.tracked_errors),
+            "tracked_error_in_view_mm": _stats(self.tracked_errors_in_view),
+            "crossings": c,
+            "crossings_kept_share": round(c.get("kept", 0) / tracked, 4) if tracked else None,
+            "crossings_kept_share_of_all": round(c.get("kept", 0) / c["crossings"], 4)
+            if c.get("crossings")
+            else None,
+            "mover_coverage": round(self.covered, 4),
+            "fused_records": self.cycles,
+            "pipeline_ms_per_acquisition": round(1e3 * self.pipeline_s / n, 3),
+            "fusion_ms_per_cycle": round(1e3 * self.fusion_s / max(self.cycles, 1), 3),
+        }
+
+
+def _stats(values) -> dict:
+    if not values:
+        return {"n": 0}
+    a = np.asarray(values)
+    return {
+        "n": int(a.size),
+        "mean": round(float(a.mean()), 2),
+        "median": round(float(np.median(a)), 2),
+    }
+
+
+def run_virtual_robot(
+    world,
+    pipeline,
+    *,
+    cycles: int,
+    scheduled: bool,
+    seed: int = 0,
+    ghosts: bool = True,
+    drop_marked: bool = True,
+    spec=None,
+) -> tuple[RunFigures, list[dict]]:
+    from spiel_edge.sim.robot_offline import simulate
+
+    figs = RunFigures()
+    acqs, figs.restarts, _ = simulate(
+        world, cycles=cycles, scheduled=scheduled, seed=seed, want_clean=ghosts
+    )
+    sched = Schedule.from_robot(world.robot, window_s=world.n_samples / world.sample_rate_hz)
+    clocks = {n: StampClock() for n in world.names}
+    marker = CrosstalkMarker(sched, world.names)
+    fov = {b.name: b.field_of_view_deg for b in world.robot.boards}
+    fuser = Fuser(
+        world.mounts,
+        period_s=sched.period_s,
+        spec=spec,
+        drop_marked=drop_marked,
+        field_of_view_deg=fov,
+    )
+    fire = {}
+    records = []
+    own = load_profile(world.robot.boards[0].profile).track  # what `run` tracks one board with
+    own_trackers = {n: Tracker(own) for n in world.names}
+    for a in acqs:
+        t = time.perf_counter()
+        res = pipeline.process(
+            a.frame.samples.astype(np.float64), a.frame.background.astype(np.float64)
+        )
+        figs.pipeline_s += time.perf_counter() - t
+        figs.acquisitions += 1
+        targets = reports_targets(res)
+        audible = a.frame.foreign_peak >= 60.0
+        figs.audible += audible
+        ghost = False
+        if ghosts and a.frame.clean is not None:
+            clean = pipeline.process(
+                a.frame.clean.astype(np.float64), a.frame.background.astype(np.float64)
+            )
+            ghost = _has_ghost(world, a, targets, reports_targets(clean))
+        figs.ghost += ghost
+        stamp_s = a.board_us / 1e6
+        clock = clocks[a.board]
+        clock.observe(stamp_s, a.arrival)
+        mapped = clock.to_host(stamp_s)
+        heard = marker.observe(a.board, mapped)
+        figs.marked += bool(heard)
+        figs.ghost_unmarked += ghost and not heard
+        fire[(a.board, a.index)] = a.t_fire
+        truth = world.movers_base(a.t_fire)
+        own = [world.mounts[a.board].to_base(p) for p, _, _ in targets]
+        m = score.match(np.array(own).reshape(-1, 3), truth)
+        figs.board_errors += [d for _, d in m.values()]
+        own_tracks = own_trackers[a.board].update(
+            [BaseTarget(p, c, [a.board]) for p, c, _ in targets], a.board_us / 1e6
+        )
+        pos = np.array([world.mounts[a.board].to_base(t.position_mm) for t in own_tracks])
+        in_view = truth[world.in_view(a.board, truth)]
+        m = score.match(pos.reshape(-1, 3), in_view)
+        figs.board_tracked_errors += [d for _, d in m.values()]
+        t = time.perf_counter()
+        out = fuser.add(
+            BoardReport(
+                a.board,
+                mapped,
+                targets,
+                acquisition=a.index,
+                device_time_us=a.board_us,
+                crosstalk=heard,
+            )
+        )
+        records += out
+        figs.fusion_s += time.perf_counter() - t
+    records += fuser.flush()
+    figs.cycles = len(records)
+    truths = []
+    for rec in records:
+        ts = [fire[(name, b["acquisition"])] for name, b in rec["boards"].items()]
+        truths.append(world.movers_base(float(np.mean(ts))))
+    figs.truths = truths
+    ids, figs.tracked_errors = score.coverage(records, truths)
+    seen = [t[np.any([world.in_view(n, t) for n in world.names], axis=0)] for t in truths]
+    _, figs.tracked_errors_in_view = score.coverage(records, seen)
+    figs.covered = (
+        float(np.mean([len(i) / max(len(t), 1) for i, t in zip(ids, truths, strict=True)]))
+        if ids
+        else 0.0
+    )
+    figs.crossings = score.crossing_ids(ids, score.crossings(score.primary_boards(world, truths)))
+    return figs, records
+
+
+def _has_ghost(world, acq, targets, clean_targets) -> bool:
+    mount = world.mounts[acq.board]
+    objects = np.vstack(
+        [
+            mount.to_board(world.movers_base(acq.t_fire)),
+            mount.to_board(world.posts_base(acq.t_fire)),
+        ]
+    )
+    clean = np.array([p for p, _, _ in clean_targets]).reshape(-1, 3)
+    for p, _, _ in targets:
+        if len(clean) and np.min(np.linalg.norm(clean - p, axis=1)) <= GHOST_NEW_MM:
+            continue
+        if np.min(np.linalg.norm(objects - p, axis=1)) <= GHOST_TRUTH_MM:
+            continue
+        return True
+    return False

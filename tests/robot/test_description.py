@@ -1,0 +1,122 @@
+"""The robot file: the built-in virtual robot loads; every bad input is one ConfigError line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spiel_edge.errors import ConfigError
+from spiel_edge.robot.description import load_robot, rotation_from_rpy_deg
+
+
+def test_virtual_robot_boards_face_out_90_degrees_apart():
+    robot = load_robot("virtual-4")
+    facing = {b.name: b.mount.facing for b in robot.boards}
+    np.testing.assert_allclose(facing["front"], [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(facing["left"], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(facing["back"], [-1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(facing["right"], [0, -1, 0], atol=1e-12)
+    for b in robot.boards:  # the board sits on the robot's rim, 0.1 m out, facing out
+        np.testing.assert_allclose(b.mount.translation_mm, 100.0 * b.mount.facing, atol=1e-9)
+
+
+def test_mount_round_trip_and_covariance_rotation():
+    robot = load_robot("virtual-4")
+    m = robot.board("left").mount
+    p = np.array([10.0, -20.0, 200.0])
+    np.testing.assert_allclose(m.to_board(m.to_base(p)), p, atol=1e-9)
+    # 200 mm in front of the left board: 200 mm further along +y from its position
+    np.testing.assert_allclose(m.to_base([0, 0, 200.0]), [0, 300.0, 0], atol=1e-9)
+    c = np.diag([1.0, 4.0, 9.0])
+    rc = m.covariance_to_base(c)
+    samples = np.random.default_rng(0).multivariate_normal(np.zeros(3), c, 200000)
+    np.testing.assert_allclose(np.cov((samples @ m.rotation.T).T), rc, atol=0.1)
+
+
+def test_rpy_matches_tf2_convention():
+    # yaw 90: x -> y; pitch 90: z -> x (fixed axes, X then Y then Z)
+    np.testing.assert_allclose(rotation_from_rpy_deg([0, 0, 90]) @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(rotation_from_rpy_deg([0, 90, 0]) @ [0, 0, 1], [1, 0, 0], atol=1e-12)
+
+
+def _one_line(exc: pytest.ExceptionInfo) -> str:
+    text = str(exc.value)
+    assert "\n" not in text
+    return text
+
+
+def test_two_boards_on_one_port(write_robot):
+    path = write_robot(
+        [{"name": "a", "port": "/dev/ttyACM0"}, {"name": "b", "port": "serial:///dev/ttyACM0"}]
+    )
+    with pytest.raises(ConfigError) as exc:
+        load_robot(path)
+    assert "'a' and 'b' are both on port" in _one_line(exc)
+
+
+def test_a_transform_that_is_not_a_rotation(write_robot):
+    skew = "rotation_matrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.3], [0.0, 0.0, 1.0]]"
+    mirror = "rotation_matrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]"
+    quat = "rotation_xyzw = [0.0, 0.0, 0.5, 0.5]"
+    for rotation, words in ((skew, "not a rotation"), (mirror, "reflection"), (quat, "norm")):
+        path = write_robot([{"name": "a", "rotation": rotation}])
+        with pytest.raises(ConfigError) as exc:
+            load_robot(path)
+        text = _one_line(exc)
+        assert "board 'a'" in text and words in text
+
+
+def test_a_rotation_matrix_that_is_one_is_taken(write_robot):
+    rot = "rotation_matrix = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]"
+    robot = load_robot(write_robot([{"name": "a", "rotation": rot}]))
+    np.testing.assert_allclose(robot.boards[0].mount.rotation @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+
+
+def test_overlapping_trigger_slots(write_robot):
+    boards = [
+        {"name": "a", "slot": "slot_ms = 0.0"},
+        {"name": "b", "port": "sim://b", "slot": "slot_ms = 3.0"},
+    ]
+    with pytest.raises(ConfigError) as exc:
+        load_robot(write_robot(boards))
+    assert "slots of boards 'a' (0.00 ms) and 'b' (3.00 ms) overlap" in _one_line(exc)
+    same = [{"name": "a", "slot": "slot = 1"}, {"name": "b", "port": "sim://b", "slot": "slot = 1"}]
+    with pytest.raises(ConfigError, match="overlap"):
+        load_robot(write_robot(same))
+
+
+def test_a_period_too_short_for_the_boards(write_robot):
+    boards = [{"name": n, "port": f"sim://{n}"} for n in "abcde"]
+    with pytest.raises(ConfigError) as exc:
+        load_robot(write_robot(boards))
+    assert "too short for 5 boards" in _one_line(exc)
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("[robot]\n", "at least one [[board]]"),
+        ('[[board]]\nname = "a"\ncolour = "red"\n', "unknown key"),
+        ('[[board]]\nname = "a"\ntranslation_m = [0, 0]\n', "translation_m must be 3 numbers"),
+        ('[[board]]\nname = "a"\n[[board]]\nname = "a"\n', "two boards are named 'a'"),
+        ('[[board]]\nname = "a"\n[trigger]\nmax_range_m = -1\n', "max_range_m must be in"),
+        ("[[board]\n", "not valid TOML"),
+    ],
+)
+def test_other_bad_files(tmp_path, text, words):
+    path = tmp_path / "r.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_robot(path)
+    assert words in _one_line(exc)
+
+
+def test_cli_refuses_a_bad_robot_file_in_one_line(write_robot, capsys):
+    from spiel_edge.cli import main
+
+    path = write_robot(
+        [{"name": "a", "port": "/dev/ttyACM0"}, {"name": "b", "port": "/dev/ttyACM0"}]
+    )
+    assert main(["run", "--robot", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "both on port" in err and "Traceback" not in err

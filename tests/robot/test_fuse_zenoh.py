@@ -1,0 +1,102 @@
+"""`fuse` over Zenoh on loopback: records of several boards' processes fused in base_link; a
+board whose computer's clock is seconds off is dropped with a warning, the rest go on."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from spiel_edge.robot.description import load_robot
+
+zenoh = pytest.importorskip("zenoh", reason="the 'zenoh' extra is not installed")
+
+from spiel_edge.robot.zenoh_fuse import ZenohFuse, zenoh_config  # noqa: E402
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Collect:
+    def __init__(self):
+        self.records = []
+
+    def write(self, record):
+        self.records.append(json.loads(json.dumps(record)))
+
+    def close(self):
+        pass
+
+
+def _record(k: int, board_s: float, host: float, target_board_mm) -> bytes:
+    return json.dumps(
+        {
+            "seq": k,
+            "acquisition": k,
+            "device_time_us": int(board_s * 1e6),
+            "host_time": host,
+            "targets": [
+                {
+                    "position_mm": list(target_board_mm),
+                    "covariance_mm2": (np.eye(3) * 16).tolist(),
+                    "score": 1.0,
+                }
+            ],
+        }
+    ).encode()
+
+
+@pytest.mark.parametrize("clock_off_s", [0.0, 5.0])
+def test_fuse_over_zenoh(clock_off_s):
+    robot = load_robot("virtual-4")
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    off = '"scouting": {"multicast": {"enabled": false}}'
+    sub_cfg = zenoh.Config.from_json5(f'{{"mode": "peer", {off}}}')
+    sink = Collect()
+    fuse = ZenohFuse(robot, sink, config=zenoh_config(listen=[endpoint], config=sub_cfg))
+    stop = threading.Event()
+    worker = threading.Thread(target=fuse.run, args=(stop,), kwargs={"idle_s": 1.0})
+    worker.start()
+    pub = zenoh.open(
+        zenoh_config(
+            connect=[endpoint], config=zenoh.Config.from_json5(f'{{"mode": "peer", {off}}}')
+        )
+    )
+    try:
+        time.sleep(1.0)  # the peers connect
+        publishers = {b.name: pub.declare_publisher(b.key) for b in robot.boards}
+        p_base = np.array([300.0, 0.0, 0.0])  # in front: the front board sees it 200 mm ahead
+        for k in range(60):
+            for j, b in enumerate(robot.boards):
+                host = time.time() + (clock_off_s if b.name == "back" else 0.0)
+                target = b.mount.to_board(p_base) if b.name == "front" else [0.0, 0.0, 150.0]
+                publishers[b.name].put(_record(k, 10.0 + k * 0.025 + j * 0.005, host, target))
+            time.sleep(0.025)
+    finally:
+        worker.join(timeout=20)
+        stop.set()
+        fuse.close()
+        pub.close()
+    records = sink.records
+    assert len(records) >= 50
+    late = records[20:]
+    assert all(r["frame_id"] == "base_link" for r in late)
+    if clock_off_s:
+        assert "back" in fuse.dropped and "clock" in fuse.dropped["back"]
+        assert all("back" not in r["boards"] for r in late)
+        assert all(set(r["boards"]) == {"front", "left", "right"} for r in late[:-1])
+    else:
+        assert not fuse.dropped
+        assert all(set(r["boards"]) == {"front", "left", "back", "right"} for r in late[:-1])
+    # the front board's target, in base_link, tracked
+    front_targets = [t for r in late for t in r["targets"] if t["boards"] == ["front"]]
+    np.testing.assert_allclose(front_targets[-1]["position_mm"], p_base, atol=1e-6)
+    assert any(r["tracks"] for r in late)
+    assert all(r["latency_ms"] < 1000 for r in late)

@@ -1,0 +1,86 @@
+"""`run --robot`: several boards from one process, each on its own; a dead board is dropped
+with a warning and the rest go on; an unplugged board comes back."""
+
+from __future__ import annotations
+
+import json
+
+from spiel_edge.cli import main
+
+
+def _robot(tmp_path, extra: dict[str, str] | None = None, dead: bool = False):
+    path = tmp_path / "robot.toml"
+    extra = extra or {}
+    boards = []
+    for name, tr, rpy in (
+        ("front", "[0.1, 0.0, 0.0]", "[0.0, 90.0, 0.0]"),
+        ("left", "[0.0, 0.1, 0.0]", "[0.0, 90.0, 90.0]"),
+    ):
+        port = f"sim://{name}?scene=robot&robot={path}&board={name}&movers=2{extra.get(name, '')}"
+        boards.append(
+            f'[[board]]\nname = "{name}"\nport = "{port}"\ntranslation_m = {tr}\nrotation_rpy_deg = {rpy}\n'
+        )
+    if dead:
+        boards.append(f'[[board]]\nname = "dead"\nport = "{tmp_path}/no-such-tty"\n')
+    path.write_text("[trigger]\nperiod_ms = 20.0\nmax_range_m = 0.8\n\n" + "\n".join(boards))
+    return path
+
+
+def _records(path):
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def test_every_board_in_one_process_fused(tmp_path, capsys):
+    out = tmp_path / "fused.ndjson"
+    status = main(
+        [
+            "run",
+            "--robot",
+            str(_robot(tmp_path)),
+            "--frames",
+            "40",
+            "--max-targets",
+            "4",
+            "-o",
+            str(out),
+        ]
+    )
+    err = capsys.readouterr().err
+    assert status == 0, err
+    records = _records(out)
+    assert len(records) == 40
+    assert records[-1]["frame_id"] == "base_link"
+    complete = [r for r in records if set(r["boards"]) == {"front", "left"}]
+    assert len(complete) >= 30
+    # in their slots: the pulses 1 slot apart, nobody's window reached by the other
+    gaps = [
+        r["boards"]["left"]["host_time"] - r["boards"]["front"]["host_time"] for r in complete[10:]
+    ]
+    assert all(0.003 < g < 0.009 for g in gaps), gaps
+    assert not any(b["crosstalk"] for r in complete[10:] for b in r["boards"].values())
+    assert "40 fused records" in err
+
+
+def test_a_board_that_never_answers_is_dropped_and_the_others_go_on(tmp_path, capsys):
+    out = tmp_path / "fused.ndjson"
+    status = main(
+        ["run", "--robot", str(_robot(tmp_path, dead=True)), "--frames", "30", "-o", str(out)]
+    )
+    err = capsys.readouterr().err
+    assert status == 1  # partial: one board dropped
+    assert "board dead dropped, the others go on" in err
+    records = _records(out)
+    assert len(records) == 30 and {"front", "left"} <= set(records[-1]["boards"])
+    assert "dead: dropped" in err and "Traceback" not in err
+
+
+def test_an_unplugged_board_does_not_stop_the_others(tmp_path, capsys):
+    out = tmp_path / "fused.ndjson"
+    robot = _robot(tmp_path, {"left": "&unplug_after=20&unplug_ms=400&unplug_count=1"})
+    status = main(["run", "--robot", str(robot), "--frames", "90", "-o", str(out)])
+    assert status == 0, capsys.readouterr().err
+    records = _records(out)
+    alone = [r for r in records if set(r["boards"]) == {"front"}]
+    both = [r for r in records if set(r["boards"]) == {"front", "left"}]
+    assert len(alone) >= 5  # front went on while left was away
+    assert records.index(both[-1]) > records.index(alone[0])  # and left came back

@@ -1,0 +1,71 @@
+"""The virtual robot: cross-talk shows without a schedule and is gone with it; the host marks
+what reached a window; truth in base_link."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spiel_edge.robot.description import load_robot
+from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
+from spiel_edge.sim.robot import AUDIBLE_COUNTS, RobotWorld
+from spiel_edge.sim.robot_offline import simulate
+
+
+@pytest.fixture(scope="module")
+def world():
+    return RobotWorld(load_robot("virtual-4"), movers=5, seed=3)
+
+
+def test_another_boards_pulse_is_heard_direct_and_by_echo(world):
+    quiet = world.frame("front", 10.0, [], crosstalk=False)
+    # left fires 0.5 ms after front: its direct path and its echoes land in front's window
+    heard = world.frame("front", 10.0, [("left", 10.0005)])
+    assert quiet.foreign_peak == 0.0
+    assert heard.foreign_peak >= AUDIBLE_COUNTS
+    # a pulse long before the window (beyond the farthest echo) is not heard
+    old = world.frame("front", 10.0, [("left", 10.0 - 0.02)])
+    assert old.foreign_peak < 1.0
+
+
+def test_truth_is_in_base_link_and_each_boards_frame(world):
+    movers = world.movers_base(5.0)
+    assert movers.shape == (5, 3)
+    radius = np.linalg.norm(movers[:, :2], axis=1)
+    assert np.all((radius > 150) & (radius < 420))
+    f = world.frame("back", 5.0, [])
+    np.testing.assert_allclose(world.mounts["back"].to_base(f.truth_board_mm), movers, atol=1e-9)
+
+
+def test_without_a_schedule_pulses_collide_and_with_it_they_do_not(world):
+    # free-running boards meet or not depending on where they started: four starts pooled
+    free = [
+        a for seed in range(4) for a in simulate(world, cycles=60, scheduled=False, seed=seed)[0]
+    ]
+    slotted, restarts, _ = simulate(world, cycles=240, scheduled=True, seed=2)
+    assert len(free) >= 4 * 4 * 58 and len(slotted) >= 4 * 238
+    share_free = np.mean([a.frame.foreign_peak >= AUDIBLE_COUNTS for a in free])
+    share_slotted = np.mean([a.frame.foreign_peak >= AUDIBLE_COUNTS for a in slotted])
+    assert share_free > 0.05
+    assert share_slotted == 0.0
+    assert sum(restarts.values()) <= 8
+
+
+def test_the_host_marks_the_acquisitions_another_pulse_reached(world):
+    """From the stamps and arrivals alone (each board's clock mapped), the marker flags the
+    acquisitions whose window another pulse reached."""
+    from spiel_edge.robot.clock import StampClock
+
+    acqs, _, _ = simulate(world, cycles=200, scheduled=False, seed=4)
+    sched = Schedule.from_robot(world.robot, window_s=world.n_samples / world.sample_rate_hz)
+    marker = CrosstalkMarker(sched, world.names)
+    clocks = {n: StampClock() for n in world.names}
+    flagged, audible = [], []
+    for a in acqs:
+        clock = clocks[a.board]
+        clock.observe(a.board_us / 1e6, a.arrival)
+        flagged.append(bool(marker.observe(a.board, clock.to_host(a.board_us / 1e6))))
+        audible.append(a.frame.foreign_peak >= AUDIBLE_COUNTS)
+    flagged, audible = np.array(flagged[80:]), np.array(audible[80:])
+    assert audible.any()
+    assert np.mean(flagged[audible]) > 0.9  # what reached a window is marked
