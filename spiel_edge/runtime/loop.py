@@ -225,7 +225,7 @@ class LiveRunner:
             record["tracks"] = tracks
         if acq.truth_mm is not None:
             record["truth_mm"] = [round(float(v), 2) for v in acq.truth_mm]
-        truths = getattr(acq, "truth_targets_mm", None)
+        truths = acq.truth_targets_mm
         if truths is not None:
             record["truth_targets_mm"] = [[round(float(v), 2) for v in p] for p in truths]
         return record
