@@ -257,7 +257,7 @@ class LiveRunner:
             record["tracks"] = tracks
         if acq.truth_mm is not None:
             record["truth_mm"] = [round(v, 2) for v in acq.truth_mm.tolist()]
-        truths = getattr(acq, "truth_targets_mm", None)
+        truths = acq.truth_targets_mm
         if truths is not None:
             record["truth_targets_mm"] = [[round(v, 2) for v in p] for p in truths.tolist()]
         return record

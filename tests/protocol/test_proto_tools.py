@@ -12,8 +12,8 @@ import pytest
 TOOLS = Path(__file__).resolve().parents[2] / "tools"
 
 
-def load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
+def load(path: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(Path(path).name, TOOLS / f"{path}.py")
     assert spec and spec.loader
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -21,7 +21,7 @@ def load(name: str) -> ModuleType:
 
 
 def test_fuzz_random_loop(capsys: pytest.CaptureFixture[str]) -> None:
-    fuzz = load("fuzz_protocol")
+    fuzz = load("release/fuzz_protocol")
     assert fuzz.main(["--iterations", "3000", "--seed", "5"]) == 0
     assert json.loads(capsys.readouterr().out)["failures"] == 0
     fuzz.one_input(b"")
@@ -29,6 +29,6 @@ def test_fuzz_random_loop(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_bench_prints_json(capsys: pytest.CaptureFixture[str]) -> None:
-    result = load("bench_protocol").main(["--frames", "128", "--repeat", "1"])
+    result = load("bench/bench_protocol").main(["--frames", "128", "--repeat", "1"])
     printed = json.loads(capsys.readouterr().out)
     assert printed == result and result["decode_MBps"] > 0 and result["wire_bytes"] > 128 * 4096

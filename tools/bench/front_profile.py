@@ -1,6 +1,6 @@
 """The front kernel's pieces timed in-process on bench's 4 x 64 and 16 x 1024 sets (median us).
 
-    cd /tmp && PYTHONPATH=<worktree> python <worktree>/tools/front_profile.py
+    cd /tmp && PYTHONPATH=<worktree> python <worktree>/tools/bench/front_profile.py
 
 (docs/history/front-speed.md; PYTHONPATH from a non-worktree cwd picks the tree to time).
 """

@@ -6,7 +6,7 @@
 # (tomli fallback, taken from pip's vendored copy). numpy is not in Pyodide's npm package, so
 # the test suite cannot run there.
 set -euo pipefail
-REPO=$(cd "$(dirname "$0")/.." && pwd)
+REPO=$(cd "$(dirname "$0")/../.." && pwd)
 WORK=${1:-/var/tmp/spiel-py310}
 mkdir -p "$WORK"
 if [ ! -e "$WORK/package/pyodide.mjs" ]; then
@@ -15,4 +15,4 @@ if [ ! -e "$WORK/package/pyodide.mjs" ]; then
 fi
 PY=${SPIEL_HOST_PYTHON:-$REPO/.venv/bin/python}
 TOMLI=$("$PY" -c 'import pip._vendor.tomli as t, os; print(os.path.dirname(t.__file__))')
-cd "$WORK" && PYODIDE_DIR="$WORK" node "$REPO/tools/py310_check.mjs" "$REPO" "$TOMLI"
+cd "$WORK" && PYODIDE_DIR="$WORK" node "$REPO/tools/release/py310_check.mjs" "$REPO" "$TOMLI"

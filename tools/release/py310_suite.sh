@@ -12,7 +12,7 @@
 # Debian packages no Python 3.10 and PyPI no interpreter; Ubuntu's archive has jammy's 3.10.
 set -euo pipefail
 
-REPO=$(cd "$(dirname "$0")/.." && pwd)
+REPO=$(cd "$(dirname "$0")/../.." && pwd)
 WORK=${1:-/var/tmp/spiel-jammy}
 shift || true
 MIRROR=${SPIEL_UBUNTU_MIRROR:-http://archive.ubuntu.com/ubuntu}

@@ -53,7 +53,7 @@ from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_
 
 log = logging.getLogger("train_association")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = Path(
     os.environ.get("SPIEL_DATASET", REPO.parent / "shared" / "datasets" / "spiel-icra23")
 )

@@ -18,7 +18,7 @@ from spiel_edge.measure.evaluate import split_by_position
 from spiel_edge.pipeline.stages.static_scene import static_model_arrays
 from spiel_edge.recordings.spiel_csv import frame_files, position_key, read_frames
 
-OUT = Path(__file__).resolve().parents[1] / "spiel_edge" / "models" / "static_spiel_icra23.npz"
+OUT = Path(__file__).resolve().parents[2] / "spiel_edge" / "models" / "static_spiel_icra23.npz"
 
 
 def main(root: str) -> None:

@@ -32,7 +32,7 @@ def main(root: str) -> None:
             frames.append(read_frames(path))
             backgrounds.append(read_frames(root_path / "train_val_bg" / path.name))
             truths.append(read_truth(path))
-    out = Path(__file__).resolve().parents[1] / "spiel_edge" / "data" / "spiel_icra23_subset.npz"
+    out = Path(__file__).resolve().parents[2] / "spiel_edge" / "data" / "spiel_icra23_subset.npz"
     np.savez_compressed(
         out,
         names=np.array(names),
