@@ -122,7 +122,7 @@ def ros2_record_options(command):
 def ros2_settings(values: dict, profile) -> Ros2Settings:
     """The frame id and static transforms: the profile's [frame] with the options over it
     (ConfigError naming the option or key that is wrong)."""
-    from spiel_edge.outputs.ros2_messages import SensorLimits
+    from spiel_edge.outputs.ros2_limits import SensorLimits
 
     return frame_settings(
         profile.frame,

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.outputs.ros2_limits import SensorLimits
 from spiel_edge.profile.frame_section import (
     DEFAULT_FRAME_ID,
     FrameSpec,
@@ -31,8 +32,6 @@ ZENOH_MODES = ("peer", "client")
 
 
 def _default_limits():
-    from spiel_edge.outputs.ros2_messages import SensorLimits
-
     return SensorLimits()
 
 

@@ -40,6 +40,8 @@ from functools import cache
 
 from spiel_edge.recordings import cdr
 from spiel_edge.outputs import ros2_types
+from spiel_edge.outputs.ros2_limits import FIELD_OF_VIEW_RAD, SensorLimits  # noqa: F401
+from spiel_edge.profile.frame_section import DEFAULT_FRAME_ID
 
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
@@ -67,30 +69,6 @@ MIN_SCORE = -20.0  # score = -(association cost): below this a target is not pub
 MAX_VARIANCE_M2 = 1.0  # (1 m)^2, twice the listening range: a wider target says nothing
 RANGE_MARGIN_M = 0.025  # about the localisation error: targets this far past the limits pass
 DIAGNOSTICS_PERIOD_S = 1.0
-FIELD_OF_VIEW_RAD = math.pi  # the CH101's 180 degrees (the paper, section IV)
-
-
-@dataclass(frozen=True)
-class SensorLimits:
-    """The board's field of view and range limits (sensor_msgs/Range, the target filter)."""
-
-    field_of_view_rad: float = FIELD_OF_VIEW_RAD
-    min_range_m: float = 0.0702  # spiel-icra23: 9 blind samples at 22 kHz, 343 m/s
-    max_range_m: float = 0.4989  # 64 samples
-    boresight: tuple[float, float, float] = (0.0, 0.0, 1.0)  # in the geometry's frame
-
-    @classmethod
-    def of_profile(cls, profile) -> SensorLimits:
-        a, g = profile.acquisition, profile.geometry
-        metres_per_sample = g.speed_of_sound_m_s / a.sample_rate_hz / 2.0  # round trip
-        facing = [float(v) for v in g.facing]
-        norm = math.sqrt(sum(v * v for v in facing)) or 1.0
-        return cls(
-            FIELD_OF_VIEW_RAD,
-            round(profile.preprocess.blind_zone_samples * metres_per_sample, 4),
-            round(a.n_samples * metres_per_sample, 4),
-            tuple(v / norm for v in facing),  # type: ignore[arg-type]
-        )
 
 
 @dataclass(frozen=True)
@@ -261,14 +239,13 @@ class Ros2Messages:
     topics as in TOPICS (relative or absolute); the transforms once via ``tf_message()``."""
 
     def __init__(self, ros2=None, *, status_provider: StatusProvider | None = None):
-        from spiel_edge.outputs.ros2 import Ros2Settings
-
-        ros2 = ros2 or Ros2Settings()
+        """``ros2``: an outputs.ros2.Ros2Settings (frame id, mount, limits); None: defaults."""
+        frame_id = getattr(ros2, "frame_id", DEFAULT_FRAME_ID)
         self.settings = ros2
-        self.frame_id = optical_frame(ros2.frame_id)
+        self.frame_id = optical_frame(frame_id)
         self.encoder = MessageEncoder(self.frame_id)
-        self.transforms = sensor_transforms(ros2.frame_id, ros2.transforms)
-        self.filter = TargetFilter(ros2.limits)
+        self.transforms = sensor_transforms(frame_id, getattr(ros2, "transforms", ()))
+        self.filter = TargetFilter(getattr(ros2, "limits", None) or SensorLimits())
         self.status_provider = status_provider
         self._next_diagnostics = -math.inf
         self.counts = {"records": 0, "published_targets": 0, "dropped_targets": 0}

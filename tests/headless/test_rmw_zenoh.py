@@ -607,3 +607,16 @@ def test_peer_without_its_router_warns_once_and_publishes_once_it_is_there(caplo
         sink.close()
         if router is not None:
             router.close()
+
+
+def test_rmw_zenoh_connects_to_the_local_router_by_default(monkeypatch):
+    pytest.importorskip("zenoh", reason="extra 'zenoh' not installed")
+    from spiel_edge.outputs.rmw_zenoh.sink import DEFAULT_ROUTER, RmwZenohSink
+
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    sink = RmwZenohSink("spiel")
+    try:
+        assert sink.settings.connect == (DEFAULT_ROUTER,) == ("tcp/localhost:7447",)
+        sink.write(RECORD)  # whether or not a router is there: the run goes on
+    finally:
+        sink.close()

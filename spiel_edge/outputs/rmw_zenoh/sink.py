@@ -8,8 +8,8 @@ number, source time, gid). ``/tf_static`` is transient-local: Zenoh's advanced p
 a cache of one sample and publisher detection, as rmw_zenoh declares it, so a late
 subscriber's history query gets the transform at once; the transform is put once.
 
-The session: peer mode (rmw_zenoh's) or client, connecting to ``--zenoh-connect`` endpoints
-(rmw_zenohd listens on tcp/localhost:7447). Nothing here blocks the run loop: a router that is
+The session: peer mode (rmw_zenoh's) or client, connecting to ``--zenoh-connect`` endpoints,
+by default (no endpoint, no ZENOH_CONFIG) DEFAULT_ROUTER as rmw_zenoh's sessions do. Nothing here blocks the run loop: a router that is
 not there is warned about once and the run goes on (a peer session keeps trying by itself; a
 client session that cannot open is opened again in the background every RETRY_S, and declares
 everything then); samples meanwhile are dropped, /tf_static waits in the cache.
@@ -18,8 +18,10 @@ everything then); samples meanwhile are dropped, /tf_static waits in the cache.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
+from dataclasses import replace
 from typing import Any
 
 from spiel_edge.errors import ConfigError
@@ -32,6 +34,7 @@ from spiel_edge.outputs.sink import Sink
 log = logging.getLogger(__name__)
 
 NODE_NAME = "spiel_edge"
+DEFAULT_ROUTER = "tcp/localhost:7447"  # rmw_zenoh's default: rmw_zenohd on this host
 NODE_ID = 0
 RETRY_S = 1.0  # a client session that could not open is tried again this often
 WATCH_S = 1.0  # how often the run loop checks that a router or peer is connected
@@ -65,6 +68,9 @@ class RmwZenohSink(Sink):
 
         self.zenoh = _import_zenoh()
         self.settings = settings or ZenohSettings()
+        if not self.settings.connect and config is None and not os.environ.get("ZENOH_CONFIG"):
+            # rmw_zenoh's own sessions connect to the router on this host
+            self.settings = replace(self.settings, connect=(DEFAULT_ROUTER,))
         self.domain_id = wire.check_domain_id(self.settings.domain_id)
         self.topics = topics_of(prefix)
         self.messages = rm.Ros2Messages(ros2)
