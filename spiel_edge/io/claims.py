@@ -215,19 +215,19 @@ def publish(
         return
     shown = shorten(path)
     if current is not None and claim.force:
-        raise ConfigError(f"{shown}: replaced by another program while {what} ran; not kept")
+        raise ConfigError(f"{shown}: replaced by another program during {what}; not kept")
     try:
         os.link(tmp, path)
     except FileExistsError:
         raise ConfigError(
-            f"{shown}: appeared while {what} ran (another command?); not overwritten, "
+            f"{shown}: appeared during {what} (another command?); not overwritten, "
             f"{'not kept' if claim.force else 'pass --force to overwrite it'}"
         ) from None
     except OSError:  # no hard links here (some network or FAT file systems): reserve, replace
         try:
             os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except FileExistsError:
-            raise ConfigError(f"{shown}: appeared while {what} ran; not overwritten") from None
+            raise ConfigError(f"{shown}: appeared during {what}; not overwritten") from None
         os.replace(tmp, path)
         return
     os.unlink(tmp)

@@ -254,7 +254,7 @@ def test_an_output_that_appeared_meanwhile_is_not_replaced(tmp_path):
     path = tmp_path / "cal.toml"
     guard.FilePlan().output(path, "-o")
     path.write_text("another command's\n")
-    with pytest.raises(ConfigError, match="appeared while"), guard.atomic_write(path) as fh:
+    with pytest.raises(ConfigError, match="appeared during"), guard.atomic_write(path) as fh:
         fh.write("ours\n")
     assert path.read_text() == "another command's\n"
     assert [p.name for p in tmp_path.iterdir()] == ["cal.toml"]  # no temporary left
@@ -309,6 +309,6 @@ def test_two_recovers_on_one_new_output_cannot_both_succeed(recording, tmp_path)
     statuses = sorted(status for status, _ in results)
     assert statuses == [0, 2], results
     loser = next(err for status, err in results if status != 0)
-    assert "exists" in loser or "appeared while" in loser, loser
+    assert "exists" in loser or "appeared during" in loser, loser
     assert "Traceback" not in loser
     assert out.stat().st_size > 1000  # the winner's recording, whole
