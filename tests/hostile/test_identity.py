@@ -312,3 +312,14 @@ def test_two_recovers_on_one_new_output_cannot_both_succeed(recording, tmp_path)
     assert "exists" in loser or "appeared during" in loser, loser
     assert "Traceback" not in loser
     assert out.stat().st_size > 1000  # the winner's recording, whole
+
+
+def test_a_forced_new_output_that_appeared_meanwhile_is_not_replaced(tmp_path):
+    """--force allows replacing the file that was there at the check; a file another command
+    created since (there was none) is not replaced either."""
+    path = tmp_path / "new.toml"
+    guard.FilePlan(force=True).output(path, "-o")
+    path.write_text("another command's\n")
+    with pytest.raises(ConfigError, match="appeared during"), guard.atomic_write(path) as fh:
+        fh.write("ours\n")
+    assert path.read_text() == "another command's\n"
