@@ -323,3 +323,23 @@ def test_a_forced_new_output_that_appeared_meanwhile_is_not_replaced(tmp_path):
     with pytest.raises(ConfigError, match="appeared during"), guard.atomic_write(path) as fh:
         fh.write("ours\n")
     assert path.read_text() == "another command's\n"
+
+
+@pytest.mark.parametrize("force", [[], ["--force"]], ids=["plain", "forced"])
+@pytest.mark.parametrize("how", ["same-name", "hard-link"])
+@pytest.mark.parametrize("command", ["run", "replay", "calibrate"])
+def test_a_profile_file_is_an_input_too(cli, csv_folder, tmp_path, command, how, force):
+    from spiel_edge.profile.schema import dump_toml, load_profile, profile_to_dict
+
+    profile = tmp_path / "mine.toml"
+    profile.write_text(dump_toml(profile_to_dict(load_profile("spiel-icra23"))))
+    before = digest(profile)
+    out = profile if how == "same-name" else _twin(profile, tmp_path, "out.toml")
+    args = {
+        "run": ["run", "--port", NO_BOARD],
+        "replay": ["replay", csv_folder[0]],
+        "calibrate": ["calibrate", "--recordings", csv_folder[0]],
+    }[command]
+    ran = cli(*args, "--profile", profile, "-o", out, *force)
+    assert ran.status == 2 and "--profile" in ran.err, ran
+    assert digest(profile) == before
