@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.limits import read_input_text
 from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_truth
 
 log = logging.getLogger(__name__)
@@ -64,6 +63,8 @@ def load_recordings(
 def read_positions(path: str | Path) -> np.ndarray:
     """Target positions (P, 3) in mm from a CSV with x, y, z per row (a header and # comments
     are allowed)."""
+    from spiel_edge.io.limits import read_input_text  # the bounded reader (positions: 1 MiB)
+
     path = Path(path)
     text = read_input_text(path, "positions")
     rows: list[list[float]] = []

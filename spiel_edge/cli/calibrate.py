@@ -113,6 +113,7 @@ def command(
     for path, option in ((calibration, "--calibration"), (positions, "--positions")):
         if path:
             plan.input_file(path, option)
+    plan.input_if_file(profile_name, "--profile")
     plan.output(output, "--output")
     plan.output(plot, "--plot")
     profile = resolve_profile(profile_name, calibration)

@@ -100,6 +100,7 @@ def command(
         plan.input_folder(background, "--background")
     if calibration:
         plan.input_file(calibration, "--calibration")
+    plan.input_if_file(profile_name, "--profile")
     plan.output(output, "--output")
     profile = resolve_profile(profile_name, calibration)
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work

@@ -173,6 +173,7 @@ def command(
     for path, option in ((background, "--background"), (calibration, "--calibration")):
         if path:
             plan.input_file(path, option)
+    plan.input_if_file(profile_name, "--profile")
     record = check_outputs(plan, output, record)
     # a bad profile, calibration or frame option: before the board
     chosen = resolve_profile(profile_name, calibration)

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from firmware_protocol import SAMPLE_SIZE, HelloResponse, StreamData, StreamStartResponse
+from firmware_protocol import HelloResponse, StreamStartResponse
+from firmware_protocol.stream import STREAM_HEADER
 from spiel_edge.errors import DeviceError
 from spiel_edge.io.shown import escape
 
@@ -53,6 +54,7 @@ class StreamSanity:
     def __init__(self) -> None:
         self.who = ""
         self.n_channels: int | None = None
+        self.board_channels = 0
         self.n_samples: int | None = None
         self.sample_format: int | None = None
         self.reset()
@@ -68,7 +70,8 @@ class StreamSanity:
         """The stream the board promised; its answer checked against its HELLO."""
         self.who = who
         self.reset()
-        if hello is not None and answer.n_channels != hello.n_channels:
+        # fewer is a channel subset (protocol version 2); more, or none, is a lie
+        if hello is not None and not 1 <= answer.n_channels <= hello.n_channels:
             raise FirmwareError(
                 f"{who}: STREAM_START answered {answer.n_channels} channels, its HELLO "
                 f"{hello.n_channels}: a firmware bug; nothing was read"
@@ -79,28 +82,32 @@ class StreamSanity:
                 f"HELLO allows 1-{hello.max_samples}: a firmware bug; nothing was read"
             )
         self.n_channels = answer.n_channels
+        self.board_channels = hello.n_channels if hello is not None else answer.n_channels
         self.n_samples = answer.n_samples
         self.sample_format = answer.sample_format
 
-    def frame(self, msg: StreamData, counter: int | None) -> None:
-        """One STREAM_DATA frame (valid CRC, decoded), before assembly."""
-        if self.n_channels is None:
-            return  # no stream promised yet (frames of an older stream): the assembler's
+    def payload(self, payload: bytes, counter: int | None) -> None:
+        """One STREAM_DATA frame's payload (valid CRC), before assembly: its sub-header is
+        read here (one struct unpack), whatever the assembler does with the samples."""
+        if self.n_channels is None or len(payload) < STREAM_HEADER.size:
+            return  # no stream promised yet, or too short: the assembler counts it
+        index, channel, n_channels, sample_format, _, _, _, n_samples, _ = (
+            STREAM_HEADER.unpack_from(payload)
+        )
         problems = []
-        if msg.n_channels != self.n_channels:
-            problems.append(f"{msg.n_channels} channels (promised {self.n_channels})")
-        if msg.channel >= max(msg.n_channels, 1):
-            problems.append(f"channel {msg.channel} of {msg.n_channels}")
-        if msg.sample_format != self.sample_format:
-            problems.append(f"sample format {msg.sample_format} (promised {self.sample_format})")
-        size = SAMPLE_SIZE.get(msg.sample_format)  # type: ignore[call-overload]
-        if size and len(msg.samples) // size != self.n_samples:
-            problems.append(f"{len(msg.samples) // size} samples (promised {self.n_samples})")
+        if n_channels != self.n_channels:
+            problems.append(f"{n_channels} channels (promised {self.n_channels})")
+        if channel >= self.board_channels:  # ids are physical: a subset keeps its ids
+            problems.append(f"channel {channel} of {self.board_channels}")
+        if sample_format != self.sample_format:
+            problems.append(f"sample format {sample_format} (promised {self.sample_format})")
+        elif n_samples != self.n_samples:
+            problems.append(f"{n_samples} samples (promised {self.n_samples})")
         if problems:
             raise FirmwareError(
                 f"{self.who}: its stream says {', '.join(problems)}: a firmware bug; stopped"
             )
-        self._history(msg.acquisition, msg.channel, counter)
+        self._history(index, channel, counter)
 
     def _history(self, index: int, channel: int, counter: int | None) -> None:
         last_index, last_counter = self._last_index, self._last_counter

@@ -125,15 +125,15 @@ class StreamTracker:
         return False
 
     def _stream_data(self, frame: Frame, received_ns: int) -> None:
+        self.frame_at = time.monotonic()
+        self.frames_since += 1
+        self.sanity.payload(frame.payload, frame.aux)  # FirmwareError: the stream contradicts
         try:
             msg = StreamData.unpack(frame.payload)
         except MessageError as exc:
             self.bad_messages += 1
             log.debug("bad STREAM_DATA: %s", exc)
             return
-        self.frame_at = time.monotonic()
-        self.frames_since += 1
-        self.sanity.frame(msg, frame.aux)  # FirmwareError when the stream contradicts itself
         acq = self.assembler.feed(msg, frame.aux)
         if acq is None:
             return

@@ -205,29 +205,31 @@ def publish(
     command wrote meanwhile is never replaced (ConfigError, ``tmp`` removed). Outputs not
     claimed by a FilePlan (library use) are replaced unless ``force`` is False."""
     tmp, path = Path(tmp), Path(path)
-    claim = _claim_for(path) or _Claim(force is not False, ident=_identity(path))
-    if claim.lock_fd is None and claim.force and force is None:  # unclaimed: as asked
-        os.replace(tmp, path)
-        return
+    claim = _claim_for(path)
+    if claim is None:  # not checked by a FilePlan (library use): as asked
+        if force is not False:
+            os.replace(tmp, path)
+            return
+        claim = _Claim(False)
     current = _identity(path)
     if claim.force and claim.ident is not None and current in (claim.ident, None):
         os.replace(tmp, path)
         return
     shown = shorten(path)
-    if current is not None and claim.force:
-        raise ConfigError(f"{shown}: replaced by another program while {what} ran; not kept")
+    if current is not None and claim.force and claim.ident is not None:
+        raise ConfigError(f"{shown}: replaced by another program during {what}; not kept")
     try:
         os.link(tmp, path)
     except FileExistsError:
         raise ConfigError(
-            f"{shown}: appeared while {what} ran (another command?); not overwritten, "
+            f"{shown}: appeared during {what} (another command?); not overwritten, "
             f"{'not kept' if claim.force else 'pass --force to overwrite it'}"
         ) from None
     except OSError:  # no hard links here (some network or FAT file systems): reserve, replace
         try:
             os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except FileExistsError:
-            raise ConfigError(f"{shown}: appeared while {what} ran; not overwritten") from None
+            raise ConfigError(f"{shown}: appeared during {what}; not overwritten") from None
         os.replace(tmp, path)
         return
     os.unlink(tmp)

@@ -89,6 +89,16 @@ class FilePlan:
         if ident is not None:
             self._input_ids[ident] = option
 
+    def input_if_file(self, path: str | Path, option: str) -> None:
+        """An input that may also be a name (``--profile spiel-icra23``): noted when it is a
+        regular file, so no output replaces it; otherwise its reader says what is wrong."""
+        try:
+            st = os.stat(path)
+        except (OSError, ValueError):
+            return
+        if stat.S_ISREG(st.st_mode):
+            self._claim_input(Path(path), option, (st.st_dev, st.st_ino))
+
     def input_any(self, path: str | Path, option: str) -> Path:
         """A folder or a regular file."""
         path = Path(path)

@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.limits import load_npz_bounded
 from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.pipeline.stages.uncertainty import CHI2_95_3DOF, mahalanobis2
 
@@ -105,9 +104,9 @@ def _ratio(a: float, b: float) -> float | None:
 
 
 def load_scenes(path: str | Path) -> dict[str, np.ndarray]:
-    data = load_npz_bounded(
-        path, "scenes", text_ok=True
-    )  # sizes and headers checked before decompression
+    from spiel_edge.io.limits import load_npz_bounded
+
+    data = load_npz_bounded(path, "scenes", text_ok=True)  # sizes before decompression
     try:
         scenes = {k: data[k] for k in ("frames", "backgrounds", "truth_mm", "names")}
         scenes["split"] = str(data["split"]) if "split" in data else "unknown"

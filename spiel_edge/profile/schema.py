@@ -21,7 +21,7 @@ from spiel_edge.io.guard import read_config_text, shorten
 from spiel_edge.io.limits import load_npz_bounded, loads_toml
 from spiel_edge.profile.frame_section import FrameSpec, validate_frame
 from spiel_edge.profile.geometry_checks import check_geometry
-from spiel_edge.profile.ranges import check_number, check_range
+from spiel_edge.profile.ranges import RANGES, check_number, check_range
 from spiel_edge.profile.specs import (
     ASSOCIATION_METHODS,
     ECHO_TIMING_ESTIMATORS,
@@ -171,11 +171,11 @@ def _section(origin: str, key: str, cls: type, values: Any) -> Any:
             value = _number_tuple(origin, f"{key}.{name}", value)
         if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
             raise ConfigError(f"{origin}: {key}.{name} must be {expected.__name__}, got {value!r}")
-        if isinstance(value, tuple):
+        if not isinstance(value, tuple):
+            check_number(f"{key}.{name}", value, origin)
+        elif f"{key}.{name}" not in RANGES:  # listed ones: their section's validator says more
             for item in value:
                 check_number(f"{key}.{name}", item, origin)
-        else:
-            check_number(f"{key}.{name}", value, origin)
         converted[name] = value
     return cls(**converted)
 

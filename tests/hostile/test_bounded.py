@@ -38,7 +38,7 @@ def _sparse(path, header: bytes, size: int):
     return path
 
 
-def _bounded(fn, *args, max_s: float = 2.0, max_bytes: int = 4 << 20):
+def _bounded(fn, *args, max_s: float = 5.0, max_bytes: int = 4 << 20):
     """Run ``fn``; it must raise a SpielError quickly and with little memory. The error."""
     tracemalloc.start()
     t0 = time.monotonic()

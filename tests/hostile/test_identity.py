@@ -254,7 +254,7 @@ def test_an_output_that_appeared_meanwhile_is_not_replaced(tmp_path):
     path = tmp_path / "cal.toml"
     guard.FilePlan().output(path, "-o")
     path.write_text("another command's\n")
-    with pytest.raises(ConfigError, match="appeared while"), guard.atomic_write(path) as fh:
+    with pytest.raises(ConfigError, match="appeared during"), guard.atomic_write(path) as fh:
         fh.write("ours\n")
     assert path.read_text() == "another command's\n"
     assert [p.name for p in tmp_path.iterdir()] == ["cal.toml"]  # no temporary left
@@ -309,6 +309,37 @@ def test_two_recovers_on_one_new_output_cannot_both_succeed(recording, tmp_path)
     statuses = sorted(status for status, _ in results)
     assert statuses == [0, 2], results
     loser = next(err for status, err in results if status != 0)
-    assert "exists" in loser or "appeared while" in loser, loser
+    assert "exists" in loser or "appeared during" in loser, loser
     assert "Traceback" not in loser
     assert out.stat().st_size > 1000  # the winner's recording, whole
+
+
+def test_a_forced_new_output_that_appeared_meanwhile_is_not_replaced(tmp_path):
+    """--force allows replacing the file that was there at the check; a file another command
+    created since (there was none) is not replaced either."""
+    path = tmp_path / "new.toml"
+    guard.FilePlan(force=True).output(path, "-o")
+    path.write_text("another command's\n")
+    with pytest.raises(ConfigError, match="appeared during"), guard.atomic_write(path) as fh:
+        fh.write("ours\n")
+    assert path.read_text() == "another command's\n"
+
+
+@pytest.mark.parametrize("force", [[], ["--force"]], ids=["plain", "forced"])
+@pytest.mark.parametrize("how", ["same-name", "hard-link"])
+@pytest.mark.parametrize("command", ["run", "replay", "calibrate"])
+def test_a_profile_file_is_an_input_too(cli, csv_folder, tmp_path, command, how, force):
+    from spiel_edge.profile.schema import dump_toml, load_profile, profile_to_dict
+
+    profile = tmp_path / "mine.toml"
+    profile.write_text(dump_toml(profile_to_dict(load_profile("spiel-icra23"))))
+    before = digest(profile)
+    out = profile if how == "same-name" else _twin(profile, tmp_path, "out.toml")
+    args = {
+        "run": ["run", "--port", NO_BOARD],
+        "replay": ["replay", csv_folder[0]],
+        "calibrate": ["calibrate", "--recordings", csv_folder[0]],
+    }[command]
+    ran = cli(*args, "--profile", profile, "-o", out, *force)
+    assert ran.status == 2 and "--profile" in ran.err, ran
+    assert digest(profile) == before

@@ -71,7 +71,7 @@ def test_a_lying_stream_is_reported_at_once(lie):
     t0 = time.monotonic()
     with pytest.raises(FirmwareError) as info:
         _stream(_url(lie))
-    assert time.monotonic() - t0 < 5
+    assert time.monotonic() - t0 < 15  # at once: a few frames (seconds only on a loaded host)
     message = str(info.value)
     assert STREAM_LIES[lie] in message, message
     _one_line_naming_the_board(message)
