@@ -82,9 +82,13 @@ class SessionV2Mixin:
             return False
         try:
             answer = self.request(
-                TimeSync(time.perf_counter_ns() // 1000), timeout_s=SYNC_TIMEOUT_S, retries=0
+                TimeSync(time.perf_counter_ns() // 1000),
+                timeout_s=SYNC_TIMEOUT_S,
+                retries=0,
+                best_effort=True,
             )
         except DeviceTimeoutError:
+            self.clock.counters.unanswered += 1
             return False  # the stream goes on; the next exchange will do
         if not isinstance(answer, TimeSyncResponse):
             return False

@@ -172,9 +172,7 @@ class LiveRunner:
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
         self._warned_no_background = False
         self.problems = OncePerProblem(log)
-        hook = getattr(sink, "set_status_provider", None)
-        if hook is not None:  # ROS 2 sinks publish it on /diagnostics
-            hook(self.diagnostics)
+        sink.set_status_provider(self.diagnostics)  # ROS 2 sinks publish it on /diagnostics
 
     def run(
         self,
@@ -203,6 +201,8 @@ class LiveRunner:
                 self.refresh_device_counters()
                 status(self)
                 next_status = time.monotonic() + status_every_s
+        if batch is not None:
+            self.sink.flush()  # what is held, before the caller closes: a failure shows here
         return self.stats
 
     def handle(self, acq: LiveAcquisition) -> dict:

@@ -69,6 +69,8 @@ def install(board, lie: str) -> None:
 
 def _config_lies(board, lie: str) -> None:
     read = board._config_read
+    if lie == "oversized-config":  # room in a frame for twice the chunk the host asks for
+        board.board_max_payload = min(board.board_max_payload, 1024)
 
     def config_read(req: m.ConfigRead, now: float):
         if lie == "endless-config":
