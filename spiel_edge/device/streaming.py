@@ -21,7 +21,7 @@ from firmware_protocol import (
     StreamStop,
 )
 from firmware_protocol.errors import ErrorCode
-from spiel_edge.device.iq import iq_envelope
+from spiel_edge.device.iq import iq_amplitude
 from spiel_edge.device.stream import LiveAcquisition
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -67,9 +67,9 @@ class StreamingMixin:
         )
         if sample_format == SampleFormat.I16_IQ:  # compile (or load) the kernel before data flows
             warm = np.zeros((1, 2), dtype=np.int16)
-            iq_envelope(warm)
+            iq_amplitude(warm)
             warm.setflags(write=False)  # reassembled samples are read-only views: their own type
-            iq_envelope(warm)
+            iq_amplitude(warm)
         self._stop_quietly()
         if self._status_base is None:  # the board's since-boot counters before this run
             self._status_base = self._request_status()
