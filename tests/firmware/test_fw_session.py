@@ -79,3 +79,23 @@ def test_run_counters_count_from_the_streams_own_start(posix_board):
         session.stop_stream()
     assert counts["acquisitions"] == 3
     assert counts["overruns"] == counts["lost"] <= 2  # this run's own, not the first run's
+
+
+def test_the_host_refuses_a_stream_the_link_cannot_carry(posix_board, fw_build):
+    from spiel_edge.errors import DeviceError
+    from tests.firmware.firmware import build_posix
+
+    board = posix_board(exe=build_posix(fw_build, SPIEL_MAX_PAYLOAD=64))
+    with DeviceSession(board.port, reconnect=False) as session:
+        assert session.max_payload == 64
+        try:
+            session.start_stream(rate_hz=50, n_samples=64)
+        except DeviceError as exc:
+            assert "152-byte stream frames" in str(exc) and "64" in str(exc)
+        else:
+            raise AssertionError("a 152-byte frame was asked of a 64-byte link")
+        answer = session.start_stream(rate_hz=50, n_samples=20)  # 64 bytes: fits
+        assert answer.n_samples == 20
+        [acq] = take(session, 1)
+        session.stop_stream()
+    assert acq.samples.shape == (4, 20)
