@@ -99,3 +99,42 @@ def test_the_host_refuses_a_stream_the_link_cannot_carry(posix_board, fw_build):
         [acq] = take(session, 1)
         session.stop_stream()
     assert acq.samples.shape == (4, 20)
+
+
+def test_reboot_re_executes_on_the_same_pty_with_a_new_boot_id(posix_board):
+    import time
+
+    from firmware_protocol import Reboot
+
+    board = posix_board()
+    with DeviceSession(board.port, reconnect=False) as session:
+        first = session.hello.boot_id
+        session.request(Reboot(0, 20))
+    time.sleep(0.3)
+    with DeviceSession(board.port, reconnect=False) as session:
+        assert session.hello.boot_id != first and session.hello.serial == "POSIX0001"
+    with DeviceSession(board.port, reconnect=False) as session:
+        session.request(Reboot(1, 50))  # to the bootloader: the posix target has none
+    assert board.wait_dead() == 3
+
+
+def test_a_firmware_whose_host_stops_reading_does_not_spin(posix_board):
+    """Streaming into a pty nobody reads: the firmware waits for room (overruns), it does not
+    burn a core."""
+    import os
+    import time
+
+    board = posix_board()
+    with DeviceSession(board.port, reconnect=False) as session:
+        session.start_stream(rate_hz=1000, n_samples=64)
+        ticks = os.sysconf("SC_CLK_TCK")
+
+        def cpu() -> float:
+            fields = open(f"/proc/{board.proc.pid}/stat").read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
+
+        time.sleep(0.5)  # the pty fills up: nobody reads
+        before, t0 = cpu(), time.monotonic()
+        time.sleep(1.0)
+        used = (cpu() - before) / (time.monotonic() - t0)
+    assert used < 0.1, f"the firmware used {used:.0%} of a core while blocked"
