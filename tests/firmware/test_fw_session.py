@@ -4,6 +4,7 @@ streaming of the recordings in order, counters of the run's own stream."""
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import numpy as np
 
@@ -130,7 +131,8 @@ def test_a_firmware_whose_host_stops_reading_does_not_spin(posix_board):
         ticks = os.sysconf("SC_CLK_TCK")
 
         def cpu() -> float:
-            fields = open(f"/proc/{board.proc.pid}/stat").read().rsplit(")", 1)[1].split()
+            stat = Path(f"/proc/{board.proc.pid}/stat").read_text()
+            fields = stat.rsplit(")", 1)[1].split()
             return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
 
         time.sleep(0.5)  # the pty fills up: nobody reads
