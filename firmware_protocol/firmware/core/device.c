@@ -710,6 +710,9 @@ void spiel_device_poll(void)
     uint64_t now;
     flush();
     if (tx.len) {
+        if (st.busy) {
+            schedule(hal_time_us()); /* the link is blocked: count the slots that pass */
+        }
         return;
     }
     if (dev.reboot_pending && hal_time_us() >= dev.reboot_at) {
