@@ -102,3 +102,41 @@ def test_sigkill_at_every_image_operation_boots_a_complete_image(posix, tmp_path
             if version == "posix-1.0.0":
                 assert update_firmware(again.port, image, boot_wait_s=10).confirmed, cut
     assert seen == {"posix-1.0.0", "posix-1.1.0"}
+
+
+def test_c_firmware_syncs_its_clock_sends_heartbeats_and_is_named_when_it_stops(
+    posix, tmp_path, caplog
+) -> None:
+    import logging
+    import signal
+    import threading
+
+    from spiel_edge.device.timesync import TimeSyncEstimator
+
+    with board(posix, tmp_path) as b, caplog.at_level(logging.WARNING):
+        dev = DeviceSession(b.port, reconnect=False)
+        dev.open()
+        try:
+            assert dev.hello.protocol_version == 2 and dev.telemetry.period_s == 0.5
+            assert isinstance(dev.clock, TimeSyncEstimator) and dev.clock.estimate is not None
+            dev.start_stream(rate_hz=20)
+            got = []
+            for acq in dev.acquisitions(threading.Event()):
+                got.append(acq)
+                if len(got) >= 30:
+                    break
+            counts = dev.counts()
+            assert counts["heartbeats"] >= 2 and counts["sync_exchanges"] >= 10
+            # the board's clock is the host's monotonic clock here: the stamps are the truth
+            for acq in got:
+                assert acq.stamp_host is not None
+                assert abs(acq.stamp_host - acq.host_time) < 0.1
+            b.proc.send_signal(signal.SIGSTOP)  # the firmware hangs (our own process)
+            stopped = time.monotonic()
+            with pytest.raises(DeviceError, match="no heartbeat"):
+                for _ in dev.acquisitions(threading.Event()):
+                    pass
+            assert time.monotonic() - stopped < dev.stall_s
+        finally:
+            b.proc.send_signal(signal.SIGCONT)
+            dev._drop_link()
