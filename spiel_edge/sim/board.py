@@ -46,7 +46,7 @@ from firmware_protocol.framing import Frame
 from firmware_protocol.stream import SAMPLE_SIZE, STREAM_HEADER
 from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
-from spiel_edge.sim.board_v2 import BoardV2Mixin
+from spiel_edge.sim.board_v2 import FW_MIN_PAYLOAD, BoardV2Mixin
 from spiel_edge.sim.config_slots import BoardConfigMixin
 from spiel_edge.sim.faults import Outgoing
 from spiel_edge.sim.firmware_slots import FirmwareFlash
@@ -253,7 +253,9 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
         self.max_payload = min(req.max_payload or MAX_PAYLOAD, self.board_max_payload)
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
         if self.version >= 2:
-            caps |= Capability.TIME_SYNC | Capability.TELEMETRY | Capability.FIRMWARE_UPDATE
+            caps |= Capability.TIME_SYNC | Capability.TELEMETRY
+            if self.max_payload >= FW_MIN_PAYLOAD:  # FW_INFO's answer needs 74 bytes
+                caps |= Capability.FIRMWARE_UPDATE
             if hasattr(self.scene, "iq_supported"):
                 caps |= Capability.IQ_SAMPLES
         return m.HelloResponse(

@@ -34,6 +34,7 @@ LOG_TEXT_MAX = 200
 DEFAULT_HEARTBEAT_MS = 1000
 SYNC_FAULT_EVERY = 7  # sync_fault=...: every 7th TIME_SYNC answer is wrong
 MONTHS_US = 90 * 86400 * 10**6
+FW_MIN_PAYLOAD = 128  # a link's max_payload below this gets no FIRMWARE_UPDATE
 _MASK = 0xFFFFFFFF
 
 __all__ = ["KNOWN_ERROR_FLAGS", "BoardV2Mixin"]
@@ -94,6 +95,12 @@ class BoardV2Mixin:
             return ErrorResponse(
                 ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request of protocol version 1"
             )
+        if 0x0040 <= req.MSG_TYPE <= 0x0045 and self.max_payload < FW_MIN_PAYLOAD:
+            return ErrorResponse(
+                ErrorCode.UNSUPPORTED,
+                req.MSG_TYPE,
+                f"firmware update needs max_payload >= {FW_MIN_PAYLOAD}",
+            )
         return None
 
     # --- time sync -------------------------------------------------------------------------
@@ -146,7 +153,8 @@ class BoardV2Mixin:
             while self._flood_next <= now and room > 4096:
                 self._flood_next += 1.0 / self.log_flood
                 room -= 160
-                line = m.LogMessage(LogLevel.WARNING, 0, self.clock_us(now), "flood " * 20)
+                text = ("flood " * 20)[: self.max_payload - 15]
+                line = m.LogMessage(LogLevel.WARNING, 0, self.clock_us(now), text)
                 out.append(Outgoing(encode_message(line)))
         self._log_tokens = min(
             float(self.log_per_s), self._log_tokens + (now - self._log_refill) * self.log_per_s
@@ -155,6 +163,7 @@ class BoardV2Mixin:
         while self._logs and self._log_tokens >= 1.0:
             level, text, _ = self._logs.popleft()
             self._log_tokens -= 1.0
+            text = text.encode()[: self.max_payload - 15].decode("utf-8", "ignore")
             line = m.LogMessage(level, self._log_dropped, self.clock_us(now), text)
             self._log_dropped = 0
             out.append(Outgoing(encode_message(line)))

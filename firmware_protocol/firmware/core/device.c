@@ -613,6 +613,11 @@ uint32_t core_boot_id(void)
     return dev.boot_id;
 }
 
+uint16_t core_max_payload(void)
+{
+    return dev.max_payload;
+}
+
 void core_reboot_after_ms(uint32_t ms)
 {
     dev.reboot_pending = 1;
