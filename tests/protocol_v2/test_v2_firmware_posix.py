@@ -140,3 +140,45 @@ def test_c_firmware_syncs_its_clock_sends_heartbeats_and_is_named_when_it_stops(
         finally:
             b.proc.send_signal(signal.SIGCONT)
             dev._drop_link()
+
+
+def test_a_version_1_build_of_the_c_firmware_with_run_config_calibrate(tmp_path, capsys) -> None:
+    """The reference firmware built without protocol 2 (-DSPIEL_PROTOCOL_MAX=1): every host
+    command works, none of the version-2 requests is sent."""
+    import json
+
+    import numpy as np
+
+    from spiel_edge.cli import main
+    from spiel_edge.data import load_subset
+
+    subset = load_subset()
+    exe = build_posix(tmp_path / "build", SPIEL_PROTOCOL_MAX=1)
+    picks = [i for i in range(len(subset)) if subset.truth_mm[i][2] != 90.0][:: len(subset) // 8][
+        :8
+    ]
+    empty = np.repeat(subset.backgrounds[picks[0]][None], 1 + 3, axis=0)
+    targets = np.concatenate([np.repeat(subset.frames[i][None], 3, axis=0) for i in picks])
+    scans = write_scans(tmp_path / "cal.spas", np.concatenate([empty, targets]), 22000)
+    positions = tmp_path / "positions.csv"
+    np.savetxt(positions, subset.truth_mm[picks], delimiter=",")
+    with PosixBoard(exe, scans, tmp_path / "flash.bin") as b:
+        with DeviceSession(b.port, reconnect=False) as dev:
+            assert dev.hello.protocol_version == 1 and dev.hello.max_version == 1
+            assert dev.counts()["sync_exchanges"] == 0 and dev.telemetry.period_s is None
+        out = tmp_path / "cal.toml"
+        args = ["calibrate", "--port", b.port, "--positions", str(positions)]
+        assert main([*args, "--captures", "3", "--no-prompt", "-o", str(out)]) == 0
+        assert "[geometry]" in out.read_text()
+        assert main(["config", "push", "--port", b.port, "--name", "v1-c", str(out)]) == 0
+        assert main(["config", "commit", "--port", b.port]) == 0
+        pulled = tmp_path / "pulled.toml"
+        assert main(["config", "pull", "--port", b.port, str(pulled)]) == 0
+        assert "v1-c" in pulled.read_text()
+        ndjson = tmp_path / "run.ndjson"
+        assert (
+            main(["run", "--port", b.port, "--frames", "10", "--no-track", "-o", str(ndjson)]) == 0
+        )
+        records = [json.loads(line) for line in ndjson.read_text().splitlines()]
+        assert len(records) == 10 and not any("stamp_host" in r for r in records)
+    capsys.readouterr()
