@@ -246,6 +246,7 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
             break
     else:
         pytest.fail("a commit took more than 64 flash operations")
+    print(f"power cut at flash operation n -> config after restart: {seen}")
     assert n >= 2, seen  # erase, data, metadata at least
     assert seen[0] == "old-config" and "new-config" in seen.values(), seen
 
