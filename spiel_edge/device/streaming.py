@@ -19,6 +19,7 @@ from firmware_protocol import (
     StreamStop,
 )
 from firmware_protocol.errors import ErrorCode
+from firmware_protocol.stream import SAMPLE_SIZE, STREAM_HEADER
 from spiel_edge.device.stream import LiveAcquisition
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -37,6 +38,7 @@ class StreamingMixin:
     """Mixed into DeviceSession, whose state (link, tracker, inbox, counters) it uses."""
 
     protocol_version: int
+    max_payload: int
     _status_base: StreamStatus | None
 
     # --- streaming -----------------------------------------------------------------------
@@ -56,6 +58,12 @@ class StreamingMixin:
             raise DeviceError(
                 f"{self.url}: a channel subset needs protocol version 2; the board speaks "
                 f"{self.protocol_version}"
+            )
+        frame = STREAM_HEADER.size + SAMPLE_SIZE[SampleFormat.U16_ENVELOPE] * n_samples
+        if n_samples and frame > self.max_payload:
+            raise DeviceError(
+                f"{self.url}: {n_samples} samples per channel need {frame}-byte stream frames; "
+                f"the board's HELLO allows {self.max_payload} (max_payload)"
             )
         request = StreamStart(
             n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, channel_mask

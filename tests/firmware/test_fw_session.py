@@ -4,6 +4,7 @@ streaming of the recordings in order, counters of the run's own stream."""
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import numpy as np
 
@@ -79,3 +80,63 @@ def test_run_counters_count_from_the_streams_own_start(posix_board):
         session.stop_stream()
     assert counts["acquisitions"] == 3
     assert counts["overruns"] == counts["lost"] <= 2  # this run's own, not the first run's
+
+
+def test_the_host_refuses_a_stream_the_link_cannot_carry(posix_board, fw_build):
+    from spiel_edge.errors import DeviceError
+    from tests.firmware.firmware import build_posix
+
+    board = posix_board(exe=build_posix(fw_build, SPIEL_MAX_PAYLOAD=64))
+    with DeviceSession(board.port, reconnect=False) as session:
+        assert session.max_payload == 64
+        try:
+            session.start_stream(rate_hz=50, n_samples=64)
+        except DeviceError as exc:
+            assert "152-byte stream frames" in str(exc) and "64" in str(exc)
+        else:
+            raise AssertionError("a 152-byte frame was asked of a 64-byte link")
+        answer = session.start_stream(rate_hz=50, n_samples=20)  # 64 bytes: fits
+        assert answer.n_samples == 20
+        [acq] = take(session, 1)
+        session.stop_stream()
+    assert acq.samples.shape == (4, 20)
+
+
+def test_reboot_re_executes_on_the_same_pty_with_a_new_boot_id(posix_board):
+    import time
+
+    from firmware_protocol import Reboot
+
+    board = posix_board()
+    with DeviceSession(board.port, reconnect=False) as session:
+        first = session.hello.boot_id
+        session.request(Reboot(0, 20))
+    time.sleep(0.3)
+    with DeviceSession(board.port, reconnect=False) as session:
+        assert session.hello.boot_id != first and session.hello.serial == "POSIX0001"
+    with DeviceSession(board.port, reconnect=False) as session:
+        session.request(Reboot(1, 50))  # to the bootloader: the posix target has none
+    assert board.wait_dead() == 3
+
+
+def test_a_firmware_whose_host_stops_reading_does_not_spin(posix_board):
+    """Streaming into a pty nobody reads: the firmware waits for room (overruns), it does not
+    burn a core."""
+    import os
+    import time
+
+    board = posix_board()
+    with DeviceSession(board.port, reconnect=False) as session:
+        session.start_stream(rate_hz=1000, n_samples=64)
+        ticks = os.sysconf("SC_CLK_TCK")
+
+        def cpu() -> float:
+            stat = Path(f"/proc/{board.proc.pid}/stat").read_text()
+            fields = stat.rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
+
+        time.sleep(0.5)  # the pty fills up: nobody reads
+        before, t0 = cpu(), time.monotonic()
+        time.sleep(1.0)
+        used = (cpu() - before) / (time.monotonic() - t0)
+    assert used < 0.1, f"the firmware used {used:.0%} of a core while blocked"
