@@ -103,7 +103,8 @@ def run(
         status = subprocess.run(args, stdout=log, stderr=subprocess.STDOUT).returncode
     elapsed = time.monotonic() - started
     text = log_path.read_text(errors="replace")
-    harness = re.findall(r"spiel_fuzz: inputs (\d+)", text)
+    harness = re.findall(r"spiel_fuzz: inputs (\d+)", text)  # at exit, or every million
+    interrupted = "run interrupted" in text or status in (-2, -15, 130)
     units = re.findall(r"stat::number_of_executed_units:\s*(\d+)", text)
     summary = [line for line in text.splitlines() if "SUMMARY:" in line or "runtime error" in line]
     artifacts = sorted(str(p) for p in out.glob("crash-*")) + sorted(
@@ -115,7 +116,8 @@ def run(
         "seconds": round(elapsed, 1),
         "inputs_per_s": round(int(harness[-1]) / elapsed) if harness and elapsed > 0 else None,
         "status": status,
-        "crashed": status != 0 or bool(artifacts) or bool(summary),
+        "interrupted": interrupted,
+        "crashed": bool(artifacts) or bool(summary) or (status != 0 and not interrupted),
         "reports": summary[:5],
         "artifacts": artifacts,
         "corpus_files": sum(1 for _ in corpus.iterdir()),
