@@ -304,3 +304,31 @@ def test_reboot_resets_the_board_through_the_scb(board):
                     hello = msg
     assert b.alive() and hello is not None
     assert hello.boot_id != first
+
+
+def test_a_board_with_max_payload_256(mps2_elf, tmp_path, tmp_path_factory):
+    """The image built with -DSPIEL_MAX_PAYLOAD=256: HELLO says 256, a config of ~600 bytes moves in
+    several chunks that fit it, and run streams (a 4 x 64 channel frame is 152 bytes of payload)."""
+    try:
+        elf = build_mps2(
+            tmp_path_factory.mktemp("mps2-256"), extra=("CFLAGS_EXTRA=-DSPIEL_MAX_PAYLOAD=256",)
+        )
+    except Unavailable as exc:
+        pytest.skip(str(exc))
+    b = QemuBoard(elf, new_flash(tmp_path / "flash.bin"))
+    b.start()
+    try:
+        session = DeviceSession(b.port, reconnect=False)
+        session.open()
+        assert session.hello.max_payload == 256
+        session.close()
+        config = board_config(tmp_path / "c.toml", "small-frames")
+        ran = cli("config", "push", "--port", b.port, "--commit", config)
+        assert ran.returncode == 0, ran.stderr
+        assert pulled(b.port)["board"]["name"] == "small-frames"
+        out = tmp_path / "run.ndjson"
+        ran = cli("run", "--port", b.port, "--frames", 30, "--no-track", "-o", out)
+        assert ran.returncode == 0, ran.stderr
+        assert len(records(out)) == 30
+    finally:
+        b.kill()
