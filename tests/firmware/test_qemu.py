@@ -307,7 +307,7 @@ def test_reboot_resets_the_board_through_the_scb(board):
 
 
 def test_a_board_with_max_payload_256(mps2_elf, tmp_path, tmp_path_factory):
-    """The image built with -DSPIEL_MAX_PAYLOAD=256: HELLO says 256, a config of ~600 bytes moves in
+    """The image built with -DSPIEL_MAX_PAYLOAD=256: HELLO says 256, a config of ~500 bytes moves in
     several chunks that fit it, and run streams (a 4 x 64 channel frame is 152 bytes of payload)."""
     try:
         elf = build_mps2(
