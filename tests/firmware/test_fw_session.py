@@ -140,3 +140,23 @@ def test_a_firmware_whose_host_stops_reading_does_not_spin(posix_board):
         time.sleep(1.0)
         used = (cpu() - before) / (time.monotonic() - t0)
     assert used < 0.1, f"the firmware used {used:.0%} of a core while blocked"
+
+
+def test_the_makefile_builds_the_posix_target(tmp_path):
+    import shutil
+    import subprocess
+
+    import pytest
+
+    from tests.firmware.firmware import FIRMWARE, compiler
+
+    if shutil.which("make") is None:
+        pytest.skip("no make: the tests build with the compiler directly (firmware.py)")
+    done = subprocess.run(
+        ["make", "-C", str(FIRMWARE), f"BUILD={tmp_path}", f"CC={compiler()}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "spiel_fw_posix").is_file()
