@@ -244,11 +244,9 @@ class VirtualBoard(BoardConfigMixin):
         )
 
     def _ping(self, req: Ping, now: float) -> m.Message:
-        if len(req.data) + 2 > self.max_payload:
-            return ErrorResponse(
-                ErrorCode.TOO_LARGE, req.MSG_TYPE, "ping data exceeds max_payload - 2"
-            )
-        return Pong(req.data)
+        if len(req.data) + 2 <= self.max_payload:
+            return Pong(req.data)
+        return ErrorResponse(ErrorCode.TOO_LARGE, req.MSG_TYPE, "data exceeds max_payload - 2")
 
     def _reboot(self, req: m.Reboot, now: float) -> m.Message:
         self.reboot_at = now + req.delay_ms / 1000.0
@@ -286,9 +284,8 @@ class VirtualBoard(BoardConfigMixin):
         if error:
             return ErrorResponse(error[0], req.MSG_TYPE, error[1])
         remaining = req.n_acquisitions or None
-        self._last_background = (
-            None  # every stream starts with the background (a new host may be listening)
-        )
+        # every stream starts with the background (a new host may be listening)
+        self._last_background = None
         channels = tuple(c for c in range(n_ch) if mask >> c & 1)
         self._stream = _Stream(
             req.rate_hz, n_samples, remaining, now, seq=self._request_seq, channels=channels

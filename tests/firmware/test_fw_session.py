@@ -66,20 +66,23 @@ def test_a_version_1_build_keeps_working(posix_board, fw_build, subset_scans):
 
 
 def test_run_counters_count_from_the_streams_own_start(posix_board):
+    import time
+
     board = posix_board()
-    with DeviceSession(board.port, reconnect=False) as session:
-        session.start_stream(rate_hz=200, n_samples=64)
-        take(session, 5)
+    with DeviceSession(board.port, reconnect=False) as session:  # an earlier host overruns
+        session.start_stream(rate_hz=1000, n_samples=64)
+        time.sleep(0.5)  # nobody reads: the pty fills, the board skips acquisitions
         session.stop_stream()
-    with DeviceSession(board.port, reconnect=False) as session:  # a second run, same boot
-        session.start_stream(rate_hz=200, n_samples=64)
+    with DeviceSession(board.port, reconnect=False) as session:  # this run, same boot
+        session.start_stream(rate_hz=50, n_samples=64)
         take(session, 3)
         status = session.stream_status()
-        assert status.acquisitions_sent >= 8  # the board counts since its boot
         counts = session.counts()
         session.stop_stream()
+    assert status.overruns > 50  # the board counts since its boot: the first host's skips
     assert counts["acquisitions"] == 3
-    assert counts["overruns"] == counts["lost"] <= 2  # this run's own, not the first run's
+    # this run's own: what its indices lost (0 unless the shared CPU held the board back)
+    assert counts["overruns"] == counts["lost"] < 10
 
 
 def test_the_host_refuses_a_stream_the_link_cannot_carry(posix_board, fw_build):

@@ -393,7 +393,14 @@ static void send_channel(void)
         c++;
     }
     if (hal_acq_read((uint8_t)c, samples, st.n_samples) != 0) {
-        memset(samples, 0, st.n_samples * sizeof samples[0]);
+        /* the front end lost this measurement: abandon it (an overrun; its index stays used,
+         * and a host drops the channels already sent as an incomplete acquisition) */
+        spiel_stats.overruns++;
+        st.busy = 0;
+        if (st.last) {
+            st.on = 0;
+        }
+        return;
     }
     h.acquisition = st.index;
     h.channel = (uint8_t)c; /* physical id; equal to the rank in version 1 (all channels) */
@@ -708,6 +715,9 @@ void spiel_device_poll(void)
     uint64_t now;
     flush();
     if (tx.len) {
+        if (st.busy) {
+            schedule(hal_time_us()); /* the link is blocked: count the slots that pass */
+        }
         return;
     }
     if (dev.reboot_pending && hal_time_us() >= dev.reboot_at) {
