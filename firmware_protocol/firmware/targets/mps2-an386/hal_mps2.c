@@ -54,10 +54,10 @@ size_t hal_transport_read(uint8_t *buf, size_t cap)
         rx_tail++;
     }
     if (!(UART_CTRL(UART0_BASE) & UART_CTRL_RXINTEN)) {
-        uint32_t key = irq_save();
+        uint32_t key = irq_save(); /* the handler must not run twice at once */
         UART_CTRL(UART0_BASE) |= UART_CTRL_RXINTEN;
+        uart0_rx_handler(); /* the byte that waited in the UART raised no interrupt */
         irq_restore(key);
-        uart0_rx_handler(); /* what waited in the UART */
     }
     return n;
 }
@@ -214,6 +214,7 @@ static void flash_die(void)
 {
     FI_FIRED = 1u;
     irq_disable();
+    NVIC_ICER0 = 0xFFFFFFFFu; /* nothing may pend and wake the WFI again */
     for (;;) {
         __asm volatile("wfi");
     }

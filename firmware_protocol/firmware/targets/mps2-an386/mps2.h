@@ -54,6 +54,7 @@
 #define AIRCR_VECTKEY 0x05FA0000u
 #define AIRCR_SYSRESETREQ 0x4u
 #define NVIC_ISER0 REG32(0xE000E100u)
+#define NVIC_ICER0 REG32(0xE000E180u)
 
 static inline void irq_disable(void) { __asm volatile("cpsid i" ::: "memory"); }
 static inline void irq_enable(void) { __asm volatile("cpsie i" ::: "memory"); }
