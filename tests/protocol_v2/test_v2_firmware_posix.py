@@ -182,3 +182,21 @@ def test_a_version_1_build_of_the_c_firmware_with_run_config_calibrate(tmp_path,
         records = [json.loads(line) for line in ndjson.read_text().splitlines()]
         assert len(records) == 10 and not any("stamp_host" in r for r in records)
     capsys.readouterr()
+
+
+def test_c_firmware_streams_iq_with_the_positions_of_its_envelopes(posix, tmp_path) -> None:
+    import json
+
+    from spiel_edge.cli import main
+
+    exe, scans = posix
+    runs = {}
+    for samples in ("envelope", "iq"):
+        with PosixBoard(exe, scans, tmp_path / f"flash-{samples}.bin") as b:
+            out = tmp_path / f"{samples}.ndjson"
+            args = ["run", "--port", b.port, "--frames", "20", "--rate", "0", "--no-track"]
+            assert main([*args, "--samples", samples, "-o", str(out)]) == 0
+            runs[samples] = [json.loads(line) for line in out.read_text().splitlines()]
+    for a, b in zip(runs["envelope"], runs["iq"], strict=True):
+        assert a["acquisition"] == b["acquisition"]
+        assert a["position_mm"] == b["position_mm"] and a["echoes"] == b["echoes"]

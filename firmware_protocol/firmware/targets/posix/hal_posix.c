@@ -211,6 +211,24 @@ int hal_acq_read(uint8_t channel, uint16_t *samples, uint16_t n)
     return 0;
 }
 
+#if SPIEL_IQ_SAMPLES
+/* I/Q of a recording that holds envelopes only: the amplitude as i, q = 0 (phase 0). A front
+ * end with real I/Q (SonicLib's ch_get_iq_data) fills both. */
+int hal_acq_read_iq(uint8_t channel, uint16_t *qi, uint16_t n)
+{
+    uint16_t i;
+    if (2u * (uint32_t)n > 8192u || hal_acq_read(channel, qi + n, n) != 0) {
+        return -1;
+    }
+    for (i = 0; i < n; i++) {
+        uint16_t a = qi[n + i];
+        qi[2u * i] = 0;                                 /* q */
+        qi[2u * i + 1u] = a > 32767u ? 32767u : a;      /* i */
+    }
+    return 0;
+}
+#endif
+
 /* ---- flash -------------------------------------------------------------------------------- */
 
 uint32_t hal_flash_size(void)
