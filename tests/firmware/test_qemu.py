@@ -242,8 +242,8 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
         cut = QemuBoard(b.elf, work)
         cut.arm(CUT, n)
         cut.start()
+        host = _commit_in_background(cut.port, new_cfg)
         try:
-            host = _commit_in_background(cut.port, new_cfg)
             deadline = time.monotonic() + 120
             while host.poll() is None and not cut.mailbox()["fired"]:
                 assert time.monotonic() < deadline, "the commit neither ended nor was cut"
@@ -251,9 +251,12 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
             fired = cut.mailbox()["fired"]
             cut.kill()  # the power cut (or, when the commit ended, just power off)
             host.wait(60)
-            host.stderr.close()
         finally:
             cut.kill()
+            if host.poll() is None:  # only when an assertion stopped us: the host we started
+                host.kill()
+                host.wait(10)
+            host.stderr.close()
         cut.disarm()
         cut.start()
         try:
