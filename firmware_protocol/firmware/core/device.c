@@ -768,8 +768,9 @@ void spiel_device_poll(void)
     uint64_t now;
     flush();
     if (tx.len) {
-        if (st.busy) {
-            schedule(hal_time_us()); /* the link is blocked: count the slots that pass */
+        schedule(hal_time_us()); /* the link is blocked: count the slots that pass */
+        if (st.busy == 1 && hal_acq_ready()) {
+            st.busy = 2;
         }
         return;
     }

@@ -296,6 +296,10 @@ static void seed_config(void)
     n += sp_frame_encode(SP_MSG_CONFIG_COMMIT, 2, 0, 0, req, 8, framed + n, sizeof framed - n);
     feed(framed, n, 100);
     memcpy(flash_seeded, flash, FLASH_SIZE);
+    if (memcmp(flash_seeded, flash_erased, FLASH_SIZE) == 0) {
+        fprintf(stderr, "spiel_fuzz: the seed config was not committed\n");
+        abort();
+    }
 }
 
 static void report(void)

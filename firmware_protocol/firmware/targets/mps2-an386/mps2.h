@@ -26,9 +26,12 @@
 #define UART_STATE_RXOVR 0x8u
 #define UART_CTRL_TXEN 0x1u
 #define UART_CTRL_RXEN 0x2u
+#define UART_CTRL_TXINTEN 0x4u
 #define UART_CTRL_RXINTEN 0x8u
+#define UART_INT_TX 0x1u
 #define UART_INT_RX 0x2u
 #define UART0_RX_IRQ 0u
+#define UART0_TX_IRQ 1u
 
 /* CMSDK APB timer 0: a 32-bit down counter at the system clock */
 #define TIMER0_BASE 0x40000000u

@@ -49,7 +49,8 @@ sizes: $(BUILD)/firmware.elf
 	@$(ARM_SIZE) -t $(CORE_OBJS)
 	@echo "their largest RAM buffers (bytes):"
 	@$(ARM_NM) -S --size-sort -t d $(CORE_OBJS) | awk '$$3 ~ /^[bBdD]$$/ && $$2 + 0 >= 64 {print "  " $$4, $$2 + 0}'
-	@echo "library routines linked into the whole image (bytes, aliases once):"
-	@$(ARM_NM) -S -t d $(BUILD)/firmware.elf | awk '$$3 ~ /^[tT]$$/ && $$4 ~ /^(__|mem|str)/ && !seen[$$1]++ {n += $$2; print "  " $$4, $$2 + 0} END {print "  total", n}'
+	@echo "library routines linked into the whole image (bytes; entry points that share code, once):"
+	@$(ARM_NM) -S -t d $(BUILD)/firmware.elf | awk '$$3 ~ /^[tT]$$/ && $$4 ~ /^(__|mem|str)/' | sort -n | \
+		awk '{s = $$1 + 0; e = s + $$2; if (s >= end) n += e - s; else if (e > end) n += e - end; if (e > end) end = e; print "  " $$4, $$2 + 0} END {print "  total", n}'
 
 .PHONY: sizes
