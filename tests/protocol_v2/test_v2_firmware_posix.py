@@ -78,13 +78,21 @@ def test_refused_by_the_board_before_the_switch(posix, tmp_path) -> None:
         assert hello_version(b.port) == "posix-1.0.0"
 
 
+def script_image(posix, version: str, size: int = 6000) -> bytes:
+    """A small image that runs the firmware: a shell script executing the posix build (the
+    bootloader runs the slot's body with the loader's arguments and SPIEL_FW_SLOT set), padded
+    to span several chunks."""
+    body = f'#!/bin/sh\nexec "{posix[0]}" "$@"\n'.encode()
+    body += b"#" + b"." * (size - len(body) - 2) + b"\n"
+    return pack_image(body, version=version, target="posix")
+
+
 def test_sigkill_at_every_image_operation_boots_a_complete_image(posix, tmp_path) -> None:
-    image = new_image(posix)
-    # operations of a whole update: erase, the chunks, test record, boot record, confirm record
+    image = script_image(posix, "posix-1.1.0")
     chunks = -(-len(image) // (1024 - 6))
-    ops = 1 + chunks + 3
+    ops = 1 + chunks + 3  # erase, the chunks, test record, the loader's trial record, confirm
     seen = set()
-    for cut in [*range(0, 4), *range(chunks - 1, ops)]:
+    for cut in range(ops):
         case = tmp_path / f"cut{cut}"
         case.mkdir()
         b = board(posix, case, "--image-cut", str(cut))
@@ -98,10 +106,31 @@ def test_sigkill_at_every_image_operation_boots_a_complete_image(posix, tmp_path
             version = hello_version(again.port)
             assert version in ("posix-1.0.0", "posix-1.1.0"), cut
             seen.add(version)
-            # and an update from there completes
-            if version == "posix-1.0.0":
+            if version == "posix-1.0.0":  # and an update from there completes
                 assert update_firmware(again.port, image, boot_wait_s=10).confirmed, cut
     assert seen == {"posix-1.0.0", "posix-1.1.0"}
+
+
+class Killed(Exception):
+    """The host died here."""
+
+
+def test_host_killed_at_every_chunk_leaves_the_old_firmware_running(posix, tmp_path) -> None:
+    image = script_image(posix, "posix-1.2.0")
+    chunks = -(-len(image) // (1024 - 6))
+    assert chunks >= 5
+    with board(posix, tmp_path) as b:
+        for k in range(1, chunks + 1):
+
+            def progress(sent, total, k=k):
+                if sent >= min(k * (1024 - 6), total):
+                    raise Killed
+
+            with pytest.raises(Killed):
+                update_firmware(b.port, image, progress=progress)
+            assert hello_version(b.port) == "posix-1.0.0", k
+        assert update_firmware(b.port, image, boot_wait_s=10).confirmed
+        assert hello_version(b.port) == "posix-1.2.0"
 
 
 def test_c_firmware_syncs_its_clock_sends_heartbeats_and_is_named_when_it_stops(
