@@ -33,11 +33,21 @@ class FuzzError(Exception):
     """The harness could not be built or run (one line, for the user)."""
 
 
-def build(out: Path, cc: str = "clang") -> Path:
+FAST = "-fno-sanitize-coverage=trace-cmp"
+
+
+def build(out: Path, cc: str = "clang", fast: bool = False) -> Path:
     if shutil.which(cc) is None:
         raise FuzzError(f"{cc} not found (Debian: apt-get install clang libclang-rt-14-dev)")
     done = subprocess.run(
-        ["make", "-s", "TARGET=fuzz", f"BUILD={out}", f"FUZZ_CC={cc}"],
+        [
+            "make",
+            "-s",
+            "TARGET=fuzz",
+            f"BUILD={out}",
+            f"FUZZ_CC={cc}",
+            f"FUZZ_COVERAGE={FAST if fast else ''}",
+        ],
         cwd=FIRMWARE,
         capture_output=True,
         text=True,
@@ -103,7 +113,8 @@ def run(
         status = subprocess.run(args, stdout=log, stderr=subprocess.STDOUT).returncode
     elapsed = time.monotonic() - started
     text = log_path.read_text(errors="replace")
-    harness = re.findall(r"spiel_fuzz: inputs (\d+)", text)
+    harness = re.findall(r"spiel_fuzz: inputs (\d+)", text)  # at exit, or every million
+    interrupted = "run interrupted" in text or status in (-2, -15, 130)
     units = re.findall(r"stat::number_of_executed_units:\s*(\d+)", text)
     summary = [line for line in text.splitlines() if "SUMMARY:" in line or "runtime error" in line]
     artifacts = sorted(str(p) for p in out.glob("crash-*")) + sorted(
@@ -115,7 +126,8 @@ def run(
         "seconds": round(elapsed, 1),
         "inputs_per_s": round(int(harness[-1]) / elapsed) if harness and elapsed > 0 else None,
         "status": status,
-        "crashed": status != 0 or bool(artifacts) or bool(summary),
+        "interrupted": interrupted,
+        "crashed": bool(artifacts) or bool(summary) or (status != 0 and not interrupted),
         "reports": summary[:5],
         "artifacts": artifacts,
         "corpus_files": sum(1 for _ in corpus.iterdir()),
@@ -134,6 +146,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1, help="libFuzzer's random seed")
     parser.add_argument("--max-len", type=int, default=4096, help="longest input (bytes)")
     parser.add_argument("--cc", default="clang", help="the clang to build with")
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="build without comparison tracing (about 3x the inputs/s; for long runs over a "
+        "corpus grown without --fast)",
+    )
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     args = parser.parse_args(argv)
     if args.runs is None and args.seconds is None:
@@ -147,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         out = (args.out or Path(tmp)).resolve()
         out.mkdir(parents=True, exist_ok=True)
         try:
-            exe = build(out / "build", args.cc)
+            exe = build(out / ("build-fast" if args.fast else "build"), args.cc, args.fast)
         except FuzzError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
@@ -155,6 +173,7 @@ def main(argv: list[str] | None = None) -> int:
         seeds = seed_corpus(corpus)
         result = run(exe, corpus, out, args.runs, args.seconds, args.seed, args.max_len)
         result["seeds"] = seeds
+        result["trace_cmp"] = not args.fast
         if args.json:
             print(json.dumps(result))
         else:

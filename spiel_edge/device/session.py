@@ -222,14 +222,14 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         *,
         timeout_s: float | None = None,
         retries: int = MAX_RETRIES,
-        best_effort: bool = False,
+        probe: bool = False,
     ) -> Message:
         """Send a request and return its answer; DeviceRequestError on an error answer,
-        DeviceTimeoutError when ``1 + retries`` tries got none (counted in ``counters.timeouts``
-        unless ``best_effort``: a periodic probe the caller counts itself). BUSY is retried
-        after a short delay with a new sequence number (PROTOCOL.md section 10)."""
+        DeviceTimeoutError when ``1 + retries`` tries got none. BUSY is retried after a short
+        delay with a new sequence number (PROTOCOL.md section 10). ``probe``: an optional
+        exchange (clock sync) whose silence is not counted in ``counters.timeouts``."""
         for attempt in range(1 + retries):
-            answer = self._exchange(msg, timeout_s, retries, best_effort)
+            answer = self._exchange(msg, timeout_s, retries, probe)
             if not (
                 isinstance(answer, ErrorResponse)
                 and answer.code == ErrorCode.BUSY
@@ -246,7 +246,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         return answer
 
     def _exchange(
-        self, msg: Message, timeout_s: float | None, retries: int, best_effort: bool = False
+        self, msg: Message, timeout_s: float | None, retries: int, probe: bool = False
     ) -> Message:
         """One request number: send, and re-send on silence, until an answer comes."""
         link = self._require_link()
@@ -264,7 +264,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
             answer = self._await(seq, msg.MSG_TYPE, time.monotonic() + timeout_s)
             if answer is not None:
                 return answer
-        if not best_effort:
+        if not probe:  # a probe's silence (a clock sync) is its caller's to count
             self.counters.timeouts += 1
         raise DeviceTimeoutError(
             f"{self.url}: no answer to {type(msg).__name__} after {1 + retries} tries of "

@@ -18,7 +18,7 @@ import numpy as np
 from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, SampleFormat, StreamData
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import ANNOTATION_TYPE, TARGETS_TYPE, Annotation, TruthTargets
-from spiel_edge.device.iq import iq_envelope
+from spiel_edge.device.iq import iq_amplitude, iq_phase
 from spiel_edge.device.sanity import StreamSanity
 
 log = logging.getLogger(__name__)
@@ -45,7 +45,12 @@ class LiveAcquisition:
     # uncertainty (us, about 95 %), None before the clocks are synced or from a v1 board
     stamp_host: float | None = None
     stamp_uncertainty_us: float | None = None
-    phase: np.ndarray | None = None  # I/Q streams: (channels, samples) radians, float32
+    iq: np.ndarray | None = None  # I/Q streams: the raw (channels, 2 x samples) int16 q, i
+
+    @property
+    def phase(self) -> np.ndarray | None:
+        """I/Q streams: the phase (channels, samples) in radians, float32 (else None)."""
+        return None if self.iq is None else iq_phase(self.iq)
 
 
 class StreamTracker:
@@ -145,9 +150,9 @@ class StreamTracker:
         elif self._first_delivered is None:
             self._first_delivered = acq.index
         self._last_index = acq.index
-        samples, phase = acq.samples, None
+        samples, iq = acq.samples, None
         if acq.sample_format == SampleFormat.I16_IQ:
-            samples, phase = iq_envelope(acq.samples)
+            samples, iq = iq_amplitude(acq.samples), acq.samples
         stamped = self.stamp(acq.timestamp_us)
         self.ready.append(
             LiveAcquisition(
@@ -162,7 +167,7 @@ class StreamTracker:
                 self._truth_targets.pop(acq.index, None),
                 None if stamped is None else stamped[0],
                 None if stamped is None else stamped[1],
-                phase,
+                iq,
             )
         )
         if len(self._truth_targets) > MAX_PENDING_TRUTH:

@@ -21,7 +21,8 @@ from firmware_protocol import (
     StreamStop,
 )
 from firmware_protocol.errors import ErrorCode
-from spiel_edge.device.iq import iq_envelope
+from firmware_protocol.stream import SAMPLE_SIZE, STREAM_HEADER
+from spiel_edge.device.iq import iq_amplitude
 from spiel_edge.device.sanity import FirmwareError, board_name
 from spiel_edge.device.stream import LiveAcquisition
 from spiel_edge.errors import (
@@ -41,6 +42,7 @@ class StreamingMixin:
     """Mixed into DeviceSession, whose state (link, tracker, inbox, counters) it uses."""
 
     protocol_version: int
+    max_payload: int
     _status_base: StreamStatus | None
 
     # --- streaming -----------------------------------------------------------------------
@@ -63,14 +65,20 @@ class StreamingMixin:
                 f"{self.url}: a channel subset needs protocol version 2; the board speaks "
                 f"{self.protocol_version}"
             )
+        frame = STREAM_HEADER.size + SAMPLE_SIZE[SampleFormat.U16_ENVELOPE] * n_samples
+        if n_samples and frame > self.max_payload:
+            raise DeviceError(
+                f"{self.url}: {n_samples} samples per channel need {frame}-byte stream frames; "
+                f"the board's HELLO allows {self.max_payload} (max_payload)"
+            )
         request = StreamStart(
             n_acquisitions, float(rate_hz), n_samples, sample_format, channel_mask
         )
         if sample_format == SampleFormat.I16_IQ:  # compile (or load) the kernel before data flows
             warm = np.zeros((1, 2), dtype=np.int16)
-            iq_envelope(warm)
+            iq_amplitude(warm)
             warm.setflags(write=False)  # reassembled samples are read-only views: their own type
-            iq_envelope(warm)
+            iq_amplitude(warm)
         self._stop_quietly()
         if self._status_base is None:  # the board's since-boot counters before this run
             self._status_base = self._request_status()

@@ -29,7 +29,7 @@ RATE_PER_S = 20.0  # lines per second forwarded at most
 BURST = 40.0
 SUMMARY_EVERY_S = 10.0  # how often suppressed lines are summed up
 MISSED_BEATS = 3  # heartbeats missed before the board is called silent
-SLACK_S = 0.25  # on top of MISSED_BEATS periods: scheduling and link delays
+SLACK_S = 0.1  # on top of MISSED_BEATS periods: scheduling and link delays (then a probe)
 
 
 def _level(severity: int) -> int:

@@ -76,7 +76,6 @@ class ClockEstimate:
 @dataclass
 class SyncCounters:
     exchanges: int = 0  # answers offered
-    unanswered: int = 0  # exchanges that got no answer in time (best effort: not a session timeout)
     used: int = 0  # answers kept
     long_rtt: int = 0  # dropped: round trip too long (or negative)
     backwards: int = 0  # dropped: the board's clock went backwards

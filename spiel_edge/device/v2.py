@@ -37,6 +37,7 @@ SYNC_PERIOD_S = 0.25  # TIME_SYNC exchanges while streaming
 SYNC_BURST = 4  # exchanges right after the handshake
 HEARTBEAT_MS = 500  # the period the host asks for
 SYNC_TIMEOUT_S = 0.25  # an answer later than this is useless for the clock anyway
+PROBE_S = 0.2  # heartbeats late: a board that does not answer within this has stopped
 
 
 class SessionV2Mixin:
@@ -51,6 +52,7 @@ class SessionV2Mixin:
         self._wall_minus_perf_ns = time.time_ns() - time.perf_counter_ns()
         self._sent_ns = 0
         self._answer_ns = 0
+        self.sync_timeouts = 0  # TIME_SYNC exchanges without an answer (not session timeouts)
 
     def _offers(self, capability: int) -> bool:
         hello = self.hello
@@ -85,10 +87,10 @@ class SessionV2Mixin:
                 TimeSync(time.perf_counter_ns() // 1000),
                 timeout_s=SYNC_TIMEOUT_S,
                 retries=0,
-                best_effort=True,
+                probe=True,
             )
         except DeviceTimeoutError:
-            self.clock.counters.unanswered += 1
+            self.sync_timeouts += 1
             return False  # the stream goes on; the next exchange will do
         if not isinstance(answer, TimeSyncResponse):
             return False
@@ -131,10 +133,14 @@ class SessionV2Mixin:
         now = time.monotonic()
         silent = self.telemetry.silent_for(now)
         if silent is not None:
+            if self._answers():  # the host was slow (load, a long pause), not the board
+                log.debug("%s: heartbeat late by %.1f s but the board answers", self.url, silent)
+                self.telemetry.last_beat = time.monotonic()
+                return
             self.telemetry.last_beat = None  # once per silence
             raise DeviceTimeoutError(
-                f"{self.telemetry.name}: no heartbeat for {silent:.1f} s "
-                f"(period {self.telemetry.period_s:g} s): the board stopped"
+                f"{self.telemetry.name}: no heartbeat for {time.monotonic() - now + silent:.1f} s "
+                f"(period {self.telemetry.period_s:g} s) and no answer: the board stopped"
             )
         self.telemetry.summarise(now)
         if now >= self._next_sync and self._offers(Capability.TIME_SYNC):
@@ -143,10 +149,22 @@ class SessionV2Mixin:
             except DeviceError as exc:
                 log.debug("%s: time sync: %s", self.url, exc)
 
+    def _answers(self) -> bool:
+        """A quick request: does the board answer at all (any answer counts)?"""
+        try:
+            self.request(
+                TimeSync(time.perf_counter_ns() // 1000), timeout_s=PROBE_S, retries=0, probe=True
+            )
+        except DeviceTimeoutError:
+            return False
+        except DeviceError:
+            return True  # an error answer is an answer
+        return True
+
     def v2_counts(self) -> dict[str, int]:
         c = self.clock.counters
         return {
             **self.telemetry.counters.as_dict(),
             "sync_exchanges": c.used,
-            "sync_dropped": c.long_rtt + c.backwards + c.outliers,
+            "sync_dropped": c.long_rtt + c.backwards + c.outliers + self.sync_timeouts,
         }

@@ -10,6 +10,7 @@
  *   stats              -> stats frames crc cobs length oversize version flags requests repeated
  *                               acquisitions_sent frames_sent overruns flash_errors
  *   flashfail <k>      the k-th flash operation from now fails    -> ok
+ *   acqfail <k>        the k-th hal_acq_read from now fails        -> ok
  * An empty hex string is "-". hal_reset prints nothing and re-initialises (flash kept).
  */
 #include <setjmp.h>
@@ -36,6 +37,7 @@ static uint32_t n_acq, rate, cursor;
 static const uint8_t *current;
 static uint8_t flash[FLASH_SIZE];
 static long flash_ops, flash_fail = -1;
+static long acq_reads, acq_fail = -1;
 static uint64_t now_us;
 static uint32_t rng = 12345u;
 static hal_board_info_t info;
@@ -77,6 +79,9 @@ int hal_acq_read(uint8_t ch, uint16_t *samples, uint16_t n)
 {
     uint16_t i;
     const uint8_t *row = current + (size_t)ch * n_s * 2u;
+    if (acq_reads++ == acq_fail) {
+        return -1;
+    }
     for (i = 0; i < n; i++) {
         samples[i] = (uint16_t)(row[2 * i] | (row[2 * i + 1] << 8));
     }
@@ -238,6 +243,9 @@ int main(void)
             puts("ok");
         } else if (strcmp(line, "flashfail") == 0) {
             flash_fail = flash_ops + strtol(arg, NULL, 10);
+            puts("ok");
+        } else if (strcmp(line, "acqfail") == 0) {
+            acq_fail = acq_reads + strtol(arg, NULL, 10);
             puts("ok");
         } else if (strcmp(line, "feed") == 0) {
             int idle = 0, guard = 0;

@@ -23,6 +23,9 @@ FIRMWARE = ROOT / "firmware_protocol" / "firmware"
 PROTO = ROOT / "firmware_protocol" / "c"
 DRIVER = Path(__file__).with_name("core_driver.c")
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+# SPIEL_FW_SANITIZE=1: every build of these tests with AddressSanitizer and UBSan (the first
+# report aborts the firmware, which the tests see as a dead board)
+SANITIZE = ["-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
 
 
 def compiler() -> str:
@@ -34,6 +37,8 @@ def compiler() -> str:
 
 def _compile(out: Path, sources: list[Path], includes: list[Path], defines: dict) -> Path:
     cmd = [compiler(), *CFLAGS, *(f"-I{p}" for p in includes)]
+    if os.environ.get("SPIEL_FW_SANITIZE") == "1":
+        cmd += SANITIZE
     cmd += [f"-D{k}={v}" for k, v in defines.items()]
     cmd += [str(s) for s in sources] + ["-o", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
@@ -48,8 +53,9 @@ def core_sources() -> list[Path]:
 
 def build_posix(out_dir: Path, **defines) -> Path:
     """The posix target, e.g. ``build_posix(d, SPIEL_MAX_PAYLOAD=256)``; with its firmware
-    image slots (``--images DIR``) unless ``SPIEL_FW_UPDATE=0``."""
-    defines = {"SPIEL_FW_UPDATE": 1, **defines}
+    image slots (``--images DIR``) unless ``SPIEL_FW_UPDATE=0``, and I/Q streams (its recordings'
+    amplitude as i, q = 0) unless ``SPIEL_IQ_SAMPLES=0``."""
+    defines = {"SPIEL_FW_UPDATE": 1, "SPIEL_IQ_SAMPLES": 1, **defines}
     out_dir.mkdir(parents=True, exist_ok=True)
     name = "spiel_fw_posix" + "".join(f"_{k}{v}" for k, v in sorted(defines.items()))
     sources = core_sources() + sorted((FIRMWARE / "targets" / "posix").glob("*.c"))

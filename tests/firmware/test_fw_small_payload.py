@@ -1,7 +1,8 @@
 """A board whose HELLO says max_payload 256 (the spec allows it; one 4 x 64 stream frame is 152
 bytes) works with every host command, on both virtual boards: the Python one
 (`sim://...?max_payload=256`) and the C firmware built with -DSPIEL_MAX_PAYLOAD=256. Config
-chunks are sized from the link's max_payload (250 bytes), never the old fixed 1024."""
+chunks are sized from the link's max_payload (250 bytes), never the old fixed 1024. The same
+commands work with version-1 boards (`?protocol=1`, -DSPIEL_PROTOCOL_MAX=1)."""
 
 from __future__ import annotations
 
@@ -22,25 +23,34 @@ from tests.firmware.firmware import build_posix
 _names = itertools.count()
 
 
-@pytest.fixture(params=["python", "c"])
+BOARDS = {  # name: (sim query, C build defines, HELLO max_payload, protocol version)
+    "python-256": ("max_payload=256", None, 256, 2),
+    "c-256": (None, {"SPIEL_MAX_PAYLOAD": 256}, 256, 2),
+    "python-v1": ("protocol=1", None, 8256, 1),
+    "c-v1": (None, {"SPIEL_PROTOCOL_MAX": 1}, 1024, 1),
+}
+
+
+@pytest.fixture(params=sorted(BOARDS))
 def small_board(request, posix_board, fw_build):
-    if request.param == "python":
+    query, defines, payload, version = BOARDS[request.param]
+    if query is not None:
         from spiel_edge.sim import protocol_sim
 
-        url = f"sim://p256-{next(_names)}?max_payload=256"
-        yield url
+        url = f"sim://small-{next(_names)}?{query}"
+        yield url, payload, version
         protocol_sim.forget(url)
     else:
-        yield posix_board(exe=build_posix(fw_build, SPIEL_MAX_PAYLOAD=256)).port
+        yield posix_board(exe=build_posix(fw_build, **defines)).port, payload, version
 
 
-def test_every_host_command_works_at_max_payload_256(small_board, tmp_path, capsys):
-    port = small_board
+def test_every_host_command_works(small_board, tmp_path, capsys):
+    port, payload, version = small_board
     with DeviceSession(port, reconnect=False) as session:
-        assert session.hello.max_payload == 256 and session.max_payload == 256
-        assert session.config_chunk == 250
+        assert session.hello.max_payload == session.max_payload == payload
+        assert session.protocol_version == version and session.config_chunk == payload - 6
         with pytest.raises(DeviceRequestError, match="TOO_LARGE"):
-            session.request(ConfigRead(0, 251, ConfigSource.STAGING))  # the board's own check
+            session.request(ConfigRead(0, payload - 5, ConfigSource.STAGING))  # board's check
     partial = tmp_path / "name.toml"
     partial.write_text('[board]\nname = "small-payload"\n')
     assert main(["config", "push", "--port", port, str(partial)]) == 0
@@ -48,7 +58,8 @@ def test_every_host_command_works_at_max_payload_256(small_board, tmp_path, caps
     pulled = tmp_path / "pulled.toml"
     assert main(["config", "pull", "--port", port, str(pulled)]) == 0
     assert 'name = "small-payload"' in pulled.read_text()
-    assert len(pulled.read_text()) > 250  # the blob took more than one chunk each way
+    if payload == 256:
+        assert len(pulled.read_text()) > 250  # the blob took more than one chunk each way
     assert main(["config", "show", "--port", port]) == 0
     assert main(["config", "diff", "--port", port, str(pulled)]) == 0
     capsys.readouterr()
@@ -72,4 +83,5 @@ def test_every_host_command_works_at_max_payload_256(small_board, tmp_path, caps
     capsys.readouterr()
     main(["doctor", "--port", port, "--skip-numba", "--json"])  # other checks may fail here
     [link] = [c for c in json.loads(capsys.readouterr().out)["checks"] if c["name"] == "board link"]
-    assert link["ok"] and "max_payload 256" in link["detail"] and "protocol 2" in link["detail"]
+    assert link["ok"] and f"max_payload {payload}," in link["detail"]
+    assert f"protocol {version} " in link["detail"]

@@ -102,3 +102,28 @@ def test_request_vectors_are_parsed_and_answered(core, v):
         assert answer.code in EXPECTED_ERRORS.get(v["class"], set()), answer
     else:
         assert frame.msg_type == v["msg_type"]
+
+
+def test_a_measurement_the_front_end_loses_is_skipped_not_invented(core):
+    """hal_acq_read fails on channel 2 of acquisition 1: that acquisition is abandoned (an
+    overrun, its index used), never sent with made-up samples; the stream goes on."""
+    from firmware_protocol import (
+        AcquisitionAssembler,
+        Hello,
+        StreamData,
+        StreamStart,
+        encode_message,
+    )
+
+    core.feed(encode_message(Hello(1, 2, 8256, 0), seq=1))
+    assert core.command("acqfail 6") == "ok"  # reads: 4 of acquisition 0, then ch 0, 1, *2*
+    out = core.feed(encode_message(StreamStart(3, 0.0, 64, 0, 0), seq=2))
+    assembler, done, frames = AcquisitionAssembler(), [], 0
+    for f in FrameDecoder().feed(out):
+        if f.msg_type == StreamData.MSG_TYPE:
+            frames += 1
+            acq = assembler.feed(StreamData.unpack(f.payload), f.aux)
+            if acq is not None:
+                done.append(acq.index)
+    assert done == [0, 2] and frames == 4 + 2 + 4
+    assert core.stats()["overruns"] == 1

@@ -27,6 +27,7 @@ from firmware_protocol import (
     HelloResponse,
     Reboot,
     decode_message,
+    encode_frame,
     encode_message,
 )
 from spiel_edge.board import schema as bc
@@ -175,24 +176,45 @@ def test_config_push_commit_pull_round_trip(board, tmp_path):
     assert pulled(b.port)["board"]["name"] == "qemu-8"
 
 
-def test_calibrate_captures_from_the_board(board, tmp_path, subset):
-    b = board()
+def test_calibrate_captures_from_the_board(tmp_path_factory, tmp_path, subset):
+    """An image whose embedded A-scans are a calibration session (``SUBSET=`` of the Makefile:
+    target-free frames for the probe and the background, then four acquisitions at each of 8
+    labelled positions, z = 90 mm left out): `calibrate --no-prompt` captures all 37.
+
+    Whether the fit then succeeds depends on timing, not on the board: calibrate streams
+    without an acquisition count and stops after the n it needs, so when the STOP lands later
+    than the next acquisition's due time (a loaded machine, 20 ms at 50/s) the board has
+    measured and sent one more, which the host drops, and the replayed session slips by one
+    against the listed positions. Then the fit says so in one line (exit status 2)."""
+    why = missing_tools()
+    if why:
+        pytest.skip(f"mps2-an386 target: {why}")
+    picks = [i for i in range(len(subset)) if subset.truth_mm[i][2] != 90.0][:: len(subset) // 8]
+    picks = picks[:8]
+    empty = np.repeat(subset.backgrounds[picks[0]][None], 1 + 4, axis=0)  # probe + 4 captures
+    targets = np.concatenate([np.repeat(subset.frames[i][None], 4, axis=0) for i in picks])
+    session = tmp_path / "session.npz"
+    np.savez(session, frames=np.concatenate([empty, targets]).astype("<u2"))
+    elf = build_mps2(tmp_path_factory.mktemp("mps2-cal"), extra=(f"SUBSET={session}",))
     positions = tmp_path / "positions.csv"
-    np.savetxt(positions, subset.truth_mm[[0, 30, 60, 90, 120, 150]], delimiter=",", fmt="%.1f")
+    np.savetxt(positions, subset.truth_mm[picks], delimiter=",")
     out = tmp_path / "cal.toml"
-    ran = cli(
-        "calibrate", "--port", b.port, "--positions", positions, "--captures", 3,
-        "--no-prompt", "-o", out,
-    )  # fmt: skip
+    b = QemuBoard(elf, new_flash(tmp_path / "flash.bin"))
+    b.start()
+    try:
+        ran = cli(
+            "calibrate", "--port", b.port, "--positions", positions, "--captures", 4,
+            "--no-prompt", "-o", out,
+        )  # fmt: skip
+    finally:
+        b.kill()
     assert "Traceback" not in ran.stderr
-    # 1 probe + 3 target-free + 6 positions x 3: every acquisition asked for arrived; the fit
-    # of recordings that do not sit at these positions may fail, but it says so in one line
-    assert "Place the target at position 6/6" in ran.stderr, ran.stderr
-    assert ran.returncode in (0, 1, 2), ran.stderr
+    assert "Place the target at position 8/8" in ran.stderr, ran.stderr  # every capture done
     if ran.returncode == 0:
         assert "[geometry]" in out.read_text()
     else:
-        assert ran.stderr.strip().splitlines()[-1].startswith("error:"), ran.stderr
+        assert ran.returncode == 2 and not out.exists(), ran.stderr
+        assert ran.stderr.strip().splitlines()[-1].startswith("error: these target positions")
 
 
 def _commit_in_background(port: str, config: Path) -> subprocess.Popen:
@@ -220,8 +242,8 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
         cut = QemuBoard(b.elf, work)
         cut.arm(CUT, n)
         cut.start()
+        host = _commit_in_background(cut.port, new_cfg)
         try:
-            host = _commit_in_background(cut.port, new_cfg)
             deadline = time.monotonic() + 120
             while host.poll() is None and not cut.mailbox()["fired"]:
                 assert time.monotonic() < deadline, "the commit neither ended nor was cut"
@@ -229,9 +251,12 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
             fired = cut.mailbox()["fired"]
             cut.kill()  # the power cut (or, when the commit ended, just power off)
             host.wait(60)
-            host.stderr.close()
         finally:
             cut.kill()
+            if host.poll() is None:  # only when an assertion stopped us: the host we started
+                host.kill()
+                host.wait(10)
+            host.stderr.close()
         cut.disarm()
         cut.start()
         try:
@@ -246,6 +271,7 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
             break
     else:
         pytest.fail("a commit took more than 64 flash operations")
+    print(f"power cut at flash operation n -> config after restart: {seen}")
     assert n >= 2, seen  # erase, data, metadata at least
     assert seen[0] == "old-config" and "new-config" in seen.values(), seen
 
@@ -303,3 +329,57 @@ def test_reboot_resets_the_board_through_the_scb(board):
                     hello = msg
     assert b.alive() and hello is not None
     assert hello.boot_id != first
+
+
+def test_a_board_with_max_payload_256(mps2_elf, tmp_path, tmp_path_factory):
+    """The image built with -DSPIEL_MAX_PAYLOAD=256: HELLO says 256, a config of ~500 bytes moves in
+    several chunks that fit it, and run streams (a 4 x 64 channel frame is 152 bytes of payload)."""
+    try:
+        elf = build_mps2(
+            tmp_path_factory.mktemp("mps2-256"), extra=("CFLAGS_EXTRA=-DSPIEL_MAX_PAYLOAD=256",)
+        )
+    except Unavailable as exc:
+        pytest.skip(str(exc))
+    b = QemuBoard(elf, new_flash(tmp_path / "flash.bin"))
+    b.start()
+    try:
+        session = DeviceSession(b.port, reconnect=False)
+        session.open()
+        assert session.hello.max_payload == 256
+        session.close()
+        config = board_config(tmp_path / "c.toml", "small-frames")
+        ran = cli("config", "push", "--port", b.port, "--commit", config)
+        assert ran.returncode == 0, ran.stderr
+        assert pulled(b.port)["board"]["name"] == "small-frames"
+        out = tmp_path / "run.ndjson"
+        ran = cli("run", "--port", b.port, "--frames", 30, "--no-track", "-o", out)
+        assert ran.returncode == 0, ran.stderr
+        assert len(records(out)) == 30
+    finally:
+        b.kill()
+
+
+def test_the_bring_up_image_echoes_frames(tmp_path_factory, tmp_path):
+    """make TARGET=mps2-bringup: the frame layer alone over the UART answers every frame with a
+    RESPONSE of the same type, seq and payload (its aux: the board's clock in us)."""
+    why = missing_tools()
+    if why:
+        pytest.skip(f"mps2-an386 target: {why}")
+    elf = build_mps2(tmp_path_factory.mktemp("mps2-bringup"), target="mps2-bringup")
+    b = QemuBoard(elf, new_flash(tmp_path / "flash.bin"))
+    b.start()
+    try:
+        decoder, got = FrameDecoder(), []
+        payloads = [b"", b"\x00" * 300, bytes(range(256)) * 3]
+        with serial.Serial(b.port, timeout=0.2) as port:
+            for seq, payload in enumerate(payloads, start=40):
+                port.write(encode_frame(0x8001, payload, seq=seq))
+            deadline = time.monotonic() + 20
+            while len(got) < len(payloads) and time.monotonic() < deadline:
+                got += decoder.feed(port.read(4096))
+    finally:
+        b.kill()
+    assert [(f.seq, f.flags, f.payload) for f in got] == [
+        (40 + i, 1, p) for i, p in enumerate(payloads)
+    ]
+    assert 0 < got[0].aux <= got[-1].aux and decoder.stats.errors == 0

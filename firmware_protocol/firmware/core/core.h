@@ -61,6 +61,7 @@ void v2_log(uint8_t level, const char *text); /* queue a LOG line (bounded; drop
 uint8_t core_version(void);   /* the negotiated protocol version */
 int core_streaming(void);
 uint32_t core_boot_id(void);
+uint16_t core_max_payload(void); /* the link's: min(device, host's HELLO) */
 void core_reboot_after_ms(uint32_t ms);
 
 #ifndef SPIEL_FW_TARGET

@@ -61,6 +61,7 @@ static struct {
     int on;
     uint16_t seq;          /* the STREAM_START's seq */
     uint32_t mask;         /* resolved channel mask */
+    uint8_t format;        /* SP_SAMPLE_U16_ENVELOPE or (version 2) SP_SAMPLE_I16_IQ */
     uint8_t n_channels;
     uint16_t n_samples;
     uint64_t period_us;    /* 0: as fast as possible */
@@ -178,7 +179,8 @@ static result_t do_hello(const uint8_t *p, uint16_t len)
     sp_le_put_u16(payload + 6, info->max_samples < SPIEL_MAX_SAMPLES ? info->max_samples
                                                                      : (uint16_t)SPIEL_MAX_SAMPLES);
     sp_le_put_u32(payload + 8, SP_CAP_STREAM | (cfg_capacity() ? SP_CAP_CONFIG : 0u) |
-                                   (dev.version >= 2u ? v2_capabilities() : 0u));
+                                   (dev.version >= 2u ? v2_capabilities() : 0u) |
+                                   (dev.version >= 2u && SPIEL_IQ_SAMPLES ? SP_CAP_IQ_SAMPLES : 0u));
     sp_le_put_u32(payload + 12, SP_SCHEMA_HASH);
     sp_le_put_u32(payload + 16, dev.boot_id);
     put_text(payload + 20, info->firmware_version, 16);
@@ -273,8 +275,10 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     if (st.on) {
         return fail(SP_ERR_BAD_STATE, SP_MSG_STREAM_START, "a stream is already running");
     }
-    if (fmt != SP_SAMPLE_U16_ENVELOPE) {
-        return fail(SP_ERR_UNSUPPORTED, SP_MSG_STREAM_START, "U16_ENVELOPE samples only");
+    if (fmt != SP_SAMPLE_U16_ENVELOPE &&
+        !(SPIEL_IQ_SAMPLES && fmt == SP_SAMPLE_I16_IQ && dev.version >= 2u)) {
+        return fail(SP_ERR_UNSUPPORTED, SP_MSG_STREAM_START,
+                    SPIEL_IQ_SAMPLES ? "U16_ENVELOPE, or I16_IQ under version 2" : "U16_ENVELOPE samples only");
     }
     if (mask == 0) {
         mask = all_channels();
@@ -287,7 +291,9 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
         return fail(SP_ERR_UNSUPPORTED, SP_MSG_STREAM_START, "channel subsets need version 2");
     }
     if (n_samples > max_samples ||
-        SP_STREAM_HEADER_SIZE + 2u * (uint32_t)n_samples > dev.max_payload) {
+        SP_STREAM_HEADER_SIZE + (fmt == SP_SAMPLE_I16_IQ ? 4u : 2u) * (uint32_t)n_samples >
+            dev.max_payload ||
+        (fmt == SP_SAMPLE_I16_IQ && 2u * (uint32_t)n_samples > SPIEL_MAX_SAMPLES)) {
         return fail(SP_ERR_TOO_LARGE, SP_MSG_STREAM_START, "n_samples too large");
     }
     if (!(rate >= 0.0f && rate <= MAX_RATE_HZ)) { /* NaN fails both */
@@ -311,7 +317,8 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     sp_le_put_u32(payload + 8, dev.settings.sample_rate_hz);
     sp_le_put_u16(payload + 12, n_samples);
     payload[14] = st.n_channels;
-    payload[15] = SP_SAMPLE_U16_ENVELOPE;
+    payload[15] = fmt;
+    st.format = fmt;
     if (dev.version >= 2) {
         sp_le_put_u32(payload + 16, mask);
         return ok(20);
@@ -389,27 +396,41 @@ static void send_channel(void)
 {
     sp_stream_header_t h;
     uint32_t c = st.next_channel;
-    uint16_t i, len;
+    uint16_t i, len, values;
     while (c < 32 && !(st.mask & (1u << c))) {
         c++;
     }
+    /* I/Q: 2 values per sample (q, i) in the same buffer (n_samples <= SPIEL_MAX_SAMPLES / 2) */
+    values = st.format == SP_SAMPLE_I16_IQ ? (uint16_t)(2u * st.n_samples) : st.n_samples;
+#if SPIEL_IQ_SAMPLES
+    if (st.format == SP_SAMPLE_I16_IQ ? hal_acq_read_iq((uint8_t)c, samples, st.n_samples) != 0
+                                      : hal_acq_read((uint8_t)c, samples, st.n_samples) != 0) {
+#else
     if (hal_acq_read((uint8_t)c, samples, st.n_samples) != 0) {
-        memset(samples, 0, st.n_samples * sizeof samples[0]);
+#endif
+        /* the front end lost this measurement: abandon it (an overrun; its index stays used,
+         * and a host drops the channels already sent as an incomplete acquisition) */
+        spiel_stats.overruns++;
+        st.busy = 0;
+        if (st.last) {
+            st.on = 0;
+        }
+        return;
     }
     h.acquisition = st.index;
     h.channel = (uint8_t)c; /* physical id; equal to the rank in version 1 (all channels) */
     h.n_channels = st.n_channels;
-    h.sample_format = SP_SAMPLE_U16_ENVELOPE;
+    h.sample_format = st.format;
     h.header_size = SP_STREAM_HEADER_SIZE;
     h.sample_rate_hz = dev.settings.sample_rate_hz;
     h.timestamp_us = st.stamp_us;
     h.n_samples = st.n_samples;
     h.reserved = 0;
     sp_stream_header_pack(&h, payload);
-    for (i = 0; i < st.n_samples; i++) {
+    for (i = 0; i < values; i++) {
         sp_le_put_u16(payload + SP_STREAM_HEADER_SIZE + 2u * i, samples[i]);
     }
-    len = (uint16_t)(SP_STREAM_HEADER_SIZE + 2u * st.n_samples);
+    len = (uint16_t)(SP_STREAM_HEADER_SIZE + 2u * values);
     st.rank++;
     st.next_channel = (uint8_t)(c + 1);
     send_frame(SP_MSG_STREAM_DATA, st.seq,
@@ -606,6 +627,11 @@ uint32_t core_boot_id(void)
     return dev.boot_id;
 }
 
+uint16_t core_max_payload(void)
+{
+    return dev.max_payload;
+}
+
 void core_reboot_after_ms(uint32_t ms)
 {
     dev.reboot_pending = 1;
@@ -742,6 +768,10 @@ void spiel_device_poll(void)
     uint64_t now;
     flush();
     if (tx.len) {
+        schedule(hal_time_us()); /* the link is blocked: count the slots that pass */
+        if (st.busy == 1 && hal_acq_ready()) {
+            st.busy = 2;
+        }
         return;
     }
     if (dev.reboot_pending && hal_time_us() >= dev.reboot_at) {

@@ -3,6 +3,8 @@
 
 #include "core.h"
 
+#if SPIEL_FW_UPDATE /* only the firmware image checks use it */
+
 static const uint32_t K[64] = {
     0x428a2f98u, 0x71374491u, 0xb5c0fbcfu, 0xe9b5dba5u, 0x3956c25bu, 0x59f111f1u, 0x923f82a4u,
     0xab1c5ed5u, 0xd807aa98u, 0x12835b01u, 0x243185beu, 0x550c7dc3u, 0x72be5d74u, 0x80deb1feu,
@@ -90,3 +92,5 @@ void sha256_final(sha256_t *s, uint8_t out[32])
         out[4 * i + 3] = (uint8_t)s->h[i];
     }
 }
+
+#endif

@@ -8,6 +8,7 @@
 #define LOG_QUEUE 8u
 #define LOG_TEXT 64u
 #define HEARTBEAT_DEFAULT_MS 1000u
+#define FW_MIN_PAYLOAD 128u /* FW_INFO's answer is 74 bytes: firmware update needs this link */
 
 static struct {
     uint16_t heartbeat_ms;
@@ -55,7 +56,7 @@ uint32_t v2_capabilities(void)
 {
     uint32_t caps = SP_CAP_TIME_SYNC | SP_CAP_TELEMETRY;
 #if SPIEL_FW_UPDATE
-    if (hal_image_slot_size() != 0) {
+    if (hal_image_slot_size() != 0 && core_max_payload() >= FW_MIN_PAYLOAD) {
         caps |= SP_CAP_FIRMWARE_UPDATE;
     }
 #endif
@@ -165,6 +166,9 @@ uint16_t v2_due(uint64_t now, uint8_t *out, uint16_t *out_len)
                               ? cap : v2.tokens_milli + (uint32_t)gained;
         if (v2.tokens_milli >= 1000u) {
             size_t n = strlen(v2.q[v2.head].text);
+            if (n + 15u > core_max_payload()) { /* the link's limit (at least 64) */
+                n = core_max_payload() - 15u;
+            }
             v2.tokens_milli -= 1000u;
             out[0] = v2.q[v2.head].level;
             sp_le_put_u32(out + 1, v2.dropped);
@@ -478,7 +482,7 @@ int v2_request(uint16_t msg_type, const uint8_t *p, uint16_t len, uint8_t *out,
     case SP_MSG_FW_VERIFY:
     case SP_MSG_FW_TEST:
     case SP_MSG_FW_CONFIRM:
-        if (hal_image_slot_size() == 0) {
+        if (hal_image_slot_size() == 0 || core_max_payload() < FW_MIN_PAYLOAD) {
             return 0;
         }
         n = msg_type == SP_MSG_FW_INFO     ? fw_info(out)

@@ -3,8 +3,11 @@
 # clang and libclang-rt-<version>-dev). Output: $(BUILD)/spiel_fuzz. Run it with
 # `python -m tools.firmware_fuzz`.
 FUZZ_CC ?= clang
+# FUZZ_COVERAGE=-fno-sanitize-coverage=trace-cmp: about 3x the inputs per second, without
+# libFuzzer's comparison-guided mutations (for long runs over a corpus grown with them)
+FUZZ_COVERAGE ?=
 FUZZ_CFLAGS := $(WARN) -O1 -g -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
-	-fno-omit-frame-pointer $(INC) $(CFLAGS_EXTRA)
+	-fno-omit-frame-pointer $(FUZZ_COVERAGE) $(INC) $(CFLAGS_EXTRA)
 FUZZ_OUT := $(BUILD)/spiel_fuzz
 
 all: $(FUZZ_OUT)

@@ -16,7 +16,7 @@
  * Between reads the core is polled and the clock moves on, so streams are scheduled, sent,
  * overrun and stopped. Oracle beyond the sanitizers: everything the device writes must decode
  * as valid frames (no CRC, COBS, length or flag error in the host's decoder).
- * The harness counts its own inputs and prints "spiel_fuzz: inputs N" at exit.
+ * The harness counts its own inputs: "spiel_fuzz: inputs N" at exit, and every million.
  */
 #include <setjmp.h>
 #include <stdio.h>
@@ -296,6 +296,10 @@ static void seed_config(void)
     n += sp_frame_encode(SP_MSG_CONFIG_COMMIT, 2, 0, 0, req, 8, framed + n, sizeof framed - n);
     feed(framed, n, 100);
     memcpy(flash_seeded, flash, FLASH_SIZE);
+    if (memcmp(flash_seeded, flash_erased, FLASH_SIZE) == 0) {
+        fprintf(stderr, "spiel_fuzz: the seed config was not committed\n");
+        abort();
+    }
 }
 
 static void report(void)
@@ -321,7 +325,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     uint32_t step_us;
     const uint8_t *body;
     size_t body_len;
-    inputs++;
+    if (++inputs % 1000000u == 0) { /* a count that survives an interrupted run */
+        fprintf(stderr, "spiel_fuzz: inputs %llu so far\n", inputs);
+    }
     if (size < 4) {
         return 0;
     }

@@ -95,6 +95,17 @@ void hal_apply_settings(const hal_settings_t *settings);
 #ifndef SPIEL_FW_UPDATE
 #define SPIEL_FW_UPDATE 0
 #endif
+/* I/Q samples (PROTOCOL.md 14.4): a target whose front end gives I/Q pairs (SonicLib's
+ * ch_get_iq_data) builds with -DSPIEL_IQ_SAMPLES=1 and implements this; the core then accepts
+ * STREAM_START sample_format I16_IQ. Fills qi[0 .. 2n) with q0 i0 q1 i1 ... (two's complement
+ * int16 in uint16_t), like hal_acq_read. 0 ok. */
+#ifndef SPIEL_IQ_SAMPLES
+#define SPIEL_IQ_SAMPLES 0
+#endif
+#if SPIEL_IQ_SAMPLES
+int hal_acq_read_iq(uint8_t channel, uint16_t *qi, uint16_t n_samples);
+#endif
+
 #if SPIEL_FW_UPDATE
 uint32_t hal_image_slot_size(void);                 /* bytes an image slot holds */
 int hal_image_erase(int slot);                      /* 0 ok, <0 error */

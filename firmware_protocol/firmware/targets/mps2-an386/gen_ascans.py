@@ -38,7 +38,9 @@ def main(argv: list[str]) -> int:
     with zipfile.ZipFile(src) as z:
         shape, descr, raw = load_npy(z.read("frames.npy"))
     if descr not in ("<u2", "|u2") or len(shape) != 3:
-        raise SystemExit(f"{src}: frames must be uint16 (n, channels, samples), got {descr} {shape}")
+        raise SystemExit(
+            f"{src}: frames must be uint16 (n, channels, samples), got {descr} {shape}"
+        )
     n, channels, samples = shape
     values = struct.unpack(f"<{n * channels * samples}H", raw[: 2 * n * channels * samples])
     lines = [

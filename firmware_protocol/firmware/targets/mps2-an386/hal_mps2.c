@@ -2,8 +2,8 @@
  * hal_mps2.c - spiel_hal.h on the Arm MPS2 AN386 image (Cortex-M4) under qemu-system-arm.
  *
  * transport  CMSDK UART0: receive interrupt into a ring (the interrupt is masked while the
- *            ring is full, so the sender is held back, never overrun); transmit polled,
- *            as many bytes as the UART takes now.
+ *            ring is full, so the sender is held back, never overrun); transmit into a ring
+ *            that the TX interrupt drains whenever the UART takes the next byte.
  * clock      CMSDK timer 0 counting down at 25 MHz from 0xFFFFFFFF; its wrap interrupt
  *            extends it to 64 bits.
  * A-scans    the vendored recordings as constant data (ascans.c, generated), in order and
@@ -20,6 +20,7 @@
 #include "spiel_hal.h"
 
 void uart0_rx_handler(void);
+void uart0_tx_handler(void);
 void timer0_handler(void);
 void timer1_handler(void);
 void mps2_hal_init(void);
@@ -54,20 +55,44 @@ size_t hal_transport_read(uint8_t *buf, size_t cap)
         rx_tail++;
     }
     if (!(UART_CTRL(UART0_BASE) & UART_CTRL_RXINTEN)) {
-        uint32_t key = irq_save();
+        uint32_t key = irq_save(); /* the handler must not run twice at once */
         UART_CTRL(UART0_BASE) |= UART_CTRL_RXINTEN;
+        uart0_rx_handler(); /* the byte that waited in the UART raised no interrupt */
         irq_restore(key);
-        uart0_rx_handler(); /* what waited in the UART */
     }
     return n;
+}
+
+#define TX_RING 1024u /* a power of two; the largest frame at max_payload 1024 fits */
+static volatile uint8_t tx_ring[TX_RING];
+static volatile uint32_t tx_head, tx_tail; /* head: written by the core; tail: by the pump */
+
+/* Hand the UART what it takes now; with interrupts masked or from the TX interrupt. */
+static void tx_pump(void)
+{
+    while (tx_tail != tx_head && !(UART_STATE(UART0_BASE) & UART_STATE_TXFULL)) {
+        UART_DATA(UART0_BASE) = tx_ring[tx_tail % TX_RING];
+        tx_tail++;
+    }
+}
+
+void uart0_tx_handler(void)
+{
+    UART_INTSTATUS(UART0_BASE) = UART_INT_TX; /* the UART took a byte: give it the next */
+    tx_pump();
 }
 
 size_t hal_transport_write(const uint8_t *buf, size_t len)
 {
     size_t n = 0;
-    while (n < len && !(UART_STATE(UART0_BASE) & UART_STATE_TXFULL)) {
-        UART_DATA(UART0_BASE) = buf[n++];
+    uint32_t key;
+    while (n < len && tx_head - tx_tail < TX_RING) {
+        tx_ring[tx_head % TX_RING] = buf[n++];
+        tx_head++;
     }
+    key = irq_save();
+    tx_pump(); /* an idle UART raises no interrupt: start it */
+    irq_restore(key);
     return n;
 }
 
@@ -214,6 +239,7 @@ static void flash_die(void)
 {
     FI_FIRED = 1u;
     irq_disable();
+    NVIC_ICER0 = 0xFFFFFFFFu; /* nothing may pend and wake the WFI again */
     for (;;) {
         __asm volatile("wfi");
     }
@@ -354,8 +380,8 @@ void mps2_hal_init(void)
 
     UART_BAUDDIV(UART0_BASE) = MPS2_SYSCLK_HZ / 115200u; /* ignored by qemu's pty */
     UART_INTSTATUS(UART0_BASE) = 0xFu;
-    UART_CTRL(UART0_BASE) = UART_CTRL_TXEN | UART_CTRL_RXEN | UART_CTRL_RXINTEN;
+    UART_CTRL(UART0_BASE) = UART_CTRL_TXEN | UART_CTRL_RXEN | UART_CTRL_RXINTEN | UART_CTRL_TXINTEN;
 
-    NVIC_ISER0 = (1u << UART0_RX_IRQ) | (1u << TIMER0_IRQ) | (1u << TIMER1_IRQ);
+    NVIC_ISER0 = (1u << UART0_RX_IRQ) | (1u << UART0_TX_IRQ) | (1u << TIMER0_IRQ) | (1u << TIMER1_IRQ);
     irq_enable();
 }

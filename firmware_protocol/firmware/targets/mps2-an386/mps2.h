@@ -26,9 +26,12 @@
 #define UART_STATE_RXOVR 0x8u
 #define UART_CTRL_TXEN 0x1u
 #define UART_CTRL_RXEN 0x2u
+#define UART_CTRL_TXINTEN 0x4u
 #define UART_CTRL_RXINTEN 0x8u
+#define UART_INT_TX 0x1u
 #define UART_INT_RX 0x2u
 #define UART0_RX_IRQ 0u
+#define UART0_TX_IRQ 1u
 
 /* CMSDK APB timer 0: a 32-bit down counter at the system clock */
 #define TIMER0_BASE 0x40000000u
@@ -54,6 +57,7 @@
 #define AIRCR_VECTKEY 0x05FA0000u
 #define AIRCR_SYSRESETREQ 0x4u
 #define NVIC_ISER0 REG32(0xE000E100u)
+#define NVIC_ICER0 REG32(0xE000E180u)
 
 static inline void irq_disable(void) { __asm volatile("cpsid i" ::: "memory"); }
 static inline void irq_enable(void) { __asm volatile("cpsie i" ::: "memory"); }

@@ -15,6 +15,7 @@ void reset_handler(void);
 void fault_handler(void);
 void default_handler(void);
 void uart0_rx_handler(void); /* hal_mps2.c */
+void uart0_tx_handler(void); /* hal_mps2.c */
 void timer0_handler(void);   /* hal_mps2.c */
 void timer1_handler(void);   /* hal_mps2.c */
 
@@ -69,8 +70,9 @@ __attribute__((section(".isr_vector"), used)) const vector_t vector_table[16 + N
     default_handler, /* SysTick */
     /* IRQs of the AN385/AN386 image */
     uart0_rx_handler, /* 0: UART0 RX */
+    uart0_tx_handler, /* 1: UART0 TX */
     default_handler, default_handler, default_handler, default_handler, default_handler,
-    default_handler, default_handler,
+    default_handler,
     timer0_handler, /* 8: timer 0 */
     timer1_handler, /* 9: timer 1 */
     default_handler, default_handler, default_handler, default_handler,

@@ -31,6 +31,7 @@ static const uint8_t *current; /* the acquisition last triggered */
 static int current_read;       /* a channel of it was read */
 static int flash_fd = -1;
 static int in_fd, out_fd;
+static int out_blocked;
 static long flash_cut = -1, flash_fail = -1, flash_ops;
 static char **saved_argv;
 static uint64_t boot_ns;
@@ -48,7 +49,7 @@ int posix_hal_open(const char *scans, const char *flash, const char *serial, int
                    long cut, long fail, char **argv)
 {
     struct stat sb;
-    int fd = open(scans, O_RDONLY);
+    int fd = open(scans, O_RDONLY | O_CLOEXEC);
     const uint8_t *p;
     if (fd < 0 || fstat(fd, &sb) != 0) {
         fprintf(stderr, "%s: %s\n", scans, strerror(errno));
@@ -75,7 +76,7 @@ int posix_hal_open(const char *scans, const char *flash, const char *serial, int
         return -1;
     }
     scan_data = p + SCANS_HEADER;
-    flash_fd = open(flash, O_RDWR | O_CREAT, 0644);
+    flash_fd = open(flash, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
     if (flash_fd < 0 || fstat(flash_fd, &sb) != 0) {
         fprintf(stderr, "%s: %s\n", flash, strerror(errno));
         return -1;
@@ -119,11 +120,30 @@ int posix_hal_open(const char *scans, const char *flash, const char *serial, int
 
 void posix_hal_wait(uint32_t us)
 {
-    struct pollfd pfd;
-    pfd.fd = in_fd;
-    pfd.events = POLLIN;
-    pfd.revents = 0;
-    if (poll(&pfd, 1, (int)((us + 999u) / 1000u)) > 0 && (pfd.revents & (POLLHUP | POLLERR))) {
+    struct pollfd pfd[2];
+    int n = 1;
+    pfd[0].fd = in_fd;
+    pfd[0].events = POLLIN;
+    pfd[0].revents = 0;
+    if (out_blocked) { /* a frame waits for room: wake when the host has read some (the core
+                          * reads no request before that frame is out, so not on input) */
+        if (out_fd == in_fd) {
+            pfd[0].events = POLLOUT;
+        } else {
+            pfd[1].fd = out_fd;
+            pfd[1].events = POLLOUT;
+            pfd[1].revents = 0;
+            n = 2;
+        }
+        if (us == 0 || us > 5000u) {
+            us = 5000u;
+        }
+    }
+    if (us == 0) {
+        return;
+    }
+    if (poll(pfd, (nfds_t)n, (int)((us + 999u) / 1000u)) > 0 &&
+        (pfd[0].revents & (POLLHUP | POLLERR))) {
         usleep(1000); /* nobody has the pty open: do not spin */
     }
 }
@@ -142,6 +162,7 @@ size_t hal_transport_read(uint8_t *buf, size_t cap)
 size_t hal_transport_write(const uint8_t *buf, size_t len)
 {
     ssize_t n = write(out_fd, buf, len);
+    out_blocked = n < (ssize_t)len; /* the pty (or pipe) is full: the host is not reading */
     return n > 0 ? (size_t)n : 0;
 }
 
@@ -189,6 +210,24 @@ int hal_acq_read(uint8_t channel, uint16_t *samples, uint16_t n)
     }
     return 0;
 }
+
+#if SPIEL_IQ_SAMPLES
+/* I/Q of a recording that holds envelopes only: the amplitude as i, q = 0 (phase 0). A front
+ * end with real I/Q (SonicLib's ch_get_iq_data) fills both. */
+int hal_acq_read_iq(uint8_t channel, uint16_t *qi, uint16_t n)
+{
+    uint16_t i;
+    if (2u * (uint32_t)n > 8192u || hal_acq_read(channel, qi + n, n) != 0) {
+        return -1;
+    }
+    for (i = 0; i < n; i++) {
+        uint16_t a = qi[n + i];
+        qi[2u * i] = 0;                                 /* q */
+        qi[2u * i + 1u] = a > 32767u ? 32767u : a;      /* i */
+    }
+    return 0;
+}
+#endif
 
 /* ---- flash -------------------------------------------------------------------------------- */
 

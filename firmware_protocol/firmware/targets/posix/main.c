@@ -142,8 +142,6 @@ int main(int argc, char **argv)
         uint32_t idle;
         spiel_device_poll();
         idle = spiel_device_idle_us();
-        if (idle > 0) {
-            posix_hal_wait(idle);
-        }
+        posix_hal_wait(idle); /* returns at once when idle is 0, unless output is blocked */
     }
 }

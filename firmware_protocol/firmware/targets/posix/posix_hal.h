@@ -9,7 +9,9 @@
  * stderr and -1. */
 int posix_hal_open(const char *scans, const char *flash, const char *serial, int in_fd,
                    int out_fd, long flash_cut, long flash_fail, char **argv);
-/* Sleep until the transport is readable or `us` microseconds have passed. */
+/* Sleep until the transport is readable or `us` microseconds have passed (0: return at
+ * once), or, while a write found the transport full, until it is writable again (at most
+ * 5 ms): a firmware whose host stopped reading does not spin. */
 void posix_hal_wait(uint32_t us);
 
 /* Firmware image slots (image_posix.c, PROTOCOL.md 14.3): --images DIR and --image-cut N. */
