@@ -12,7 +12,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from firmware_protocol.stream import SAMPLE_DTYPE, SampleFormat, StreamData
+from firmware_protocol.errors import MessageError
+from firmware_protocol.stream import (
+    SAMPLE_DTYPE,
+    STREAM_HEADER,
+    SampleFormat,
+    StreamData,
+    _sample_size,
+)
 
 __all__ = ["Acquisition", "AcquisitionAssembler", "AssemblerStats"]
 
@@ -25,6 +32,56 @@ def _ahead(a: int, b: int) -> int:
     """How far ``a`` is after ``b`` in u32 serial arithmetic (negative if before)."""
     d = (a - b) & _MASK
     return d - (1 << 32) if d >= _HALF else d
+
+
+class _Head:
+    """A STREAM_DATA sub-header read in place: the fields the assembler compares, and where
+    the samples are (no StreamData object, no copy of the samples until they land in the
+    acquisition's array)."""
+
+    __slots__ = (
+        "acquisition",
+        "channel",
+        "n_channels",
+        "sample_format",
+        "sample_rate_hz",
+        "timestamp_us",
+        "buffer",
+        "offset",
+        "nbytes",
+    )
+
+    def __init__(self, acquisition, channel, n_channels, fmt, rate, ts, buffer, offset, nbytes):
+        self.acquisition, self.channel, self.n_channels = acquisition, channel, n_channels
+        self.sample_format, self.sample_rate_hz, self.timestamp_us = fmt, rate, ts
+        self.buffer, self.offset, self.nbytes = buffer, offset, nbytes
+
+    @classmethod
+    def of(cls, msg: StreamData) -> _Head:
+        return cls(
+            msg.acquisition,
+            msg.channel,
+            msg.n_channels,
+            msg.sample_format,
+            msg.sample_rate_hz,
+            msg.timestamp_us,
+            msg.samples,
+            0,
+            len(msg.samples),
+        )
+
+    @classmethod
+    def read(cls, payload: bytes) -> _Head:
+        """As ``StreamData.unpack`` checks it (the same MessageError), without the copy."""
+        if len(payload) < STREAM_HEADER.size:
+            raise MessageError(f"STREAM_DATA of {len(payload)} bytes is shorter than its header")
+        acq, ch, n_ch, fmt, hsize, rate, ts, n, _ = STREAM_HEADER.unpack_from(payload)
+        if hsize < STREAM_HEADER.size:
+            raise MessageError(f"STREAM_DATA header_size {hsize} < {STREAM_HEADER.size}")
+        nbytes = n * _sample_size(fmt)
+        if hsize + nbytes > len(payload):
+            raise MessageError(f"STREAM_DATA declares {n} samples but is truncated")
+        return cls(acq, ch, n_ch, fmt, rate, ts, payload, hsize, nbytes)
 
 
 @dataclass(frozen=True)
@@ -60,7 +117,10 @@ class AssemblerStats:
 
 
 class AcquisitionAssembler:
-    """``feed(StreamData, counter) -> Acquisition | None``; call ``reset()`` per stream."""
+    """``feed(StreamData, counter) -> Acquisition | None``, or ``feed_payload(payload,
+    counter)`` straight from a frame's payload (no StreamData: the samples are copied once,
+    into the acquisition's array, allocated at its first channel); call ``reset()`` per
+    stream."""
 
     def __init__(self) -> None:
         self.stats = AssemblerStats()
@@ -70,27 +130,37 @@ class AcquisitionAssembler:
         """Forget stream state (a new STREAM_START); the stats are kept."""
         self._next_counter: int | None = None
         self._last_done: int | None = None
-        self._first: StreamData | None = None
-        self._channels: dict[int, bytes] = {}
+        self._first: _Head | None = None
+        self._have: set[int] = set()  # channels of the current acquisition received
+        self._rows: np.ndarray | None = None  # its samples, (n_channels, n_samples)
 
     def flush(self) -> None:
         """Drop a pending partial acquisition (stream ended), counting it incomplete."""
         if self._first is not None:
             self.stats.incomplete += 1
-        self._first = None
-        self._channels = {}
+        self._first, self._have, self._rows = None, set(), None
 
     def feed(self, msg: StreamData, counter: int | None = None) -> Acquisition | None:
+        return self._feed(_Head.of(msg), counter)
+
+    def feed_payload(self, payload: bytes, counter: int | None = None) -> Acquisition | None:
+        """A STREAM_DATA payload as received; MessageError (before anything is counted)
+        when it does not decode, as ``StreamData.unpack`` would raise."""
+        return self._feed(_Head.read(payload), counter)
+
+    def _feed(self, msg: _Head, counter: int | None) -> Acquisition | None:
         self.stats.frames += 1
         if counter is not None and not self._count(counter):
             return None
         if not self._admit(msg):
             return None
-        if msg.channel in self._channels:
+        if msg.channel in self._have:
             self.stats.duplicates += 1
             return None
-        self._channels[msg.channel] = msg.samples
-        if len(self._channels) < msg.n_channels:
+        rows = self._rows
+        rows[msg.channel] = np.frombuffer(msg.buffer, rows.dtype, rows.shape[1], msg.offset)
+        self._have.add(msg.channel)
+        if len(self._have) < msg.n_channels:
             return None
         return self._complete()
 
@@ -108,7 +178,7 @@ class AcquisitionAssembler:
         self._next_counter = (counter + 1) & _MASK
         return True
 
-    def _admit(self, msg: StreamData) -> bool:
+    def _admit(self, msg: _Head) -> bool:
         """Place ``msg`` in the current acquisition, starting a new one if it is later."""
         first = self._first
         if first is None or _ahead(msg.acquisition, first.acquisition) > 0:
@@ -126,22 +196,23 @@ class AcquisitionAssembler:
             return False
         return True
 
-    def _start(self, msg: StreamData) -> bool:
-        self._first, self._channels = None, {}
+    def _start(self, msg: _Head) -> bool:
+        self._first, self._have, self._rows = None, set(), None
         valid = 0 <= msg.channel < msg.n_channels and msg.sample_format in SAMPLE_DTYPE
+        if valid:
+            dtype = SAMPLE_DTYPE[SampleFormat(msg.sample_format)]
+            valid = msg.nbytes % dtype.itemsize == 0
         if not valid:
             self.stats.inconsistent += 1
             return False
         self._first = msg
+        self._rows = np.empty((msg.n_channels, msg.nbytes // dtype.itemsize), dtype)
         return True
 
     def _complete(self) -> Acquisition:
-        first = self._first
-        assert first is not None
-        dtype = SAMPLE_DTYPE[SampleFormat(first.sample_format)]
-        rows = b"".join(self._channels[c] for c in range(first.n_channels))
-        samples = np.frombuffer(rows, dtype).reshape(first.n_channels, -1)
-        self._last_done, self._first, self._channels = first.acquisition, None, {}
+        first, samples = self._first, self._rows
+        assert first is not None and samples is not None
+        self._last_done, self._first, self._have, self._rows = first.acquisition, None, set(), None
         self.stats.acquisitions += 1
         return Acquisition(
             first.acquisition,
@@ -152,12 +223,12 @@ class AcquisitionAssembler:
         )
 
 
-def _consistent(first: StreamData, msg: StreamData) -> bool:
+def _consistent(first: _Head, msg: _Head) -> bool:
     return (
         0 <= msg.channel < first.n_channels
         and msg.n_channels == first.n_channels
         and msg.sample_format == first.sample_format
         and msg.sample_rate_hz == first.sample_rate_hz
         and msg.timestamp_us == first.timestamp_us
-        and len(msg.samples) == len(first.samples)
+        and msg.nbytes == first.nbytes
     )

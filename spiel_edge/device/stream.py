@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, StreamData
+from firmware_protocol import AcquisitionAssembler, MessageError, MsgType
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import ANNOTATION_TYPE, TARGETS_TYPE, Annotation, TruthTargets
 
@@ -107,13 +107,12 @@ class StreamTracker:
         return False
 
     def _stream_data(self, frame: Frame, received_ns: int) -> None:
-        try:
-            msg = StreamData.unpack(frame.payload)
+        try:  # straight from the payload into the acquisition's array (no StreamData)
+            acq = self.assembler.feed_payload(frame.payload, frame.aux)
         except MessageError as exc:
             self.bad_messages += 1
             log.debug("bad STREAM_DATA: %s", exc)
             return
-        acq = self.assembler.feed(msg, frame.aux)
         if acq is None:
             return
         if self._last_index is not None:

@@ -179,6 +179,8 @@ class LiveRunner:
                 self.refresh_device_counters()
                 status(self)
                 next_status = time.monotonic() + status_every_s
+        if batch is not None:
+            self.sink.flush()  # what is held, before the caller closes: a failure shows here
         return self.stats
 
     def handle(self, acq: LiveAcquisition) -> dict:
