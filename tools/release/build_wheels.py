@@ -38,6 +38,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 import zipfile
 from pathlib import Path
@@ -306,8 +307,15 @@ def _argv(runner: Runner, cmd: list[str], env: dict, user: str) -> list[str]:
 
 def build(runner: Runner, python: str, work: Path, out: Path, check: bool) -> dict:
     work.mkdir(parents=True, exist_ok=True)
-    step(f"pure wheel with {python}")
-    pure = pure_wheel(runner, python, work)
+    if runner.root is None:
+        step(f"pure wheel with {python}")
+        pure = pure_wheel(runner, python, work)
+    else:  # a pure wheel is the same everywhere: built by the host, not under emulation
+        step("pure wheel with the host's Python, copied into the root")
+        built = pure_wheel(Runner(), sys.executable, Path(tempfile.mkdtemp(prefix="spiel-pure-")))
+        pure = work / "pure" / built.name
+        pure.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(built, pure)
     step("compiling every kernel for a generic CPU in a fresh venv")
     kernels, ident = compile_kernels(runner, python, work, pure)
     wheel = package(pure, kernels, ident, out)
