@@ -15,8 +15,8 @@ import numpy as np
 from firmware_protocol.errors import MessageError
 from firmware_protocol.stream import (
     SAMPLE_DTYPE,
+    SAMPLE_SIZE,
     STREAM_HEADER,
-    SampleFormat,
     StreamData,
     _sample_size,
 )
@@ -78,7 +78,10 @@ class _Head:
         acq, ch, n_ch, fmt, hsize, rate, ts, n, _ = STREAM_HEADER.unpack_from(payload)
         if hsize < STREAM_HEADER.size:
             raise MessageError(f"STREAM_DATA header_size {hsize} < {STREAM_HEADER.size}")
-        nbytes = n * _sample_size(fmt)
+        size = SAMPLE_SIZE.get(fmt)  # IntEnum keys: a plain int finds them, no enum made
+        if size is None:
+            _sample_size(fmt)  # raises its MessageError
+        nbytes = n * size
         if hsize + nbytes > len(payload):
             raise MessageError(f"STREAM_DATA declares {n} samples but is truncated")
         return cls(acq, ch, n_ch, fmt, rate, ts, payload, hsize, nbytes)
@@ -200,7 +203,7 @@ class AcquisitionAssembler:
         self._first, self._have, self._rows = None, set(), None
         valid = 0 <= msg.channel < msg.n_channels and msg.sample_format in SAMPLE_DTYPE
         if valid:
-            dtype = SAMPLE_DTYPE[SampleFormat(msg.sample_format)]
+            dtype = SAMPLE_DTYPE[msg.sample_format]
             valid = msg.nbytes % dtype.itemsize == 0
         if not valid:
             self.stats.inconsistent += 1
