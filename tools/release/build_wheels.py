@@ -58,7 +58,8 @@ class Runner:
     def inside(self, path: Path) -> str:
         if self.root is None:
             return str(path)
-        return "/" + str(Path(path).resolve().relative_to(self.root.resolve()))
+        # not resolved: a venv's python links to /usr/bin/python3 *inside* the root
+        return "/" + str(Path(os.path.abspath(path)).relative_to(os.path.abspath(self.root)))
 
     def run(self, cmd: list[str], env: dict | None = None, user: str | None = None, **kw):
         env = {"PATH": "/usr/bin:/bin", "HOME": "/root", **(env or {})}
