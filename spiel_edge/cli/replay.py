@@ -35,6 +35,7 @@ from spiel_edge.runtime.replay import (
     replay,
 )
 from spiel_edge.runtime.tracking import replay_tracked
+from spiel_edge.runtime.warmup import prepare_for_run
 
 
 @click.command("replay")
@@ -105,6 +106,8 @@ def command(
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work
     if toa_correction is None:  # as run chose when it recorded the file
         toa_correction = recorded_toa_correction(path, fmt)
+    # missing kernels compile now, said at once with progress (once, not in every worker)
+    prepare_for_run(profile, association, max_targets, track, toa_correction)
     pipeline = build_pipeline(profile, association, toa_correction)
     limits = InputLimits.for_profile(profile)
     jobs = usable_jobs(jobs, path, fmt, track, profile)
