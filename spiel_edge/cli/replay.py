@@ -26,6 +26,7 @@ from spiel_edge.io.spiel_csv import frame_files
 from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
 from spiel_edge.runtime.replay import (
     FORMATS,
@@ -35,7 +36,6 @@ from spiel_edge.runtime.replay import (
     replay,
 )
 from spiel_edge.runtime.tracking import replay_tracked
-from spiel_edge.runtime.warmup import prepare_for_run
 
 
 @click.command("replay")

@@ -68,12 +68,12 @@ def test_run_prepares_its_kernels_from_the_cache_before_the_board(monkeypatch):
     """Everything cached (the suite has run the pipeline by now, or compiles it here once):
     the preparation compiles nothing and says nothing."""
     from spiel_edge.profile.schema import load_profile
-    from spiel_edge.runtime import warmup
+    from spiel_edge.runtime import first_start
 
     profile = load_profile()
-    warmup.prepare_for_run(profile, None, 4, True)  # a cold cache compiles here, once
+    first_start.prepare_for_run(profile, None, 4, True)  # a cold cache compiles here, once
     out = io.StringIO()
-    again = warmup.prepare_for_run(profile, None, 4, True, stream=out)
+    again = first_start.prepare_for_run(profile, None, 4, True, stream=out)
     assert again["compiled"] is False and out.getvalue() == ""
 
 

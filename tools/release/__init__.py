@@ -1,0 +1,2 @@
+"""Release tools: wheels with prebuilt kernels (``build_wheels``), the wheel check of the
+dependencies (``check_wheels``) and the emulated aarch64 root (``aarch64_smoke.sh``)."""
