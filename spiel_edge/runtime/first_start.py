@@ -145,8 +145,9 @@ def kernel_status() -> dict:
 
 
 def cache_writable() -> bool:
+    """Whether compiled kernels are kept (a kernel cache with a writable folder)."""
     try:
-        from spiel_edge.pipeline import detect
-    except RuntimeError:
+        from firmware_protocol import _cobs_numba
+    except (ImportError, RuntimeError):  # no numba, or numba's own cache with no folder
         return False
-    return bool(getattr(detect._detect_kernel._cache, "writable", True))
+    return bool(getattr(_cobs_numba.decode._cache, "writable", True))

@@ -32,9 +32,14 @@ def pipeline_kernels() -> dict[str, object]:
     modules, by qualified name (modules whose optional dependency is missing are skipped)."""
     found = {}
     for package_name in KERNEL_PACKAGES:
-        package = importlib.import_module(package_name)
-        for info in pkgutil.iter_modules(package.__path__):
-            name = f"{package_name}.{info.name}"
+        try:
+            package = importlib.import_module(package_name)
+        except ImportError:  # a package renamed or gone: its kernels are not found here
+            log.warning("kernel package %s not found", package_name)
+            continue
+        # sub-packages too (the pipeline's stages may live in sub-packages)
+        for info in pkgutil.walk_packages(package.__path__, prefix=f"{package_name}."):
+            name = info.name
             try:
                 module = importlib.import_module(name)
             except ImportError:
