@@ -184,7 +184,7 @@ def manifest(kernels: Path, ident: dict) -> dict:
     files = {
         p.relative_to(kernels).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(kernels.rglob("*"))
-        if p.is_file() and p.suffix in (".nbi", ".nbc")
+        if p.is_file() and p.suffix in (".nbi", ".nbc", ".nbo")  # .nbo: numba's runtime
     }
     keep = ("python", "machine", "numba", "llvmlite")
     return {**{k: ident[k] for k in keep}, "cpu": "generic", "files": files}
