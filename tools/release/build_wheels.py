@@ -238,8 +238,9 @@ def _record(path: str, data: bytes) -> tuple[str, str, str]:
     return path, f"sha256={digest}", str(len(data))
 
 
-def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
-    """The wheel in a fresh venv, read-only, as nobody, empty cache, compiling forbidden."""
+def verify(runner: Runner, python: str, work: Path, wheel: Path, user: str = "65534") -> dict:
+    """The wheel in a fresh venv, read-only, as ``user`` (nobody; "root": an interpreter
+    nobody cannot run, e.g. under /root/.pyenv), empty cache, compiling forbidden."""
     venv = work / "verifyenv"
     vpy = fresh_venv(runner, python, venv, wheel)
     site = runner.run(
@@ -255,7 +256,8 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
     cache = work / "verifycache"
     shutil.rmtree(cache, ignore_errors=True)
     cache.mkdir()
-    os.chown(cache, 65534, 65534)
+    if user != "root":
+        os.chown(cache, int(user), int(user))
     out = work / "verify.ndjson"
     out.unlink(missing_ok=True)
     os.chmod(work, 0o777)
@@ -268,7 +270,7 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
     cmd = [spiel, "run", "--port", SIM, "--frames", str(FRAMES), "--rate", "0"]
     t0 = time.perf_counter()
     proc = subprocess.Popen(
-        _argv(runner, cmd, env, "65534"), stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        _argv(runner, cmd, env, user), stdout=subprocess.PIPE, stderr=subprocess.PIPE
     )
     first = None
     lines = []
@@ -279,7 +281,7 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
     err = proc.stderr.read().decode(errors="replace")
     code = proc.wait()
     out.write_bytes(b"".join(lines))
-    written = [p for p in cache.rglob("*.nb[ic]")]
+    written = [p for p in cache.rglob("*") if p.is_file()]  # kernels, numba's runtime
     return {
         "exit": code,
         "first_record_s": round(first, 2) if first is not None else None,
@@ -292,7 +294,11 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
 
 def _argv(runner: Runner, cmd: list[str], env: dict, user: str) -> list[str]:
     env = {"PATH": "/usr/bin:/bin", **env}
-    prefix = ["setpriv", "--reuid", user, "--regid", user, "--clear-groups", "--"]
+    prefix = (
+        []
+        if user == "root"
+        else ["setpriv", "--reuid", user, "--regid", user, "--clear-groups", "--"]
+    )
     if runner.root is not None:
         return [
             "chroot",
@@ -306,7 +312,9 @@ def _argv(runner: Runner, cmd: list[str], env: dict, user: str) -> list[str]:
     return [*prefix, "/usr/bin/env", "-i", *[f"{k}={v}" for k, v in env.items()], *cmd]
 
 
-def build(runner: Runner, python: str, work: Path, out: Path, check: bool) -> dict:
+def build(
+    runner: Runner, python: str, work: Path, out: Path, check: bool, user: str = "65534"
+) -> dict:
     work.mkdir(parents=True, exist_ok=True)
     if runner.root is None:
         step(f"pure wheel with {python}")
@@ -325,7 +333,7 @@ def build(runner: Runner, python: str, work: Path, out: Path, check: bool) -> di
     result.pop("kernels", None)
     if check:
         step(f"checking {wheel.name}: fresh venv, read-only, nobody, empty cache")
-        checked = verify(runner, python, work, wheel)
+        checked = verify(runner, python, work, wheel, user)
         shutil.copy(checked["ndjson"], str(wheel) + ".sim50.ndjson")
         result["verify"] = checked
     return result
@@ -338,6 +346,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "dist")
     ap.add_argument("--work", type=Path, default=None)
     ap.add_argument("--skip-verify", action="store_true")
+    ap.add_argument(
+        "--verify-user",
+        default="65534",
+        help="uid the check runs as (default nobody; root for an interpreter under /root)",
+    )
     ap.add_argument("--in-root", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     out = args.out.resolve()
@@ -376,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
         work_of = lambda py: base / Path(py).name  # noqa: E731
     failed = 0
     for python in pythons:
-        result = build(runner, python, work_of(python), out, not args.skip_verify)
+        result = build(runner, python, work_of(python), out, not args.skip_verify, args.verify_user)
         ok = args.skip_verify or (
             result["verify"]["exit"] == 0 and result["verify"]["compiled_to_cache"] == 0
         )
