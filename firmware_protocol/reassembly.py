@@ -12,7 +12,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from firmware_protocol.stream import SAMPLE_DTYPE, SampleFormat, StreamData
+from firmware_protocol.errors import MessageError
+from firmware_protocol.stream import (
+    SAMPLE_DTYPE,
+    SAMPLE_SIZE,
+    STREAM_HEADER,
+    SampleFormat,
+    StreamData,
+    _sample_size,
+)
 
 __all__ = ["Acquisition", "AcquisitionAssembler", "AssemblerStats"]
 
@@ -25,6 +33,59 @@ def _ahead(a: int, b: int) -> int:
     """How far ``a`` is after ``b`` in u32 serial arithmetic (negative if before)."""
     d = (a - b) & _MASK
     return d - (1 << 32) if d >= _HALF else d
+
+
+class _Head:
+    """A STREAM_DATA sub-header read in place: the fields the assembler compares, and where
+    the samples are (no StreamData object, no copy of the samples until they land in the
+    acquisition's array)."""
+
+    __slots__ = (
+        "acquisition",
+        "channel",
+        "n_channels",
+        "sample_format",
+        "sample_rate_hz",
+        "timestamp_us",
+        "buffer",
+        "offset",
+        "nbytes",
+    )
+
+    def __init__(self, acquisition, channel, n_channels, fmt, rate, ts, buffer, offset, nbytes):
+        self.acquisition, self.channel, self.n_channels = acquisition, channel, n_channels
+        self.sample_format, self.sample_rate_hz, self.timestamp_us = fmt, rate, ts
+        self.buffer, self.offset, self.nbytes = buffer, offset, nbytes
+
+    @classmethod
+    def of(cls, msg: StreamData) -> _Head:
+        return cls(
+            msg.acquisition,
+            msg.channel,
+            msg.n_channels,
+            msg.sample_format,
+            msg.sample_rate_hz,
+            msg.timestamp_us,
+            msg.samples,
+            0,
+            len(msg.samples),
+        )
+
+    @classmethod
+    def read(cls, payload: bytes) -> _Head:
+        """As ``StreamData.unpack`` checks it (the same MessageError), without the copy."""
+        if len(payload) < STREAM_HEADER.size:
+            raise MessageError(f"STREAM_DATA of {len(payload)} bytes is shorter than its header")
+        acq, ch, n_ch, fmt, hsize, rate, ts, n, _ = STREAM_HEADER.unpack_from(payload)
+        if hsize < STREAM_HEADER.size:
+            raise MessageError(f"STREAM_DATA header_size {hsize} < {STREAM_HEADER.size}")
+        size = SAMPLE_SIZE.get(fmt)  # IntEnum keys: a plain int finds them, no enum made
+        if size is None:
+            _sample_size(fmt)  # raises its MessageError
+        nbytes = n * size
+        if hsize + nbytes > len(payload):
+            raise MessageError(f"STREAM_DATA declares {n} samples but is truncated")
+        return cls(acq, ch, n_ch, fmt, rate, ts, payload, hsize, nbytes)
 
 
 @dataclass(frozen=True)
@@ -62,7 +123,10 @@ class AssemblerStats:
 
 
 class AcquisitionAssembler:
-    """``feed(StreamData, counter) -> Acquisition | None``; call ``reset()`` per stream."""
+    """``feed(StreamData, counter) -> Acquisition | None``, or ``feed_payload(payload,
+    counter)`` straight from a frame's payload (no StreamData: the samples are copied once,
+    into the acquisition's array, allocated at its first channel); call ``reset()`` per
+    stream."""
 
     def __init__(self) -> None:
         self.stats = AssemblerStats()
@@ -72,32 +136,43 @@ class AcquisitionAssembler:
         """Forget stream state (a new STREAM_START); the stats are kept. ``channel_mask``
         (protocol version 2, a channel subset): the physical channel ids each acquisition
         carries, its rows in increasing id order; 0: ids 0 .. n_channels - 1."""
-        self._ids: tuple[int, ...] | None = (
-            tuple(c for c in range(32) if channel_mask >> c & 1) if channel_mask else None
-        )
+        ids = tuple(c for c in range(32) if channel_mask >> c & 1) if channel_mask else None
+        self._ids: tuple[int, ...] | None = ids
+        self._row_of: dict[int, int] | None = None if ids is None else {c: i for i, c in enumerate(ids)}
         self._next_counter: int | None = None
         self._last_done: int | None = None
-        self._first: StreamData | None = None
-        self._channels: dict[int, bytes] = {}
+        self._first: _Head | None = None
+        self._have: set[int] = set()  # channels of the current acquisition received
+        self._rows: np.ndarray | None = None  # its samples, (n_channels, n_samples)
 
     def flush(self) -> None:
         """Drop a pending partial acquisition (stream ended), counting it incomplete."""
         if self._first is not None:
             self.stats.incomplete += 1
-        self._first = None
-        self._channels = {}
+        self._first, self._have, self._rows = None, set(), None
 
     def feed(self, msg: StreamData, counter: int | None = None) -> Acquisition | None:
+        return self._feed(_Head.of(msg), counter)
+
+    def feed_payload(self, payload: bytes, counter: int | None = None) -> Acquisition | None:
+        """A STREAM_DATA payload as received; MessageError (before anything is counted)
+        when it does not decode, as ``StreamData.unpack`` would raise."""
+        return self._feed(_Head.read(payload), counter)
+
+    def _feed(self, msg: _Head, counter: int | None) -> Acquisition | None:
         self.stats.frames += 1
         if counter is not None and not self._count(counter):
             return None
         if not self._admit(msg):
             return None
-        if msg.channel in self._channels:
+        if msg.channel in self._have:
             self.stats.duplicates += 1
             return None
-        self._channels[msg.channel] = msg.samples
-        if len(self._channels) < msg.n_channels:
+        rows = self._rows
+        row = msg.channel if self._row_of is None else self._row_of[msg.channel]
+        rows[row] = np.frombuffer(msg.buffer, rows.dtype, rows.shape[1], msg.offset)
+        self._have.add(msg.channel)
+        if len(self._have) < msg.n_channels:
             return None
         return self._complete()
 
@@ -115,7 +190,7 @@ class AcquisitionAssembler:
         self._next_counter = (counter + 1) & _MASK
         return True
 
-    def _admit(self, msg: StreamData) -> bool:
+    def _admit(self, msg: _Head) -> bool:
         """Place ``msg`` in the current acquisition, starting a new one if it is later."""
         first = self._first
         if first is None or _ahead(msg.acquisition, first.acquisition) > 0:
@@ -133,23 +208,23 @@ class AcquisitionAssembler:
             return False
         return True
 
-    def _start(self, msg: StreamData) -> bool:
-        self._first, self._channels = None, {}
+    def _start(self, msg: _Head) -> bool:
+        self._first, self._have, self._rows = None, set(), None
         valid = _channel_ok(msg, self._ids) and msg.sample_format in SAMPLE_DTYPE
+        if valid:
+            dtype = SAMPLE_DTYPE[msg.sample_format]
+            valid = msg.nbytes % dtype.itemsize == 0
         if not valid:
             self.stats.inconsistent += 1
             return False
         self._first = msg
+        self._rows = np.empty((msg.n_channels, msg.nbytes // dtype.itemsize), dtype)
         return True
 
     def _complete(self) -> Acquisition:
-        first = self._first
-        assert first is not None
-        dtype = SAMPLE_DTYPE[SampleFormat(first.sample_format)]
-        order = self._ids if self._ids is not None else range(first.n_channels)
-        rows = b"".join(self._channels[c] for c in order)
-        samples = np.frombuffer(rows, dtype).reshape(first.n_channels, -1)
-        self._last_done, self._first, self._channels = first.acquisition, None, {}
+        first, samples = self._first, self._rows
+        assert first is not None and samples is not None
+        self._last_done, self._first, self._have, self._rows = first.acquisition, None, set(), None
         self.stats.acquisitions += 1
         return Acquisition(
             first.acquisition,
@@ -160,17 +235,17 @@ class AcquisitionAssembler:
         )
 
 
-def _channel_ok(msg: StreamData, ids: tuple[int, ...] | None) -> bool:
+def _channel_ok(msg: _Head, ids: tuple[int, ...] | None) -> bool:
     if ids is None:
         return 0 <= msg.channel < msg.n_channels
     return msg.channel in ids and msg.n_channels == len(ids)
 
 
-def _consistent(first: StreamData, msg: StreamData) -> bool:
+def _consistent(first: _Head, msg: _Head) -> bool:
     return (
         msg.n_channels == first.n_channels
         and msg.sample_format == first.sample_format
         and msg.sample_rate_hz == first.sample_rate_hz
         and msg.timestamp_us == first.timestamp_us
-        and len(msg.samples) == len(first.samples)
+        and msg.nbytes == first.nbytes
     )

@@ -30,6 +30,8 @@ import tempfile
 import weakref
 from pathlib import Path
 
+from spiel_edge import _shipped
+
 log = logging.getLogger(__name__)
 
 ENV_SWITCH = "SPIEL_EDGE_NUMBA_LEAN"
@@ -92,9 +94,10 @@ def install() -> bool:
 
     def compile_nrt_functions(ctx):
         folder = _state["folder"]
-        if not folder:
+        shipped = _shipped_runtime(ctx.codegen())
+        if not folder and shipped is None and not os.environ.get(_shipped.ENV_BUILD):
             return stock_compile(ctx)
-        return _runtime_library(ctx, folder, nrtdynmod.create_nrt_module)
+        return _runtime_library(ctx, folder or None, nrtdynmod.create_nrt_module, shipped)
 
     caching.FunctionCache.load_overload = load_overload
     nrtdynmod.compile_nrt_functions = compile_nrt_functions
@@ -220,19 +223,44 @@ def runtime_file(folder: Path, codegen) -> Path:
     return folder / f"spiel_edge-nrt-{hashlib.sha256(key.encode()).hexdigest()[:16]}.nbo"
 
 
-def _runtime_library(ctx, folder: Path, create_module):
-    """The NRT library from ``folder`` when it is there and intact, else compiled and saved."""
+def shipped_runtime_name(codegen) -> str:
+    """The runtime's file among a wheel's prebuilt kernels: keyed by CPU, numba, llvmlite and
+    the Python ABI (not the exact interpreter build, as :func:`runtime_file` is)."""
+    import llvmlite
+    import numba
+
+    key = repr((codegen.magic_tuple(), numba.__version__, llvmlite.__version__))
+    key += sys.implementation.cache_tag
+    return f"spiel_edge-nrt-{hashlib.sha256(key.encode()).hexdigest()[:16]}.nbo"
+
+
+def _shipped_runtime(codegen) -> Path | None:
+    if not _shipped.status()["active"]:
+        return None
+    return _shipped.FOLDER / shipped_runtime_name(codegen)
+
+
+def _runtime_library(ctx, folder: Path | None, create_module, shipped: Path | None = None):
+    """The NRT library from the wheel's prebuilt kernels or ``folder`` when there and intact,
+    else compiled and saved (a release build also keeps it beside the kernels it builds)."""
     codegen = ctx.codegen()
-    path = runtime_file(folder, codegen)
-    try:
-        parts = _unpack(path.read_bytes())
-        library = codegen.unserialize_library((parts[0].decode(), "object", parts[1:]))
-        log.debug("numba runtime loaded from %s", path)
-        return library
-    except FileNotFoundError:
-        pass
-    except Exception as exc:  # a damaged or foreign file: compile as numba would
-        log.debug("numba runtime cache %s unusable (%s): compiling it", path, exc)
+    path = runtime_file(folder, codegen) if folder else None
+    for candidate in (shipped, path):
+        if candidate is None:
+            continue
+        try:
+            blob = candidate.read_bytes()
+            if candidate == shipped and _shipped.file_digest(candidate) != _shipped.sha256(blob):
+                raise ValueError("not the file the wheel's manifest lists")
+            parts = _unpack(blob)
+            library = codegen.unserialize_library((parts[0].decode(), "object", parts[1:]))
+            log.debug("numba runtime loaded from %s", candidate)
+            _keep_for_release(codegen, blob)
+            return library
+        except FileNotFoundError:
+            continue
+        except Exception as exc:  # a damaged or foreign file: compile as numba would
+            log.debug("numba runtime cache %s unusable (%s)", candidate, exc)
     made = create_module(ctx)
     ir_module, library = made if isinstance(made, tuple) else (made, None)
     library = library or codegen.create_library("nrt")
@@ -240,8 +268,20 @@ def _runtime_library(ctx, folder: Path, create_module):
     library.add_ir_module(ir_module)
     library.finalize()
     name, _kind, (object_code, bitcode) = library.serialize_using_object_code()
-    _save(path, _pack((name.encode(), object_code, bitcode)))
+    blob = _pack((name.encode(), object_code, bitcode))
+    if path is not None:
+        _save(path, blob)
+    _keep_for_release(codegen, blob)
     return library
+
+
+def _keep_for_release(codegen, blob: bytes) -> None:
+    out = os.environ.get(_shipped.ENV_BUILD)
+    if out:
+        target = Path(out) / shipped_runtime_name(codegen)
+        if not target.exists():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            _save(target, blob)
 
 
 def _pack(parts: tuple[bytes, ...]) -> bytes:

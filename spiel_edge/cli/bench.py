@@ -114,7 +114,7 @@ def command(
         click.echo(
             f"run over a pty (4x64, 4 targets, tracked, NDJSON): {run['cpu_us_per_record']:.0f} "
             f"CPU-us per record ({run.get('over_pipeline', '-')}x the pipeline's), "
-            f"{run['records_per_s']:.0f} records/s at --rate 0, latency {run['latency_ms']}"
+            f"latency at --rate 0 {run['latency_ms']}"
         )
     if first_start:
         from spiel_edge.measure.bench_run import cold_figures

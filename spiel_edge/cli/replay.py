@@ -26,6 +26,7 @@ from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.recordings.spiel_csv import frame_files
+from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
 from spiel_edge.runtime.replay import (
     FORMATS,
@@ -106,6 +107,8 @@ def command(
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work
     if toa_correction is None:  # as run chose when it recorded the file
         toa_correction = recorded_toa_correction(path, fmt)
+    # missing kernels compile now, said at once with progress (once, not in every worker)
+    prepare_for_run(profile, association, max_targets, track, toa_correction)
     pipeline = build_pipeline(profile, association, toa_correction)
     limits = InputLimits.for_profile(profile)
     jobs = usable_jobs(jobs, path, fmt, track, profile)

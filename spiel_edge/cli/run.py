@@ -27,6 +27,7 @@ from spiel_edge.errors import DeviceError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.loop import (
     LiveRunner,
     check_stream_shape,
@@ -36,7 +37,6 @@ from spiel_edge.runtime.loop import (
 )
 from spiel_edge.runtime.replay import chosen_toa_correction
 from spiel_edge.runtime.tracking import ResultTracker
-from spiel_edge.runtime.warmup import prepare_for_run
 from spiel_edge.service.systemd import Notifier
 
 

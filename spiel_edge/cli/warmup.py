@@ -52,7 +52,7 @@ def command(as_json: bool, isolate: bool) -> int:
 
 
 def _status() -> dict | None:
-    from spiel_edge.runtime.warmup import kernel_status
+    from spiel_edge.runtime.first_start import kernel_status
 
     try:
         return kernel_status()

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, SampleFormat, StreamData
+from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, SampleFormat
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import ANNOTATION_TYPE, TARGETS_TYPE, Annotation, TruthTargets
 from spiel_edge.device.iq import iq_amplitude, iq_phase
@@ -133,13 +133,12 @@ class StreamTracker:
         self.frame_at = time.monotonic()
         self.frames_since += 1
         self.sanity.payload(frame.payload, frame.aux)  # FirmwareError: the stream contradicts
-        try:
-            msg = StreamData.unpack(frame.payload)
+        try:  # straight from the payload into the acquisition's array (no StreamData)
+            acq = self.assembler.feed_payload(frame.payload, frame.aux)
         except MessageError as exc:
             self.bad_messages += 1
             log.debug("bad STREAM_DATA: %s", exc)
             return
-        acq = self.assembler.feed(msg, frame.aux)
         if acq is None:
             return
         self.progress_at, self.frames_since = self.frame_at, 0

@@ -61,14 +61,14 @@ class SerialLink:
         try:
             waiting = port.in_waiting
             if waiting:
-                return port.read(waiting)
+                return port.read(min(waiting, READ_MAX))
             if self._timeout != timeout_s:
                 port.timeout = self._timeout = timeout_s
             data = port.read(1)
             if data:
                 waiting = port.in_waiting
                 if waiting:
-                    data += port.read(waiting)
+                    data += port.read(min(waiting, READ_MAX - 1))
             return data
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnectedError(f"{self.url}: link lost: {exc}") from exc

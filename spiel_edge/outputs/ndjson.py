@@ -11,6 +11,9 @@ from typing import TextIO
 from spiel_edge.io.guard import AtomicTextFile, open_exclusive
 from spiel_edge.outputs.sink import Sink
 
+# one encoder for every record (json.dumps with options builds one per call); same text
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
 
 class NdjsonSink(Sink):
     """``exclusive``: the file must not exist yet (no --force); ``atomic``: written to a
@@ -33,7 +36,7 @@ class NdjsonSink(Sink):
     hold = False  # True: write() leaves flushing to flush() (a live run flushes when caught up)
 
     def write(self, record: dict) -> None:
-        self._fh.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
+        self._fh.write(_ENCODER.encode(record) + "\n")
         if not self.hold:
             self._fh.flush()
 

@@ -41,6 +41,14 @@ class LiveStats:
     started: float = field(default_factory=time.monotonic)
     latencies_us: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     all_latencies_us: list[float] = field(default_factory=list)  # kept when asked (benchmarks)
+    cpu_at_first_s: float | None = None  # process CPU seconds when the first record was out
+
+    def cpu_us_per_record(self) -> float | None:
+        """CPU of this process per record after the first (start-up excluded; a virtual
+        board in this process counts, one served from another process does not)."""
+        if self.cpu_at_first_s is None or self.records < 2:
+            return None
+        return (time.process_time() - self.cpu_at_first_s) / (self.records - 1) * 1e6
 
     def median_latency_ms(self) -> float | None:
         return float(np.median(self.latencies_us)) / 1e3 if self.latencies_us else None
@@ -210,6 +218,8 @@ class LiveRunner:
         if self.sink.wants_acquisitions:  # recordings keep the raw samples and the background
             self.sink.write_acquisition(self._acquisition_meta(acq, record), acq.samples)
         self.sink.write(record)
+        if self.stats.cpu_at_first_s is None:
+            self.stats.cpu_at_first_s = time.process_time()
         if self.on_record is not None:
             self.on_record()
         latency_us = (time.perf_counter_ns() - acq.received_ns) / 1e3
@@ -354,6 +364,10 @@ class LiveRunner:
         )
         errors = f", {s.errors} rejected" if s.errors else ""
         counters = ", ".join(f"{k} {v}" for k, v in c.items() if v and k != "acquisitions")
-        return f"{s.records} records in {elapsed:.1f} s, {s.fixes} fixes{errors}; {latency}" + (
-            f"; {counters}" if counters else ""
+        cpu = s.cpu_us_per_record()
+        cpu_text = f"; CPU {cpu:.0f} us per record" if cpu is not None else ""
+        return (
+            f"{s.records} records in {elapsed:.1f} s, {s.fixes} fixes{errors}; {latency}"
+            + cpu_text
+            + (f"; {counters}" if counters else "")
         )

@@ -66,3 +66,20 @@ def test_other_packages_cached_functions_keep_numbas_own_loading(tmp_path):
         runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
     assert runs[0] == [3.0, True, 0]  # compiled
     assert runs[1] == [3.0, True, 1]  # loaded from the cache, registries imported as numba does
+
+
+def test_the_versions_and_internals_it_relies_on_are_checked(monkeypatch):
+    import llvmlite
+    import numba
+
+    supported = _cache_load._version(numba.__version__) in _cache_load.SUPPORTED and (
+        _cache_load._version(llvmlite.__version__) in _cache_load.SUPPORTED_LLVMLITE
+    )
+    assert (_cache_load.unsupported() == "") == supported
+    monkeypatch.setattr(_cache_load, "SUPPORTED_LLVMLITE", ((0, 1),))
+    assert _cache_load.unsupported().startswith(("llvmlite", "numba"))
+    monkeypatch.setattr(_cache_load, "SUPPORTED_LLVMLITE", ((0, 50),))
+    missing = (("numba.core.caching", "FunctionCache", "no_such_method"),)
+    monkeypatch.setattr(_cache_load, "RELIED_ON", missing)
+    if supported:
+        assert "FunctionCache.no_such_method" in _cache_load.unsupported()

@@ -68,12 +68,12 @@ def test_run_prepares_its_kernels_from_the_cache_before_the_board(monkeypatch):
     """Everything cached (the suite has run the pipeline by now, or compiles it here once):
     the preparation compiles nothing and says nothing."""
     from spiel_edge.profile.schema import load_profile
-    from spiel_edge.runtime import warmup
+    from spiel_edge.runtime import first_start
 
     profile = load_profile()
-    warmup.prepare_for_run(profile, None, 4, True)  # a cold cache compiles here, once
+    first_start.prepare_for_run(profile, None, 4, True)  # a cold cache compiles here, once
     out = io.StringIO()
-    again = warmup.prepare_for_run(profile, None, 4, True, stream=out)
+    again = first_start.prepare_for_run(profile, None, 4, True, stream=out)
     assert again["compiled"] is False and out.getvalue() == ""
 
 
@@ -91,3 +91,14 @@ def test_the_service_hears_of_each_kernel_and_gets_more_time(tmp_path):
         message = server.recv(4096).decode()
     assert "STATUS=compiling kernels: 1/3 (track.step._step)" in message
     assert "EXTEND_TIMEOUT_USEC=120000000" in message
+
+
+def test_a_warmup_step_in_a_child_reports_its_kernels():
+    from spiel_edge.runtime import warmup
+
+    seen = []
+    report = warmup._run_child("stream", lambda *event: seen.append(event))
+    names = {"firmware_protocol._cobs_numba.decode", "firmware_protocol._cobs_numba.encode"}
+    assert names <= set(report["kernels"])
+    assert set(report["compiled"]) | set(report["cache_hits"]) >= names
+    assert {name for event, name, _ in seen if event == "compiled"} == set(report["compiled"])

@@ -1,1 +1,3 @@
-"""Release checks: wheels, other Pythons and architectures, fuzzing, the shipped models' verification."""
+"""Release tools: wheels with prebuilt kernels (``build_wheels``), the wheel check of the
+dependencies (``check_wheels``), the emulated aarch64 root (``aarch64_smoke.sh``), other
+Pythons, fuzzing, and the shipped models' verification."""

@@ -28,22 +28,19 @@ Prints one JSON line per wheel. Needs the package index for the dependencies. No
 from __future__ import annotations
 
 import argparse
-import base64
-import csv
-import hashlib
-import io
 import json
 import os
 import shlex
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
-import zipfile
 from pathlib import Path
 
+from tools.release.wheel_files import KERNELS, _platform_tag, manifest, package  # noqa: F401
+
 REPO = Path(__file__).resolve().parents[2]
-KERNELS = "spiel_edge/_kernels"
 FRAMES = 50
 SIM = "sim://"
 
@@ -57,7 +54,8 @@ class Runner:
     def inside(self, path: Path) -> str:
         if self.root is None:
             return str(path)
-        return "/" + str(Path(path).resolve().relative_to(self.root.resolve()))
+        # not resolved: a venv's python links to /usr/bin/python3 *inside* the root
+        return "/" + str(Path(os.path.abspath(path)).relative_to(os.path.abspath(self.root)))
 
     def run(self, cmd: list[str], env: dict | None = None, user: str | None = None, **kw):
         env = {"PATH": "/usr/bin:/bin", "HOME": "/root", **(env or {})}
@@ -165,79 +163,9 @@ def compile_kernels(runner: Runner, python: str, work: Path, wheel: Path) -> tup
     return out, ident
 
 
-def _platform_tag(wheel_metadata: str) -> str:
-    """The platform part of numba's wheel tag (e.g. manylinux_2_17_x86_64.manylinux2014_x86_64)."""
-    platforms = []
-    for line in wheel_metadata.splitlines():
-        if line.startswith("Tag:"):
-            platform = line.split(":", 1)[1].strip().split("-")[-1]
-            if platform not in platforms:
-                platforms.append(platform)
-    if not platforms:
-        raise SystemExit("numba's wheel names no platform tag: is numba installed from a wheel?")
-    return ".".join(platforms)
-
-
-def manifest(kernels: Path, ident: dict) -> dict:
-    files = {
-        p.relative_to(kernels).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(kernels.rglob("*"))
-        if p.is_file() and p.suffix in (".nbi", ".nbc")
-    }
-    keep = ("python", "machine", "numba", "llvmlite")
-    return {**{k: ident[k] for k in keep}, "cpu": "generic", "files": files}
-
-
-def package(pure: Path, kernels: Path, ident: dict, out: Path) -> Path:
-    """The pure wheel plus the kernels and manifest, re-tagged for this Python and platform."""
-    py = ident["python"].replace("cpython-", "cp")
-    name, version = pure.name.split("-")[:2]
-    target = out / f"{name}-{version}-{py}-{py}-{ident['platform']}.whl"
-    info = f"{name}-{version}.dist-info"
-    added = {
-        f"{KERNELS}/{rel}": (kernels / rel).read_bytes()
-        for rel in manifest(kernels, ident)["files"]
-    }
-    added[f"{KERNELS}/manifest.json"] = (
-        json.dumps(manifest(kernels, ident), indent=1) + "\n"
-    ).encode()
-    records = []
-    out.mkdir(parents=True, exist_ok=True)
-    with zipfile.ZipFile(pure) as src, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as dst:
-        for item in src.infolist():
-            if item.filename in (f"{info}/RECORD",):
-                continue
-            data = src.read(item.filename)
-            if item.filename == f"{info}/WHEEL":
-                data = _retag(data.decode(), py, ident["platform"]).encode()
-            dst.writestr(item, data)
-            records.append(_record(item.filename, data))
-        for path, data in sorted(added.items()):
-            dst.writestr(path, data)
-            records.append(_record(path, data))
-        body = io.StringIO()
-        writer = csv.writer(body, lineterminator="\n")
-        writer.writerows(records + [(f"{info}/RECORD", "", "")])
-        dst.writestr(f"{info}/RECORD", body.getvalue())
-    return target
-
-
-def _retag(wheel_file: str, py: str, platform: str) -> str:
-    lines = [
-        ln for ln in wheel_file.splitlines() if not ln.startswith(("Tag:", "Root-Is-Purelib:"))
-    ]
-    lines.append("Root-Is-Purelib: false")
-    lines += [f"Tag: {py}-{py}-{p}" for p in platform.split(".")]
-    return "\n".join(lines) + "\n"
-
-
-def _record(path: str, data: bytes) -> tuple[str, str, str]:
-    digest = base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
-    return path, f"sha256={digest}", str(len(data))
-
-
-def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
-    """The wheel in a fresh venv, read-only, as nobody, empty cache, compiling forbidden."""
+def verify(runner: Runner, python: str, work: Path, wheel: Path, user: str = "65534") -> dict:
+    """The wheel in a fresh venv, read-only, as ``user`` (nobody; "root": an interpreter
+    nobody cannot run, e.g. under /root/.pyenv), empty cache, compiling forbidden."""
     venv = work / "verifyenv"
     vpy = fresh_venv(runner, python, venv, wheel)
     site = runner.run(
@@ -253,7 +181,8 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
     cache = work / "verifycache"
     shutil.rmtree(cache, ignore_errors=True)
     cache.mkdir()
-    os.chown(cache, 65534, 65534)
+    if user != "root":
+        os.chown(cache, int(user), int(user))
     out = work / "verify.ndjson"
     out.unlink(missing_ok=True)
     os.chmod(work, 0o777)
@@ -266,7 +195,7 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
     cmd = [spiel, "run", "--port", SIM, "--frames", str(FRAMES), "--rate", "0"]
     t0 = time.perf_counter()
     proc = subprocess.Popen(
-        _argv(runner, cmd, env, "65534"), stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        _argv(runner, cmd, env, user), stdout=subprocess.PIPE, stderr=subprocess.PIPE
     )
     first = None
     lines = []
@@ -277,7 +206,7 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
     err = proc.stderr.read().decode(errors="replace")
     code = proc.wait()
     out.write_bytes(b"".join(lines))
-    written = [p for p in cache.rglob("*.nb[ic]")]
+    written = [p for p in cache.rglob("*") if p.is_file()]  # kernels, numba's runtime
     return {
         "exit": code,
         "first_record_s": round(first, 2) if first is not None else None,
@@ -290,7 +219,11 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path) -> dict:
 
 def _argv(runner: Runner, cmd: list[str], env: dict, user: str) -> list[str]:
     env = {"PATH": "/usr/bin:/bin", **env}
-    prefix = ["setpriv", "--reuid", user, "--regid", user, "--clear-groups", "--"]
+    prefix = (
+        []
+        if user == "root"
+        else ["setpriv", "--reuid", user, "--regid", user, "--clear-groups", "--"]
+    )
     if runner.root is not None:
         return [
             "chroot",
@@ -304,10 +237,19 @@ def _argv(runner: Runner, cmd: list[str], env: dict, user: str) -> list[str]:
     return [*prefix, "/usr/bin/env", "-i", *[f"{k}={v}" for k, v in env.items()], *cmd]
 
 
-def build(runner: Runner, python: str, work: Path, out: Path, check: bool) -> dict:
+def build(
+    runner: Runner, python: str, work: Path, out: Path, check: bool, user: str = "65534"
+) -> dict:
     work.mkdir(parents=True, exist_ok=True)
-    step(f"pure wheel with {python}")
-    pure = pure_wheel(runner, python, work)
+    if runner.root is None:
+        step(f"pure wheel with {python}")
+        pure = pure_wheel(runner, python, work)
+    else:  # a pure wheel is the same everywhere: built by the host, not under emulation
+        step("pure wheel with the host's Python, copied into the root")
+        built = pure_wheel(Runner(), sys.executable, Path(tempfile.mkdtemp(prefix="spiel-pure-")))
+        pure = work / "pure" / built.name
+        pure.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(built, pure)
     step("compiling every kernel for a generic CPU in a fresh venv")
     kernels, ident = compile_kernels(runner, python, work, pure)
     wheel = package(pure, kernels, ident, out)
@@ -316,7 +258,7 @@ def build(runner: Runner, python: str, work: Path, out: Path, check: bool) -> di
     result.pop("kernels", None)
     if check:
         step(f"checking {wheel.name}: fresh venv, read-only, nobody, empty cache")
-        checked = verify(runner, python, work, wheel)
+        checked = verify(runner, python, work, wheel, user)
         shutil.copy(checked["ndjson"], str(wheel) + ".sim50.ndjson")
         result["verify"] = checked
     return result
@@ -329,6 +271,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "dist")
     ap.add_argument("--work", type=Path, default=None)
     ap.add_argument("--skip-verify", action="store_true")
+    ap.add_argument(
+        "--verify-user",
+        default="65534",
+        help="uid the check runs as (default nobody; root for an interpreter under /root)",
+    )
     ap.add_argument("--in-root", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     out = args.out.resolve()
@@ -367,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
         work_of = lambda py: base / Path(py).name  # noqa: E731
     failed = 0
     for python in pythons:
-        result = build(runner, python, work_of(python), out, not args.skip_verify)
+        result = build(runner, python, work_of(python), out, not args.skip_verify, args.verify_user)
         ok = args.skip_verify or (
             result["verify"]["exit"] == 0 and result["verify"]["compiled_to_cache"] == 0
         )
