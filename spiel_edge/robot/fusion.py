@@ -212,12 +212,12 @@ class Fuser:
         st["targets"] += len(report.targets)
         st["marked"] += bool(report.crosstalk)
         k = self._cycle(report.board, report.host_time)
+        if report.board not in self._gone:  # back (or late): the next cycles wait for it
+            self.expected.add(report.board)
+            self._misses[report.board] = 0
         if k <= self._done:
             st["late"] += 1  # its cycle is already out
             return []
-        if report.board not in self._gone:
-            self.expected.add(report.board)
-            self._misses[report.board] = 0
         self._open.setdefault(k, {})[report.board] = report
         out: list[dict] = []
         for c in sorted(self._open):

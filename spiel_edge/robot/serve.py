@@ -86,6 +86,7 @@ class BoardWorker(threading.Thread):
         self.go = threading.Event()  # set by the runner once every stream started in its slot
         self._bias: list[float] = []
         self._bias_s = 0.0
+        self._timed = None  # the stream this thread started in the slot (StreamStartResponse)
         self._recent: deque[float] = deque(maxlen=PHASE_CHECK_EVERY)
         self._disagree = 0
 
@@ -142,7 +143,7 @@ class BoardWorker(threading.Thread):
         sched = self.schedule
         n_samples = self.pipeline.profile.acquisition.n_samples
         period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
-        self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
+        self._timed = self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
         self._bias = []
         self._recent.clear()
 
@@ -162,8 +163,17 @@ class BoardWorker(threading.Thread):
             else:
                 self._disagree = 0
             pulse = self.clock.to_host(stamp) - window
-            off_slot = self._off_slot(pulse)
-            report = self._report(acq, self._on_schedule(pulse - self._bias_s), arrival)
+            timed = self._timed
+            if self.session.stream is not timed or timed is None:
+                # the session restarted the stream itself (the board came back): not in a
+                # slot; reported as measured, and put back in its slot at once
+                off_slot, t = self.clock.ready, pulse
+            elif (acq.index - timed.first_acquisition) & 0xFFFFFFFF >= 1 << 31:
+                off_slot, t = False, pulse  # left over from before the last start
+            else:
+                off_slot = self._off_slot(pulse)
+                t = self._on_schedule(pulse - self._bias_s)
+            report = self._report(acq, t, arrival)
             self.stats.acquisitions += 1
             self.out.put(("report", self.board.name, report))
             if off_slot:
