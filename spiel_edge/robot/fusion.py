@@ -8,12 +8,13 @@ saw of one object (within the Mahalanobis gate of each other: one information-we
 target), and updates one multi-target tracker (spiel_edge/track) at the cycle's mean time.
 Updating once per cycle keeps a track outside one board's field of view from counting that
 board's acquisition as a miss; a target passing from one field of view into the next keeps
-its track. The fused record goes out when every board expected has reported for the cycle,
-or when a later cycle starts.
+its track (as far as the boards see it: docs/robot.md). Each target is first moved to the
+cycle's time with the velocity of the confirmed track it is near. The fused record goes out
+when every board expected has reported for the cycle, or ``WAIT_CYCLES`` cycles later.
 
-Optionally in ``odom``: given the robot's pose in ``odom`` at the cycle's time (an
-:class:`Odometry` source), targets are transformed on into ``odom`` before tracking, so the
-robot's own motion is not the targets' motion.
+Optionally in ``odom``: given the robot's pose in ``odom`` at a time (``odometry``, a
+callable), each board's targets go on into ``odom`` at their acquisition's time before
+tracking, so the robot's own motion is not the targets' motion.
 """
 
 from __future__ import annotations
