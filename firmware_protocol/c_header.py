@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from enum import Enum
 from pathlib import Path
 
-from firmware_protocol import config_blob
+from firmware_protocol import config_blob, image, v2_messages
 from firmware_protocol.config_messages import ConfigSource
 from firmware_protocol.errors import ERROR_TEXT, ErrorCode
 from firmware_protocol.framing import (
@@ -29,7 +29,16 @@ from firmware_protocol.framing import (
     PROTOCOL_VERSION,
     Flags,
 )
-from firmware_protocol.messages import MAX_RETRIES, SCHEMA_HASH, Capability, MsgType, RebootMode
+from firmware_protocol.messages import (
+    MAX_PROTOCOL_VERSION,
+    MAX_RETRIES,
+    MIN_PAYLOAD,
+    MIN_PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Capability,
+    MsgType,
+    RebootMode,
+)
 from firmware_protocol.stream import (
     MAX_SAMPLES_PER_FRAME,
     SAMPLE_SIZE,
@@ -65,7 +74,10 @@ _PRELUDE = """\
 #include <stdint.h>
 #include <string.h>
 
-#define SP_PROTOCOL_VERSION {version}u
+#define SP_PROTOCOL_VERSION {version}u /* the frame header's version byte */
+#define SP_PROTOCOL_VERSION_MIN {min_version}u /* message-layer versions, negotiated by HELLO */
+#define SP_PROTOCOL_VERSION_MAX {max_version}u
+#define SP_MIN_PAYLOAD {min_payload}u /* the smallest max_payload a HELLO may state */
 #define SP_SCHEMA_HASH 0x{schema_hash:08X}u /* CRC-32C of every message layout */
 #define SP_HEADER_SIZE {header_size}u
 #define SP_CRC_SIZE {crc_size}u
@@ -275,6 +287,9 @@ def render() -> str:
     prelude = _PRELUDE.format(
         command=COMMAND,
         version=PROTOCOL_VERSION,
+        min_version=MIN_PROTOCOL_VERSION,
+        max_version=MAX_PROTOCOL_VERSION,
+        min_payload=MIN_PAYLOAD,
         schema_hash=SCHEMA_HASH,
         header_size=HEADER_SIZE,
         crc_size=CRC_SIZE,
@@ -317,9 +332,70 @@ def render() -> str:
                 ),
             ]
         ),
+        "\n".join(_v2_part()),
         "#endif /* SPIEL_REGISTRY_H */\n",
     ]
     return "\n".join(parts)
+
+
+def _message_fields(cls: type) -> tuple[tuple[str, str, str], ...]:
+    """(name, struct code, note) of a message's fixed part; a tail becomes its u16 length."""
+    import dataclasses
+
+    names = [f.name for f in dataclasses.fields(cls)]
+    if cls._TAIL:
+        names[names.index(cls._TAIL)] = f"{cls._TAIL}_len"
+        names.append(names.pop(names.index(f"{cls._TAIL}_len")))
+    codes = cls._CODES
+    tail = f"; {cls._TAIL} follows ({cls._TAIL}_len bytes)" if cls._TAIL else ""
+    return tuple(
+        (name, code, (tail if name.endswith("_len") and tail else ""))
+        for name, code in zip(names, codes, strict=True)
+    )
+
+
+def _v2_part() -> list[str]:
+    """Protocol version 2: its enums, the fixed part of each message, the image header."""
+    v2 = v2_messages
+    lines = [
+        "/* ---- Protocol version 2 (PROTOCOL.md section 14) ---- */",
+        "",
+        "/* HEARTBEAT state */",
+        *_enum("SP_BOARD_", v2.BoardState),
+        "",
+        "/* HEARTBEAT error_flags (a host reports unknown bits, it does not fail) */",
+        *_enum("SP_EFLAG_", [f for f in v2.ErrorFlag if f.value], 2),
+        "",
+        "/* LOG level (syslog severities) */",
+        *_enum("SP_LOG_", v2.LogLevel),
+        "",
+        "/* FW_INFO slot state and boot state */",
+        *_enum("SP_SLOT_", v2.SlotState),
+        *_enum("SP_BOOT_", v2.BootState),
+        *_defines([("SP_SHA256_SIZE", f"{v2.SHA256_SIZE}u", "")]),
+        "",
+    ]
+    for prefix, cls in v2.V2_LAYOUTS:
+        kind = "response" if cls.RESPONSE else "request or device-originated frame"
+        title = f"{cls.__name__}: msg_type 0x{cls.MSG_TYPE:04X}, {kind}, fixed part"
+        lines += _layout(prefix, f"{prefix}_t", title, _message_fields(cls))
+    lines += [
+        "/* Firmware image: this header, then body_size bytes of body */",
+        *_defines(
+            [
+                ("SP_IMAGE_MAGIC", _c_string(image.IMAGE_MAGIC.decode()), "the first bytes"),
+                ("SP_IMAGE_HEADER_VERSION", f"{image.IMAGE_HEADER_VERSION}u", ""),
+            ]
+        ),
+        "",
+        *_layout(
+            "sp_image_header",
+            "sp_image_header_t",
+            "Firmware image header",
+            image.IMAGE_HEADER_FIELDS,
+        ),
+    ]
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,6 +35,8 @@ __all__ = [
     "wrap_body",
 ]
 
+# The frame header's `version` byte: 1 in every protocol version so far (the framing has not
+# changed); the message-layer version is negotiated by HELLO (messages.MAX_PROTOCOL_VERSION).
 PROTOCOL_VERSION = 1
 DELIMITER = b"\x00"
 # version u8, flags u8, msg_type u16, seq u16, payload_len u16, aux u32 (little-endian)

@@ -29,9 +29,37 @@ from firmware_protocol.config_messages import (
 from firmware_protocol.errors import MessageError, RemoteError, UnknownMessageError
 from firmware_protocol.framing import Flags, Frame, encode_frame
 from firmware_protocol.stream import SampleFormat, StreamData
+from firmware_protocol.v2_messages import (  # noqa: F401  (registers the version 2 messages)
+    BoardState,
+    BootState,
+    ErrorFlag,
+    FwBegin,
+    FwBeginResponse,
+    FwConfirm,
+    FwConfirmResponse,
+    FwInfo,
+    FwInfoRequest,
+    FwTest,
+    FwTestResponse,
+    FwVerify,
+    FwVerifyResponse,
+    FwWrite,
+    FwWriteResponse,
+    Heartbeat,
+    LogLevel,
+    LogMessage,
+    SlotState,
+    Telemetry,
+    TelemetryResponse,
+    TimeSync,
+    TimeSyncResponse,
+)
 
 __all__ = [
+    "MAX_PROTOCOL_VERSION",
     "MAX_RETRIES",
+    "MIN_PAYLOAD",
+    "MIN_PROTOCOL_VERSION",
     "REGISTRY",
     "SCHEMA_HASH",
     "Capability",
@@ -67,9 +95,16 @@ __all__ = [
     "decode_message",
     "decode_payload",
     "encode_message",
+    "payload_for_version",
 ]
 
 MAX_RETRIES = 3  # a request is sent at most 1 + MAX_RETRIES times, always with the same seq
+# Protocol (message-layer) versions this package speaks, negotiated by HELLO (PROTOCOL.md
+# 6.2); frames keep header version 1 (framing.PROTOCOL_VERSION) in both.
+MIN_PROTOCOL_VERSION = 1
+MAX_PROTOCOL_VERSION = 2
+# The smallest max_payload a HELLO may state (PROTOCOL.md 6.2): every fixed-size message fits.
+MIN_PAYLOAD = 64
 
 
 class MsgType(IntEnum):
@@ -78,6 +113,7 @@ class MsgType(IntEnum):
     ERROR = 0x0003
     PING = 0x0004
     REBOOT = 0x0005
+    TIME_SYNC = 0x0006  # version 2
     STREAM_START = 0x0010
     STREAM_STOP = 0x0011
     STREAM_STATUS = 0x0012
@@ -86,6 +122,15 @@ class MsgType(IntEnum):
     CONFIG_WRITE = 0x0021
     CONFIG_COMMIT = 0x0022
     CONFIG_STATUS = 0x0023
+    TELEMETRY = 0x0030  # version 2: heartbeat period and log level
+    HEARTBEAT = 0x0031  # version 2: device-originated
+    LOG = 0x0032  # version 2: device-originated
+    FW_INFO = 0x0040  # version 2: firmware slots
+    FW_BEGIN = 0x0041
+    FW_WRITE = 0x0042
+    FW_VERIFY = 0x0043
+    FW_TEST = 0x0044
+    FW_CONFIRM = 0x0045
 
 
 class Capability(IntFlag):
@@ -97,7 +142,10 @@ class Capability(IntFlag):
     F32_SAMPLES = 0x04  # SampleFormat.F32
     RF_SAMPLES = 0x08  # SampleFormat.I16_RF
     BULK = 0x10  # also reachable over USB bulk endpoints
-    TIME_SYNC = 0x20  # timestamp_us is synchronised to the host (otherwise free-running)
+    TIME_SYNC = 0x20  # version 2: answers TIME_SYNC (timestamp_us is its clock)
+    TELEMETRY = 0x40  # version 2: TELEMETRY, HEARTBEAT and LOG
+    FIRMWARE_UPDATE = 0x80  # version 2: FW_INFO/BEGIN/WRITE/VERIFY/TEST/CONFIRM
+    IQ_SAMPLES = 0x100  # version 2: SampleFormat.I16_IQ
 
 
 class RebootMode(IntEnum):
@@ -237,13 +285,15 @@ class StreamStart(Message):
 class StreamStartResponse(Message):
     MSG_TYPE: ClassVar[int] = MsgType.STREAM_START
     RESPONSE: ClassVar[bool] = True
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IIIHBB")
+    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IIIHBBI")
+    V1_SIZE: ClassVar[int] = 16  # version 1 ends before channel_mask
     first_acquisition: int = 0  # acquisition index of the first STREAM_DATA
     first_counter: int = 0  # aux stream counter of the first STREAM_DATA frame
     sample_rate_hz: int = 0
     n_samples: int = 0
-    n_channels: int = 0
+    n_channels: int = 0  # channels per acquisition (bits set in channel_mask)
     sample_format: int = SampleFormat.U16_ENVELOPE
+    channel_mask: int = 0  # v2: the channels streamed (physical ids); 0 from a v1 board
 
 
 @register
@@ -300,15 +350,30 @@ def _schema_hash() -> int:
 SCHEMA_HASH = _schema_hash()
 
 
-def encode_message(msg: Message, *, seq: int = 0, flags: int = 0, aux: int = 0) -> bytes:
-    """Wire bytes of ``msg``; RESPONSE, NACK and STREAM flags are set from its class."""
+def encode_message(
+    msg: Message, *, seq: int = 0, flags: int = 0, aux: int = 0, version: int = MAX_PROTOCOL_VERSION
+) -> bytes:
+    """Wire bytes of ``msg``; RESPONSE, NACK and STREAM flags are set from its class;
+    ``version``: the negotiated protocol version (:func:`payload_for_version`)."""
     if msg.RESPONSE:
         flags |= Flags.RESPONSE
     if isinstance(msg, ErrorResponse):
         flags |= Flags.NACK
     if isinstance(msg, StreamData):
         flags |= Flags.STREAM
-    return encode_frame(msg.MSG_TYPE, msg.pack(), seq=seq, flags=flags, aux=aux)
+    return encode_frame(
+        msg.MSG_TYPE, payload_for_version(msg, version), seq=seq, flags=flags, aux=aux
+    )
+
+
+def payload_for_version(msg: Message, version: int) -> bytes:
+    """``msg``'s payload as a board speaking ``version`` sends it: a version-1 board sends the
+    version-1 fixed part only (fields added in version 2 are absent, read as 0)."""
+    payload = msg.pack()
+    v1_size = getattr(msg, "V1_SIZE", None)
+    if version < 2 and v1_size is not None:
+        return payload[:v1_size]
+    return payload
 
 
 def decode_payload(msg_type: int, payload: bytes, *, response: bool = False) -> Message:

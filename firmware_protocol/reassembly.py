@@ -33,7 +33,8 @@ class Acquisition:
     timestamp_us: int
     sample_rate_hz: int
     sample_format: int
-    samples: np.ndarray  # (n_channels, n_samples), dtype SAMPLE_DTYPE[sample_format]
+    samples: np.ndarray  # (n_channels, n_samples), dtype SAMPLE_DTYPE[sample_format];
+    # I16_IQ: (n_channels, 2 * n_samples) int16, q and i interleaved
 
     @property
     def n_channels(self) -> int:
@@ -41,7 +42,8 @@ class Acquisition:
 
     @property
     def n_samples(self) -> int:
-        return int(self.samples.shape[1])
+        per_sample = 2 if self.sample_format == SampleFormat.I16_IQ else 1
+        return int(self.samples.shape[1]) // per_sample
 
 
 @dataclass(slots=True)
@@ -66,8 +68,13 @@ class AcquisitionAssembler:
         self.stats = AssemblerStats()
         self.reset()
 
-    def reset(self) -> None:
-        """Forget stream state (a new STREAM_START); the stats are kept."""
+    def reset(self, channel_mask: int = 0) -> None:
+        """Forget stream state (a new STREAM_START); the stats are kept. ``channel_mask``
+        (protocol version 2, a channel subset): the physical channel ids each acquisition
+        carries, its rows in increasing id order; 0: ids 0 .. n_channels - 1."""
+        self._ids: tuple[int, ...] | None = (
+            tuple(c for c in range(32) if channel_mask >> c & 1) if channel_mask else None
+        )
         self._next_counter: int | None = None
         self._last_done: int | None = None
         self._first: StreamData | None = None
@@ -121,14 +128,14 @@ class AcquisitionAssembler:
         if msg.acquisition != first.acquisition:
             self.stats.stale += 1
             return False
-        if not _consistent(first, msg):
+        if not (_channel_ok(msg, self._ids) and _consistent(first, msg)):
             self.stats.inconsistent += 1
             return False
         return True
 
     def _start(self, msg: StreamData) -> bool:
         self._first, self._channels = None, {}
-        valid = 0 <= msg.channel < msg.n_channels and msg.sample_format in SAMPLE_DTYPE
+        valid = _channel_ok(msg, self._ids) and msg.sample_format in SAMPLE_DTYPE
         if not valid:
             self.stats.inconsistent += 1
             return False
@@ -139,7 +146,8 @@ class AcquisitionAssembler:
         first = self._first
         assert first is not None
         dtype = SAMPLE_DTYPE[SampleFormat(first.sample_format)]
-        rows = b"".join(self._channels[c] for c in range(first.n_channels))
+        order = self._ids if self._ids is not None else range(first.n_channels)
+        rows = b"".join(self._channels[c] for c in order)
         samples = np.frombuffer(rows, dtype).reshape(first.n_channels, -1)
         self._last_done, self._first, self._channels = first.acquisition, None, {}
         self.stats.acquisitions += 1
@@ -152,10 +160,15 @@ class AcquisitionAssembler:
         )
 
 
+def _channel_ok(msg: StreamData, ids: tuple[int, ...] | None) -> bool:
+    if ids is None:
+        return 0 <= msg.channel < msg.n_channels
+    return msg.channel in ids and msg.n_channels == len(ids)
+
+
 def _consistent(first: StreamData, msg: StreamData) -> bool:
     return (
-        0 <= msg.channel < first.n_channels
-        and msg.n_channels == first.n_channels
+        msg.n_channels == first.n_channels
         and msg.sample_format == first.sample_format
         and msg.sample_rate_hz == first.sample_rate_hz
         and msg.timestamp_us == first.timestamp_us

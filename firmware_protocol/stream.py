@@ -34,13 +34,22 @@ class SampleFormat(IntEnum):
     U16_ENVELOPE = 0  # rectified, filtered envelope, unsigned 16-bit
     I16_RF = 1  # raw RF samples, signed 16-bit
     F32 = 2  # IEEE-754 binary32 (processed on the board)
+    I16_IQ = 3  # version 2: int16 (q, i) pairs, the CH101's ch_get_iq_data order
 
 
-SAMPLE_SIZE = {SampleFormat.U16_ENVELOPE: 2, SampleFormat.I16_RF: 2, SampleFormat.F32: 4}
+# bytes per sample; an I16_IQ sample is one (q, i) pair of int16 (4 bytes)
+SAMPLE_SIZE = {
+    SampleFormat.U16_ENVELOPE: 2,
+    SampleFormat.I16_RF: 2,
+    SampleFormat.F32: 4,
+    SampleFormat.I16_IQ: 4,
+}
+# numpy dtype of one value: an I16_IQ channel of n samples is 2n int16 values q0 i0 q1 i1 ...
 SAMPLE_DTYPE = {
     SampleFormat.U16_ENVELOPE: np.dtype("<u2"),
     SampleFormat.I16_RF: np.dtype("<i2"),
     SampleFormat.F32: np.dtype("<f4"),
+    SampleFormat.I16_IQ: np.dtype("<i2"),
 }
 # (name, struct code, meaning); the order is the byte order of the sub-header
 STREAM_HEADER_FIELDS: tuple[tuple[str, str, str], ...] = (

@@ -129,6 +129,56 @@ def _sample_messages() -> list[m.Message]:
         m.ConfigCommitResponse(1, 3, 16, crc32c(b"[spiel]\nrate=20\n")),
         m.ConfigStatusRequest(),
         m.ConfigStatus(1, 0, 4096, 2, 12, 0x11111111, 1, 3, 16, 0x22222222, 1),
+        *_v2_messages(),
+    ]
+
+
+def _v2_messages() -> list[m.Message]:
+    """Protocol version 2: one of every message (PROTOCOL.md section 14)."""
+    sha = bytes(range(32))
+    return [
+        m.TimeSync(1_700_000_000_123_456),
+        m.TimeSyncResponse(1_700_000_000_123_456, 987_654_321, 0x5EED1234),
+        m.Telemetry(500, int(m.LogLevel.INFO), 20),
+        m.TelemetryResponse(500, int(m.LogLevel.INFO), 20),
+        m.Heartbeat(123456, int(m.BoardState.STREAMING), 0, 500, 0x12, 0x5EED1234, 123_456_789),
+        m.LogMessage(int(m.LogLevel.WARNING), 3, 123_456_789, "overrun at acquisition 17"),
+        m.FwInfoRequest(),
+        m.FwInfo(
+            0,
+            int(m.BootState.CONFIRMED),
+            0,
+            0,
+            65536,
+            "posix",
+            int(m.SlotState.VERIFIED),
+            "1.0.0",
+            2048,
+            0x11111111,
+            int(m.SlotState.PARTIAL),
+            "",
+            512,
+            0x22222222,
+        ),
+        m.FwBegin(2048, 0x11111111, sha),
+        m.FwBeginResponse(1, 65536),
+        m.FwWrite(1024, bytes(range(16))),
+        m.FwWriteResponse(1040),
+        m.FwVerify(),
+        m.FwVerifyResponse(1, 2048, 0x11111111, sha),
+        m.FwTest(100),
+        m.FwTestResponse(1),
+        m.FwConfirm(),
+        m.FwConfirmResponse(1, int(m.BootState.CONFIRMED)),
+        StreamData(
+            10,
+            3,
+            4,
+            int(SampleFormat.I16_IQ),
+            21875,
+            5_000_000,
+            b"\x01\x00\xff\xff\x00\x80\xff\x7f",
+        ),
     ]
 
 

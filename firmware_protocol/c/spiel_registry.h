@@ -11,8 +11,11 @@
 #include <stdint.h>
 #include <string.h>
 
-#define SP_PROTOCOL_VERSION 1u
-#define SP_SCHEMA_HASH 0x5C19611Bu /* CRC-32C of every message layout */
+#define SP_PROTOCOL_VERSION 1u /* the frame header's version byte */
+#define SP_PROTOCOL_VERSION_MIN 1u /* message-layer versions, negotiated by HELLO */
+#define SP_PROTOCOL_VERSION_MAX 2u
+#define SP_MIN_PAYLOAD 64u /* the smallest max_payload a HELLO may state */
+#define SP_SCHEMA_HASH 0x6759C40Cu /* CRC-32C of every message layout */
 #define SP_HEADER_SIZE 12u
 #define SP_CRC_SIZE 4u
 #define SP_MAX_PAYLOAD 8256u
@@ -26,6 +29,7 @@
 #define SP_MSG_ERROR         0x0003u
 #define SP_MSG_PING          0x0004u
 #define SP_MSG_REBOOT        0x0005u
+#define SP_MSG_TIME_SYNC     0x0006u
 #define SP_MSG_STREAM_START  0x0010u
 #define SP_MSG_STREAM_STOP   0x0011u
 #define SP_MSG_STREAM_STATUS 0x0012u
@@ -34,6 +38,15 @@
 #define SP_MSG_CONFIG_WRITE  0x0021u
 #define SP_MSG_CONFIG_COMMIT 0x0022u
 #define SP_MSG_CONFIG_STATUS 0x0023u
+#define SP_MSG_TELEMETRY     0x0030u
+#define SP_MSG_HEARTBEAT     0x0031u
+#define SP_MSG_LOG           0x0032u
+#define SP_MSG_FW_INFO       0x0040u
+#define SP_MSG_FW_BEGIN      0x0041u
+#define SP_MSG_FW_WRITE      0x0042u
+#define SP_MSG_FW_VERIFY     0x0043u
+#define SP_MSG_FW_TEST       0x0044u
+#define SP_MSG_FW_CONFIRM    0x0045u
 
 /* Header flag bits; a frame with any other bit set is dropped and counted */
 #define SP_FLAG_RESPONSE    0x01u
@@ -44,12 +57,15 @@
 #define SP_KNOWN_FLAGS      0x1Fu /* every bit above */
 
 /* HELLO response capability bits */
-#define SP_CAP_STREAM      0x01u
-#define SP_CAP_CONFIG      0x02u
-#define SP_CAP_F32_SAMPLES 0x04u
-#define SP_CAP_RF_SAMPLES  0x08u
-#define SP_CAP_BULK        0x10u
-#define SP_CAP_TIME_SYNC   0x20u
+#define SP_CAP_STREAM          0x01u
+#define SP_CAP_CONFIG          0x02u
+#define SP_CAP_F32_SAMPLES     0x04u
+#define SP_CAP_RF_SAMPLES      0x08u
+#define SP_CAP_BULK            0x10u
+#define SP_CAP_TIME_SYNC       0x20u
+#define SP_CAP_TELEMETRY       0x40u
+#define SP_CAP_FIRMWARE_UPDATE 0x80u
+#define SP_CAP_IQ_SAMPLES      0x100u
 
 /* REBOOT modes */
 #define SP_REBOOT_NORMAL     0u
@@ -81,12 +97,15 @@
 #define SP_SAMPLE_U16_ENVELOPE 0u
 #define SP_SAMPLE_I16_RF       1u
 #define SP_SAMPLE_F32          2u
+#define SP_SAMPLE_I16_IQ       3u
 #define SP_SAMPLE_SIZE_U16_ENVELOPE 2u
 #define SP_SAMPLE_SIZE_I16_RF       2u
 #define SP_SAMPLE_SIZE_F32          4u
+#define SP_SAMPLE_SIZE_I16_IQ       4u
 #define SP_MAX_SAMPLES_U16_ENVELOPE 4116u
 #define SP_MAX_SAMPLES_I16_RF       4116u
 #define SP_MAX_SAMPLES_F32          2058u
+#define SP_MAX_SAMPLES_I16_IQ       2058u
 
 /* The text of an error code (as ERROR_TEXT in Python); unknown codes get a generic one. */
 static inline const char *sp_error_text(uint16_t code)
@@ -318,6 +337,550 @@ static inline void sp_config_header_unpack(const uint8_t in[SP_CONFIG_HEADER_SIZ
     h->gain_db = sp_le_get_f32(in + SP_CONFIG_HEADER_GAIN_DB_OFFSET);
     h->acquisition_rate_hz = sp_le_get_f32(in + SP_CONFIG_HEADER_ACQUISITION_RATE_HZ_OFFSET);
     h->toml_length = sp_le_get_u32(in + SP_CONFIG_HEADER_TOML_LENGTH_OFFSET);
+}
+
+/* ---- Protocol version 2 (PROTOCOL.md section 14) ---- */
+
+/* HEARTBEAT state */
+#define SP_BOARD_IDLE      0u
+#define SP_BOARD_STREAMING 1u
+#define SP_BOARD_UPDATING  2u
+#define SP_BOARD_ERROR     3u
+
+/* HEARTBEAT error_flags (a host reports unknown bits, it does not fail) */
+#define SP_EFLAG_FLASH          0x01u
+#define SP_EFLAG_OVERRUN        0x02u
+#define SP_EFLAG_RX_ERRORS      0x04u
+#define SP_EFLAG_SENSOR         0x08u
+#define SP_EFLAG_TRIAL_IMAGE    0x10u
+#define SP_EFLAG_DEFAULT_CONFIG 0x20u
+#define SP_EFLAG_LOG_DROPPED    0x40u
+
+/* LOG level (syslog severities) */
+#define SP_LOG_EMERG   0u
+#define SP_LOG_ALERT   1u
+#define SP_LOG_CRIT    2u
+#define SP_LOG_ERROR   3u
+#define SP_LOG_WARNING 4u
+#define SP_LOG_NOTICE  5u
+#define SP_LOG_INFO    6u
+#define SP_LOG_DEBUG   7u
+
+/* FW_INFO slot state and boot state */
+#define SP_SLOT_EMPTY    0u
+#define SP_SLOT_PARTIAL  1u
+#define SP_SLOT_VERIFIED 2u
+#define SP_SLOT_INVALID  3u
+#define SP_BOOT_CONFIRMED    0u
+#define SP_BOOT_TRIAL        1u
+#define SP_BOOT_TEST_PENDING 2u
+#define SP_SHA256_SIZE 32u
+
+/* TimeSync: msg_type 0x0006, request or device-originated frame, fixed part (8 bytes, little-endian, no padding) */
+#define SP_TIME_SYNC_SIZE                8u
+#define SP_TIME_SYNC_HOST_TIME_US_OFFSET 0u
+#define SP_TIME_SYNC_HOST_TIME_US_SIZE   8u
+
+typedef struct {
+    uint64_t host_time_us; /*  */
+} sp_time_sync_t;
+
+static inline void sp_time_sync_pack(const sp_time_sync_t *h,
+                                     uint8_t out[SP_TIME_SYNC_SIZE])
+{
+    sp_le_put_u64(out + SP_TIME_SYNC_HOST_TIME_US_OFFSET, h->host_time_us);
+}
+
+static inline void sp_time_sync_unpack(const uint8_t in[SP_TIME_SYNC_SIZE],
+                                       sp_time_sync_t *h)
+{
+    h->host_time_us = sp_le_get_u64(in + SP_TIME_SYNC_HOST_TIME_US_OFFSET);
+}
+
+/* TimeSyncResponse: msg_type 0x0006, response, fixed part (20 bytes, little-endian, no padding) */
+#define SP_TIME_SYNC_RESPONSE_SIZE                 20u
+#define SP_TIME_SYNC_RESPONSE_HOST_TIME_US_OFFSET  0u
+#define SP_TIME_SYNC_RESPONSE_HOST_TIME_US_SIZE    8u
+#define SP_TIME_SYNC_RESPONSE_BOARD_TIME_US_OFFSET 8u
+#define SP_TIME_SYNC_RESPONSE_BOARD_TIME_US_SIZE   8u
+#define SP_TIME_SYNC_RESPONSE_BOOT_ID_OFFSET       16u
+#define SP_TIME_SYNC_RESPONSE_BOOT_ID_SIZE         4u
+
+typedef struct {
+    uint64_t host_time_us; /*  */
+    uint64_t board_time_us; /*  */
+    uint32_t boot_id; /*  */
+} sp_time_sync_response_t;
+
+static inline void sp_time_sync_response_pack(const sp_time_sync_response_t *h,
+                                              uint8_t out[SP_TIME_SYNC_RESPONSE_SIZE])
+{
+    sp_le_put_u64(out + SP_TIME_SYNC_RESPONSE_HOST_TIME_US_OFFSET, h->host_time_us);
+    sp_le_put_u64(out + SP_TIME_SYNC_RESPONSE_BOARD_TIME_US_OFFSET, h->board_time_us);
+    sp_le_put_u32(out + SP_TIME_SYNC_RESPONSE_BOOT_ID_OFFSET, h->boot_id);
+}
+
+static inline void sp_time_sync_response_unpack(const uint8_t in[SP_TIME_SYNC_RESPONSE_SIZE],
+                                                sp_time_sync_response_t *h)
+{
+    h->host_time_us = sp_le_get_u64(in + SP_TIME_SYNC_RESPONSE_HOST_TIME_US_OFFSET);
+    h->board_time_us = sp_le_get_u64(in + SP_TIME_SYNC_RESPONSE_BOARD_TIME_US_OFFSET);
+    h->boot_id = sp_le_get_u32(in + SP_TIME_SYNC_RESPONSE_BOOT_ID_OFFSET);
+}
+
+/* Telemetry: msg_type 0x0030, request or device-originated frame, fixed part (4 bytes, little-endian, no padding) */
+#define SP_TELEMETRY_SIZE                4u
+#define SP_TELEMETRY_HEARTBEAT_MS_OFFSET 0u
+#define SP_TELEMETRY_HEARTBEAT_MS_SIZE   2u
+#define SP_TELEMETRY_LOG_LEVEL_OFFSET    2u
+#define SP_TELEMETRY_LOG_LEVEL_SIZE      1u
+#define SP_TELEMETRY_LOG_PER_S_OFFSET    3u
+#define SP_TELEMETRY_LOG_PER_S_SIZE      1u
+
+typedef struct {
+    uint16_t heartbeat_ms; /*  */
+    uint8_t log_level; /*  */
+    uint8_t log_per_s; /*  */
+} sp_telemetry_t;
+
+static inline void sp_telemetry_pack(const sp_telemetry_t *h,
+                                     uint8_t out[SP_TELEMETRY_SIZE])
+{
+    sp_le_put_u16(out + SP_TELEMETRY_HEARTBEAT_MS_OFFSET, h->heartbeat_ms);
+    out[SP_TELEMETRY_LOG_LEVEL_OFFSET] = h->log_level;
+    out[SP_TELEMETRY_LOG_PER_S_OFFSET] = h->log_per_s;
+}
+
+static inline void sp_telemetry_unpack(const uint8_t in[SP_TELEMETRY_SIZE],
+                                       sp_telemetry_t *h)
+{
+    h->heartbeat_ms = sp_le_get_u16(in + SP_TELEMETRY_HEARTBEAT_MS_OFFSET);
+    h->log_level = in[SP_TELEMETRY_LOG_LEVEL_OFFSET];
+    h->log_per_s = in[SP_TELEMETRY_LOG_PER_S_OFFSET];
+}
+
+/* Heartbeat: msg_type 0x0031, request or device-originated frame, fixed part (24 bytes, little-endian, no padding) */
+#define SP_HEARTBEAT_SIZE                 24u
+#define SP_HEARTBEAT_UPTIME_MS_OFFSET     0u
+#define SP_HEARTBEAT_UPTIME_MS_SIZE       4u
+#define SP_HEARTBEAT_STATE_OFFSET         4u
+#define SP_HEARTBEAT_STATE_SIZE           1u
+#define SP_HEARTBEAT_RESERVED_OFFSET      5u
+#define SP_HEARTBEAT_RESERVED_SIZE        1u
+#define SP_HEARTBEAT_PERIOD_MS_OFFSET     6u
+#define SP_HEARTBEAT_PERIOD_MS_SIZE       2u
+#define SP_HEARTBEAT_ERROR_FLAGS_OFFSET   8u
+#define SP_HEARTBEAT_ERROR_FLAGS_SIZE     4u
+#define SP_HEARTBEAT_BOOT_ID_OFFSET       12u
+#define SP_HEARTBEAT_BOOT_ID_SIZE         4u
+#define SP_HEARTBEAT_BOARD_TIME_US_OFFSET 16u
+#define SP_HEARTBEAT_BOARD_TIME_US_SIZE   8u
+
+typedef struct {
+    uint32_t uptime_ms; /*  */
+    uint8_t state; /*  */
+    uint8_t reserved; /*  */
+    uint16_t period_ms; /*  */
+    uint32_t error_flags; /*  */
+    uint32_t boot_id; /*  */
+    uint64_t board_time_us; /*  */
+} sp_heartbeat_t;
+
+static inline void sp_heartbeat_pack(const sp_heartbeat_t *h,
+                                     uint8_t out[SP_HEARTBEAT_SIZE])
+{
+    sp_le_put_u32(out + SP_HEARTBEAT_UPTIME_MS_OFFSET, h->uptime_ms);
+    out[SP_HEARTBEAT_STATE_OFFSET] = h->state;
+    out[SP_HEARTBEAT_RESERVED_OFFSET] = h->reserved;
+    sp_le_put_u16(out + SP_HEARTBEAT_PERIOD_MS_OFFSET, h->period_ms);
+    sp_le_put_u32(out + SP_HEARTBEAT_ERROR_FLAGS_OFFSET, h->error_flags);
+    sp_le_put_u32(out + SP_HEARTBEAT_BOOT_ID_OFFSET, h->boot_id);
+    sp_le_put_u64(out + SP_HEARTBEAT_BOARD_TIME_US_OFFSET, h->board_time_us);
+}
+
+static inline void sp_heartbeat_unpack(const uint8_t in[SP_HEARTBEAT_SIZE],
+                                       sp_heartbeat_t *h)
+{
+    h->uptime_ms = sp_le_get_u32(in + SP_HEARTBEAT_UPTIME_MS_OFFSET);
+    h->state = in[SP_HEARTBEAT_STATE_OFFSET];
+    h->reserved = in[SP_HEARTBEAT_RESERVED_OFFSET];
+    h->period_ms = sp_le_get_u16(in + SP_HEARTBEAT_PERIOD_MS_OFFSET);
+    h->error_flags = sp_le_get_u32(in + SP_HEARTBEAT_ERROR_FLAGS_OFFSET);
+    h->boot_id = sp_le_get_u32(in + SP_HEARTBEAT_BOOT_ID_OFFSET);
+    h->board_time_us = sp_le_get_u64(in + SP_HEARTBEAT_BOARD_TIME_US_OFFSET);
+}
+
+/* LogMessage: msg_type 0x0032, request or device-originated frame, fixed part (15 bytes, little-endian, no padding) */
+#define SP_LOG_SIZE                 15u
+#define SP_LOG_LEVEL_OFFSET         0u
+#define SP_LOG_LEVEL_SIZE           1u
+#define SP_LOG_DROPPED_OFFSET       1u
+#define SP_LOG_DROPPED_SIZE         4u
+#define SP_LOG_BOARD_TIME_US_OFFSET 5u
+#define SP_LOG_BOARD_TIME_US_SIZE   8u
+#define SP_LOG_TEXT_LEN_OFFSET      13u
+#define SP_LOG_TEXT_LEN_SIZE        2u
+
+typedef struct {
+    uint8_t level; /*  */
+    uint32_t dropped; /*  */
+    uint64_t board_time_us; /*  */
+    uint16_t text_len; /* ; text follows (text_len bytes) */
+} sp_log_t;
+
+static inline void sp_log_pack(const sp_log_t *h,
+                               uint8_t out[SP_LOG_SIZE])
+{
+    out[SP_LOG_LEVEL_OFFSET] = h->level;
+    sp_le_put_u32(out + SP_LOG_DROPPED_OFFSET, h->dropped);
+    sp_le_put_u64(out + SP_LOG_BOARD_TIME_US_OFFSET, h->board_time_us);
+    sp_le_put_u16(out + SP_LOG_TEXT_LEN_OFFSET, h->text_len);
+}
+
+static inline void sp_log_unpack(const uint8_t in[SP_LOG_SIZE],
+                                 sp_log_t *h)
+{
+    h->level = in[SP_LOG_LEVEL_OFFSET];
+    h->dropped = sp_le_get_u32(in + SP_LOG_DROPPED_OFFSET);
+    h->board_time_us = sp_le_get_u64(in + SP_LOG_BOARD_TIME_US_OFFSET);
+    h->text_len = sp_le_get_u16(in + SP_LOG_TEXT_LEN_OFFSET);
+}
+
+/* FwInfo: msg_type 0x0040, response, fixed part (74 bytes, little-endian, no padding) */
+#define SP_FW_INFO_SIZE                  74u
+#define SP_FW_INFO_RUNNING_SLOT_OFFSET   0u
+#define SP_FW_INFO_RUNNING_SLOT_SIZE     1u
+#define SP_FW_INFO_BOOT_STATE_OFFSET     1u
+#define SP_FW_INFO_BOOT_STATE_SIZE       1u
+#define SP_FW_INFO_CONFIRMED_SLOT_OFFSET 2u
+#define SP_FW_INFO_CONFIRMED_SLOT_SIZE   1u
+#define SP_FW_INFO_RESERVED_OFFSET       3u
+#define SP_FW_INFO_RESERVED_SIZE         1u
+#define SP_FW_INFO_SLOT_SIZE_OFFSET      4u
+#define SP_FW_INFO_SLOT_SIZE_SIZE        4u
+#define SP_FW_INFO_TARGET_OFFSET         8u
+#define SP_FW_INFO_TARGET_SIZE           16u
+#define SP_FW_INFO_SLOT0_STATE_OFFSET    24u
+#define SP_FW_INFO_SLOT0_STATE_SIZE      1u
+#define SP_FW_INFO_SLOT0_VERSION_OFFSET  25u
+#define SP_FW_INFO_SLOT0_VERSION_SIZE    16u
+#define SP_FW_INFO_SLOT0_SIZE_OFFSET     41u
+#define SP_FW_INFO_SLOT0_SIZE_SIZE       4u
+#define SP_FW_INFO_SLOT0_CRC_OFFSET      45u
+#define SP_FW_INFO_SLOT0_CRC_SIZE        4u
+#define SP_FW_INFO_SLOT1_STATE_OFFSET    49u
+#define SP_FW_INFO_SLOT1_STATE_SIZE      1u
+#define SP_FW_INFO_SLOT1_VERSION_OFFSET  50u
+#define SP_FW_INFO_SLOT1_VERSION_SIZE    16u
+#define SP_FW_INFO_SLOT1_SIZE_OFFSET     66u
+#define SP_FW_INFO_SLOT1_SIZE_SIZE       4u
+#define SP_FW_INFO_SLOT1_CRC_OFFSET      70u
+#define SP_FW_INFO_SLOT1_CRC_SIZE        4u
+
+typedef struct {
+    uint8_t running_slot; /*  */
+    uint8_t boot_state; /*  */
+    uint8_t confirmed_slot; /*  */
+    uint8_t reserved; /*  */
+    uint32_t slot_size; /*  */
+    uint8_t target[16]; /*  */
+    uint8_t slot0_state; /*  */
+    uint8_t slot0_version[16]; /*  */
+    uint32_t slot0_size; /*  */
+    uint32_t slot0_crc; /*  */
+    uint8_t slot1_state; /*  */
+    uint8_t slot1_version[16]; /*  */
+    uint32_t slot1_size; /*  */
+    uint32_t slot1_crc; /*  */
+} sp_fw_info_t;
+
+static inline void sp_fw_info_pack(const sp_fw_info_t *h,
+                                   uint8_t out[SP_FW_INFO_SIZE])
+{
+    out[SP_FW_INFO_RUNNING_SLOT_OFFSET] = h->running_slot;
+    out[SP_FW_INFO_BOOT_STATE_OFFSET] = h->boot_state;
+    out[SP_FW_INFO_CONFIRMED_SLOT_OFFSET] = h->confirmed_slot;
+    out[SP_FW_INFO_RESERVED_OFFSET] = h->reserved;
+    sp_le_put_u32(out + SP_FW_INFO_SLOT_SIZE_OFFSET, h->slot_size);
+    memcpy(out + SP_FW_INFO_TARGET_OFFSET, h->target, sizeof h->target);
+    out[SP_FW_INFO_SLOT0_STATE_OFFSET] = h->slot0_state;
+    memcpy(out + SP_FW_INFO_SLOT0_VERSION_OFFSET, h->slot0_version, sizeof h->slot0_version);
+    sp_le_put_u32(out + SP_FW_INFO_SLOT0_SIZE_OFFSET, h->slot0_size);
+    sp_le_put_u32(out + SP_FW_INFO_SLOT0_CRC_OFFSET, h->slot0_crc);
+    out[SP_FW_INFO_SLOT1_STATE_OFFSET] = h->slot1_state;
+    memcpy(out + SP_FW_INFO_SLOT1_VERSION_OFFSET, h->slot1_version, sizeof h->slot1_version);
+    sp_le_put_u32(out + SP_FW_INFO_SLOT1_SIZE_OFFSET, h->slot1_size);
+    sp_le_put_u32(out + SP_FW_INFO_SLOT1_CRC_OFFSET, h->slot1_crc);
+}
+
+static inline void sp_fw_info_unpack(const uint8_t in[SP_FW_INFO_SIZE],
+                                     sp_fw_info_t *h)
+{
+    h->running_slot = in[SP_FW_INFO_RUNNING_SLOT_OFFSET];
+    h->boot_state = in[SP_FW_INFO_BOOT_STATE_OFFSET];
+    h->confirmed_slot = in[SP_FW_INFO_CONFIRMED_SLOT_OFFSET];
+    h->reserved = in[SP_FW_INFO_RESERVED_OFFSET];
+    h->slot_size = sp_le_get_u32(in + SP_FW_INFO_SLOT_SIZE_OFFSET);
+    memcpy(h->target, in + SP_FW_INFO_TARGET_OFFSET, sizeof h->target);
+    h->slot0_state = in[SP_FW_INFO_SLOT0_STATE_OFFSET];
+    memcpy(h->slot0_version, in + SP_FW_INFO_SLOT0_VERSION_OFFSET, sizeof h->slot0_version);
+    h->slot0_size = sp_le_get_u32(in + SP_FW_INFO_SLOT0_SIZE_OFFSET);
+    h->slot0_crc = sp_le_get_u32(in + SP_FW_INFO_SLOT0_CRC_OFFSET);
+    h->slot1_state = in[SP_FW_INFO_SLOT1_STATE_OFFSET];
+    memcpy(h->slot1_version, in + SP_FW_INFO_SLOT1_VERSION_OFFSET, sizeof h->slot1_version);
+    h->slot1_size = sp_le_get_u32(in + SP_FW_INFO_SLOT1_SIZE_OFFSET);
+    h->slot1_crc = sp_le_get_u32(in + SP_FW_INFO_SLOT1_CRC_OFFSET);
+}
+
+/* FwBegin: msg_type 0x0041, request or device-originated frame, fixed part (10 bytes, little-endian, no padding) */
+#define SP_FW_BEGIN_SIZE              10u
+#define SP_FW_BEGIN_IMAGE_SIZE_OFFSET 0u
+#define SP_FW_BEGIN_IMAGE_SIZE_SIZE   4u
+#define SP_FW_BEGIN_IMAGE_CRC_OFFSET  4u
+#define SP_FW_BEGIN_IMAGE_CRC_SIZE    4u
+#define SP_FW_BEGIN_SHA256_LEN_OFFSET 8u
+#define SP_FW_BEGIN_SHA256_LEN_SIZE   2u
+
+typedef struct {
+    uint32_t image_size; /*  */
+    uint32_t image_crc; /*  */
+    uint16_t sha256_len; /* ; sha256 follows (sha256_len bytes) */
+} sp_fw_begin_t;
+
+static inline void sp_fw_begin_pack(const sp_fw_begin_t *h,
+                                    uint8_t out[SP_FW_BEGIN_SIZE])
+{
+    sp_le_put_u32(out + SP_FW_BEGIN_IMAGE_SIZE_OFFSET, h->image_size);
+    sp_le_put_u32(out + SP_FW_BEGIN_IMAGE_CRC_OFFSET, h->image_crc);
+    sp_le_put_u16(out + SP_FW_BEGIN_SHA256_LEN_OFFSET, h->sha256_len);
+}
+
+static inline void sp_fw_begin_unpack(const uint8_t in[SP_FW_BEGIN_SIZE],
+                                      sp_fw_begin_t *h)
+{
+    h->image_size = sp_le_get_u32(in + SP_FW_BEGIN_IMAGE_SIZE_OFFSET);
+    h->image_crc = sp_le_get_u32(in + SP_FW_BEGIN_IMAGE_CRC_OFFSET);
+    h->sha256_len = sp_le_get_u16(in + SP_FW_BEGIN_SHA256_LEN_OFFSET);
+}
+
+/* FwBeginResponse: msg_type 0x0041, response, fixed part (5 bytes, little-endian, no padding) */
+#define SP_FW_BEGIN_RESPONSE_SIZE             5u
+#define SP_FW_BEGIN_RESPONSE_SLOT_OFFSET      0u
+#define SP_FW_BEGIN_RESPONSE_SLOT_SIZE        1u
+#define SP_FW_BEGIN_RESPONSE_SLOT_SIZE_OFFSET 1u
+#define SP_FW_BEGIN_RESPONSE_SLOT_SIZE_SIZE   4u
+
+typedef struct {
+    uint8_t slot; /*  */
+    uint32_t slot_size; /*  */
+} sp_fw_begin_response_t;
+
+static inline void sp_fw_begin_response_pack(const sp_fw_begin_response_t *h,
+                                             uint8_t out[SP_FW_BEGIN_RESPONSE_SIZE])
+{
+    out[SP_FW_BEGIN_RESPONSE_SLOT_OFFSET] = h->slot;
+    sp_le_put_u32(out + SP_FW_BEGIN_RESPONSE_SLOT_SIZE_OFFSET, h->slot_size);
+}
+
+static inline void sp_fw_begin_response_unpack(const uint8_t in[SP_FW_BEGIN_RESPONSE_SIZE],
+                                               sp_fw_begin_response_t *h)
+{
+    h->slot = in[SP_FW_BEGIN_RESPONSE_SLOT_OFFSET];
+    h->slot_size = sp_le_get_u32(in + SP_FW_BEGIN_RESPONSE_SLOT_SIZE_OFFSET);
+}
+
+/* FwWrite: msg_type 0x0042, request or device-originated frame, fixed part (6 bytes, little-endian, no padding) */
+#define SP_FW_WRITE_SIZE            6u
+#define SP_FW_WRITE_OFFSET_OFFSET   0u
+#define SP_FW_WRITE_OFFSET_SIZE     4u
+#define SP_FW_WRITE_DATA_LEN_OFFSET 4u
+#define SP_FW_WRITE_DATA_LEN_SIZE   2u
+
+typedef struct {
+    uint32_t offset; /*  */
+    uint16_t data_len; /* ; data follows (data_len bytes) */
+} sp_fw_write_t;
+
+static inline void sp_fw_write_pack(const sp_fw_write_t *h,
+                                    uint8_t out[SP_FW_WRITE_SIZE])
+{
+    sp_le_put_u32(out + SP_FW_WRITE_OFFSET_OFFSET, h->offset);
+    sp_le_put_u16(out + SP_FW_WRITE_DATA_LEN_OFFSET, h->data_len);
+}
+
+static inline void sp_fw_write_unpack(const uint8_t in[SP_FW_WRITE_SIZE],
+                                      sp_fw_write_t *h)
+{
+    h->offset = sp_le_get_u32(in + SP_FW_WRITE_OFFSET_OFFSET);
+    h->data_len = sp_le_get_u16(in + SP_FW_WRITE_DATA_LEN_OFFSET);
+}
+
+/* FwVerifyResponse: msg_type 0x0043, response, fixed part (11 bytes, little-endian, no padding) */
+#define SP_FW_VERIFY_RESPONSE_SIZE              11u
+#define SP_FW_VERIFY_RESPONSE_SLOT_OFFSET       0u
+#define SP_FW_VERIFY_RESPONSE_SLOT_SIZE         1u
+#define SP_FW_VERIFY_RESPONSE_IMAGE_SIZE_OFFSET 1u
+#define SP_FW_VERIFY_RESPONSE_IMAGE_SIZE_SIZE   4u
+#define SP_FW_VERIFY_RESPONSE_IMAGE_CRC_OFFSET  5u
+#define SP_FW_VERIFY_RESPONSE_IMAGE_CRC_SIZE    4u
+#define SP_FW_VERIFY_RESPONSE_SHA256_LEN_OFFSET 9u
+#define SP_FW_VERIFY_RESPONSE_SHA256_LEN_SIZE   2u
+
+typedef struct {
+    uint8_t slot; /*  */
+    uint32_t image_size; /*  */
+    uint32_t image_crc; /*  */
+    uint16_t sha256_len; /* ; sha256 follows (sha256_len bytes) */
+} sp_fw_verify_response_t;
+
+static inline void sp_fw_verify_response_pack(const sp_fw_verify_response_t *h,
+                                              uint8_t out[SP_FW_VERIFY_RESPONSE_SIZE])
+{
+    out[SP_FW_VERIFY_RESPONSE_SLOT_OFFSET] = h->slot;
+    sp_le_put_u32(out + SP_FW_VERIFY_RESPONSE_IMAGE_SIZE_OFFSET, h->image_size);
+    sp_le_put_u32(out + SP_FW_VERIFY_RESPONSE_IMAGE_CRC_OFFSET, h->image_crc);
+    sp_le_put_u16(out + SP_FW_VERIFY_RESPONSE_SHA256_LEN_OFFSET, h->sha256_len);
+}
+
+static inline void sp_fw_verify_response_unpack(const uint8_t in[SP_FW_VERIFY_RESPONSE_SIZE],
+                                                sp_fw_verify_response_t *h)
+{
+    h->slot = in[SP_FW_VERIFY_RESPONSE_SLOT_OFFSET];
+    h->image_size = sp_le_get_u32(in + SP_FW_VERIFY_RESPONSE_IMAGE_SIZE_OFFSET);
+    h->image_crc = sp_le_get_u32(in + SP_FW_VERIFY_RESPONSE_IMAGE_CRC_OFFSET);
+    h->sha256_len = sp_le_get_u16(in + SP_FW_VERIFY_RESPONSE_SHA256_LEN_OFFSET);
+}
+
+/* FwTest: msg_type 0x0044, request or device-originated frame, fixed part (2 bytes, little-endian, no padding) */
+#define SP_FW_TEST_SIZE            2u
+#define SP_FW_TEST_DELAY_MS_OFFSET 0u
+#define SP_FW_TEST_DELAY_MS_SIZE   2u
+
+typedef struct {
+    uint16_t delay_ms; /*  */
+} sp_fw_test_t;
+
+static inline void sp_fw_test_pack(const sp_fw_test_t *h,
+                                   uint8_t out[SP_FW_TEST_SIZE])
+{
+    sp_le_put_u16(out + SP_FW_TEST_DELAY_MS_OFFSET, h->delay_ms);
+}
+
+static inline void sp_fw_test_unpack(const uint8_t in[SP_FW_TEST_SIZE],
+                                     sp_fw_test_t *h)
+{
+    h->delay_ms = sp_le_get_u16(in + SP_FW_TEST_DELAY_MS_OFFSET);
+}
+
+/* FwConfirmResponse: msg_type 0x0045, response, fixed part (2 bytes, little-endian, no padding) */
+#define SP_FW_CONFIRM_RESPONSE_SIZE              2u
+#define SP_FW_CONFIRM_RESPONSE_SLOT_OFFSET       0u
+#define SP_FW_CONFIRM_RESPONSE_SLOT_SIZE         1u
+#define SP_FW_CONFIRM_RESPONSE_BOOT_STATE_OFFSET 1u
+#define SP_FW_CONFIRM_RESPONSE_BOOT_STATE_SIZE   1u
+
+typedef struct {
+    uint8_t slot; /*  */
+    uint8_t boot_state; /*  */
+} sp_fw_confirm_response_t;
+
+static inline void sp_fw_confirm_response_pack(const sp_fw_confirm_response_t *h,
+                                               uint8_t out[SP_FW_CONFIRM_RESPONSE_SIZE])
+{
+    out[SP_FW_CONFIRM_RESPONSE_SLOT_OFFSET] = h->slot;
+    out[SP_FW_CONFIRM_RESPONSE_BOOT_STATE_OFFSET] = h->boot_state;
+}
+
+static inline void sp_fw_confirm_response_unpack(const uint8_t in[SP_FW_CONFIRM_RESPONSE_SIZE],
+                                                 sp_fw_confirm_response_t *h)
+{
+    h->slot = in[SP_FW_CONFIRM_RESPONSE_SLOT_OFFSET];
+    h->boot_state = in[SP_FW_CONFIRM_RESPONSE_BOOT_STATE_OFFSET];
+}
+
+/* Firmware image: this header, then body_size bytes of body */
+#define SP_IMAGE_MAGIC          "SPFW" /* the first bytes */
+#define SP_IMAGE_HEADER_VERSION 1u
+
+/* Firmware image header (96 bytes, little-endian, no padding) */
+#define SP_IMAGE_HEADER_SIZE                  96u
+#define SP_IMAGE_HEADER_MAGIC_OFFSET          0u
+#define SP_IMAGE_HEADER_MAGIC_SIZE            4u
+#define SP_IMAGE_HEADER_HEADER_VERSION_OFFSET 4u
+#define SP_IMAGE_HEADER_HEADER_VERSION_SIZE   2u
+#define SP_IMAGE_HEADER_HEADER_SIZE_OFFSET    6u
+#define SP_IMAGE_HEADER_HEADER_SIZE_SIZE      2u
+#define SP_IMAGE_HEADER_VERSION_OFFSET        8u
+#define SP_IMAGE_HEADER_VERSION_SIZE          16u
+#define SP_IMAGE_HEADER_TARGET_OFFSET         24u
+#define SP_IMAGE_HEADER_TARGET_SIZE           16u
+#define SP_IMAGE_HEADER_MIN_PROTOCOL_OFFSET   40u
+#define SP_IMAGE_HEADER_MIN_PROTOCOL_SIZE     1u
+#define SP_IMAGE_HEADER_MAX_PROTOCOL_OFFSET   41u
+#define SP_IMAGE_HEADER_MAX_PROTOCOL_SIZE     1u
+#define SP_IMAGE_HEADER_FLAGS_OFFSET          42u
+#define SP_IMAGE_HEADER_FLAGS_SIZE            2u
+#define SP_IMAGE_HEADER_BODY_SIZE_OFFSET      44u
+#define SP_IMAGE_HEADER_BODY_SIZE_SIZE        4u
+#define SP_IMAGE_HEADER_BODY_CRC_OFFSET       48u
+#define SP_IMAGE_HEADER_BODY_CRC_SIZE         4u
+#define SP_IMAGE_HEADER_BODY_SHA256_OFFSET    52u
+#define SP_IMAGE_HEADER_BODY_SHA256_SIZE      32u
+#define SP_IMAGE_HEADER_RESERVED_OFFSET       84u
+#define SP_IMAGE_HEADER_RESERVED_SIZE         8u
+#define SP_IMAGE_HEADER_HEADER_CRC_OFFSET     92u
+#define SP_IMAGE_HEADER_HEADER_CRC_SIZE       4u
+
+typedef struct {
+    uint8_t magic[4]; /* the bytes SPFW */
+    uint16_t header_version; /* image header layout version = 1 */
+    uint16_t header_size; /* offset of the body = 96 */
+    uint8_t version[16]; /* firmware version text, NUL-padded */
+    uint8_t target[16]; /* board target the image runs on, NUL-padded */
+    uint8_t min_protocol; /* lowest protocol version the firmware speaks */
+    uint8_t max_protocol; /* highest protocol version the firmware speaks */
+    uint16_t flags; /* reserved, 0 */
+    uint32_t body_size; /* bytes of the body after the header */
+    uint32_t body_crc; /* CRC-32C of the body */
+    uint8_t body_sha256[32]; /* SHA-256 of the body */
+    uint8_t reserved[8]; /* zeros */
+    uint32_t header_crc; /* CRC-32C of the header bytes before this field */
+} sp_image_header_t;
+
+static inline void sp_image_header_pack(const sp_image_header_t *h,
+                                        uint8_t out[SP_IMAGE_HEADER_SIZE])
+{
+    memcpy(out + SP_IMAGE_HEADER_MAGIC_OFFSET, h->magic, sizeof h->magic);
+    sp_le_put_u16(out + SP_IMAGE_HEADER_HEADER_VERSION_OFFSET, h->header_version);
+    sp_le_put_u16(out + SP_IMAGE_HEADER_HEADER_SIZE_OFFSET, h->header_size);
+    memcpy(out + SP_IMAGE_HEADER_VERSION_OFFSET, h->version, sizeof h->version);
+    memcpy(out + SP_IMAGE_HEADER_TARGET_OFFSET, h->target, sizeof h->target);
+    out[SP_IMAGE_HEADER_MIN_PROTOCOL_OFFSET] = h->min_protocol;
+    out[SP_IMAGE_HEADER_MAX_PROTOCOL_OFFSET] = h->max_protocol;
+    sp_le_put_u16(out + SP_IMAGE_HEADER_FLAGS_OFFSET, h->flags);
+    sp_le_put_u32(out + SP_IMAGE_HEADER_BODY_SIZE_OFFSET, h->body_size);
+    sp_le_put_u32(out + SP_IMAGE_HEADER_BODY_CRC_OFFSET, h->body_crc);
+    memcpy(out + SP_IMAGE_HEADER_BODY_SHA256_OFFSET, h->body_sha256, sizeof h->body_sha256);
+    memcpy(out + SP_IMAGE_HEADER_RESERVED_OFFSET, h->reserved, sizeof h->reserved);
+    sp_le_put_u32(out + SP_IMAGE_HEADER_HEADER_CRC_OFFSET, h->header_crc);
+}
+
+static inline void sp_image_header_unpack(const uint8_t in[SP_IMAGE_HEADER_SIZE],
+                                          sp_image_header_t *h)
+{
+    memcpy(h->magic, in + SP_IMAGE_HEADER_MAGIC_OFFSET, sizeof h->magic);
+    h->header_version = sp_le_get_u16(in + SP_IMAGE_HEADER_HEADER_VERSION_OFFSET);
+    h->header_size = sp_le_get_u16(in + SP_IMAGE_HEADER_HEADER_SIZE_OFFSET);
+    memcpy(h->version, in + SP_IMAGE_HEADER_VERSION_OFFSET, sizeof h->version);
+    memcpy(h->target, in + SP_IMAGE_HEADER_TARGET_OFFSET, sizeof h->target);
+    h->min_protocol = in[SP_IMAGE_HEADER_MIN_PROTOCOL_OFFSET];
+    h->max_protocol = in[SP_IMAGE_HEADER_MAX_PROTOCOL_OFFSET];
+    h->flags = sp_le_get_u16(in + SP_IMAGE_HEADER_FLAGS_OFFSET);
+    h->body_size = sp_le_get_u32(in + SP_IMAGE_HEADER_BODY_SIZE_OFFSET);
+    h->body_crc = sp_le_get_u32(in + SP_IMAGE_HEADER_BODY_CRC_OFFSET);
+    memcpy(h->body_sha256, in + SP_IMAGE_HEADER_BODY_SHA256_OFFSET, sizeof h->body_sha256);
+    memcpy(h->reserved, in + SP_IMAGE_HEADER_RESERVED_OFFSET, sizeof h->reserved);
+    h->header_crc = sp_le_get_u32(in + SP_IMAGE_HEADER_HEADER_CRC_OFFSET);
 }
 
 #endif /* SPIEL_REGISTRY_H */

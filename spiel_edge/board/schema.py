@@ -148,6 +148,12 @@ def _acquisition(table: dict, origin: str) -> dict:
 def _cross_rules(a: dict, origin: str) -> None:
     n, rate = a["n_samples"], a["sample_rate_hz"]
     _need(
+        float(rate).is_integer(),
+        origin,
+        f"acquisition.sample_rate_hz must be a whole number of Hz (the stream carries it as an "
+        f"integer), got {rate!r}",
+    )
+    _need(
         a["blind_zone_samples"] < n,
         origin,
         f"acquisition.blind_zone_samples must be in [0, n_samples - 1 = {n - 1}], got {a['blind_zone_samples']}",

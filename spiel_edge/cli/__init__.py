@@ -61,6 +61,7 @@ COMMANDS = {
     "config": "Pull, show, diff, push and commit the board's stored config.",
     "doctor": "Check what the service needs; print a fix for each problem.",
     "evaluate": "3-D error, fix rate, association accuracy against ground truth.",
+    "firmware": "The board's firmware slots; update with test boot, confirm, rollback.",
     "fuse": "Several boards' targets from Zenoh, fused in the robot's frame.",
     "profile": "Device profiles: geometry, timing and pipeline tuning as TOML.",
     "recover": "Rewrite a damaged or unfinalized recording into a valid one.",

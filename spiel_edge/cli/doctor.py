@@ -33,10 +33,16 @@ from spiel_edge.service.doctor import CONFIG_DIR, run_checks
 @click.option(
     "--skip-numba", is_flag=True, help="Skip the numba checks (they run the pipeline once)."
 )
+@click.option(
+    "--port",
+    default=None,
+    help="Also talk to the board at this port (HELLO, CONFIG_STATUS): protocol version, "
+    "max_payload, stored config.",
+)
 @click.option("--json", "as_json", is_flag=True, help="One JSON document instead of text.")
-def command(profile_name, calibration, config_dir, skip_numba, as_json) -> int:
+def command(profile_name, calibration, config_dir, skip_numba, port, as_json) -> int:
     """Check what the service needs; print a fix for each problem. Exit status 1 on any problem."""
-    checks = run_checks(profile_name, calibration, config_dir, skip_numba=skip_numba)
+    checks = run_checks(profile_name, calibration, config_dir, skip_numba=skip_numba, port=port)
     ok = all(c.ok for c in checks)
     if as_json:
         click.echo(json.dumps({"ok": ok, "checks": [c.as_dict() for c in checks]}, indent=2))

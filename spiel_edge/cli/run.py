@@ -8,6 +8,7 @@ import threading
 
 import click
 
+from firmware_protocol import SampleFormat
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
@@ -116,6 +117,14 @@ from spiel_edge.service.systemd import Notifier
     "(docs/tracking.md; [track] in the profile).",
 )
 @click.option(
+    "--samples",
+    type=click.Choice(["envelope", "iq"]),
+    default="envelope",
+    show_default=True,
+    help="Sample format asked of the board: iq streams int16 I/Q pairs (protocol 2); the host "
+    "computes the envelope and records the phase.",
+)
+@click.option(
     "--status/--no-status",
     "show_status",
     default=None,
@@ -141,6 +150,7 @@ def command(
     reconnect_timeout,
     force,
     track,
+    samples,
     show_status,
     **ros2,
 ) -> int:
@@ -222,7 +232,11 @@ def command(
             )
             runner.on_record = notifier.ping
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
-            session.start_stream(rate_hz=rate, n_samples=profile.acquisition.n_samples)
+            session.start_stream(
+                rate_hz=rate,
+                n_samples=profile.acquisition.n_samples,
+                sample_format=SampleFormat.I16_IQ if samples == "iq" else SampleFormat.U16_ENVELOPE,
+            )
             check_stream_shape(session, pipeline)
             notifier.ready(f"streaming from {port}")
             runner.run(stop, frames=frames, status=_reporter(show_status, notifier))

@@ -20,13 +20,20 @@ from firmware_protocol import (
 )
 from spiel_edge.errors import DeviceError
 
-CHUNK = 1024  # bytes per CONFIG_READ/WRITE: a few round trips for a config of a few KB
+CHUNK_OVERHEAD = 6  # CONFIG_READ response / CONFIG_WRITE request: u32 offset, u16 length
 
 
 class ConfigTransferMixin:
     """Mixed into DeviceSession; needs ``request(msg) -> Message``."""
 
     _staged_length: int | None = None
+    max_payload: int  # of the link, from HELLO (the session sets it)
+
+    @property
+    def config_chunk(self) -> int:
+        """Bytes per CONFIG_READ/WRITE: as many as one payload of this link carries
+        (HELLO's max_payload, at least MIN_PAYLOAD, less the 6-byte offset and length)."""
+        return self.max_payload - CHUNK_OVERHEAD
 
     def request(
         self, msg: Message, **kwargs
@@ -36,20 +43,24 @@ class ConfigTransferMixin:
     def read_config(self, source: int = ConfigSource.ACTIVE) -> bytes:
         """The active config (DeviceRequestError NOT_FOUND when there is none) or the staging."""
         data = bytearray()
+        chunk = self.config_chunk
         while True:
-            answer = self.request(ConfigRead(len(data), CHUNK, source))
+            answer = self.request(ConfigRead(len(data), chunk, source))
             assert isinstance(answer, ConfigReadResponse)
             if answer.offset != len(data):
                 raise DeviceError(f"CONFIG_READ answered offset {answer.offset}, asked {len(data)}")
             data += answer.data
-            if len(answer.data) < CHUNK:
+            if len(answer.data) > chunk:
+                raise DeviceError(f"CONFIG_READ answered {len(answer.data)} bytes, asked {chunk}")
+            if len(answer.data) < chunk:
                 return bytes(data)
 
     def write_config(self, blob: bytes, progress: Callable[[int], None] | None = None) -> None:
         """Replace the board's staging with ``blob`` (not persistent until commit_config)."""
         offset = 0
+        size = self.config_chunk
         while True:
-            chunk = blob[offset : offset + CHUNK]
+            chunk = blob[offset : offset + size]
             answer = self.request(ConfigWrite(offset, chunk))
             assert isinstance(answer, ConfigWriteResponse)
             offset += len(chunk)

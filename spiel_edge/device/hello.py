@@ -4,14 +4,23 @@ that fails them is refused with a message naming both sides, before any stream s
 
 from __future__ import annotations
 
-from firmware_protocol import MAX_PAYLOAD, PROTOCOL_VERSION, HelloResponse
+from firmware_protocol import (
+    MAX_PAYLOAD,
+    MIN_PAYLOAD,
+    MIN_PROTOCOL_VERSION,
+    HelloResponse,
+)
+from firmware_protocol import MAX_PROTOCOL_VERSION as PROTOCOL_VERSION
 from firmware_protocol.errors import ErrorCode
 from spiel_edge.errors import DeviceError
 
-MIN_PROTOCOL_VERSION = 1  # the lowest version this host speaks
-MAX_CHANNELS = 64  # receivers one board may report
+MAX_CHANNELS = 64  # channels one board may report
 MAX_SAMPLES = 4096  # samples per channel (one channel fits MAX_PAYLOAD)
-MIN_PAYLOAD = 64
+
+
+def link_payload(hello: HelloResponse) -> int:
+    """The largest payload either side may send on this link: the smaller maximum."""
+    return min(hello.max_payload, MAX_PAYLOAD)
 
 
 def host_range() -> str:
@@ -56,7 +65,7 @@ def check_hello(url: str, hello: HelloResponse) -> None:
         problems.append(f"n_channels {hello.n_channels} (allowed 1-{MAX_CHANNELS})")
     if not 1 <= hello.max_samples <= MAX_SAMPLES:
         problems.append(f"max_samples {hello.max_samples} (allowed 1-{MAX_SAMPLES})")
-    if not MIN_PAYLOAD <= hello.max_payload <= MAX_PAYLOAD:
-        problems.append(f"max_payload {hello.max_payload} (allowed {MIN_PAYLOAD}-{MAX_PAYLOAD})")
+    if hello.max_payload < MIN_PAYLOAD:  # larger than the host's: the host's limit applies
+        problems.append(f"max_payload {hello.max_payload} (at least {MIN_PAYLOAD})")
     if problems:
         raise DeviceError(f"{url}: the board's HELLO is not usable: {', '.join(problems)}")

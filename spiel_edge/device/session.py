@@ -23,9 +23,10 @@ from typing import Any
 
 from firmware_protocol import (
     MAX_PAYLOAD,
+    MAX_PROTOCOL_VERSION,
     MAX_RETRIES,
     MAX_WIRE_SIZE,
-    PROTOCOL_VERSION,
+    MIN_PROTOCOL_VERSION,
     SCHEMA_HASH,
     ErrorResponse,
     FrameDecoder,
@@ -42,9 +43,10 @@ from firmware_protocol import (
 from firmware_protocol.errors import ErrorCode
 from firmware_protocol.framing import Frame
 from spiel_edge.device.config import ConfigTransferMixin
-from spiel_edge.device.hello import MIN_PROTOCOL_VERSION, check_hello, version_refused
+from spiel_edge.device.hello import check_hello, link_payload, version_refused
 from spiel_edge.device.stream import StreamTracker
 from spiel_edge.device.streaming import StreamingMixin
+from spiel_edge.device.v2 import SessionV2Mixin
 from spiel_edge.errors import (
     DeviceDisconnectedError,
     DeviceError,
@@ -71,7 +73,7 @@ class SessionCounters:
     restarts: int = 0  # streams the board had stopped by itself (restarted)
 
 
-class DeviceSession(StreamingMixin, ConfigTransferMixin):
+class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
     """``with DeviceSession("sim://") as dev: dev.start_stream(rate_hz=50); for a in dev.acquisitions(stop): ...``"""
 
     def __init__(
@@ -97,6 +99,9 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
         self.tracker = StreamTracker()
         self.decoder = FrameDecoder()
         self.hello: HelloResponse | None = None
+        # negotiated by HELLO: the protocol version and the largest payload of this link
+        self.protocol_version = MIN_PROTOCOL_VERSION
+        self.max_payload = MAX_PAYLOAD
         self.identity: LinkIdentity | None = None
         self.stream: StreamStartResponse | None = None
         self.device_status: StreamStatus | None = None
@@ -104,8 +109,15 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
         self._inbox: deque[tuple[Frame, int]] = deque()
         self._seq = random.getrandbits(16)
         self._stream_request: StreamStart | None = None
-        self._overruns_before = 0  # board counters of earlier boots
+        # The board's STREAM_STATUS counters are since its boot (PROTOCOL.md 6.4): the run's
+        # own figures are the counters minus their values when the run's stream began
+        # (``_status_base``, per boot), plus what earlier boots of the same run counted.
+        self._status_base: StreamStatus | None = None
+        self._overruns_before = 0
+        self._rx_errors_before = 0
         self._last_data = time.monotonic()
+        self._v2_init()
+        self.tracker.stamp = self.stamp  # board time -> host time, once synced
 
     # --- connection ----------------------------------------------------------------------
 
@@ -143,7 +155,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
 
     def _handshake(self) -> None:
         try:
-            hello = self.request(Hello(MIN_PROTOCOL_VERSION, PROTOCOL_VERSION, MAX_PAYLOAD, 0))
+            hello = self.request(Hello(MIN_PROTOCOL_VERSION, MAX_PROTOCOL_VERSION, MAX_PAYLOAD, 0))
         except DeviceRequestError as exc:
             if exc.code in (ErrorCode.VERSION_TOO_OLD, ErrorCode.VERSION_TOO_NEW):
                 raise DeviceError(version_refused(self.url, exc.code)) from exc
@@ -169,9 +181,14 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             and hello.boot_id != previous.boot_id
             and self.device_status is not None
         ):
-            self._overruns_before += self.device_status.overruns
+            self._overruns_before += self._since_start("overruns")
+            self._rx_errors_before += self._since_start("rx_errors")
             self.device_status = None
+        if previous is not None and hello.boot_id != previous.boot_id:
+            self._status_base = None  # a new boot counts from 0: a new baseline at start
         self.hello = hello
+        self.protocol_version = hello.protocol_version
+        self.max_payload = link_payload(hello)
         assert self._link is not None
         known = self._link.identity()
         self.identity = LinkIdentity(
@@ -188,6 +205,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             hello.n_channels,
             hello.protocol_version,
         )
+        self._v2_start()
 
     def _drop_link(self) -> None:
         if self._link is not None:
@@ -231,6 +249,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             if attempt:
                 self.counters.retries += 1
                 log.debug("%s: retry %d of %s (seq %d)", self.url, attempt, type(msg).__name__, seq)
+            self._sent_ns = time.perf_counter_ns()
             link.write(wire)
             answer = self._await(seq, msg.MSG_TYPE, time.monotonic() + timeout_s)
             if answer is not None:
@@ -260,7 +279,9 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
                     and frame.msg_type in (msg_type, ErrorResponse.MSG_TYPE)
                 ):
                     try:
-                        return decode_message(frame)
+                        answer = decode_message(frame)
+                        self._answer_ns = ns
+                        return answer
                     except MessageError as exc:  # valid CRC but a payload we cannot read
                         log.warning("%s: unreadable answer: %s", self.url, exc)
                         continue
@@ -277,6 +298,8 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             self._inbox.extend((frame, ns) for frame in self.decoder.feed(data))
 
     def _dispatch(self, frame: Frame, ns: int) -> None:
+        if self._v2_frame(frame, ns):
+            return
         if self.tracker.feed(frame, ns):
             self._last_data = time.monotonic()
         elif frame.is_response:
@@ -291,11 +314,18 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
 
     # --- reporting -----------------------------------------------------------------------
 
+    def _since_start(self, field: str) -> int:
+        """A board counter counted from the start of this run's stream on the current boot."""
+        status = self.device_status
+        if status is None:
+            return 0
+        base = self._status_base
+        return (getattr(status, field) - (getattr(base, field) if base else 0)) & 0xFFFFFFFF
+
     def counts(self) -> dict[str, int]:
         """Every counter in one flat dict (see the README for their meaning)."""
         assembler = self.tracker.assembler.stats
         decoder = self.decoder.stats
-        status = self.device_status
         return {
             "acquisitions": self.tracker.acquisitions,
             "lost": self.tracker.lost,
@@ -306,7 +336,8 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin):
             "crc_errors": decoder.crc,
             "framing_errors": decoder.errors - decoder.crc,
             "bad_messages": self.tracker.bad_messages,
-            "overruns": self._overruns_before + (status.overruns if status else 0),
-            "device_rx_errors": status.rx_errors if status else 0,
+            "overruns": self._overruns_before + self._since_start("overruns"),
+            "device_rx_errors": self._rx_errors_before + self._since_start("rx_errors"),
             **asdict(self.counters),
+            **self.v2_counts(),
         }

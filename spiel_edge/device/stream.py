@@ -10,13 +10,15 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, StreamData
+from firmware_protocol import AcquisitionAssembler, MessageError, MsgType, SampleFormat, StreamData
 from firmware_protocol.framing import Frame
 from spiel_edge.device.annotation import ANNOTATION_TYPE, TARGETS_TYPE, Annotation, TruthTargets
+from spiel_edge.device.iq import iq_amplitude, iq_phase
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +40,16 @@ class LiveAcquisition:
     truth_mm: np.ndarray | None = None  # ground truth, when a virtual board sends it
     background: np.ndarray | None = None  # latest target-free scene the link sent, if any
     truth_targets_mm: np.ndarray | None = None  # (K, 3) every target's truth, when sent
+    # protocol version 2: the acquisition's board time on the host's clock (Unix s) and its
+    # uncertainty (us, about 95 %), None before the clocks are synced or from a v1 board
+    stamp_host: float | None = None
+    stamp_uncertainty_us: float | None = None
+    iq: np.ndarray | None = None  # I/Q streams: the raw (channels, 2 x samples) int16 q, i
+
+    @property
+    def phase(self) -> np.ndarray | None:
+        """I/Q streams: the phase (channels, samples) in radians, float32 (else None)."""
+        return None if self.iq is None else iq_phase(self.iq)
 
 
 class StreamTracker:
@@ -57,11 +69,14 @@ class StreamTracker:
         self._rows: dict[int, np.ndarray] = {}
         self._rows_for = -1
         self._first_delivered: int | None = None
+        # board time (us) -> (Unix s, uncertainty us) or None; set by the session
+        self.stamp: Callable[[int], tuple[float, float] | None] = lambda board_us: None
 
-    def begin(self) -> None:
+    def begin(self, channel_mask: int = 0) -> None:
         """A new stream is being requested: forget the old one's leftovers. Its first
-        frames may arrive before the answer (when the answer was lost and retried)."""
-        self.assembler.reset()
+        frames may arrive before the answer (when the answer was lost and retried).
+        ``channel_mask``: a channel subset under protocol version 2 (physical ids)."""
+        self.assembler.reset(channel_mask)
         self.ready.clear()
         self._truth.clear()
         self._truth_targets.clear()
@@ -123,17 +138,24 @@ class StreamTracker:
         elif self._first_delivered is None:
             self._first_delivered = acq.index
         self._last_index = acq.index
+        samples, iq = acq.samples, None
+        if acq.sample_format == SampleFormat.I16_IQ:
+            samples, iq = iq_amplitude(acq.samples), acq.samples
+        stamped = self.stamp(acq.timestamp_us)
         self.ready.append(
             LiveAcquisition(
                 acq.index,
                 acq.timestamp_us,
                 acq.sample_rate_hz,
-                acq.samples,
+                samples,
                 received_ns,
                 time.time(),
                 self._truth_for(acq.index),
                 self.background,
                 self._truth_targets.pop(acq.index, None),
+                None if stamped is None else stamped[0],
+                None if stamped is None else stamped[1],
+                iq,
             )
         )
         if len(self._truth_targets) > MAX_PENDING_TRUTH:

@@ -9,6 +9,8 @@ import threading
 import time
 from collections.abc import Iterator
 
+import numpy as np
+
 from firmware_protocol import (
     MAX_RETRIES,
     SampleFormat,
@@ -19,6 +21,8 @@ from firmware_protocol import (
     StreamStop,
 )
 from firmware_protocol.errors import ErrorCode
+from firmware_protocol.stream import SAMPLE_SIZE, STREAM_HEADER
+from spiel_edge.device.iq import iq_amplitude
 from spiel_edge.device.stream import LiveAcquisition
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -36,17 +40,48 @@ RECONNECT_POLL_S = 0.05  # how often to look for a board that went away
 class StreamingMixin:
     """Mixed into DeviceSession, whose state (link, tracker, inbox, counters) it uses."""
 
+    protocol_version: int
+    max_payload: int
+    _status_base: StreamStatus | None
+
     # --- streaming -----------------------------------------------------------------------
 
     def start_stream(
-        self, *, rate_hz: float = 50.0, n_samples: int = 0, n_acquisitions: int = 0
+        self,
+        *,
+        rate_hz: float = 50.0,
+        n_samples: int = 0,
+        n_acquisitions: int = 0,
+        channel_mask: int = 0,
+        sample_format: int = SampleFormat.U16_ENVELOPE,
     ) -> StreamStartResponse:
-        """Start streaming (stopping any stream the board still runs)."""
+        """Start streaming (stopping any stream the board still runs). ``channel_mask``: the
+        physical channels to stream (0: all); a subset needs protocol version 2, where the
+        acquisitions' rows are the mask's channels in increasing order. ``sample_format``
+        I16_IQ asks for I/Q pairs (protocol 2; the acquisitions then carry envelope and phase)."""
+        if channel_mask and self.protocol_version < 2:
+            raise DeviceError(
+                f"{self.url}: a channel subset needs protocol version 2; the board speaks "
+                f"{self.protocol_version}"
+            )
+        frame = STREAM_HEADER.size + SAMPLE_SIZE[SampleFormat.U16_ENVELOPE] * n_samples
+        if n_samples and frame > self.max_payload:
+            raise DeviceError(
+                f"{self.url}: {n_samples} samples per channel need {frame}-byte stream frames; "
+                f"the board's HELLO allows {self.max_payload} (max_payload)"
+            )
         request = StreamStart(
-            n_acquisitions, float(rate_hz), n_samples, SampleFormat.U16_ENVELOPE, 0
+            n_acquisitions, float(rate_hz), n_samples, sample_format, channel_mask
         )
+        if sample_format == SampleFormat.I16_IQ:  # compile (or load) the kernel before data flows
+            warm = np.zeros((1, 2), dtype=np.int16)
+            iq_amplitude(warm)
+            warm.setflags(write=False)  # reassembled samples are read-only views: their own type
+            iq_amplitude(warm)
         self._stop_quietly()
-        self.tracker.begin()
+        if self._status_base is None:  # the board's since-boot counters before this run
+            self._status_base = self._request_status()
+        self.tracker.begin(channel_mask)
         answer = self.request(request)
         assert isinstance(answer, StreamStartResponse)
         self.tracker.started(answer.first_acquisition)
@@ -69,9 +104,16 @@ class StreamingMixin:
                 raise
 
     def stream_status(self) -> StreamStatus:
-        status = self.request(StreamStatusRequest())
-        assert isinstance(status, StreamStatus)
+        """The board's counters (since its boot); ``counts()`` reports them from the start
+        of this session's stream."""
+        status = self._request_status()
         self.device_status = status
+        return status
+
+    def _request_status(self) -> StreamStatus:
+        status = self.request(StreamStatusRequest())
+        if not isinstance(status, StreamStatus):
+            raise DeviceError(f"STREAM_STATUS answered with {type(status).__name__}")
         return status
 
     def acquisitions(self, stop: threading.Event | None = None) -> Iterator[LiveAcquisition]:
@@ -98,6 +140,7 @@ class StreamingMixin:
         self._fill(self.poll_s)
         while self._inbox:
             self._dispatch(*self._inbox.popleft())
+        self._v2_tick()
         if self._stream_request is not None and time.monotonic() - self._last_data > self.stall_s:
             self._check_alive()
 
@@ -118,6 +161,8 @@ class StreamingMixin:
                 rate_hz=request.rate_hz,
                 n_samples=request.n_samples,
                 n_acquisitions=request.n_acquisitions,
+                sample_format=request.sample_format,
+                channel_mask=request.channel_mask,
             )
 
     # --- reconnection --------------------------------------------------------------------

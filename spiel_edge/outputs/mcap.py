@@ -182,7 +182,11 @@ class McapSink:
             # written just before was lost to damage (an identical earlier one serves)
             meta["background_crc"] = self._background_crc
             self._since_background += 1
-        self._add(ACQUISITION_TOPIC, {**meta, "frames": _samples(np.asarray(frames))}, stamp)
+        synced = meta.get("stamp_host_ns")
+        synced_ns = int(synced) if isinstance(synced, (int, np.integer)) and synced > 0 else 0
+        self._add(
+            ACQUISITION_TOPIC, {**meta, "frames": _samples(np.asarray(frames))}, stamp, synced_ns
+        )
         self.counts["acquisitions"] += 1
 
     def _chunks_written(self) -> int:
@@ -193,14 +197,18 @@ class McapSink:
         return getattr(stats, "chunk_count", 0)
 
     def write(self, record: dict) -> None:
-        self._add(POSITION_TOPIC, record, _stamp(record))
+        synced = record.get("stamp_host")  # the board's time on the host clock (protocol 2)
+        log_ns = int(synced * 1e9) if isinstance(synced, float) and synced > 0 else 0
+        self._add(POSITION_TOPIC, record, _stamp(record), log_ns)
         self.counts["records"] += 1
 
-    def _add(self, topic: str, payload: dict | bytes, stamp: int) -> None:
+    def _add(self, topic: str, payload: dict | bytes, stamp: int, synced_ns: int = 0) -> None:
+        """``synced_ns``: the acquisition's board time on the host clock, the log time when
+        known (a live board speaking protocol 2), else the time of writing."""
         if self.closed:
             raise ValueError(f"{self.path}: recording already closed")
         data = payload if isinstance(payload, bytes) else _dumps(payload)
-        now = stamp if self.log_time_from_stamp and stamp else time.time_ns()
+        now = stamp if self.log_time_from_stamp and stamp else (synced_ns or time.time_ns())
         with self._lock:  # close() may run in the signal watchdog meanwhile
             if self.closed:
                 raise ValueError(f"{self.path}: recording already closed")

@@ -90,6 +90,9 @@ class Ros2McapSink(McapSink):
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
         meta = {k: v for k, v in acquisition.items() if k not in ("frames", "background")}
         stamp = _stamp(meta)
+        synced = meta.get("stamp_host_ns")  # the board's time on the host clock (protocol 2)
+        if isinstance(synced, int) and synced > 0:
+            stamp = synced
         seconds = stamp / 1e9 if stamp else None
         background = acquisition.get("background")
         if background is not None and (
@@ -110,7 +113,7 @@ class Ros2McapSink(McapSink):
         self.counts["acquisitions"] += 1
 
     def write(self, record: dict) -> None:
-        seconds = record.get("host_time")
+        seconds = record.get("stamp_host") or record.get("host_time")  # synced board time first
         stamp = int(seconds * 1e9) if isinstance(seconds, (int, float)) and seconds > 0 else 0
         best = record.get("position_mm")
         if best is not None:

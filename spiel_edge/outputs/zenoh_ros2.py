@@ -42,7 +42,7 @@ class CdrMessages:
         self._tf_sent = -float("inf")
 
     def of_record(self, record: dict) -> list[tuple[str, bytes]]:
-        seconds = record.get("host_time")
+        seconds = record.get("stamp_host") or record.get("host_time")  # synced board time first
         best = record.get("position_mm")
         out = [] if best is None else [("point", self.encoder.point_stamped(best, seconds))]
         out.append(("targets", self.encoder.targets_cloud(record.get("targets") or [], seconds)))

@@ -129,6 +129,29 @@ def check_stream_shape(session: DeviceSession, pipeline: Pipeline) -> None:
         )
 
 
+def _stamp_fields(acq: LiveAcquisition) -> dict:
+    """Protocol 2: the acquisition's board time on the host clock (Unix s) and its uncertainty."""
+    stamp = getattr(acq, "stamp_host", None)
+    if stamp is None:
+        return {}
+    return {
+        "stamp_host": round(stamp, 6),
+        "stamp_uncertainty_us": round(acq.stamp_uncertainty_us, 1),
+    }
+
+
+def _v2_meta(acq: LiveAcquisition) -> dict:
+    """Recorded beside the raw samples: the synced stamp and, from I/Q, the phase (rad)."""
+    out = {}
+    stamp = getattr(acq, "stamp_host", None)
+    if stamp is not None:
+        out["stamp_host_ns"] = int(stamp * 1e9)
+    phase = getattr(acq, "phase", None)
+    if phase is not None:
+        out["phase"] = np.round(phase.astype(np.float64), 4).tolist()
+    return out
+
+
 class LiveRunner:
     def __init__(
         self,
@@ -197,6 +220,7 @@ class LiveRunner:
             "device_time_us": acq.timestamp_us,
             "timestamp_ns": int(acq.host_time * 1e9),
             "background": background,
+            **_v2_meta(acq),
         }
 
     def record(self, acq: LiveAcquisition) -> dict:
@@ -207,6 +231,7 @@ class LiveRunner:
             "device_time_us": acq.timestamp_us,
             "host_time": round(acq.host_time, 6),
             "source": self.session.url,
+            **_stamp_fields(acq),
         }
         stats.records += 1
         try:

@@ -246,11 +246,46 @@ def check_numba_kernels(warm: Callable[[], float], counts: Callable[[], tuple[in
 # -- all -----------------------------------------------------------------------------------
 
 
+def check_link(port: str) -> Check:
+    """The board at ``port`` answers HELLO and CONFIG_STATUS: the protocol version and link
+    max_payload negotiated, and whether a config is stored (PROTOCOL.md 6.2, 9)."""
+    from spiel_edge.device import DeviceSession
+
+    session = DeviceSession(port, reconnect=False)
+    try:
+        hello = session.open()
+        status = session.config_status() if hello.capabilities & 0x02 else None
+    except SpielError as exc:
+        return Check(
+            "board link",
+            False,
+            f"{port}: {exc}",
+            "check the port and that nothing else holds it open (`spiel-edge service stop`)",
+        )
+    finally:
+        session.close()
+    stored = (
+        "no config capability"
+        if status is None
+        else "no config stored (factory defaults)"
+        if status.active_slot == 0xFF
+        else f"config in slot {status.active_slot}"
+    )
+    return Check(
+        "board link",
+        True,
+        f"{port}: board {hello.serial} firmware {hello.firmware_version}, protocol "
+        f"{hello.protocol_version} (board {hello.min_version}-{hello.max_version}), "
+        f"max_payload {session.max_payload}, {hello.n_channels} channels, {stored}",
+    )
+
+
 def run_checks(
     profile: str | None = None,
     calibration: str | None = None,
     config_dir: str | Path = CONFIG_DIR,
     skip_numba: bool = False,
+    port: str | None = None,
 ) -> list[Check]:
     from spiel_edge.link.discover import find_boards
     from spiel_edge.link.usb_ids import board_usb_ids
@@ -267,6 +302,8 @@ def run_checks(
         check_config(profile, calibration, config_dir),
         check_model(),
     ]
+    if port:
+        checks.insert(1, check_link(port))
     if not skip_numba:
         cache = numba_cache_dir()
         checks.append(check_numba_cache_dir(cache))

@@ -19,8 +19,8 @@ import numpy as np
 
 from firmware_protocol import (
     MAX_PAYLOAD,
-    MAX_SAMPLES_PER_FRAME,
-    PROTOCOL_VERSION,
+    MAX_PROTOCOL_VERSION,
+    MIN_PAYLOAD,
     SCHEMA_HASH,
     Capability,
     ErrorCode,
@@ -43,18 +43,22 @@ from firmware_protocol import (
 )
 from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
+from firmware_protocol.stream import SAMPLE_SIZE, STREAM_HEADER
 from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
+from spiel_edge.sim.board_v2 import FW_MIN_PAYLOAD, BoardV2Mixin
 from spiel_edge.sim.config_slots import BoardConfigMixin
 from spiel_edge.sim.faults import Outgoing
-from spiel_edge.sim.flash import Flash
+from spiel_edge.sim.firmware_slots import FirmwareFlash
+from spiel_edge.sim.flash import Flash, PowerCut
 from spiel_edge.sim.scenes import EchoModelScene, ReplayScene
 
 log = logging.getLogger(__name__)
 
-FIRMWARE_VERSION = "sim-0.1.0"
+FIRMWARE_VERSION = "sim-0.1.0"  # of the factory image (sim/firmware_slots.py)
 MAX_RATE_HZ = 10000.0
 MAX_SAMPLES = 4096
+SAMPLE_SIZE_U16 = 2
 RESPONSE_CACHE = 16
 _MASK = 0xFFFFFFFF
 
@@ -65,8 +69,11 @@ class _Stream:
     n_samples: int
     remaining: int | None  # None: endless
     next_time: float
-    sent: int = 0
+    scheduled: int = 0  # acquisitions sent or skipped: n_acquisitions counts both
+    sent: int = 0  # acquisitions of this stream sent whole (STREAM_STOP's acquisitions_sent)
     seq: int = 0  # the STREAM_START's seq, echoed by its STREAM_DATA frames
+    sample_format: int = SampleFormat.U16_ENVELOPE
+    channels: tuple[int, ...] = ()  # the physical channels streamed (the resolved mask)
 
     @property
     def period(self) -> float:
@@ -86,7 +93,7 @@ class BoardStats:
         self.executed[msg_type] = self.executed.get(msg_type, 0) + 1
 
 
-class VirtualBoard(BoardConfigMixin):
+class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
     def __init__(
         self,
         scene: ReplayScene | EchoModelScene,
@@ -97,10 +104,26 @@ class VirtualBoard(BoardConfigMixin):
         flash: Flash | None = None,
         seed: int = 0,
         now: float = 0.0,
+        protocol: int = MAX_PROTOCOL_VERSION,
+        max_payload: int = MAX_PAYLOAD,
+        drift_ppm: float = 0.0,
+        firmware: FirmwareFlash | None = None,
+        sync_fault: str = "",
+        heartbeat_flags: int = 0,
+        log_flood: float = 0.0,
     ):
         self.scene = scene
         self.serial, self.vid, self.pid = serial, vid, pid
+        self.max_version = protocol  # the highest protocol version this board speaks
+        self.board_max_payload = max_payload  # HELLO max_payload: what it sends or accepts
         self.flash = flash or Flash()
+        self.max_version = protocol  # the highest protocol version this board speaks
+        self.drift_ppm = drift_ppm
+        self.fw = firmware or FirmwareFlash(factory=None)
+        self.sync_fault = sync_fault
+        self.heartbeat_extra_flags = heartbeat_flags
+        self.log_flood = log_flood
+        self.version = 1
         self.stats = BoardStats()
         self.tx_dropped = 0  # set by the line: frames lost on the way out
         self._rng = random.Random(seed)
@@ -123,6 +146,15 @@ class VirtualBoard(BoardConfigMixin):
         self._last_background: np.ndarray | None = None
         self._request_seq = 0
         self.reboot_at = None
+        self.version = 1  # negotiated by HELLO
+        self.max_payload = self.board_max_payload  # of the link: min(board, host's HELLO)
+        for _ in range(3):  # the bootloader's record writes may be cut too: boot again
+            try:
+                self.fw.boot()
+                break
+            except PowerCut as exc:
+                log.info("%s: %s during boot", self.serial, exc)
+        self._v2_boot(now)
         on_boot = getattr(self.scene, "on_boot", None)  # a scene on the host's clock (robot)
         if on_boot is not None:
             on_boot(now)
@@ -140,6 +172,8 @@ class VirtualBoard(BoardConfigMixin):
     def receive(self, data: bytes, now: float) -> list[Outgoing]:
         """Decode requests and return their responses (PowerCut propagates)."""
         out = []
+        if self.silent:  # a firmware that hangs at start: it reads nothing
+            return out
         for frame in self._decoder.feed(data):
             wire = self._answer(frame, now)
             if wire is not None:
@@ -163,7 +197,7 @@ class VirtualBoard(BoardConfigMixin):
             self.stats.count(frame.msg_type)
             self._request_seq = frame.seq
             response = self._execute(request, now)
-        wire = encode_message(response, seq=frame.seq)
+        wire = encode_message(response, seq=frame.seq, version=self.version)
         if frame.msg_type == m.MsgType.HELLO:
             self._cache.clear()
         self._cache[frame.seq] = (frame.msg_type, wire)
@@ -186,6 +220,20 @@ class VirtualBoard(BoardConfigMixin):
             m.ConfigStatusRequest: self._config_status,
         }.get(type(req))
         if handler is None:
+            handler = {
+                m.TimeSync: self._time_sync,
+                m.Telemetry: self._telemetry,
+                m.FwInfoRequest: self._fw_info,
+                m.FwBegin: self._fw_begin,
+                m.FwWrite: self._fw_write,
+                m.FwVerify: self._fw_verify,
+                m.FwTest: self._fw_test,
+                m.FwConfirm: self._fw_confirm,
+            }.get(type(req))
+            refused = self._need_v2(req) if handler is not None else None
+            if refused is not None:
+                return refused
+        if handler is None:
             return ErrorResponse(
                 ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles"
             )
@@ -194,26 +242,36 @@ class VirtualBoard(BoardConfigMixin):
     # --- session -------------------------------------------------------------------------
 
     def _hello(self, req: Hello, now: float) -> m.Message:
-        if req.max_version < PROTOCOL_VERSION:
+        top = self.max_protocol()  # the board's, capped by the running image's range
+        speaks = f"board speaks 1-{top}"
+        if req.max_version < 1:
+            return ErrorResponse(ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, speaks)
+        if req.min_version > top:
+            return ErrorResponse(ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, speaks)
+        if 0 < req.max_payload < MIN_PAYLOAD:
             return ErrorResponse(
-                ErrorCode.VERSION_TOO_OLD, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
+                ErrorCode.INVALID, req.MSG_TYPE, f"max_payload below the minimum {MIN_PAYLOAD}"
             )
-        if req.min_version > PROTOCOL_VERSION:
-            return ErrorResponse(
-                ErrorCode.VERSION_TOO_NEW, req.MSG_TYPE, f"board speaks {PROTOCOL_VERSION}"
-            )
+        self.version = min(req.max_version, top)
+        self.max_payload = min(req.max_payload or MAX_PAYLOAD, self.board_max_payload)
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
+        if self.version >= 2:
+            caps |= Capability.TIME_SYNC | Capability.TELEMETRY
+            if self.max_payload >= FW_MIN_PAYLOAD:  # FW_INFO's answer needs 74 bytes
+                caps |= Capability.FIRMWARE_UPDATE
+            if hasattr(self.scene, "iq_supported"):
+                caps |= Capability.IQ_SAMPLES
         return m.HelloResponse(
-            PROTOCOL_VERSION,
-            PROTOCOL_VERSION,
-            PROTOCOL_VERSION,
+            self.version,
+            1,
+            top,
             self.scene.n_channels,
-            MAX_PAYLOAD,
+            self.board_max_payload,
             MAX_SAMPLES,
             int(caps),
             SCHEMA_HASH,
             self.boot_id,
-            FIRMWARE_VERSION,
+            self.firmware_version,
             self.vid,
             self.pid,
             self.serial,
@@ -234,7 +292,9 @@ class VirtualBoard(BoardConfigMixin):
         )
 
     def _ping(self, req: Ping, now: float) -> m.Message:
-        return Pong(req.data)
+        if len(req.data) + 2 <= self.max_payload:
+            return Pong(req.data)
+        return ErrorResponse(ErrorCode.TOO_LARGE, req.MSG_TYPE, "data exceeds max_payload - 2")
 
     def _reboot(self, req: m.Reboot, now: float) -> m.Message:
         self.reboot_at = now + req.delay_ms / 1000.0
@@ -245,15 +305,28 @@ class VirtualBoard(BoardConfigMixin):
     def _stream_start(self, req: StreamStart, now: float) -> m.Message:
         n_ch = self.scene.n_channels
         n_samples = req.n_samples or self.scene.n_samples
+        every = (1 << n_ch) - 1
+        mask = req.channel_mask or every
         error = None
         if self.streaming:
             error = (ErrorCode.BAD_STATE, "a stream is already running; stop it first")
-        elif req.sample_format != SampleFormat.U16_ENVELOPE:
-            error = (ErrorCode.UNSUPPORTED, "this board sends U16_ENVELOPE samples only")
-        elif req.channel_mask not in (0, (1 << n_ch) - 1):
-            error = (ErrorCode.UNSUPPORTED, "channel subsets are not supported; use all channels")
-        elif n_samples > min(MAX_SAMPLES, MAX_SAMPLES_PER_FRAME[SampleFormat.U16_ENVELOPE]):
-            error = (ErrorCode.TOO_LARGE, f"at most {MAX_SAMPLES} samples per channel")
+        elif req.sample_format == SampleFormat.I16_IQ and (
+            self.version < 2 or not hasattr(self.scene, "iq_supported")
+        ):
+            error = (ErrorCode.UNSUPPORTED, "I/Q samples need protocol 2 and scene=model")
+        elif req.sample_format not in (SampleFormat.U16_ENVELOPE, SampleFormat.I16_IQ):
+            error = (ErrorCode.UNSUPPORTED, "this board sends U16_ENVELOPE or I16_IQ samples")
+        elif mask & ~every:
+            error = (ErrorCode.INVALID, "channel_mask names absent channels")
+        elif self.version < 2 and mask != every:
+            # version 1 numbers the channels of a subset 0..n-1, losing which they are
+            error = (ErrorCode.UNSUPPORTED, "channel subsets need protocol version 2")
+        elif (
+            n_samples > MAX_SAMPLES
+            or STREAM_HEADER.size + n_samples * SAMPLE_SIZE[SampleFormat(req.sample_format)]
+            > self.max_payload
+        ):
+            error = (ErrorCode.TOO_LARGE, "n_samples too large for max_samples or max_payload")
         elif not self.scene.supports(n_samples):
             error = (
                 ErrorCode.UNSUPPORTED,
@@ -264,17 +337,26 @@ class VirtualBoard(BoardConfigMixin):
         if error:
             return ErrorResponse(error[0], req.MSG_TYPE, error[1])
         remaining = req.n_acquisitions or None
-        self._last_background = (
-            None  # every stream starts with the background (a new host may be listening)
+        # every stream starts with the background (a new host may be listening)
+        self._last_background = None
+        channels = tuple(c for c in range(n_ch) if mask >> c & 1)
+        self._stream = _Stream(
+            req.rate_hz,
+            n_samples,
+            remaining,
+            now,
+            seq=self._request_seq,
+            channels=channels,
+            sample_format=req.sample_format,
         )
-        self._stream = _Stream(req.rate_hz, n_samples, remaining, now, seq=self._request_seq)
         return StreamStartResponse(
             self._acquisition,
             self._counter,
             self.scene.sample_rate_hz,
             n_samples,
-            n_ch,
-            SampleFormat.U16_ENVELOPE,
+            len(channels),
+            req.sample_format,
+            mask,
         )
 
     def _stream_stop(self, req: StreamStop, now: float) -> m.Message:
@@ -294,19 +376,26 @@ class VirtualBoard(BoardConfigMixin):
         )
 
     def next_due(self) -> float | None:
-        return None if self._stream is None else self._stream.next_time
+        times = [t for t in (self.telemetry_next(),) if t is not None]
+        if self._stream is not None:
+            times.append(self._stream.next_time)
+        return min(times) if times else None
 
     def acquisition_size(self) -> int:
         """Upper bound of the wire bytes of one acquisition (annotations included)."""
         n = self._stream.n_samples if self._stream else self.scene.n_samples
-        frame = 12 + 24 + 2 * n + 4
+        per = 4 if self._stream and self._stream.sample_format == SampleFormat.I16_IQ else 2
+        frame = 12 + 24 + per * n + 4
         return 2 * self.scene.n_channels * (frame + frame // 254 + 3)
 
     def due(self, now: float, room: int, limit: int | None = None) -> list[Outgoing]:
         """Acquisitions due by ``now`` that fit in ``room`` bytes (the others overrun), at
         most ``limit`` pings."""
-        out: list[Outgoing] = []
+        out: list[Outgoing] = self.telemetry_due(now, room)
+        room -= sum(len(o.wire) for o in out)
         s = self._stream
+        if self.silent:
+            return out
         size = self.acquisition_size()
         while s is not None and s.next_time <= now and (limit is None or limit > 0):
             limit = None if limit is None else limit - 1
@@ -318,9 +407,10 @@ class VirtualBoard(BoardConfigMixin):
             else:
                 out += self._acquire(s)
                 room -= size
+                s.sent += 1
             s.next_time = now if s.period == 0.0 else s.next_time + s.period
-            s.sent += 1
-            if s.remaining is not None and s.sent >= s.remaining:
+            s.scheduled += 1
+            if s.remaining is not None and s.scheduled >= s.remaining:
                 self._stream = s = None
         return out
 
@@ -334,7 +424,12 @@ class VirtualBoard(BoardConfigMixin):
 
     def _acquire(self, s: _Stream) -> list[Outgoing]:
         index, time_s = self._acquisition, s.next_time - self._boot_time
-        frame = self.scene.frame(index, s.n_samples, time_s)
+        iq = s.sample_format == SampleFormat.I16_IQ
+        frame = (
+            self.scene.frame(index, s.n_samples, time_s, iq=True)
+            if iq
+            else (self.scene.frame(index, s.n_samples, time_s))
+        )
         background = frame.background
         if (
             background is not None
@@ -349,20 +444,24 @@ class VirtualBoard(BoardConfigMixin):
         ]
         if frame.truth_targets_mm is not None:
             out.append(Outgoing(encode_truth_targets(index, frame.truth_targets_mm), exempt=True))
-        n_ch = frame.samples.shape[0]
-        rows = np.ascontiguousarray(frame.samples, dtype="<u2")
-        stamp = int(time_s * 1e6)
-        for c in range(n_ch):
+        channels = s.channels or tuple(range(frame.samples.shape[0]))
+        n_ch = len(channels)
+        if iq:
+            rows = np.ascontiguousarray(frame.iq, dtype="<i2")  # (channels, samples, 2): q, i
+        else:
+            rows = np.ascontiguousarray(frame.samples, dtype="<u2")
+        stamp = self.clock_us(s.next_time)
+        for rank, c in enumerate(channels):
             msg = StreamData(
                 index,
-                c,
+                c if self.version >= 2 else rank,  # v2: the physical channel id
                 n_ch,
-                SampleFormat.U16_ENVELOPE,
+                s.sample_format,
                 self.scene.sample_rate_hz,
                 stamp,
                 rows[c].tobytes(),
             )
-            more = Flags.MORE if c < n_ch - 1 else 0
+            more = Flags.MORE if rank < n_ch - 1 else 0
             out.append(
                 Outgoing(
                     encode_message(msg, seq=s.seq, flags=more, aux=self._counter), acquisition=index

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from crc32c import crc32c
 
-from firmware_protocol import MAX_PAYLOAD, ErrorCode, ErrorResponse
+from firmware_protocol import ErrorCode, ErrorResponse
 from firmware_protocol import messages as m
 from spiel_edge.sim.flash import Flash, FlashError
 
@@ -16,19 +16,22 @@ class BoardConfigMixin:
     flash: Flash
     _staging: bytearray
     streaming: bool
+    max_payload: int  # of the link (HELLO)
 
     # --- configuration -------------------------------------------------------------------
 
     def _config_read(self, req: m.ConfigRead, now: float) -> m.Message:
+        if req.source not in (m.ConfigSource.ACTIVE, m.ConfigSource.STAGING):
+            return ErrorResponse(ErrorCode.INVALID, req.MSG_TYPE, "source must be 0 or 1")
         if req.source == m.ConfigSource.STAGING:
             data: bytes | None = bytes(self._staging)
         else:
             data = self.flash.read_active()
         if data is None:
             return ErrorResponse(ErrorCode.NOT_FOUND, req.MSG_TYPE, "no valid config slot")
-        if req.length > MAX_PAYLOAD - 6:
+        if req.length > self.max_payload - 6:
             return ErrorResponse(
-                ErrorCode.TOO_LARGE, req.MSG_TYPE, f"at most {MAX_PAYLOAD - 6} bytes per read"
+                ErrorCode.TOO_LARGE, req.MSG_TYPE, f"at most {self.max_payload - 6} bytes per read"
             )
         return m.ConfigReadResponse(
             req.offset, data[req.offset : req.offset + req.length]

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import errno
 import logging
+import random
 import time
 from collections.abc import Callable
 
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.faults import LineFaults
+from spiel_edge.sim.firmware_slots import FirmwareFlash
 from spiel_edge.sim.flash import Flash, PowerCut
 from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
@@ -54,6 +56,13 @@ class SimDevice:
             flash=Flash(cut_at=options.power_cut),
             seed=options.seed,
             now=now,
+            protocol=options.protocol,
+            drift_ppm=options.drift_ppm,
+            firmware=FirmwareFlash(cut_at=options.fw_power_cut),
+            sync_fault=options.sync_fault,
+            heartbeat_flags=options.heartbeat_flags,
+            log_flood=options.log_flood,
+            max_payload=options.max_payload,
         )
         self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
         self.generation = 1  # +1 each time it comes back
@@ -70,6 +79,10 @@ class SimDevice:
         self._vanish_since: float | None = None
         self._stalled_until: float | None = None
         self._stalled = False
+        # a jittered link: answers wait here until their time (release time, bytes)
+        self._delayed: list[tuple[float, bytes]] = []
+        self._jitter_rng = random.Random(options.seed + 7)
+        self._silent_since: float | None = None
 
     # --- the host's side -----------------------------------------------------------------
 
@@ -79,14 +92,22 @@ class SimDevice:
         self._check(generation)
         if self._stalled_until is not None:
             return  # frozen firmware: the bytes are lost
+        jitter = self.options.jitter_us / 1e6
+        up = self._jitter_rng.uniform(0.0, jitter) if jitter else 0.0
         try:
-            replies = self.board.receive(self.faults.incoming(bytes(data)), now)
+            replies = self.board.receive(self.faults.incoming(bytes(data)), now + up)
         except PowerCut as exc:
             log.info("%s: %s", self.options.serial, exc)
             self.power_cuts += 1
             self.unplug(now, self.options.unplug_ms / 1000.0)
             return
-        self._tx += self.faults.outgoing(replies)
+        wire = self.faults.outgoing(replies)
+        if jitter and wire:
+            down = self._jitter_rng.uniform(0.0, jitter)
+            release = max(now + up + down, self._delayed[-1][0] if self._delayed else 0.0)
+            self._delayed.append((release, wire))
+        else:
+            self._tx += wire
 
     def peek(self, max_bytes: int, generation: int | None = None) -> bytes:
         self.update(self.clock())
@@ -122,6 +143,18 @@ class SimDevice:
                 return
             self._plug(now)
         board = self.board
+        while self._delayed and self._delayed[0][0] <= now:
+            self._tx += self._delayed.pop(0)[1]
+        if board.silent and board.fw.boot_state != 0:  # a trial image that hangs
+            if self._silent_since is None:
+                self._silent_since = now
+            elif now - self._silent_since >= self.options.watchdog_ms / 1000.0:
+                log.info("%s: watchdog reset of a silent trial image", self.options.serial)
+                self._silent_since = None
+                self.unplug(now, REBOOT_S)
+                return
+        else:
+            self._silent_since = None
         if board.reboot_at is not None and now >= board.reboot_at:
             self.unplug(now, REBOOT_S)
             return
@@ -167,6 +200,7 @@ class SimDevice:
         self._replug_at = now + duration_s
         self._vanish_since = None
         self._tx.clear()
+        self._delayed.clear()
         self.faults.reset()
         self.holder = None
 
@@ -183,6 +217,8 @@ class SimDevice:
         if not self.plugged:
             return self._replug_at
         times = [now + 0.05]
+        if self._delayed:
+            times.append(self._delayed[0][0])
         for t in (self._stalled_until, self.board.reboot_at, self.board.next_due()):
             if t is not None:
                 times.append(t)

@@ -32,10 +32,20 @@ class SimOptions:
     stall_after: int = 0  # go silent (no data, no answers) after this many acquisitions
     stall_ms: float = 0.0
     power_cut: int = -1  # lose power at this flash operation (0-based), once
+    fw_power_cut: int = -1  # lose power at this firmware-flash operation (0-based), once
+    # protocol version 2 (docs/virtual-board.md)
+    drift_ppm: float = 0.0  # the board's clock runs this much fast (+) or slow (-)
+    jitter_us: float = 0.0  # each direction of a request/answer is delayed uniform [0, jitter]
+    sync_fault: str = ""  # "months" / "backwards": every 7th TIME_SYNC answer is that wrong
+    heartbeat_flags: int = 0  # extra HEARTBEAT error_flags bits (unknown ones: 0x8000)
+    log_flood: float = 0.0  # LOG lines per second past the board's own limit (a bad firmware)
+    watchdog_ms: float = 3000.0  # a trial image that never answers is reset after this
     # identity
     serial: str = "SIM0001"
     vid: int = BOARD_USB_IDS[0][0]  # the board's own ids (link/usb_ids.py)
     pid: int = BOARD_USB_IDS[0][1]
+    protocol: int = 2  # the highest protocol version the board speaks (1: a version-1 board)
+    max_payload: int = 8256  # HELLO max_payload: the largest payload it sends or accepts
     fifo: int = 65536  # transmit buffer (bytes); a due acquisition that does not fit overruns
     # scene
     profile: str = "spiel-icra23"  # geometry and timing of the model scene
@@ -77,6 +87,11 @@ class SimOptions:
             min(self.unplug_after, self.unplug_count, self.stall_after) >= 0, "counts must be >= 0"
         )
         need(self.unplug_ms >= 0 and self.stall_ms >= 0, "durations must be >= 0")
+        need(self.protocol in (1, 2), f"protocol must be 1 or 2, got {self.protocol}")
+        need(
+            64 <= self.max_payload <= 8256,
+            f"max_payload must be in [64, 8256], got {self.max_payload}",
+        )
         need(self.fifo >= 1024, f"fifo must be >= 1024 bytes, got {self.fifo}")
         need(
             self.noise >= 0 and (self.speed == 0 or 200 <= self.speed <= 2000),
@@ -84,6 +99,17 @@ class SimOptions:
         )
         need(0 <= self.movers <= 8, f"movers must be in [0, 8], got {self.movers}")
         need(0 < len(self.serial.encode()) <= 16, "serial must be 1 to 16 bytes")
+        need(
+            abs(self.drift_ppm) <= 1000, f"drift_ppm must be in [-1000, 1000], got {self.drift_ppm}"
+        )
+        need(0 <= self.jitter_us <= 1e6, f"jitter_us must be in [0, 1e6], got {self.jitter_us}")
+        need(
+            self.sync_fault in ("", "months", "backwards"),
+            f"sync_fault must be months or backwards, got {self.sync_fault!r}",
+        )
+        need(0 <= self.heartbeat_flags <= 0xFFFFFFFF, "heartbeat_flags must be a u32")
+        need(0 <= self.log_flood <= 100000, f"log_flood must be in [0, 1e5], got {self.log_flood}")
+        need(self.watchdog_ms > 0, "watchdog_ms must be > 0")
         need(0 <= self.vid <= 0xFFFF and 0 <= self.pid <= 0xFFFF, "vid and pid must be 16-bit")
 
 

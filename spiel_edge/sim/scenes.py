@@ -26,6 +26,7 @@ class SceneFrame:
     background: np.ndarray | None  # (channels, n_samples) uint16, the same pose without target
     truth_mm: np.ndarray | None  # (3,) position of the target, None when unknown
     truth_targets_mm: np.ndarray | None = None  # (K, 3) every target, when there are several
+    iq: np.ndarray | None = None  # (channels, n_samples, 2) int16 (q, i), when asked for
 
 
 class ReplayScene:
@@ -83,6 +84,7 @@ class EchoModelScene:
         model: EchoModel = EchoModel(),
         seed: int = 0,
         movers=None,
+        carrier_hz: float = 175000.0,
     ):
         self.geometry = geometry
         self.sample_rate_hz = int(round(sample_rate_hz))
@@ -93,6 +95,7 @@ class EchoModelScene:
         self.noise = noise
         self.speed = speed_of_sound_m_s or geometry.speed_of_sound_m_s
         self.model = model
+        self.carrier_hz = carrier_hz
         self._rng = np.random.default_rng(seed)
         self._mode_offset = _emg_mode(model.sigma, model.eta)
         self._backgrounds: dict[int, np.ndarray] = {}
@@ -130,7 +133,9 @@ class EchoModelScene:
             )
         self.targets = arr
 
-    def frame(self, index: int, n_samples: int, time_s: float) -> SceneFrame:
+    iq_supported = True  # the virtual board may stream I16_IQ from this scene
+
+    def frame(self, index: int, n_samples: int, time_s: float, *, iq: bool = False) -> SceneFrame:
         del index
         background = self.background(n_samples)
         targets = self.target_positions(time_s)
@@ -139,7 +144,58 @@ class EchoModelScene:
             clean += self._echoes(p, n_samples)
         noisy = clean + self._rng.normal(0.0, self.noise, clean.shape) if self.noise else clean
         samples = np.clip(np.rint(noisy), 0, U16_MAX).astype(np.uint16)
-        return SceneFrame(samples, background, targets[0].copy(), targets.copy())
+        pairs = self._iq(samples, targets, n_samples) if iq else None
+        return SceneFrame(samples, background, targets[0].copy(), targets.copy(), pairs)
+
+    def _iq(self, amplitude: np.ndarray, targets: np.ndarray, n_samples: int) -> np.ndarray:
+        """I/Q as the CH101 gives them: every component of the echo model (ring-down,
+        crosstalk, the mount, each target's echo) is a carrier at ``carrier_hz`` delayed by its
+        time of arrival; mixing down with the carrier leaves each as its envelope times
+        exp(-j 2 pi f_c tau), and the phase of their sum is the I/Q's phase. The magnitude is
+        the envelope stream's own sample: as on the CH101, whose amplitude data is the rounded
+        magnitude of its I/Q, round(|i + jq|) equals the U16 envelope of the same acquisition
+        (each (i, q) is the int16 pair nearest the phase with that rounded magnitude; values
+        above 32767 are clipped)."""
+        phasor = self._background_phasor(n_samples).copy()
+        for p in targets:
+            toa_s = self.arrival_samples(p) / self.sample_rate_hz
+            turn = np.exp(-2j * math.pi * self.carrier_hz * toa_s)
+            phasor += self._echoes(p, n_samples) * turn[:, None]
+        angle = np.angle(phasor)
+        mag = np.minimum(amplitude.astype(np.float64), 32767.0)
+        i0, q0 = np.rint(mag * np.cos(angle)), np.rint(mag * np.sin(angle))
+        best_i, best_q, best_err = i0, q0, np.full(mag.shape, np.inf)
+        for di in (0.0, -1.0, 1.0):
+            for dq in (0.0, -1.0, 1.0):
+                i, q = np.clip(i0 + di, -32768, 32767), np.clip(q0 + dq, -32768, 32767)
+                err = np.abs(np.hypot(i, q) - mag)
+                better = err < best_err - 1e-9
+                best_i, best_q = np.where(better, i, best_i), np.where(better, q, best_q)
+                best_err = np.minimum(err, best_err)
+        out = np.empty(mag.shape + (2,), dtype=np.int16)
+        out[..., 0], out[..., 1] = best_q, best_i  # (q, i), SonicLib's order
+        return out
+
+    def _background_phasor(self, n_samples: int) -> np.ndarray:
+        """The target-free components mixed down (see ``_iq``), complex (channels, samples)."""
+        g, m = self.geometry, self.model
+        t = np.arange(n_samples, dtype=np.float64)
+        out = np.zeros((g.n_channels, n_samples), dtype=np.complex128)
+        direct = np.linalg.norm(g.channels_mm - g.emitter_mm, axis=1)
+
+        def turn(samples: float) -> complex:
+            return np.exp(-2j * math.pi * self.carrier_hz * samples / self.sample_rate_hz)
+
+        for n in range(g.n_channels):
+            if direct[n] < 1e-6:
+                ring = m.ring_down * np.exp(-np.maximum(t - 2.0, 0.0) / m.ring_down_tau) * (t >= 2)
+                out[n] += ring * turn(2.0)
+            else:
+                mode = direct[n] / self.mm_per_sample + 2.0
+                out[n] += self._pulse(t, mode, m.crosstalk) * turn(mode)
+            mode = m.clutter_mm / self.mm_per_sample + g.delays()[n]
+            out[n] += self._pulse(t, mode, m.clutter) * turn(mode)
+        return out
 
     def background(self, n_samples: int) -> np.ndarray:
         """Ring-down, crosstalk and the static reflector: the scene without targets."""
@@ -243,4 +299,5 @@ def build_scene(options) -> ReplayScene | EchoModelScene:
         speed_of_sound_m_s=options.speed or None,
         seed=options.seed,
         movers=MoverPaths(options.movers, seed=options.seed) if options.movers else None,
+        carrier_hz=profile.acquisition.carrier_hz,
     )

@@ -76,7 +76,7 @@ def hello(**fields):
 
 
 CASES = {
-    "chose-version-2": (hello(protocol_version=2, max_version=2), "protocol version 2"),
+    "chose-version-3": (hello(protocol_version=3, max_version=3), "protocol version 3"),
     "range-5-9": (hello(protocol_version=5, min_version=5, max_version=9), "5-9"),
     "empty-range": (hello(min_version=3, max_version=1), "empty protocol range"),
     "version-0": (hello(protocol_version=0, min_version=0, max_version=0), "update the firmware"),

@@ -49,9 +49,14 @@ def test_hello_reports_identity_and_negotiates(replay_scene):
         0x5678,
         4,
     )
-    assert hello.protocol_version == 1
-    [(_, too_new)] = answers(board, Hello(2, 3), seq=8)
+    assert (hello.protocol_version, hello.min_version, hello.max_version) == (2, 1, 2)
+    [(_, old)] = answers(board, Hello(1, 1), seq=8)  # a version-1 host gets version 1
+    assert old.protocol_version == 1
+    [(_, too_new)] = answers(board, Hello(3, 4), seq=9)
     assert isinstance(too_new, ErrorResponse) and too_new.code == ErrorCode.VERSION_TOO_NEW
+    v1 = VirtualBoard(replay_scene, protocol=1)  # ?protocol=1: a version-1 board
+    [(_, hello)] = answers(v1, Hello(1, 2), seq=1)
+    assert (hello.protocol_version, hello.max_version) == (1, 1)
 
 
 def test_repeated_sequence_number_is_answered_not_executed(replay_scene):

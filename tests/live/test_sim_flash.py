@@ -111,7 +111,7 @@ def test_power_cut_during_commit_unplugs_the_board_and_keeps_the_old_config(sim_
 
 
 def test_session_config_transfer_and_a_power_cut_at_every_flash_operation(sim_url):
-    url = sim_url("unplug_ms=20")
+    url = sim_url("unplug_ms=20&max_payload=1030")  # chunks of max_payload - 6 bytes
     device = device_for_url(url)
     blob = bytes(range(256)) * 15  # four CONFIG_WRITE chunks
     with DeviceSession(url, reconnect=False) as session:

@@ -12,6 +12,7 @@ from firmware_protocol import (
     MAX_PAYLOAD,
     MAX_SAMPLES_PER_FRAME,
     REGISTRY,
+    SAMPLE_SIZE,
     SCHEMA_HASH,
     ConfigWrite,
     ErrorCode,
@@ -44,8 +45,8 @@ def test_registry_covers_every_msg_type_both_ways() -> None:
     for t in MsgType:
         if t is MsgType.ERROR:
             assert (t, True) in keys and (t, False) not in keys
-        elif t is MsgType.STREAM_DATA:
-            assert (t, False) in keys
+        elif t in (MsgType.STREAM_DATA, MsgType.HEARTBEAT, MsgType.LOG):  # device-originated
+            assert (t, False) in keys and (t, True) not in keys
         else:
             assert {(t, False), (t, True)} <= keys, t.name
     assert all(isinstance(cls._STRUCT, struct.Struct) for cls in REGISTRY.values())
@@ -90,11 +91,12 @@ def test_ping_payload_sizes_up_to_max(n: int) -> None:
 def test_stream_data_max_samples_fit_one_frame(fmt: SampleFormat) -> None:
     n = MAX_SAMPLES_PER_FRAME[fmt]
     assert MAX_SAMPLES_PER_FRAME[SampleFormat.I16_RF] >= 4096
-    msg = StreamData(1, 0, 4, fmt, 1000, 5, bytes(n * (4 if fmt == SampleFormat.F32 else 2)))
+    msg = StreamData(1, 0, 4, fmt, 1000, 5, bytes(n * SAMPLE_SIZE[fmt]))
     [frame] = FrameDecoder().feed(encode_message(msg, aux=3))
     assert frame.flags == Flags.STREAM and frame.aux == 3
     out = decode_message(frame)
-    assert out == msg and out.n_samples == n and out.samples_array().shape == (n,)
+    values = 2 * n if fmt == SampleFormat.I16_IQ else n  # an I/Q sample is two int16 values
+    assert out == msg and out.n_samples == n and out.samples_array().shape == (values,)
 
 
 @settings(max_examples=50, deadline=None)

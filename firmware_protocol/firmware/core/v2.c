@@ -1,0 +1,501 @@
+/* v2.c - protocol version 2 of the portable core (PROTOCOL.md section 14): TIME_SYNC,
+ * TELEMETRY with HEARTBEAT and LOG frames, and (with -DSPIEL_FW_UPDATE=1 and the HAL's image
+ * slots) the firmware update FW_INFO/BEGIN/WRITE/VERIFY/TEST/CONFIRM. No allocation. */
+#include <string.h>
+
+#include "core.h"
+
+#define LOG_QUEUE 8u
+#define LOG_TEXT 64u
+#define HEARTBEAT_DEFAULT_MS 1000u
+#define FW_MIN_PAYLOAD 128u /* FW_INFO's answer is 74 bytes: firmware update needs this link */
+
+static struct {
+    uint16_t heartbeat_ms;
+    uint8_t log_level, log_per_s;
+    uint64_t next_beat;
+    uint64_t tokens_at;   /* when the log tokens were last refilled */
+    uint32_t tokens_milli;
+    uint8_t head, count;
+    uint32_t dropped;
+    struct {
+        uint8_t level;
+        char text[LOG_TEXT + 1];
+    } q[LOG_QUEUE];
+#if SPIEL_FW_UPDATE
+    int upload_slot;      /* -1: no upload open */
+    uint32_t expect_size, expect_crc, written;
+    uint8_t expect_sha[32];
+    int verified;
+    int running;          /* slot running now, -1 none */
+    uint8_t boot_state;
+#endif
+} v2;
+
+void v2_init(void)
+{
+    memset(&v2, 0, sizeof v2);
+    v2.heartbeat_ms = SPIEL_PROTOCOL_MAX >= 2 ? HEARTBEAT_DEFAULT_MS : 0u;
+    v2.log_level = SP_LOG_INFO;
+    v2.log_per_s = 20;
+    v2.tokens_milli = 20000u;
+    v2.next_beat = hal_time_us() + (uint64_t)v2.heartbeat_ms * 1000u;
+#if SPIEL_FW_UPDATE
+    {
+        boot_record_t r;
+        v2.upload_slot = -1;
+        v2.running = hal_image_running();
+        boot_record_read(&r);
+        v2.boot_state = (r.state == SP_BOOT_TRIAL && (int)r.trial == v2.running)
+                            ? (uint8_t)SP_BOOT_TRIAL : (uint8_t)SP_BOOT_CONFIRMED;
+    }
+#endif
+}
+
+uint32_t v2_capabilities(void)
+{
+    uint32_t caps = SP_CAP_TIME_SYNC | SP_CAP_TELEMETRY;
+#if SPIEL_FW_UPDATE
+    if (hal_image_slot_size() != 0 && core_max_payload() >= FW_MIN_PAYLOAD) {
+        caps |= SP_CAP_FIRMWARE_UPDATE;
+    }
+#endif
+    return caps;
+}
+
+void v2_log(uint8_t level, const char *text)
+{
+    size_t n;
+    uint8_t at;
+    if (level > v2.log_level) {
+        return;
+    }
+    if (v2.count == LOG_QUEUE) {
+        v2.dropped++;
+        return;
+    }
+    at = (uint8_t)((v2.head + v2.count) % LOG_QUEUE);
+    n = strlen(text);
+    if (n > LOG_TEXT) {
+        n = LOG_TEXT;
+    }
+    v2.q[at].level = level;
+    memcpy(v2.q[at].text, text, n);
+    v2.q[at].text[n] = 0;
+    v2.count++;
+}
+
+/* ---- TIME_SYNC, TELEMETRY ------------------------------------------------------------- */
+
+static uint16_t time_sync(const uint8_t *p, uint16_t len, uint8_t *out)
+{
+    uint8_t in[8] = {0};
+    memcpy(in, p, len < sizeof in ? len : sizeof in);
+    memcpy(out, in, 8); /* host_time_us, echoed */
+    sp_le_put_u64(out + 8, hal_time_us());
+    sp_le_put_u32(out + 16, core_boot_id());
+    return 20;
+}
+
+static uint16_t telemetry(const uint8_t *p, uint16_t len, uint8_t *out)
+{
+    uint8_t in[4] = {0};
+    memcpy(in, p, len < sizeof in ? len : sizeof in);
+    v2.heartbeat_ms = sp_le_get_u16(in);
+    if (v2.heartbeat_ms != 0 && v2.heartbeat_ms < 50u) {
+        v2.heartbeat_ms = 50u;
+    }
+    v2.log_level = in[2] > SP_LOG_DEBUG ? (uint8_t)SP_LOG_DEBUG : in[2];
+    v2.log_per_s = in[3];
+    v2.next_beat = hal_time_us() + (uint64_t)v2.heartbeat_ms * 1000u;
+    sp_le_put_u16(out, v2.heartbeat_ms);
+    out[2] = v2.log_level;
+    out[3] = v2.log_per_s;
+    return 4;
+}
+
+static uint32_t error_flags(void)
+{
+    uint32_t f = 0;
+    if (spiel_stats.flash_errors) {
+        f |= SP_EFLAG_FLASH;
+    }
+    if (cfg_active() < 0) {
+        f |= SP_EFLAG_DEFAULT_CONFIG;
+    }
+    if (v2.dropped) {
+        f |= SP_EFLAG_LOG_DROPPED;
+    }
+#if SPIEL_FW_UPDATE
+    if (v2.boot_state == SP_BOOT_TRIAL) {
+        f |= SP_EFLAG_TRIAL_IMAGE;
+    }
+#endif
+    return f;
+}
+
+uint16_t v2_due(uint64_t now, uint8_t *out, uint16_t *out_len)
+{
+    if (core_version() < 2) {
+        return 0;
+    }
+    if (v2.heartbeat_ms && now >= v2.next_beat) {
+        uint8_t state = core_streaming() ? (uint8_t)SP_BOARD_STREAMING : (uint8_t)SP_BOARD_IDLE;
+#if SPIEL_FW_UPDATE
+        if (v2.upload_slot >= 0) {
+            state = SP_BOARD_UPDATING;
+        }
+#endif
+        v2.next_beat = now + (uint64_t)v2.heartbeat_ms * 1000u;
+        sp_le_put_u32(out, (uint32_t)(now / 1000u));
+        out[4] = state;
+        out[5] = 0;
+        sp_le_put_u16(out + 6, v2.heartbeat_ms);
+        sp_le_put_u32(out + 8, error_flags());
+        sp_le_put_u32(out + 12, core_boot_id());
+        sp_le_put_u64(out + 16, now);
+        *out_len = SP_HEARTBEAT_SIZE;
+        return SP_MSG_HEARTBEAT;
+    }
+    if (v2.count && v2.log_per_s) {
+        /* token bucket: log_per_s lines a second, at most that many at once */
+        uint64_t gained = (now - v2.tokens_at) * v2.log_per_s / 1000u; /* milli-tokens */
+        uint32_t cap = (uint32_t)v2.log_per_s * 1000u;
+        v2.tokens_at = now;
+        v2.tokens_milli = gained >= cap || v2.tokens_milli + gained >= cap
+                              ? cap : v2.tokens_milli + (uint32_t)gained;
+        if (v2.tokens_milli >= 1000u) {
+            size_t n = strlen(v2.q[v2.head].text);
+            if (n + 15u > core_max_payload()) { /* the link's limit (at least 64) */
+                n = core_max_payload() - 15u;
+            }
+            v2.tokens_milli -= 1000u;
+            out[0] = v2.q[v2.head].level;
+            sp_le_put_u32(out + 1, v2.dropped);
+            sp_le_put_u64(out + 5, now);
+            sp_le_put_u16(out + 13, (uint16_t)n);
+            memcpy(out + 15, v2.q[v2.head].text, n);
+            v2.dropped = 0;
+            v2.head = (uint8_t)((v2.head + 1u) % LOG_QUEUE);
+            v2.count--;
+            *out_len = (uint16_t)(15u + n);
+            return SP_MSG_LOG;
+        }
+    }
+    return 0;
+}
+
+uint64_t v2_next_us(uint64_t now)
+{
+    uint64_t wake = now + 50000u;
+    if (core_version() < 2) {
+        return wake;
+    }
+    if (v2.heartbeat_ms && v2.next_beat < wake) {
+        wake = v2.next_beat;
+    }
+    if (v2.count && v2.log_per_s && now + 1000000u / v2.log_per_s < wake) {
+        wake = now + 1000000u / v2.log_per_s;
+    }
+    return wake;
+}
+
+/* ---- firmware update ------------------------------------------------------------------ */
+
+#if SPIEL_FW_UPDATE
+static void put_slot(uint8_t *p, int slot)
+{
+    uint32_t size = 0, crc = 0;
+    char version[17] = {0};
+    uint8_t state = SP_SLOT_EMPTY;
+    if (image_check(slot, &size, &crc, version) == 0) {
+        state = SP_SLOT_VERIFIED;
+    } else if (slot == v2.upload_slot && v2.written) {
+        state = SP_SLOT_PARTIAL;
+        size = v2.written;
+    } else {
+        uint8_t magic[4];
+        if (hal_image_read(slot, 0, magic, 4) == 0 && memcmp(magic, SP_IMAGE_MAGIC, 4) == 0) {
+            state = SP_SLOT_INVALID;
+        }
+    }
+    p[0] = state;
+    memset(p + 1, 0, 16);
+    memcpy(p + 1, version, strlen(version));
+    sp_le_put_u32(p + 17, size);
+    sp_le_put_u32(p + 21, crc);
+}
+
+static uint16_t fw_info(uint8_t *out)
+{
+    boot_record_t r;
+    boot_record_read(&r);
+    out[0] = v2.running < 0 ? (uint8_t)0xFF : (uint8_t)v2.running;
+    out[1] = r.state == SP_BOOT_TEST_PENDING ? (uint8_t)SP_BOOT_TEST_PENDING : v2.boot_state;
+    out[2] = r.confirmed;
+    out[3] = 0;
+    sp_le_put_u32(out + 4, hal_image_slot_size());
+    memset(out + 8, 0, 16);
+    memcpy(out + 8, SPIEL_FW_TARGET, strlen(SPIEL_FW_TARGET));
+    put_slot(out + 24, 0);
+    put_slot(out + 49, 1);
+    return SP_FW_INFO_SIZE;
+}
+
+/* CRC-32C and SHA-256 of slot[0 .. size) */
+static int slot_digest(int slot, uint32_t size, uint32_t *crc, uint8_t sha[32])
+{
+    uint8_t buf[128];
+    uint32_t off = 0, c = 0;
+    sha256_t s;
+    sha256_init(&s);
+    while (off < size) {
+        uint32_t n = size - off < sizeof buf ? size - off : (uint32_t)sizeof buf;
+        if (hal_image_read(slot, off, buf, n) != 0) {
+            return -1;
+        }
+        c = sp_crc32c(c, buf, n);
+        sha256_update(&s, buf, n);
+        off += n;
+    }
+    sha256_final(&s, sha);
+    *crc = c;
+    return 0;
+}
+
+static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
+                    const char **text)
+{
+    uint8_t in[10] = {0};
+    uint32_t size;
+    boot_record_t r;
+    int slot;
+    memcpy(in, p, len < sizeof in ? len : sizeof in);
+    size = sp_le_get_u32(in);
+    if (core_streaming()) {
+        *code = SP_ERR_BAD_STATE, *text = "stop the stream before a firmware update";
+        return 0;
+    }
+    if (v2.boot_state == SP_BOOT_TRIAL) {
+        *code = SP_ERR_BAD_STATE, *text = "running a trial image: confirm it or reset first";
+        return 0;
+    }
+    if (sp_le_get_u16(in + 8) != 32u || len < 10u + 32u) {
+        *code = SP_ERR_INVALID, *text = "sha256 must be 32 bytes";
+        return 0;
+    }
+    if (size > hal_image_slot_size()) {
+        *code = SP_ERR_TOO_LARGE, *text = "image larger than the slot";
+        return 0;
+    }
+    if (size < SP_IMAGE_HEADER_SIZE) {
+        *code = SP_ERR_INVALID, *text = "an image is at least its 96-byte header";
+        return 0;
+    }
+    slot = v2.running < 0 ? 0 : 1 - v2.running;
+    boot_record_read(&r);
+    if (r.state == SP_BOOT_TEST_PENDING) { /* cancel: the slot it names is about to change */
+        r.state = SP_BOOT_CONFIRMED;
+        r.trial = BOOT_NO_SLOT;
+        if (boot_record_write(&r) != 0) {
+            *code = SP_ERR_FLASH_WRITE_FAILED, *text = "boot record write failed";
+            return 0;
+        }
+    }
+    v2.upload_slot = -1;
+    v2.verified = 0;
+    if (hal_image_erase(slot) != 0) {
+        spiel_stats.flash_errors++;
+        *code = SP_ERR_FLASH_WRITE_FAILED, *text = "slot erase failed";
+        return 0;
+    }
+    v2.upload_slot = slot;
+    v2.expect_size = size;
+    v2.expect_crc = sp_le_get_u32(in + 4);
+    memcpy(v2.expect_sha, p + 10, 32);
+    v2.written = 0;
+    v2_log(SP_LOG_INFO, "firmware upload started");
+    out[0] = (uint8_t)slot;
+    sp_le_put_u32(out + 1, hal_image_slot_size());
+    return 5;
+}
+
+static int fw_write(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
+                    const char **text)
+{
+    uint32_t off;
+    uint16_t n;
+    if (v2.upload_slot < 0) {
+        *code = SP_ERR_BAD_STATE, *text = "no upload: send FW_BEGIN";
+        return 0;
+    }
+    if (len < 6u) {
+        *code = SP_ERR_INVALID, *text = "short FW_WRITE";
+        return 0;
+    }
+    off = sp_le_get_u32(p);
+    n = sp_le_get_u16(p + 4);
+    if ((uint32_t)n + 6u > len) {
+        *code = SP_ERR_INVALID, *text = "data shorter than its length";
+        return 0;
+    }
+    if (off + n > v2.expect_size) {
+        *code = SP_ERR_TOO_LARGE, *text = "past the announced size";
+        return 0;
+    }
+    if (off + n <= v2.written) { /* a repeated chunk: already there */
+        sp_le_put_u32(out, v2.written);
+        return 4;
+    }
+    if (off != v2.written) {
+        *code = SP_ERR_INVALID, *text = "offset is not the bytes written so far";
+        return 0;
+    }
+    v2.verified = 0;
+    if (hal_image_write(v2.upload_slot, off, p + 6, n) != 0) {
+        spiel_stats.flash_errors++;
+        *code = SP_ERR_FLASH_WRITE_FAILED, *text = "slot write failed";
+        return 0;
+    }
+    v2.written = off + n;
+    sp_le_put_u32(out, v2.written);
+    return 4;
+}
+
+static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
+{
+    uint32_t crc, size;
+    uint8_t sha[32];
+    char version[17];
+    int slot = v2.upload_slot;
+    if (slot < 0) {
+        *code = SP_ERR_BAD_STATE, *text = "no upload: send FW_BEGIN";
+        return 0;
+    }
+    if (v2.written != v2.expect_size) {
+        *code = SP_ERR_BAD_STATE, *text = "image incomplete";
+        return 0;
+    }
+    if (slot_digest(slot, v2.expect_size, &crc, sha) != 0) {
+        *code = SP_ERR_FLASH_VERIFY_FAILED, *text = "slot read failed";
+        return 0;
+    }
+    if (crc != v2.expect_crc || memcmp(sha, v2.expect_sha, 32) != 0) {
+        *code = SP_ERR_CORRUPT, *text = "CRC-32C or SHA-256 differs from FW_BEGIN's";
+        v2_log(SP_LOG_ERROR, "firmware verify failed: digest mismatch");
+        return 0;
+    }
+    if (image_check(slot, &size, NULL, version) != 0 || size != v2.expect_size) {
+        *code = SP_ERR_INVALID, *text = "not a valid image (header, size or body digest)";
+        v2_log(SP_LOG_ERROR, "firmware verify failed: image header");
+        return 0;
+    }
+    {
+        uint8_t head[SP_IMAGE_HEADER_SIZE];
+        sp_image_header_t h;
+        hal_image_read(slot, 0, head, sizeof head);
+        sp_image_header_unpack(head, &h);
+        if (strncmp((const char *)h.target, SPIEL_FW_TARGET, 16) != 0) {
+            *code = SP_ERR_UNSUPPORTED, *text = "image for another target";
+            return 0;
+        }
+        if (h.min_protocol > SPIEL_PROTOCOL_MAX || h.max_protocol < 1u) {
+            *code = SP_ERR_UNSUPPORTED, *text = "image speaks no protocol version of ours";
+            return 0;
+        }
+    }
+    v2.verified = 1;
+    out[0] = (uint8_t)slot;
+    sp_le_put_u32(out + 1, v2.expect_size);
+    sp_le_put_u32(out + 5, crc);
+    sp_le_put_u16(out + 9, 32);
+    memcpy(out + 11, sha, 32);
+    return 43;
+}
+
+static int fw_test(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
+                   const char **text)
+{
+    uint8_t in[2] = {0};
+    boot_record_t r;
+    memcpy(in, p, len < sizeof in ? len : sizeof in);
+    if (!v2.verified || v2.upload_slot < 0) {
+        *code = SP_ERR_BAD_STATE, *text = "no verified image: FW_VERIFY first";
+        return 0;
+    }
+    boot_record_read(&r);
+    r.trial = (uint8_t)v2.upload_slot;
+    r.state = SP_BOOT_TEST_PENDING;
+    if (boot_record_write(&r) != 0) {
+        spiel_stats.flash_errors++;
+        *code = SP_ERR_FLASH_WRITE_FAILED, *text = "boot record write failed";
+        return 0;
+    }
+    out[0] = (uint8_t)v2.upload_slot;
+    v2.upload_slot = -1;
+    core_reboot_after_ms(sp_le_get_u16(in));
+    return 1;
+}
+
+static int fw_confirm(uint8_t *out, uint16_t *code, const char **text)
+{
+    if (v2.running < 0) {
+        *code = SP_ERR_BAD_STATE, *text = "no image is running";
+        return 0;
+    }
+    if (v2.boot_state == SP_BOOT_TRIAL) {
+        boot_record_t r;
+        r.confirmed = (uint8_t)v2.running;
+        r.trial = BOOT_NO_SLOT;
+        r.state = SP_BOOT_CONFIRMED;
+        if (boot_record_write(&r) != 0) {
+            spiel_stats.flash_errors++;
+            *code = SP_ERR_FLASH_WRITE_FAILED, *text = "boot record write failed";
+            return 0;
+        }
+        v2.boot_state = SP_BOOT_CONFIRMED;
+        v2_log(SP_LOG_NOTICE, "firmware confirmed");
+    }
+    out[0] = (uint8_t)v2.running;
+    out[1] = v2.boot_state;
+    return 2;
+}
+#endif
+
+int v2_request(uint16_t msg_type, const uint8_t *p, uint16_t len, uint8_t *out,
+               uint16_t *out_len, uint16_t *code, const char **text)
+{
+    int n = -1;
+    *code = 0;
+    *text = "";
+    switch (msg_type) {
+    case SP_MSG_TIME_SYNC:
+        n = time_sync(p, len, out);
+        break;
+    case SP_MSG_TELEMETRY:
+        n = telemetry(p, len, out);
+        break;
+#if SPIEL_FW_UPDATE
+    case SP_MSG_FW_INFO:
+    case SP_MSG_FW_BEGIN:
+    case SP_MSG_FW_WRITE:
+    case SP_MSG_FW_VERIFY:
+    case SP_MSG_FW_TEST:
+    case SP_MSG_FW_CONFIRM:
+        if (hal_image_slot_size() == 0 || core_max_payload() < FW_MIN_PAYLOAD) {
+            return 0;
+        }
+        n = msg_type == SP_MSG_FW_INFO     ? fw_info(out)
+            : msg_type == SP_MSG_FW_BEGIN  ? fw_begin(p, len, out, code, text)
+            : msg_type == SP_MSG_FW_WRITE  ? fw_write(p, len, out, code, text)
+            : msg_type == SP_MSG_FW_VERIFY ? fw_verify(out, code, text)
+            : msg_type == SP_MSG_FW_TEST   ? fw_test(p, len, out, code, text)
+                                           : fw_confirm(out, code, text);
+        break;
+#endif
+    default:
+        return 0;
+    }
+    *out_len = (uint16_t)n;
+    return 1;
+}

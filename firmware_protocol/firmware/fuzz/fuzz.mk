@@ -1,0 +1,17 @@
+# fuzz/fuzz.mk - the libFuzzer harness of the device's request decoder (fuzz_request.c),
+# included by ../Makefile for TARGET=fuzz. Needs clang with its fuzzer runtime (Debian:
+# clang and libclang-rt-<version>-dev). Output: $(BUILD)/spiel_fuzz. Run it with
+# `python -m tools.firmware_fuzz`.
+FUZZ_CC ?= clang
+# FUZZ_COVERAGE=-fno-sanitize-coverage=trace-cmp: about 3x the inputs per second, without
+# libFuzzer's comparison-guided mutations (for long runs over a corpus grown with them)
+FUZZ_COVERAGE ?=
+FUZZ_CFLAGS := $(WARN) -O1 -g -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
+	-fno-omit-frame-pointer $(FUZZ_COVERAGE) $(INC) $(CFLAGS_EXTRA)
+FUZZ_OUT := $(BUILD)/spiel_fuzz
+
+all: $(FUZZ_OUT)
+
+$(FUZZ_OUT): fuzz/fuzz_request.c $(CORE_SRC) $(wildcard include/*.h core/*.h $(PROTO)/*.h)
+	@mkdir -p $(BUILD)
+	$(FUZZ_CC) $(FUZZ_CFLAGS) fuzz/fuzz_request.c $(CORE_SRC) -o $@

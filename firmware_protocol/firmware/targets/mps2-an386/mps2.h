@@ -1,0 +1,73 @@
+/*
+ * mps2.h - the few registers of the Arm MPS2 AN386 FPGA image (Cortex-M4) this target uses,
+ * as qemu-system-arm -M mps2-an386 models them: CMSDK APB UART0 and timer 0, the NVIC and
+ * the SCB. Register layouts: Arm "Cortex-M System Design Kit Technical Reference Manual"
+ * (DDI 0479) and the ARMv7-M Architecture Reference Manual.
+ */
+#ifndef SPIEL_MPS2_H
+#define SPIEL_MPS2_H
+
+#include <stdint.h>
+
+#define MPS2_SYSCLK_HZ 25000000u /* the AN386 system clock that drives the APB peripherals */
+
+#define REG32(addr) (*(volatile uint32_t *)(uintptr_t)(addr))
+
+/* CMSDK APB UART0 */
+#define UART0_BASE 0x40004000u
+#define UART_DATA(b) REG32((b) + 0x000u)
+#define UART_STATE(b) REG32((b) + 0x004u)
+#define UART_CTRL(b) REG32((b) + 0x008u)
+#define UART_INTSTATUS(b) REG32((b) + 0x00Cu) /* read: pending; write 1: clear */
+#define UART_BAUDDIV(b) REG32((b) + 0x010u)
+#define UART_STATE_TXFULL 0x1u
+#define UART_STATE_RXFULL 0x2u
+#define UART_STATE_TXOVR 0x4u
+#define UART_STATE_RXOVR 0x8u
+#define UART_CTRL_TXEN 0x1u
+#define UART_CTRL_RXEN 0x2u
+#define UART_CTRL_RXINTEN 0x8u
+#define UART_INT_RX 0x2u
+#define UART0_RX_IRQ 0u
+
+/* CMSDK APB timer 0: a 32-bit down counter at the system clock */
+#define TIMER0_BASE 0x40000000u
+#define TIMER_CTRL(b) REG32((b) + 0x000u)
+#define TIMER_VALUE(b) REG32((b) + 0x004u)
+#define TIMER_RELOAD(b) REG32((b) + 0x008u)
+#define TIMER_INTSTATUS(b) REG32((b) + 0x00Cu)
+#define TIMER_CTRL_EN 0x1u
+#define TIMER_CTRL_IRQEN 0x8u
+#define TIMER0_IRQ 8u
+#define TIMER1_BASE 0x40001000u /* the idle wake-up */
+#define TIMER1_IRQ 9u
+
+/* The 16 MB PSRAM at 0x21000000 is the machine's main RAM in qemu, so a
+ * memory-backend-file (share=on) keeps it in a host file across kills and restarts:
+ * this target puts its emulated flash there and links nothing else into it. */
+#define PSRAM_BASE 0x21000000u
+
+/* System control block and NVIC */
+#define SCB_AIRCR REG32(0xE000ED0Cu)
+#define SCB_CPACR REG32(0xE000ED88u)
+#define SCB_VTOR REG32(0xE000ED08u)
+#define AIRCR_VECTKEY 0x05FA0000u
+#define AIRCR_SYSRESETREQ 0x4u
+#define NVIC_ISER0 REG32(0xE000E100u)
+#define NVIC_ICER0 REG32(0xE000E180u)
+
+static inline void irq_disable(void) { __asm volatile("cpsid i" ::: "memory"); }
+static inline void irq_enable(void) { __asm volatile("cpsie i" ::: "memory"); }
+static inline uint32_t irq_save(void)
+{
+    uint32_t primask;
+    __asm volatile("mrs %0, primask\n cpsid i" : "=r"(primask)::"memory");
+    return primask;
+}
+static inline void irq_restore(uint32_t primask)
+{
+    __asm volatile("msr primask, %0" ::"r"(primask) : "memory");
+}
+static inline void dsb(void) { __asm volatile("dsb 0xF" ::: "memory"); }
+
+#endif /* SPIEL_MPS2_H */

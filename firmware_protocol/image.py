@@ -1,0 +1,141 @@
+"""Firmware images: a 96-byte header (magic, version, target, protocol range, size, hashes) and
+the body. Pure: ``pack_image`` builds one, ``parse_image`` checks one (PROTOCOL.md § 14.3).
+
+The header carries the body's size, CRC-32C and SHA-256 and its own CRC-32C, so a host checks
+an image file before it sends a byte, and a device checks the slot again before it boots it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import struct
+from dataclasses import dataclass
+
+from crc32c import crc32c
+
+from firmware_protocol.errors import ProtocolError
+
+__all__ = [
+    "IMAGE_HEADER",
+    "IMAGE_HEADER_FIELDS",
+    "IMAGE_HEADER_SIZE",
+    "IMAGE_MAGIC",
+    "ImageError",
+    "ImageHeader",
+    "pack_image",
+    "parse_image",
+]
+
+IMAGE_MAGIC = b"SPFW"
+IMAGE_HEADER_VERSION = 1
+# (name, struct code, meaning); header_crc covers every byte before it
+IMAGE_HEADER_FIELDS: tuple[tuple[str, str, str], ...] = (
+    ("magic", "4s", "the bytes SPFW"),
+    ("header_version", "H", "image header layout version = 1"),
+    ("header_size", "H", "offset of the body = 96"),
+    ("version", "16s", "firmware version text, NUL-padded"),
+    ("target", "16s", "board target the image runs on, NUL-padded"),
+    ("min_protocol", "B", "lowest protocol version the firmware speaks"),
+    ("max_protocol", "B", "highest protocol version the firmware speaks"),
+    ("flags", "H", "reserved, 0"),
+    ("body_size", "I", "bytes of the body after the header"),
+    ("body_crc", "I", "CRC-32C of the body"),
+    ("body_sha256", "32s", "SHA-256 of the body"),
+    ("reserved", "8s", "zeros"),
+    ("header_crc", "I", "CRC-32C of the header bytes before this field"),
+)
+IMAGE_HEADER = struct.Struct("<" + "".join(code for _, code, _ in IMAGE_HEADER_FIELDS))
+IMAGE_HEADER_SIZE = IMAGE_HEADER.size  # 96
+
+
+class ImageError(ProtocolError):
+    """A firmware image that must not be sent or booted."""
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    version: str
+    target: str
+    min_protocol: int
+    max_protocol: int
+    body_size: int
+    body_crc: int
+    body_sha256: bytes
+
+    @property
+    def image_size(self) -> int:
+        return IMAGE_HEADER_SIZE + self.body_size
+
+    def speaks(self, low: int, high: int) -> bool:
+        """Whether the firmware shares a protocol version with the range ``low..high``."""
+        return self.min_protocol <= high and low <= self.max_protocol
+
+
+def _text(value: str, name: str) -> bytes:
+    raw = value.encode("utf-8")
+    if not raw or len(raw) > 16 or b"\x00" in raw:
+        raise ImageError(f"{name} must be 1 to 16 bytes of UTF-8 without NUL, got {value!r}")
+    return raw
+
+
+def pack_image(
+    body: bytes, *, version: str, target: str, min_protocol: int = 1, max_protocol: int = 2
+) -> bytes:
+    """Header + body of a firmware image."""
+    if not 1 <= min_protocol <= max_protocol <= 255:
+        raise ImageError(f"protocol range {min_protocol}-{max_protocol} is not valid")
+    body = bytes(body)
+    head = IMAGE_HEADER.pack(
+        IMAGE_MAGIC,
+        IMAGE_HEADER_VERSION,
+        IMAGE_HEADER_SIZE,
+        _text(version, "version"),
+        _text(target, "target"),
+        min_protocol,
+        max_protocol,
+        0,
+        len(body),
+        crc32c(body),
+        hashlib.sha256(body).digest(),
+        bytes(8),
+        0,
+    )
+    head = head[:-4] + crc32c(head[:-4]).to_bytes(4, "little")
+    return head + body
+
+
+def parse_image(image: bytes) -> ImageHeader:
+    """The header of a complete, intact image; ImageError saying what is wrong otherwise."""
+    image = bytes(image)
+    if len(image) < IMAGE_HEADER_SIZE:
+        raise ImageError(f"{len(image)} bytes is shorter than the {IMAGE_HEADER_SIZE}-byte header")
+    fields = IMAGE_HEADER.unpack_from(image)
+    magic, hver, hsize, version, target, lo, hi, _, size, crc, sha, _, hcrc = fields
+    if magic != IMAGE_MAGIC:
+        raise ImageError(f"not a spiel-edge firmware image (magic {magic!r}, expected b'SPFW')")
+    if crc32c(image[: IMAGE_HEADER_SIZE - 4]) != hcrc:
+        raise ImageError("the image header is corrupt (header CRC mismatch)")
+    if hver != IMAGE_HEADER_VERSION or hsize != IMAGE_HEADER_SIZE:
+        raise ImageError(f"image header version {hver} size {hsize} is not supported")
+    if not 1 <= lo <= hi:
+        raise ImageError(f"the image declares an empty protocol range {lo}-{hi}")
+    body = image[IMAGE_HEADER_SIZE:]
+    if len(body) < size:
+        raise ImageError(
+            f"the image is truncated: its header says {size} body bytes, {len(body)} are there"
+        )
+    if len(body) > size:
+        raise ImageError(f"the image has {len(body) - size} bytes after its declared end")
+    if crc32c(body) != crc:
+        raise ImageError("the image body is corrupt (CRC-32C mismatch)")
+    if hashlib.sha256(body).digest() != sha:
+        raise ImageError("the image body is corrupt (SHA-256 mismatch)")
+    return ImageHeader(
+        version.rstrip(b"\x00").decode("utf-8", "replace"),
+        target.rstrip(b"\x00").decode("utf-8", "replace"),
+        lo,
+        hi,
+        size,
+        crc,
+        sha,
+    )

@@ -1,0 +1,261 @@
+"""Firmware update with rollback over a device session (PROTOCOL.md section 14.3).
+
+``check_image`` refuses a damaged or foreign image before a byte is sent; ``update_firmware``
+uploads it into the inactive slot in chunks sized by the link's payload, has the board verify
+length, CRC-32C and SHA-256, boots it once ("test"), waits for it to answer HELLO and only then
+confirms it. A board that does not come back with the new version rolled back by itself (or
+will at its next reset): the host says which.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from crc32c import crc32c
+
+from firmware_protocol import MAX_PAYLOAD, Capability, Message
+from firmware_protocol.image import ImageError, ImageHeader, parse_image
+from firmware_protocol.messages import MAX_PROTOCOL_VERSION, MIN_PROTOCOL_VERSION
+from firmware_protocol.v2_messages import (
+    BootState,
+    FwBegin,
+    FwBeginResponse,
+    FwConfirm,
+    FwConfirmResponse,
+    FwInfo,
+    FwInfoRequest,
+    FwTest,
+    FwVerify,
+    FwVerifyResponse,
+    FwWrite,
+    FwWriteResponse,
+    SlotState,
+)
+from spiel_edge.errors import DeviceError
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "UpdateResult",
+    "check_image",
+    "confirm_firmware",
+    "describe_info",
+    "firmware_info",
+    "update_firmware",
+]
+
+BOOT_WAIT_S = 20.0  # how long the host waits for the test image to answer HELLO
+RETRY_OPEN_S = 0.2
+WRITE_OVERHEAD = 6  # FW_WRITE's fixed part
+
+
+@dataclass(frozen=True)
+class UpdateResult:
+    previous: str  # firmware version before
+    version: str  # the version now running
+    confirmed: bool  # the new image is permanent
+    rolled_back: bool  # the board came back with the old image
+    bytes_sent: int
+    seconds: float
+
+
+def check_image(image: bytes) -> ImageHeader:
+    """The image header, or DeviceError naming what is wrong (damaged, truncated, a protocol
+    range this host cannot talk to once it runs)."""
+    try:
+        header = parse_image(image)
+    except ImageError as exc:
+        raise DeviceError(f"refused: {exc}") from exc
+    if not header.speaks(MIN_PROTOCOL_VERSION, MAX_PROTOCOL_VERSION):
+        raise DeviceError(
+            f"refused: firmware {header.version} speaks protocol {header.min_protocol}-"
+            f"{header.max_protocol}, this host {MIN_PROTOCOL_VERSION}-{MAX_PROTOCOL_VERSION}: "
+            "it could never be confirmed"
+        )
+    return header
+
+
+def _need_update_support(session) -> None:
+    hello = session.hello
+    if (
+        hello is None
+        or hello.protocol_version < 2
+        or not hello.capabilities & Capability.FIRMWARE_UPDATE
+    ):
+        version = hello.protocol_version if hello is not None else "?"
+        raise DeviceError(
+            f"{session.url}: the board does not offer firmware update (protocol {version}); "
+            "use the vendor's tool"
+        )
+
+
+def _ask(session, msg: Message, cls: type) -> Message:
+    answer = session.request(msg)
+    if not isinstance(answer, cls):
+        raise DeviceError(f"{session.url}: {type(msg).__name__} answered {type(answer).__name__}")
+    return answer
+
+
+def firmware_info(session) -> FwInfo:
+    _need_update_support(session)
+    return _ask(session, FwInfoRequest(), FwInfo)  # type: ignore[return-value]
+
+
+def describe_info(info: FwInfo, hello=None) -> list[str]:
+    states = {s.value: s.name.lower() for s in SlotState}
+    boot = {s.value: s.name.lower().replace("_", " ") for s in BootState}
+    lines = []
+    if hello is not None:
+        lines.append(
+            f"board {hello.serial}: firmware {hello.firmware_version}, protocol {hello.protocol_version}"
+        )
+    lines.append(
+        f"target {info.target}, slot size {info.slot_size} bytes, running slot "
+        f"{info.running_slot if info.running_slot != 0xFF else 'none (recovery)'}, "
+        f"{boot.get(info.boot_state, info.boot_state)}, confirmed slot {info.confirmed_slot}"
+    )
+    for slot in (0, 1):
+        state = getattr(info, f"slot{slot}_state")
+        version = getattr(info, f"slot{slot}_version") or "-"
+        size = getattr(info, f"slot{slot}_size")
+        crc = getattr(info, f"slot{slot}_crc")
+        lines.append(
+            f"  slot {slot}: {states.get(state, state)}, version {version}, {size} bytes, "
+            f"crc32c {crc:08x}"
+        )
+    if info.boot_state == BootState.TRIAL:
+        lines.append(
+            "  the running image is on trial: `spiel-edge firmware confirm` keeps it, a reset rolls back"
+        )
+    return lines
+
+
+def confirm_firmware(session) -> FwConfirmResponse:
+    _need_update_support(session)
+    return _ask(session, FwConfirm(), FwConfirmResponse)  # type: ignore[return-value]
+
+
+def update_firmware(
+    url: str,
+    image: bytes,
+    *,
+    open_session: Callable[[str], object] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    boot_wait_s: float = BOOT_WAIT_S,
+    test_delay_ms: int = 100,
+) -> UpdateResult:
+    """The whole update; DeviceError with a one-line reason when it is refused or fails.
+    ``progress(sent, total)`` after every chunk (tests interrupt the host there)."""
+    header = check_image(image)
+    if open_session is None:
+        open_session = _default_open
+    started = time.monotonic()
+    sha = hashlib.sha256(image).digest()
+    crc = crc32c(image)
+    session = open_session(url)
+    try:
+        _need_update_support(session)
+        hello = session.hello
+        previous, boot_id = hello.firmware_version, hello.boot_id
+        info = firmware_info(session)
+        if info.target != header.target:
+            raise DeviceError(
+                f"refused: the image is for target {header.target!r}, the board runs {info.target!r}"
+            )
+        if len(image) > info.slot_size:
+            raise DeviceError(
+                f"refused: the image of {len(image)} bytes is larger than the board's "
+                f"{info.slot_size}-byte slot"
+            )
+        if info.boot_state == BootState.TRIAL:
+            raise DeviceError(
+                f"{url}: the running firmware {previous} is on trial: `spiel-edge firmware "
+                "confirm` it (or reset the board to roll back) before another update"
+            )
+        session.stop_stream(retries=1) if getattr(session, "_stream_request", None) else None
+        begin = _ask(session, FwBegin(len(image), crc, sha), FwBeginResponse)
+        assert isinstance(begin, FwBeginResponse)
+        chunk = min(getattr(session, "max_payload", MAX_PAYLOAD), MAX_PAYLOAD) - WRITE_OVERHEAD
+        offset = 0
+        while offset < len(image):
+            piece = image[offset : offset + chunk]
+            answer = _ask(session, FwWrite(offset, piece), FwWriteResponse)
+            assert isinstance(answer, FwWriteResponse)
+            if answer.written != offset + len(piece):
+                raise DeviceError(
+                    f"{url}: the board holds {answer.written} bytes, {offset + len(piece)} were sent"
+                )
+            offset += len(piece)
+            if progress is not None:
+                progress(offset, len(image))
+        verify = _ask(session, FwVerify(), FwVerifyResponse)
+        assert isinstance(verify, FwVerifyResponse)
+        if verify.sha256 != sha or verify.image_size != len(image):
+            raise DeviceError(f"{url}: the board's copy differs from the image (SHA-256)")
+        session.request(FwTest(test_delay_ms))
+        log.info(
+            "%s: firmware %s written to slot %d; booting it once", url, header.version, begin.slot
+        )
+    finally:
+        _close(session)
+    return _await_new_firmware(
+        url, header, previous, boot_id, open_session, boot_wait_s, len(image), started
+    )
+
+
+def _await_new_firmware(url, header, previous, boot_id, open_session, wait_s, sent, started):
+    deadline = time.monotonic() + wait_s
+    last_error = "no answer"
+    time.sleep(0.05)
+    while time.monotonic() < deadline:
+        try:
+            session = open_session(url)
+        except DeviceError as exc:
+            last_error = str(exc)
+            time.sleep(RETRY_OPEN_S)
+            continue
+        try:
+            hello = session.hello
+            if hello.boot_id == boot_id:  # not rebooted yet
+                _close(session)
+                time.sleep(RETRY_OPEN_S)
+                continue
+            if hello.firmware_version != header.version:
+                return UpdateResult(
+                    previous, hello.firmware_version, False, True, sent, time.monotonic() - started
+                )
+            info = firmware_info(session)
+            if info.boot_state == BootState.TRIAL:
+                confirm_firmware(session)
+            log.info("%s: firmware %s answers HELLO: confirmed", url, header.version)
+            return UpdateResult(
+                previous, header.version, True, False, sent, time.monotonic() - started
+            )
+        except DeviceError as exc:
+            last_error = str(exc)
+        finally:
+            _close(session)
+        time.sleep(RETRY_OPEN_S)
+    raise DeviceError(
+        f"{url}: the new firmware {header.version} did not answer HELLO within {wait_s:g} s "
+        f"({last_error}); it is not confirmed: the board rolls back to {previous} at its next reset"
+    )
+
+
+def _default_open(url: str):
+    from spiel_edge.device import DeviceSession
+
+    session = DeviceSession(url, reconnect=False)
+    session.open()
+    return session
+
+
+def _close(session) -> None:
+    try:
+        session.close()
+    except DeviceError as exc:
+        log.debug("close: %s", exc)

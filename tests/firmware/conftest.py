@@ -1,0 +1,63 @@
+"""Fixtures of the C reference firmware tests: builds (once per session), the scans file of
+the vendored recordings, and a posix board on a pty. These tests always run: they need only
+the system C compiler (no dataset, no Debian package)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.firmware.firmware import PosixBoard, build_driver, build_posix
+from tools.firmware_scans import write_scans
+
+SAMPLE_RATE_HZ = 22000
+
+
+@pytest.fixture(scope="session")
+def fw_build(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("fw-build")
+
+
+@pytest.fixture(scope="session")
+def posix_exe(fw_build) -> Path:
+    return build_posix(fw_build)
+
+
+@pytest.fixture(scope="session")
+def driver_exe(fw_build) -> Path:
+    return build_driver(fw_build, SPIEL_MAX_PAYLOAD=8256)
+
+
+@pytest.fixture(scope="session")
+def subset_scans(tmp_path_factory, subset) -> Path:
+    """The vendored subset in recorded order, as the virtual board's replay scene streams it."""
+    return write_scans(tmp_path_factory.mktemp("scans") / "subset.spas", subset.frames, 22000)
+
+
+@pytest.fixture
+def posix_board(posix_exe, subset_scans, tmp_path):
+    """``posix_board(*extra, exe=..., scans=..., flash=...)`` -> a started PosixBoard."""
+    made: list[PosixBoard] = []
+
+    def make(*extra: str, exe: Path | None = None, scans: Path | None = None, flash=None):
+        board = PosixBoard(
+            exe or posix_exe,
+            scans or subset_scans,
+            flash or tmp_path / "flash.bin",
+            *extra,
+        )
+        made.append(board.start())
+        return board
+
+    yield make
+    for board in made:
+        board.stop()
+
+
+def frames_of(scans: Path) -> np.ndarray:
+    """The acquisitions of a scans file (acquisitions, channels, samples) uint16."""
+    raw = Path(scans).read_bytes()
+    n_ch, n_s = int.from_bytes(raw[6:8], "little"), int.from_bytes(raw[8:10], "little")
+    return np.frombuffer(raw[20:], "<u2").reshape(-1, n_ch, n_s)

@@ -1,0 +1,26 @@
+"""Fixtures of the protocol version 2 tests: fresh virtual boards, never shared."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from spiel_edge.sim import protocol_sim
+
+_names = itertools.count()
+
+
+@pytest.fixture
+def sim_url():
+    """``sim_url("drift_ppm=200")`` -> a sim:// URL naming a board no other test uses."""
+    made: list[str] = []
+
+    def make(query: str = "") -> str:
+        url = f"sim://v2test{next(_names)}" + (f"?{query}" if query else "")
+        made.append(url)
+        return url
+
+    yield make
+    for url in made:
+        protocol_sim.forget(url)

@@ -1,0 +1,164 @@
+"""Firmware update with rollback on the virtual board: the host killed at every chunk, power cut
+at every flash operation (uploads, the boot record, the bootloader), refusals before the switch."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import time
+
+import pytest
+from crc32c import crc32c
+
+from firmware_protocol.image import pack_image
+from firmware_protocol.v2_messages import BootState, FwBegin, FwVerify
+from spiel_edge.cli import main
+from spiel_edge.device import DeviceSession
+from spiel_edge.device.firmware import firmware_info, update_firmware
+from spiel_edge.errors import DeviceError, DeviceRequestError
+from spiel_edge.sim.protocol_sim import device_for_url
+
+NEW = pack_image(b"SIM:OK " + bytes(range(256)) * 12, version="sim-0.2.0", target="sim")
+
+
+class Killed(Exception):
+    """The host died here."""
+
+
+def hello_version(url: str, timeout_s: float = 5.0) -> str:
+    """The firmware version the board answers HELLO with (waiting while it reboots)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with DeviceSession(url, reconnect=False) as dev:
+                return dev.hello.firmware_version
+        except DeviceError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def reset(url: str) -> None:
+    device = device_for_url(url)
+    device.unplug(device.clock(), 0.05)
+
+
+def test_update_confirms_a_firmware_that_answers(sim_url) -> None:
+    url = sim_url("max_payload=512")
+    result = update_firmware(url, NEW, boot_wait_s=10)
+    assert result.confirmed and not result.rolled_back and result.version == "sim-0.2.0"
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert dev.hello.firmware_version == "sim-0.2.0"
+        assert info.boot_state == BootState.CONFIRMED and info.confirmed_slot == 1
+    reset(url)  # a reset keeps it
+    assert hello_version(url) == "sim-0.2.0"
+
+
+def test_a_firmware_that_never_answers_is_rolled_back(sim_url) -> None:
+    url = sim_url("watchdog_ms=500")
+    silent = pack_image(b"SIM:SILENT", version="sim-bad", target="sim")
+    result = update_firmware(url, silent, boot_wait_s=10)
+    assert result.rolled_back and not result.confirmed and result.version == "sim-0.1.0"
+    assert hello_version(url) == "sim-0.1.0"
+
+
+def test_host_killed_at_every_chunk_leaves_the_old_firmware_running(sim_url) -> None:
+    url = sim_url("max_payload=512")
+    chunks = -(-len(NEW) // (512 - 6))
+    assert chunks >= 6
+    for k in range(1, chunks + 1):
+
+        def progress(sent, total, k=k):
+            if sent >= k * (512 - 6) or sent == total:
+                raise Killed
+
+        with pytest.raises(Killed):
+            update_firmware(url, NEW, progress=progress)
+        assert hello_version(url) == "sim-0.1.0", k
+    assert update_firmware(url, NEW, boot_wait_s=10).confirmed
+
+
+@pytest.mark.parametrize("stop_after", ["verify", "test"])
+def test_host_killed_after_verify_or_test(sim_url, stop_after) -> None:
+    url = sim_url()
+    sha, crc = hashlib.sha256(NEW).digest(), crc32c(NEW)
+    with DeviceSession(url, reconnect=False) as dev:
+        dev.request(FwBegin(len(NEW), crc, sha))
+        from firmware_protocol.v2_messages import FwTest, FwWrite
+
+        dev.request(FwWrite(0, NEW))
+        dev.request(FwVerify())
+        if stop_after == "test":
+            dev.request(FwTest(10))
+    # the host is gone; the board runs the test image once (nobody confirms it) ...
+    time.sleep(0.5)
+    version = hello_version(url)
+    assert version == ("sim-0.2.0" if stop_after == "test" else "sim-0.1.0")
+    reset(url)  # ... and its next reset rolls back
+    assert hello_version(url) == "sim-0.1.0"
+
+
+def test_power_cut_at_every_flash_operation_boots_a_complete_image(sim_url) -> None:
+    reference = sim_url("max_payload=1024")
+    assert update_firmware(reference, NEW, boot_wait_s=6).confirmed
+    ops = device_for_url(reference).board.fw.ops  # erase, chunks, records, boot, confirm
+    assert ops >= 8
+    outcomes = set()
+    for cut in range(ops):
+        url = sim_url(f"max_payload=1024&fw_power_cut={cut}")
+        device = device_for_url(url)
+        with contextlib.suppress(DeviceError):  # cut mid-request: the board vanishes
+            update_firmware(url, NEW, boot_wait_s=6)
+        version = hello_version(url)  # it answers HELLO: a complete image runs
+        fw = device.board.fw
+        assert version in ("sim-0.1.0", "sim-0.2.0") and fw.header(fw.running) is not None, cut
+        assert fw.cut_at == -1, cut  # the cut did happen
+        outcomes.add(version)
+    assert outcomes == {"sim-0.1.0", "sim-0.2.0"}
+
+
+def test_refused_before_the_switch(sim_url, tmp_path, capsys) -> None:
+    url = sim_url()
+    sha, crc = hashlib.sha256(NEW).digest(), crc32c(NEW)
+    with DeviceSession(url, reconnect=False) as dev:
+        with pytest.raises(DeviceRequestError, match="does not fit") as exc:
+            dev.request(FwBegin(1 << 20, crc, sha))
+        assert exc.value.code == 7  # TOO_LARGE
+        dev.request(FwBegin(len(NEW), crc, hashlib.sha256(b"other").digest()))
+        from firmware_protocol.v2_messages import FwTest, FwWrite
+
+        dev.request(FwWrite(0, NEW))
+        with pytest.raises(DeviceRequestError, match="SHA-256") as exc:
+            dev.request(FwVerify())
+        assert exc.value.code == 9  # CORRUPT
+        with pytest.raises(DeviceRequestError) as exc:
+            dev.request(FwTest(10))
+        assert exc.value.code == 6  # BAD_STATE: nothing verified, nothing switched
+    # the CLI refuses damaged, foreign and incompatible images before the port is touched
+    cases = {
+        "truncated": (NEW[:-10], "truncated"),
+        "hash": (NEW[:200] + bytes([NEW[200] ^ 1]) + NEW[201:], "corrupt"),
+        "protocol": (
+            pack_image(b"SIM:OK", version="v9", target="sim", min_protocol=3, max_protocol=4),
+            "protocol 3-4",
+        ),
+        "target": (pack_image(b"SIM:OK", version="v9", target="mps2-an386"), "target"),
+        "large": (pack_image(b"SIM:OK" * 20000, version="big", target="sim"), "larger than"),
+    }
+    for name, (image, message) in cases.items():
+        path = tmp_path / f"{name}.img"
+        path.write_bytes(image)
+        assert main(["firmware", "update", "--port", url, str(path)]) == 2, name
+        assert message in capsys.readouterr().err, name
+    assert hello_version(url) == "sim-0.1.0"
+    assert device_for_url(url).board.fw.lengths[1] in (0, len(NEW))  # never switched to it
+
+
+def test_firmware_info_and_a_version_1_board(sim_url, capsys) -> None:
+    url = sim_url()
+    assert main(["firmware", "info", "--port", url]) == 0
+    out = capsys.readouterr().out
+    assert "target sim" in out and "slot 0: verified, version sim-0.1.0" in out
+    assert main(["firmware", "info", "--port", sim_url("protocol=1")]) == 2
+    assert "does not offer firmware update (protocol 1)" in capsys.readouterr().err

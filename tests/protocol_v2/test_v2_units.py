@@ -1,0 +1,132 @@
+"""Protocol version 2, pure parts: images, the clock estimator, telemetry, the I/Q kernel."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from firmware_protocol.image import IMAGE_HEADER_SIZE, ImageError, pack_image, parse_image
+from firmware_protocol.v2_messages import Heartbeat, LogMessage
+from spiel_edge.device.iq import iq_envelope, iq_envelope_reference
+from spiel_edge.device.telemetry import BoardTelemetry
+from spiel_edge.device.timesync import TimeSyncEstimator
+from spiel_edge.errors import InputError
+
+BODY = bytes(range(256)) * 5
+
+
+def test_image_round_trip_and_every_damage_is_named() -> None:
+    image = pack_image(BODY, version="1.2.3", target="posix", min_protocol=1, max_protocol=2)
+    header = parse_image(image)
+    assert (header.version, header.target, header.body_size) == ("1.2.3", "posix", len(BODY))
+    assert header.image_size == len(image) == IMAGE_HEADER_SIZE + len(BODY)
+    with pytest.raises(ImageError, match="truncated"):
+        parse_image(image[:-1])
+    with pytest.raises(ImageError, match="after its declared end"):
+        parse_image(image + b"\x00")
+    flipped = bytearray(image)
+    flipped[IMAGE_HEADER_SIZE + 7] ^= 1
+    with pytest.raises(ImageError, match="corrupt"):
+        parse_image(bytes(flipped))
+    head = bytearray(image)
+    head[10] ^= 1  # the version text: the header CRC catches it
+    with pytest.raises(ImageError, match="header is corrupt"):
+        parse_image(bytes(head))
+    with pytest.raises(ImageError, match="magic"):
+        parse_image(b"ELF!" + image[4:])
+    with pytest.raises(ImageError):
+        pack_image(BODY, version="x" * 17, target="posix")
+
+
+def exchanges(est, offset_us, rate, times_s, rtt_us=200.0, boot=1):
+    """Exact exchanges: the board reads its clock at the midpoint of each round trip."""
+    for t in times_s:
+        mid = t * 1e6
+        board = (mid - offset_us) / rate
+        est.add(mid - rtt_us / 2, mid + rtt_us / 2, board, boot)
+
+
+def test_estimator_recovers_offset_and_drift_from_clean_exchanges() -> None:
+    est = TimeSyncEstimator()
+    rate = 1 - 200e-6
+    exchanges(est, 5e6, rate, np.arange(0, 60, 0.25))
+    board = (70e6 - 5e6) / rate  # 10 s past the last exchange
+    host, u = est.map(board)
+    assert abs(host - 70e6) < 5 and u < 200
+
+
+def test_single_exchange_states_its_hard_bound() -> None:
+    est = TimeSyncEstimator()
+    est.add(1000.0, 3000.0, 50.0, 7)  # round trip 2 ms: +-1 ms
+    host, u = est.map(50.0)
+    assert host == 2000.0 and u == pytest.approx(1002.0)
+
+
+def test_answers_months_off_or_backwards_are_dropped_then_a_step_is_followed() -> None:
+    est = TimeSyncEstimator()
+    exchanges(est, 0.0, 1.0, np.arange(0, 10, 0.25))
+    months = 90 * 86400e6
+    assert not est.add(10.25e6 - 100, 10.25e6 + 100, 10.25e6 + months, 1)
+    assert not est.add(10.5e6 - 100, 10.5e6 + 100, 10.5e6 - 5e6, 1)  # backwards
+    assert est.counters.outliers + est.counters.backwards == 2
+    assert all("ignored" in m for m in est.take_messages())
+    host, _ = est.map(11e6)
+    assert abs(host - 11e6) < 10  # the estimate was not moved
+    # the board's clock really was stepped: five agreeing answers restart the estimate
+    for k in range(5):
+        t = 12e6 + k * 0.25e6
+        est.add(t - 100, t + 100, t + 3e9, 1)
+    assert est.counters.steps == 1
+    host, _ = est.map(13.5e6 + 3e9)
+    assert abs(host - 13.5e6) < 200
+
+
+def test_reset_restarts_the_offset_and_keeps_the_drift() -> None:
+    est = TimeSyncEstimator()
+    rate = 1 + 150e-6
+    exchanges(est, 0.0, rate, np.arange(0, 120, 0.25), rtt_us=100.0)
+    est.add(200e6 - 50, 200e6 + 50, 0.0, 2)  # new boot id: its clock restarted at 0
+    assert est.counters.resets == 1
+    host, u = est.map(1e6)  # 1 s of board time later
+    assert abs(host - (200e6 + rate * 1e6)) < 60 and u < 500
+
+
+def test_telemetry_rate_limits_board_logs_and_reports_unknown_flags(caplog) -> None:
+    tel = BoardTelemetry("board X", rate_per_s=20, burst=40)
+    with caplog.at_level(logging.INFO, logger="spiel_edge.board"):
+        for i in range(1000):  # 1000 lines within 1 s
+            tel.log_line(LogMessage(4, 0, 0, f"line {i}\x1b[31m" + "x" * 500), now=i / 1000)
+        tel.summarise(1.0, force=True)
+        tel.heartbeat(Heartbeat(1, 0, 0, 500, 0x8000_0000 | 0x02, 1, 0), now=1.0)
+    forwarded = [r for r in caplog.records if "line " in r.getMessage()]
+    assert 40 <= len(forwarded) <= 61  # the burst plus 20 per second
+    assert tel.counters.board_logs == 1000
+    assert tel.counters.board_logs_suppressed == 1000 - len(forwarded)
+    assert all(len(r.getMessage()) < 260 and "\x1b" not in r.getMessage() for r in forwarded)
+    text = caplog.text
+    assert "not shown" in text and "unknown error flags 0x80000000" in text and "overrun" in text
+    assert tel.counters.unknown_flags == 1
+
+
+def test_heartbeat_silence_is_noticed_after_three_periods() -> None:
+    tel = BoardTelemetry("board X")
+    tel.expect(500, now=0.0)
+    assert tel.silent_for(1.5) is None
+    assert tel.silent_for(1.8) == pytest.approx(1.8)
+    tel.heartbeat(Heartbeat(1, 1, 0, 500, 0, 1, 0), now=1.8)
+    assert tel.silent_for(2.0) is None
+
+
+def test_iq_kernel_matches_numpy() -> None:
+    rng = np.random.default_rng(0)
+    pairs = rng.integers(-32768, 32768, size=(4, 128), dtype=np.int16)
+    env, phase = iq_envelope(pairs)
+    ref_env, ref_phase = iq_envelope_reference(pairs)
+    np.testing.assert_allclose(env, ref_env, rtol=1e-12)
+    np.testing.assert_allclose(phase, ref_phase, atol=1e-6)
+    with pytest.raises(InputError):
+        iq_envelope(pairs[:, :3])
+    with pytest.raises(InputError):
+        iq_envelope(pairs.astype(np.int32))

@@ -1,0 +1,199 @@
+"""Fuzz the reference firmware's request decoder with libFuzzer, for a bounded count or time.
+
+    python -m tools.firmware_fuzz --runs 10000000          # the figure in docs/firmware.md
+    python -m tools.firmware_fuzz --seconds 30 --json
+
+Builds ``make TARGET=fuzz`` (firmware_protocol/firmware/fuzz/fuzz_request.c: the portable core
+on an in-memory HAL, clang -fsanitize=fuzzer,address,undefined), seeds a corpus with the
+protocol's request vectors (test_vectors.json), runs it and prints the harness's own input
+count (it counts every call and prints it at exit), libFuzzer's, the time and the load. Exit
+status 0 when the run ended without a crash or a sanitizer report, 1 when it found one (the
+input is kept in the output folder, the report's summary line printed), 2 when clang or its
+fuzzer runtime is missing (Debian: clang, libclang-rt-14-dev).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FIRMWARE = ROOT / "firmware_protocol" / "firmware"
+
+
+class FuzzError(Exception):
+    """The harness could not be built or run (one line, for the user)."""
+
+
+FAST = "-fno-sanitize-coverage=trace-cmp"
+
+
+def build(out: Path, cc: str = "clang", fast: bool = False) -> Path:
+    if shutil.which(cc) is None:
+        raise FuzzError(f"{cc} not found (Debian: apt-get install clang libclang-rt-14-dev)")
+    done = subprocess.run(
+        [
+            "make",
+            "-s",
+            "TARGET=fuzz",
+            f"BUILD={out}",
+            f"FUZZ_CC={cc}",
+            f"FUZZ_COVERAGE={FAST if fast else ''}",
+        ],
+        cwd=FIRMWARE,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["?"])[-1]
+        if "libclang_rt.fuzzer" in done.stderr or "fuzzer" in last:
+            raise FuzzError(f"no libFuzzer runtime for {cc} (Debian: libclang-rt-14-dev): {last}")
+        raise FuzzError(f"make TARGET=fuzz failed: {last}")
+    return out / "spiel_fuzz"
+
+
+def seed_corpus(corpus: Path) -> int:
+    """The request vectors as raw-transport inputs (mode 0) and as framed records (mode 1)."""
+    from firmware_protocol import load_test_vectors
+
+    corpus.mkdir(parents=True, exist_ok=True)
+    vectors = load_test_vectors()
+    n = 0
+    for i, v in enumerate(vectors["messages"]):
+        if v["response"]:
+            continue  # the device receives requests
+        wire = bytes.fromhex(v["wire_hex"])
+        for mode in (0, 2):  # erased flash, committed config
+            name = f"seed-{i}-{v['class']}-{mode}"
+            (corpus / name).write_bytes(bytes([mode, 0, 0xFF, 0]) + wire)
+            n += 1
+    for v in vectors["frames"]:
+        if len(v.get("wire_hex", "")) < 2 * 4096:
+            (corpus / f"seed-frame-{v['name']}").write_bytes(
+                bytes([0, 7, 0xFF, 3]) + bytes.fromhex(v["wire_hex"])
+            )
+            n += 1
+    return n
+
+
+def run(
+    exe: Path,
+    corpus: Path,
+    out: Path,
+    runs: int | None,
+    seconds: float | None,
+    seed: int,
+    max_len: int,
+) -> dict:
+    args = [
+        str(exe),
+        f"-seed={seed}",
+        f"-max_len={max_len}",
+        "-print_final_stats=1",
+        f"-artifact_prefix={out}/",
+    ]
+    if runs is not None:
+        args.append(f"-runs={runs}")
+    if seconds is not None:
+        args.append(f"-max_total_time={max(1, int(seconds))}")
+    args.append(str(corpus))
+    log_path = out / "fuzz.log"
+    started = time.monotonic()
+    load_before = os.getloadavg()[0]
+    with open(log_path, "w") as log:
+        status = subprocess.run(args, stdout=log, stderr=subprocess.STDOUT).returncode
+    elapsed = time.monotonic() - started
+    text = log_path.read_text(errors="replace")
+    harness = re.findall(r"spiel_fuzz: inputs (\d+)", text)  # at exit, or every million
+    interrupted = "run interrupted" in text or status in (-2, -15, 130)
+    units = re.findall(r"stat::number_of_executed_units:\s*(\d+)", text)
+    summary = [line for line in text.splitlines() if "SUMMARY:" in line or "runtime error" in line]
+    artifacts = sorted(str(p) for p in out.glob("crash-*")) + sorted(
+        str(p) for p in out.glob("leak-*")
+    )
+    return {
+        "harness_inputs": int(harness[-1]) if harness else None,
+        "libfuzzer_units": int(units[-1]) if units else None,
+        "seconds": round(elapsed, 1),
+        "inputs_per_s": round(int(harness[-1]) / elapsed) if harness and elapsed > 0 else None,
+        "status": status,
+        "interrupted": interrupted,
+        "crashed": bool(artifacts) or bool(summary) or (status != 0 and not interrupted),
+        "reports": summary[:5],
+        "artifacts": artifacts,
+        "corpus_files": sum(1 for _ in corpus.iterdir()),
+        "load_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],
+        "command": " ".join(args),
+        "log": str(log_path),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tools.firmware_fuzz", description=__doc__)
+    parser.add_argument("--runs", type=int, default=None, help="inputs to run (libFuzzer -runs)")
+    parser.add_argument("--seconds", type=float, default=None, help="time limit in seconds")
+    parser.add_argument("--corpus", type=Path, default=None, help="corpus folder (kept)")
+    parser.add_argument("--out", type=Path, default=None, help="build, log and crash folder")
+    parser.add_argument("--seed", type=int, default=1, help="libFuzzer's random seed")
+    parser.add_argument("--max-len", type=int, default=4096, help="longest input (bytes)")
+    parser.add_argument("--cc", default="clang", help="the clang to build with")
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="build without comparison tracing (about 3x the inputs/s; for long runs over a "
+        "corpus grown without --fast)",
+    )
+    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    args = parser.parse_args(argv)
+    if args.runs is None and args.seconds is None:
+        args.runs = 100_000
+    if (args.runs is not None and args.runs < 1) or (
+        args.seconds is not None and args.seconds <= 0
+    ):
+        print("error: --runs and --seconds must be positive", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="spiel-fuzz-") as tmp:
+        out = (args.out or Path(tmp)).resolve()
+        out.mkdir(parents=True, exist_ok=True)
+        try:
+            exe = build(out / ("build-fast" if args.fast else "build"), args.cc, args.fast)
+        except FuzzError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        corpus = (args.corpus or out / "corpus").resolve()
+        seeds = seed_corpus(corpus)
+        result = run(exe, corpus, out, args.runs, args.seconds, args.seed, args.max_len)
+        result["seeds"] = seeds
+        result["trace_cmp"] = not args.fast
+        if args.json:
+            print(json.dumps(result))
+        else:
+            print(
+                f"spiel_fuzz: {result['harness_inputs']} inputs (harness count; libFuzzer "
+                f"{result['libfuzzer_units']}) in {result['seconds']} s, "
+                f"{result['inputs_per_s']}/s, load {result['load_1min']}: "
+                + (
+                    "CRASH " + "; ".join(result["reports"] + result["artifacts"])
+                    if result["crashed"]
+                    else "no crash"
+                )
+            )
+        if result["crashed"] and args.out is None:
+            keep = Path(tempfile.mkdtemp(prefix="spiel-fuzz-crash-"))
+            for p in result["artifacts"] + [result["log"]]:
+                shutil.copy(p, keep)
+            print(f"crash inputs and the log kept in {keep}", file=sys.stderr)
+    return 1 if result["crashed"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
