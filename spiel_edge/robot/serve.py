@@ -87,6 +87,7 @@ class BoardWorker(threading.Thread):
         self._bias: list[float] = []
         self._bias_s = 0.0
         self._timed = None  # the stream this thread started in the slot (StreamStartResponse)
+        self.synced = False  # its pulses come from TIME_SYNC (protocol 2), not the estimate
         self._recent: deque[float] = deque(maxlen=PHASE_CHECK_EVERY)
         self._disagree = 0
 
@@ -162,7 +163,10 @@ class BoardWorker(threading.Thread):
                     )
             else:
                 self._disagree = 0
-            pulse = self.clock.to_host(stamp) - window
+            pulse = synced_pulse(acq)  # protocol 2: TIME_SYNC's mapping of the board's clock
+            self.synced = pulse is not None
+            if pulse is None:  # protocol 1: the one-way estimate from the stamps' arrivals
+                pulse = self.clock.to_host(stamp) - window
             timed = self._timed
             if self.session.stream is not timed or timed is None:
                 # the session restarted the stream itself (the board came back): not in a
@@ -228,6 +232,16 @@ class BoardWorker(threading.Thread):
         if self.stats.acquisitions % PHASE_CHECK_EVERY:
             return False
         return abs(float(np.median(self._recent)) - self._bias_s) > self.schedule.margin_s
+
+
+def synced_pulse(acq) -> float | None:
+    """The acquisition's pulse on this process's ``perf_counter`` axis from protocol version
+    2's ``stamp_host`` (the board's time of its first sample mapped by TIME_SYNC, Unix
+    seconds), or None from a version-1 board or before the clocks are synced."""
+    stamp = getattr(acq, "stamp_host", None)
+    if stamp is None:
+        return None
+    return stamp + (acq.received_ns / 1e9 - acq.host_time)  # Unix -> perf_counter
 
 
 def wait_until(at: float, stop: threading.Event) -> bool:

@@ -73,6 +73,7 @@ class ZenohFuse:
             track=track,
         )
         self.clocks = {b.name: StampClock() for b in robot.boards}
+        self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
         self.bad = dict.fromkeys(self.clocks, 0)
         self.dropped: dict[str, str] = {}
         self.overflow = 0
@@ -153,6 +154,13 @@ class ZenohFuse:
                 "(synchronise them: chrony or PTP)",
             )
             return None
+        synced = record.get("stamp_host")  # protocol 2: the board's time on its host's clock
+        synced = isinstance(synced, (int, float)) and np.isfinite(synced) and float(synced)
+        if synced:
+            stamp = synced  # its host's clock, mapped to this one's below
+        if bool(synced) != self.synced.get(name, False):  # another time axis: learn it afresh
+            self.synced[name] = bool(synced)
+            self.clocks[name] = StampClock()
         clock = self.clocks[name]
         clock.observe(stamp, arrived)
         report = BoardReport(
