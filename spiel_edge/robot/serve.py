@@ -164,7 +164,10 @@ class BoardWorker(threading.Thread):
             else:
                 self._disagree = 0
             pulse = synced_pulse(acq)  # protocol 2: TIME_SYNC's mapping of the board's clock
-            self.synced = pulse is not None
+            if (pulse is not None) != self.synced:  # another time axis: learn the bias afresh
+                self.synced = pulse is not None
+                self._bias = []
+                self._recent.clear()
             if pulse is None:  # protocol 1: the one-way estimate from the stamps' arrivals
                 pulse = self.clock.to_host(stamp) - window
             timed = self._timed
