@@ -10,8 +10,10 @@ to the lower envelope of the (board, arrival - board) points: the minimum of eac
 ``BLOCK`` acquisitions, a least-squares line through the last ``BLOCKS`` minima. The mapped
 time is therefore the acquisition's time plus the link's *smallest* latency (a constant bias
 the estimator cannot see), and a delayed acquisition does not move it. A board whose clock
-goes back (a reset) starts the estimate afresh. When protocol version 2's TIME_SYNC estimator
-is on the branch, its per-board estimate takes this one's place behind the same interface.
+goes back (a reset) starts the estimate afresh. A board that speaks protocol version 2 gives
+each acquisition ``stamp_host`` from its TIME_SYNC estimator (device/timesync.py), which
+robot/serve.py uses instead; this estimate serves version-1 boards, acquisitions before the
+sync converged, and ``fuse``'s mapping of other computers' clocks.
 """
 
 from __future__ import annotations
@@ -33,18 +35,6 @@ class BoardClock(Protocol):
 
     @property
     def uncertainty_s(self) -> float: ...
-
-
-class HostClock:
-    """Board time is host time (one process simulating boards on the host's clock)."""
-
-    uncertainty_s = 0.0
-
-    def to_host(self, board_s: float) -> float:
-        return board_s
-
-    def observe(self, board_s: float, arrival_s: float) -> None:
-        del board_s, arrival_s
 
 
 class StampClock:
