@@ -18,6 +18,8 @@ sync converged, and ``fuse``'s mapping of other computers' clocks.
 
 from __future__ import annotations
 
+import threading
+import time
 from collections import deque
 from typing import Protocol
 
@@ -106,3 +108,23 @@ class StampClock:
         if self._offset is None:
             raise ValueError("no acquisition observed yet")
         return board_s + self._offset + self._drift * board_s
+
+
+def synced_pulse(acq) -> float | None:
+    """The acquisition's pulse on this process's ``perf_counter`` axis from protocol version
+    2's ``stamp_host`` (the board's time of its first sample mapped by TIME_SYNC, Unix
+    seconds), or None from a version-1 board or before the clocks are synced."""
+    stamp = getattr(acq, "stamp_host", None)
+    if stamp is None:
+        return None
+    return stamp + (acq.received_ns / 1e9 - acq.host_time)  # Unix -> perf_counter
+
+
+def wait_until(at: float, stop: threading.Event) -> bool:
+    """Sleep until perf_counter() reaches ``at`` (spinning the last 2 ms); False if stopped."""
+    while not stop.is_set():
+        wait = at - time.perf_counter()
+        if wait <= 0:
+            return True
+        time.sleep(wait - 0.002 if wait > 0.003 else 0)
+    return False

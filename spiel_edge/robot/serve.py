@@ -29,7 +29,7 @@ import numpy as np
 
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError, SpielError
-from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
+from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse, wait_until
 from spiel_edge.robot.description import BoardSpec, RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, reports_targets
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
@@ -235,26 +235,6 @@ class BoardWorker(threading.Thread):
         if self.stats.acquisitions % PHASE_CHECK_EVERY:
             return False
         return abs(float(np.median(self._recent)) - self._bias_s) > self.schedule.margin_s
-
-
-def synced_pulse(acq) -> float | None:
-    """The acquisition's pulse on this process's ``perf_counter`` axis from protocol version
-    2's ``stamp_host`` (the board's time of its first sample mapped by TIME_SYNC, Unix
-    seconds), or None from a version-1 board or before the clocks are synced."""
-    stamp = getattr(acq, "stamp_host", None)
-    if stamp is None:
-        return None
-    return stamp + (acq.received_ns / 1e9 - acq.host_time)  # Unix -> perf_counter
-
-
-def wait_until(at: float, stop: threading.Event) -> bool:
-    """Sleep until perf_counter() reaches ``at`` (spinning the last 2 ms); False if stopped."""
-    while not stop.is_set():
-        wait = at - time.perf_counter()
-        if wait <= 0:
-            return True
-        time.sleep(wait - 0.002 if wait > 0.003 else 0)
-    return False
 
 
 class RobotRunner:
