@@ -215,13 +215,19 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
     # --- requests ------------------------------------------------------------------------
 
     def request(
-        self, msg: Message, *, timeout_s: float | None = None, retries: int = MAX_RETRIES
+        self,
+        msg: Message,
+        *,
+        timeout_s: float | None = None,
+        retries: int = MAX_RETRIES,
+        probe: bool = False,
     ) -> Message:
         """Send a request and return its answer; DeviceRequestError on an error answer,
         DeviceTimeoutError when ``1 + retries`` tries got none. BUSY is retried after a short
-        delay with a new sequence number (PROTOCOL.md section 10)."""
+        delay with a new sequence number (PROTOCOL.md section 10). ``probe``: an optional
+        exchange (clock sync) whose silence is not counted in ``counters.timeouts``."""
         for attempt in range(1 + retries):
-            answer = self._exchange(msg, timeout_s, retries)
+            answer = self._exchange(msg, timeout_s, retries, probe)
             if not (
                 isinstance(answer, ErrorResponse)
                 and answer.code == ErrorCode.BUSY
@@ -237,7 +243,9 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
             )
         return answer
 
-    def _exchange(self, msg: Message, timeout_s: float | None, retries: int) -> Message:
+    def _exchange(
+        self, msg: Message, timeout_s: float | None, retries: int, probe: bool = False
+    ) -> Message:
         """One request number: send, and re-send on silence, until an answer comes."""
         link = self._require_link()
         self._seq = (self._seq + 1) & 0xFFFF
@@ -254,7 +262,8 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
             answer = self._await(seq, msg.MSG_TYPE, time.monotonic() + timeout_s)
             if answer is not None:
                 return answer
-        self.counters.timeouts += 1
+        if not probe:  # a probe's silence (a clock sync) is its caller's to count
+            self.counters.timeouts += 1
         raise DeviceTimeoutError(
             f"{self.url}: no answer to {type(msg).__name__} after {1 + retries} tries of "
             f"{timeout_s:.3g} s ({self.decoder_summary()})"

@@ -52,6 +52,7 @@ class SessionV2Mixin:
         self._wall_minus_perf_ns = time.time_ns() - time.perf_counter_ns()
         self._sent_ns = 0
         self._answer_ns = 0
+        self.sync_timeouts = 0  # TIME_SYNC exchanges without an answer (not session timeouts)
 
     def _offers(self, capability: int) -> bool:
         hello = self.hello
@@ -83,9 +84,13 @@ class SessionV2Mixin:
             return False
         try:
             answer = self.request(
-                TimeSync(time.perf_counter_ns() // 1000), timeout_s=SYNC_TIMEOUT_S, retries=0
+                TimeSync(time.perf_counter_ns() // 1000),
+                timeout_s=SYNC_TIMEOUT_S,
+                retries=0,
+                probe=True,
             )
         except DeviceTimeoutError:
+            self.sync_timeouts += 1
             return False  # the stream goes on; the next exchange will do
         if not isinstance(answer, TimeSyncResponse):
             return False
@@ -147,7 +152,9 @@ class SessionV2Mixin:
     def _answers(self) -> bool:
         """A quick request: does the board answer at all (any answer counts)?"""
         try:
-            self.request(TimeSync(time.perf_counter_ns() // 1000), timeout_s=PROBE_S, retries=0)
+            self.request(
+                TimeSync(time.perf_counter_ns() // 1000), timeout_s=PROBE_S, retries=0, probe=True
+            )
         except DeviceTimeoutError:
             return False
         except DeviceError:
@@ -159,5 +166,5 @@ class SessionV2Mixin:
         return {
             **self.telemetry.counters.as_dict(),
             "sync_exchanges": c.used,
-            "sync_dropped": c.long_rtt + c.backwards + c.outliers,
+            "sync_dropped": c.long_rtt + c.backwards + c.outliers + self.sync_timeouts,
         }

@@ -212,12 +212,14 @@ class BoardWorker(threading.Thread):
         )
 
     def _on_schedule(self, t: float) -> float:
-        """A pulse within the sync margin of its slot is taken to be at the slot's time (the
-        estimate's noise is not the board's); one outside keeps its measured time."""
+        """A board whose pulses sit within the sync margin of its slot (the median of the last
+        few: a periodic stream does not jump for one pulse, an estimate's outlier does) is
+        taken to fire at the slot's time; otherwise the pulse keeps its measured time."""
         sched, offset = self.schedule, self.schedule.slots[self.board.name].offset_s
         k = round((t - self.t0 - offset) / sched.period_s)
         slot = self.t0 + k * sched.period_s + offset
-        return slot if abs(t - slot) <= sched.margin_s else t
+        err = float(np.median(self._recent)) - self._bias_s if self._recent else t - slot
+        return slot if abs(err) <= sched.margin_s else t
 
     def _off_slot(self, pulse: float) -> bool:
         """Whether the board's pulses left its slot. The first ``PHASE_SETTLE`` pulses after a

@@ -122,8 +122,13 @@ def _exercise_tracker(profile, results) -> None:
 def _exercise_stream() -> None:
     """The stream decoder's COBS kernels (a live board, the virtual one included)."""
     from firmware_protocol import cobs
+    from spiel_edge.device.iq import iq_amplitude
 
     cobs.warm_up()
+    pairs = np.zeros((1, 2), dtype=np.int16)  # I/Q streams (protocol 2): writable and
+    iq_amplitude(pairs)  # read-only (reassembled) samples are two signatures
+    pairs.setflags(write=False)
+    iq_amplitude(pairs)
 
 
 def warmup() -> dict:

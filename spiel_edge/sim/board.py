@@ -32,7 +32,6 @@ from firmware_protocol import (
     Ping,
     Pong,
     SampleFormat,
-    StreamData,
     StreamStart,
     StreamStartResponse,
     StreamStatus,
@@ -44,13 +43,13 @@ from firmware_protocol import (
 from firmware_protocol import messages as m
 from firmware_protocol.framing import Frame
 from firmware_protocol.stream import SAMPLE_SIZE, STREAM_HEADER
-from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
-from spiel_edge.sim.board_v2 import FW_MIN_PAYLOAD, BoardV2Mixin
+from spiel_edge.sim.board_acquire import AcquireMixin
+from spiel_edge.sim.board_v2 import BoardV2Mixin
 from spiel_edge.sim.config_slots import BoardConfigMixin
 from spiel_edge.sim.faults import Outgoing
 from spiel_edge.sim.firmware_slots import FirmwareFlash
-from spiel_edge.sim.flash import Flash, PowerCut
+from spiel_edge.sim.flash import Flash
 from spiel_edge.sim.scenes import EchoModelScene, ReplayScene
 
 log = logging.getLogger(__name__)
@@ -93,7 +92,7 @@ class BoardStats:
         self.executed[msg_type] = self.executed.get(msg_type, 0) + 1
 
 
-class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
+class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
     def __init__(
         self,
         scene: ReplayScene | EchoModelScene,
@@ -117,13 +116,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
         self.max_version = protocol  # the highest protocol version this board speaks
         self.board_max_payload = max_payload  # HELLO max_payload: what it sends or accepts
         self.flash = flash or Flash()
-        self.max_version = protocol  # the highest protocol version this board speaks
-        self.drift_ppm = drift_ppm
-        self.fw = firmware or FirmwareFlash(factory=None)
-        self.sync_fault = sync_fault
-        self.heartbeat_extra_flags = heartbeat_flags
-        self.log_flood = log_flood
-        self.version = 1
+        self._v2_init(drift_ppm, firmware, sync_fault, heartbeat_flags, log_flood)
         self.stats = BoardStats()
         self.tx_dropped = 0  # set by the line: frames lost on the way out
         self._rng = random.Random(seed)
@@ -148,13 +141,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
         self.reboot_at = None
         self.version = 1  # negotiated by HELLO
         self.max_payload = self.board_max_payload  # of the link: min(board, host's HELLO)
-        for _ in range(3):  # the bootloader's record writes may be cut too: boot again
-            try:
-                self.fw.boot()
-                break
-            except PowerCut as exc:
-                log.info("%s: %s during boot", self.serial, exc)
-        self._v2_boot(now)
+        self._v2_boot(now)  # the bootloader's choice of firmware image, telemetry
         on_boot = getattr(self.scene, "on_boot", None)  # a scene on the host's clock (robot)
         if on_boot is not None:
             on_boot(now)
@@ -219,20 +206,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
             m.ConfigCommit: self._config_commit,
             m.ConfigStatusRequest: self._config_status,
         }.get(type(req))
-        if handler is None:
-            handler = {
-                m.TimeSync: self._time_sync,
-                m.Telemetry: self._telemetry,
-                m.FwInfoRequest: self._fw_info,
-                m.FwBegin: self._fw_begin,
-                m.FwWrite: self._fw_write,
-                m.FwVerify: self._fw_verify,
-                m.FwTest: self._fw_test,
-                m.FwConfirm: self._fw_confirm,
-            }.get(type(req))
-            refused = self._need_v2(req) if handler is not None else None
-            if refused is not None:
-                return refused
+        handler = handler or self._v2_handler(req)  # version 2 (board_v2.py)
         if handler is None:
             return ErrorResponse(
                 ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles"
@@ -255,12 +229,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
         self.version = min(req.max_version, top)
         self.max_payload = min(req.max_payload or MAX_PAYLOAD, self.board_max_payload)
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
-        if self.version >= 2:
-            caps |= Capability.TIME_SYNC | Capability.TELEMETRY
-            if self.max_payload >= FW_MIN_PAYLOAD:  # FW_INFO's answer needs 74 bytes
-                caps |= Capability.FIRMWARE_UPDATE
-            if hasattr(self.scene, "iq_supported"):
-                caps |= Capability.IQ_SAMPLES
+        caps |= self.v2_capabilities()
         return m.HelloResponse(
             self.version,
             1,
@@ -421,54 +390,3 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin):
             self.stats.overruns += 1
             self._acquisition = (self._acquisition + 1) & _MASK
             s.next_time += s.period
-
-    def _acquire(self, s: _Stream) -> list[Outgoing]:
-        index, time_s = self._acquisition, s.next_time - self._boot_time
-        iq = s.sample_format == SampleFormat.I16_IQ
-        frame = (
-            self.scene.frame(index, s.n_samples, time_s, iq=True)
-            if iq
-            else (self.scene.frame(index, s.n_samples, time_s))
-        )
-        background = frame.background
-        if (
-            background is not None
-            and self._last_background is not None
-            and np.array_equal(background, self._last_background)
-        ):
-            background = None  # unchanged: the host keeps the one it has
-        elif background is not None:
-            self._last_background = background
-        out = [
-            Outgoing(w, exempt=True) for w in encode_annotations(index, frame.truth_mm, background)
-        ]
-        if frame.truth_targets_mm is not None:
-            out.append(Outgoing(encode_truth_targets(index, frame.truth_targets_mm), exempt=True))
-        channels = s.channels or tuple(range(frame.samples.shape[0]))
-        n_ch = len(channels)
-        if iq:
-            rows = np.ascontiguousarray(frame.iq, dtype="<i2")  # (channels, samples, 2): q, i
-        else:
-            rows = np.ascontiguousarray(frame.samples, dtype="<u2")
-        stamp = self.clock_us(s.next_time)
-        for rank, c in enumerate(channels):
-            msg = StreamData(
-                index,
-                c if self.version >= 2 else rank,  # v2: the physical channel id
-                n_ch,
-                s.sample_format,
-                self.scene.sample_rate_hz,
-                stamp,
-                rows[c].tobytes(),
-            )
-            more = Flags.MORE if rank < n_ch - 1 else 0
-            out.append(
-                Outgoing(
-                    encode_message(msg, seq=s.seq, flags=more, aux=self._counter), acquisition=index
-                )
-            )
-            self._counter = (self._counter + 1) & _MASK
-        self._acquisition = (index + 1) & _MASK
-        self.stats.acquisitions_sent += 1
-        self.stats.frames_sent += n_ch
-        return out

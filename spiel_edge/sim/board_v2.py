@@ -13,7 +13,7 @@ from collections import deque
 
 from crc32c import crc32c
 
-from firmware_protocol import ErrorCode, ErrorResponse, encode_message
+from firmware_protocol import Capability, ErrorCode, ErrorResponse, encode_message
 from firmware_protocol import messages as m
 from firmware_protocol.image import ImageError, parse_image
 from firmware_protocol.v2_messages import (
@@ -26,6 +26,7 @@ from firmware_protocol.v2_messages import (
 )
 from spiel_edge.sim.faults import Outgoing
 from spiel_edge.sim.firmware_slots import NO_SLOT, SILENT_MARK, TARGET, FirmwareFlash
+from spiel_edge.sim.flash import PowerCut
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +55,47 @@ class BoardV2Mixin:
     log_flood: float
     streaming: bool
 
+    def _v2_init(self, drift_ppm, firmware, sync_fault, heartbeat_flags, log_flood) -> None:
+        self.drift_ppm = drift_ppm
+        self.fw = firmware or FirmwareFlash()
+        self.sync_fault = sync_fault
+        self.heartbeat_extra_flags = heartbeat_flags
+        self.log_flood = log_flood
+        self.version = 1
+
+    def v2_capabilities(self) -> int:
+        """HELLO capability bits of the negotiated version."""
+        if self.version < 2:
+            return 0
+        caps = Capability.TIME_SYNC | Capability.TELEMETRY
+        if self.max_payload >= FW_MIN_PAYLOAD:  # FW_INFO's answer needs 74 bytes
+            caps |= Capability.FIRMWARE_UPDATE
+        if hasattr(self.scene, "iq_supported"):
+            caps |= Capability.IQ_SAMPLES
+        return int(caps)
+
+    def _v2_handler(self, req: m.Message):
+        """The handler of a version-2 request (one that refuses it on a version-1 link)."""
+        handler = {
+            m.TimeSync: self._time_sync,
+            m.Telemetry: self._telemetry,
+            m.FwInfoRequest: self._fw_info,
+            m.FwBegin: self._fw_begin,
+            m.FwWrite: self._fw_write,
+            m.FwVerify: self._fw_verify,
+            m.FwTest: self._fw_test,
+            m.FwConfirm: self._fw_confirm,
+        }.get(type(req))
+        refused = self._need_v2(req) if handler is not None else None
+        return handler if refused is None else (lambda req, now: refused)
+
     def _v2_boot(self, now: float) -> None:
+        for _ in range(3):  # the bootloader's record writes may be cut too: boot again
+            try:
+                self.fw.boot()
+                break
+            except PowerCut as exc:
+                log.info("%s: %s during boot", getattr(self, "serial", ""), exc)
         self.heartbeat_ms = DEFAULT_HEARTBEAT_MS if self.max_protocol() >= 2 else 0
         self.log_level = LogLevel.INFO
         self.log_per_s = 20
