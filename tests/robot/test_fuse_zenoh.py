@@ -24,6 +24,14 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _publishers(session, keys: list[str]) -> dict:
+    """A publisher per board key (by the key's last part, the board's name), its route warm
+    (the first put on a new publisher may wait for the peers)."""
+    out = {key.rsplit("/", 1)[-1]: session.declare_publisher(key) for key in keys}
+    time.sleep(0.5)
+    return out
+
+
 def _sleep_until(t: float) -> None:
     time.sleep(max(0.0, t - time.time()))
 
@@ -75,13 +83,13 @@ def test_fuse_over_zenoh(clock_off_s):
     )
     try:
         time.sleep(1.0)  # the peers connect
-        publishers = {b.name: pub.declare_publisher(b.key) for b in robot.boards}
+        publishers = _publishers(pub, [b.key for b in robot.boards])
         p_base = np.array([300.0, 0.0, 0.0])  # in front: the front board sees it 200 mm ahead
         t0 = time.time()
         for k in range(60):  # boards firing every 25 ms, 5 ms apart (published when due)
             _sleep_until(t0 + k * 0.025)
             for j, b in enumerate(robot.boards):
-                host = t0 + k * 0.025 + j * 0.005 + (clock_off_s if b.name == "back" else 0.0)
+                host = time.time() + (clock_off_s if b.name == "back" else 0.0)
                 target = b.mount.to_board(p_base) if b.name == "front" else [0.0, 0.0, 150.0]
                 publishers[b.name].put(_record(k, 10.0 + k * 0.025 + j * 0.005, host, target))
     finally:
@@ -134,7 +142,7 @@ def test_fuse_in_odom_from_an_odometry_key():
     post_odom = np.array([600.0, 0.0, 0.0])
     try:
         time.sleep(1.0)
-        publishers = {b.name: pub.declare_publisher(b.key) for b in robot.boards}
+        publishers = _publishers(pub, [b.key for b in robot.boards])
         odom = pub.declare_publisher("robot/odom")
         t0 = time.time()
         for k in range(60):  # the acquisitions and the odometry stamped on one timeline
