@@ -192,6 +192,9 @@ class Fuser:
         self.odometry = odometry
         self.drop_marked = drop_marked  # targets of an acquisition marked with cross-talk
         self.tracker = Tracker(spec) if track else None
+        if self.tracker is not None:  # compile (or load) its kernels now, not at the first cycle
+            self.tracker.update([], 0.0)
+            self.tracker.reset()
         self.expected = set(mounts)  # boards a cycle waits for (dropped boards leave it)
         self._gone: set[str] = set()  # dropped for good
         self._misses = dict.fromkeys(mounts, 0)  # cycles fused without the board, in a row
@@ -392,7 +395,4 @@ def record_targets(record: dict) -> list[tuple[np.ndarray, np.ndarray, float]]:
 
 def fuse_sequence(fuser: Fuser, reports: Sequence[BoardReport]) -> list[dict]:
     """Every report in order, then the last cycle: the fused records."""
-    out = []
-    for r in reports:
-        out += fuser.add(r)
-    return out + fuser.flush()
+    return [rec for r in reports for rec in fuser.add(r)] + fuser.flush()
