@@ -65,6 +65,14 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
     metavar="FILE",
     help="Zenoh JSON5 configuration (default: $ZENOH_CONFIG, else Zenoh's defaults).",
 )
+@click.option(
+    "--odom",
+    "odom_key",
+    default=None,
+    metavar="KEY",
+    help="Track in odom: the robot's pose on this Zenoh key, JSON "
+    '{"stamp": s, "x": m, "y": m, "yaw": rad}.',
+)
 @click.option("--track/--no-track", default=True, show_default=True, help="One tracker over all.")
 @force_option
 def command(
@@ -82,6 +90,7 @@ def command(
     listen,
     mode,
     zenoh_config,
+    odom_key,
     track,
     force,
 ) -> int:
@@ -111,7 +120,7 @@ def command(
     fuse = None
     with stop_on_signals(stop, finalizers):
         try:
-            fuse = ZenohFuse(robot, sink, config=config, track=track)
+            fuse = ZenohFuse(robot, sink, config=config, track=track, odom_key=odom_key)
             fuse.run(stop, frames=frames, idle_s=idle)
         except BrokenPipeError:
             sys.stdout = None  # type: ignore[assignment]

@@ -10,12 +10,16 @@ to the lower envelope of the (board, arrival - board) points: the minimum of eac
 ``BLOCK`` acquisitions, a least-squares line through the last ``BLOCKS`` minima. The mapped
 time is therefore the acquisition's time plus the link's *smallest* latency (a constant bias
 the estimator cannot see), and a delayed acquisition does not move it. A board whose clock
-goes back (a reset) starts the estimate afresh. When protocol version 2's TIME_SYNC estimator
-is on the branch, its per-board estimate takes this one's place behind the same interface.
+goes back (a reset) starts the estimate afresh. A board that speaks protocol version 2 gives
+each acquisition ``stamp_host`` from its TIME_SYNC estimator (device/timesync.py), which
+robot/serve.py uses instead; this estimate serves version-1 boards, acquisitions before the
+sync converged, and ``fuse``'s mapping of other computers' clocks.
 """
 
 from __future__ import annotations
 
+import threading
+import time
 from collections import deque
 from typing import Protocol
 
@@ -33,18 +37,6 @@ class BoardClock(Protocol):
 
     @property
     def uncertainty_s(self) -> float: ...
-
-
-class HostClock:
-    """Board time is host time (one process simulating boards on the host's clock)."""
-
-    uncertainty_s = 0.0
-
-    def to_host(self, board_s: float) -> float:
-        return board_s
-
-    def observe(self, board_s: float, arrival_s: float) -> None:
-        del board_s, arrival_s
 
 
 class StampClock:
@@ -116,3 +108,23 @@ class StampClock:
         if self._offset is None:
             raise ValueError("no acquisition observed yet")
         return board_s + self._offset + self._drift * board_s
+
+
+def synced_pulse(acq) -> float | None:
+    """The acquisition's pulse on this process's ``perf_counter`` axis from protocol version
+    2's ``stamp_host`` (the board's time of its first sample mapped by TIME_SYNC, Unix
+    seconds), or None from a version-1 board or before the clocks are synced."""
+    stamp = getattr(acq, "stamp_host", None)
+    if stamp is None:
+        return None
+    return stamp + (acq.received_ns / 1e9 - acq.host_time)  # Unix -> perf_counter
+
+
+def wait_until(at: float, stop: threading.Event) -> bool:
+    """Sleep until perf_counter() reaches ``at`` (spinning the last 2 ms); False if stopped."""
+    while not stop.is_set():
+        wait = at - time.perf_counter()
+        if wait <= 0:
+            return True
+        time.sleep(wait - 0.002 if wait > 0.003 else 0)
+    return False

@@ -8,12 +8,13 @@ saw of one object (within the Mahalanobis gate of each other: one information-we
 target), and updates one multi-target tracker (spiel_edge/track) at the cycle's mean time.
 Updating once per cycle keeps a track outside one board's field of view from counting that
 board's acquisition as a miss; a target passing from one field of view into the next keeps
-its track. The fused record goes out when every board expected has reported for the cycle,
-or when a later cycle starts.
+its track (as far as the boards see it: docs/robot.md). Each target is first moved to the
+cycle's time with the velocity of the confirmed track it is near. The fused record goes out
+when every board expected has reported for the cycle, or ``WAIT_CYCLES`` cycles later.
 
-Optionally in ``odom``: given the robot's pose in ``odom`` at the cycle's time (an
-:class:`Odometry` source), targets are transformed on into ``odom`` before tracking, so the
-robot's own motion is not the targets' motion.
+Optionally in ``odom``: given the robot's pose in ``odom`` at a time (``odometry``, a
+callable), each board's targets go on into ``odom`` at their acquisition's time before
+tracking, so the robot's own motion is not the targets' motion.
 """
 
 from __future__ import annotations
@@ -70,6 +71,45 @@ def planar_pose(x_mm: float, y_mm: float, yaw_rad: float) -> tuple[np.ndarray, n
     """(R, t) of base_link in odom for a pose on the floor."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([x_mm, y_mm, 0.0])
+
+
+class OdometryBuffer:
+    """The robot's planar pose in ``odom`` over time, from an odometry stream: ``add`` poses
+    (time s, x mm, y mm, yaw rad) in time order, call it at a time for (R, t), linearly
+    interpolated (yaw the short way round); None outside the poses held (more than
+    ``MAX_EXTRAPOLATION_S`` beyond the newest, or before the oldest)."""
+
+    MAX_POSES = 512
+    MAX_EXTRAPOLATION_S = 0.2
+
+    def __init__(self) -> None:
+        self._poses: list[tuple[float, float, float, float]] = []
+
+    def add(self, t: float, x_mm: float, y_mm: float, yaw_rad: float) -> bool:
+        values = (t, x_mm, y_mm, yaw_rad)
+        if not all(math.isfinite(v) for v in values):
+            return False
+        if self._poses and t <= self._poses[-1][0]:
+            return False  # out of order or repeated: kept out
+        self._poses.append(values)
+        del self._poses[: -self.MAX_POSES]
+        return True
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        poses = self._poses
+        if not poses or t < poses[0][0] or t > poses[-1][0] + self.MAX_EXTRAPOLATION_S:
+            return None
+        if t >= poses[-1][0]:
+            _, x, y, yaw = poses[-1]
+            return planar_pose(x, y, yaw)
+        lo, hi = 0, len(poses) - 1
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (mid, hi) if poses[mid][0] <= t else (lo, mid)
+        (t0, x0, y0, a0), (t1, x1, y1, a1) = poses[lo], poses[hi]
+        w = (t - t0) / (t1 - t0)
+        da = math.remainder(a1 - a0, 2 * math.pi)
+        return planar_pose(x0 + w * (x1 - x0), y0 + w * (y1 - y0), a0 + w * da)
 
 
 def merge_targets(
@@ -152,6 +192,9 @@ class Fuser:
         self.odometry = odometry
         self.drop_marked = drop_marked  # targets of an acquisition marked with cross-talk
         self.tracker = Tracker(spec) if track else None
+        if self.tracker is not None:  # compile (or load) its kernels now, not at the first cycle
+            self.tracker.update([], 0.0)
+            self.tracker.reset()
         self.expected = set(mounts)  # boards a cycle waits for (dropped boards leave it)
         self._gone: set[str] = set()  # dropped for good
         self._misses = dict.fromkeys(mounts, 0)  # cycles fused without the board, in a row
@@ -212,12 +255,12 @@ class Fuser:
         st["targets"] += len(report.targets)
         st["marked"] += bool(report.crosstalk)
         k = self._cycle(report.board, report.host_time)
+        if report.board not in self._gone:  # back (or late): the next cycles wait for it
+            self.expected.add(report.board)
+            self._misses[report.board] = 0
         if k <= self._done:
             st["late"] += 1  # its cycle is already out
             return []
-        if report.board not in self._gone:
-            self.expected.add(report.board)
-            self._misses[report.board] = 0
         self._open.setdefault(k, {})[report.board] = report
         out: list[dict] = []
         for c in sorted(self._open):
@@ -352,7 +395,4 @@ def record_targets(record: dict) -> list[tuple[np.ndarray, np.ndarray, float]]:
 
 def fuse_sequence(fuser: Fuser, reports: Sequence[BoardReport]) -> list[dict]:
     """Every report in order, then the last cycle: the fused records."""
-    out = []
-    for r in reports:
-        out += fuser.add(r)
-    return out + fuser.flush()
+    return [rec for r in reports for rec in fuser.add(r)] + fuser.flush()

@@ -29,7 +29,7 @@ import numpy as np
 
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError, SpielError
-from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
+from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse, wait_until
 from spiel_edge.robot.description import BoardSpec, RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, reports_targets
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
@@ -86,6 +86,8 @@ class BoardWorker(threading.Thread):
         self.go = threading.Event()  # set by the runner once every stream started in its slot
         self._bias: list[float] = []
         self._bias_s = 0.0
+        self._timed = None  # the stream this thread started in the slot (StreamStartResponse)
+        self.synced = False  # its pulses come from TIME_SYNC (protocol 2), not the estimate
         self._recent: deque[float] = deque(maxlen=PHASE_CHECK_EVERY)
         self._disagree = 0
 
@@ -142,7 +144,7 @@ class BoardWorker(threading.Thread):
         sched = self.schedule
         n_samples = self.pipeline.profile.acquisition.n_samples
         period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
-        self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
+        self._timed = self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
         self._bias = []
         self._recent.clear()
 
@@ -161,9 +163,24 @@ class BoardWorker(threading.Thread):
                     )
             else:
                 self._disagree = 0
-            pulse = self.clock.to_host(stamp) - window
-            off_slot = self._off_slot(pulse)
-            report = self._report(acq, self._on_schedule(pulse - self._bias_s), arrival)
+            pulse = synced_pulse(acq)  # protocol 2: TIME_SYNC's mapping of the board's clock
+            if (pulse is not None) != self.synced:  # another time axis: learn the bias afresh
+                self.synced = pulse is not None
+                self._bias = []
+                self._recent.clear()
+            if pulse is None:  # protocol 1: the one-way estimate from the stamps' arrivals
+                pulse = self.clock.to_host(stamp) - window
+            timed = self._timed
+            if self.session.stream is not timed or timed is None:
+                # the session restarted the stream itself (the board came back): not in a
+                # slot; reported as measured, and put back in its slot at once
+                off_slot, t = self.clock.ready, pulse
+            elif (acq.index - timed.first_acquisition) & 0xFFFFFFFF >= 1 << 31:
+                off_slot, t = False, pulse  # left over from before the last start
+            else:
+                off_slot = self._off_slot(pulse)
+                t = self._on_schedule(pulse - self._bias_s)
+            report = self._report(acq, t, arrival)
             self.stats.acquisitions += 1
             self.out.put(("report", self.board.name, report))
             if off_slot:
@@ -195,12 +212,14 @@ class BoardWorker(threading.Thread):
         )
 
     def _on_schedule(self, t: float) -> float:
-        """A pulse within the sync margin of its slot is taken to be at the slot's time (the
-        estimate's noise is not the board's); one outside keeps its measured time."""
+        """A board whose pulses sit within the sync margin of its slot (the median of the last
+        few: a periodic stream does not jump for one pulse, an estimate's outlier does) is
+        taken to fire at the slot's time; otherwise the pulse keeps its measured time."""
         sched, offset = self.schedule, self.schedule.slots[self.board.name].offset_s
         k = round((t - self.t0 - offset) / sched.period_s)
         slot = self.t0 + k * sched.period_s + offset
-        return slot if abs(t - slot) <= sched.margin_s else t
+        err = float(np.median(self._recent)) - self._bias_s if self._recent else t - slot
+        return slot if abs(err) <= sched.margin_s else t
 
     def _off_slot(self, pulse: float) -> bool:
         """Whether the board's pulses left its slot. The first ``PHASE_SETTLE`` pulses after a
@@ -218,16 +237,6 @@ class BoardWorker(threading.Thread):
         if self.stats.acquisitions % PHASE_CHECK_EVERY:
             return False
         return abs(float(np.median(self._recent)) - self._bias_s) > self.schedule.margin_s
-
-
-def wait_until(at: float, stop: threading.Event) -> bool:
-    """Sleep until perf_counter() reaches ``at`` (spinning the last 2 ms); False if stopped."""
-    while not stop.is_set():
-        wait = at - time.perf_counter()
-        if wait <= 0:
-            return True
-        time.sleep(wait - 0.002 if wait > 0.003 else 0)
-    return False
 
 
 class RobotRunner:

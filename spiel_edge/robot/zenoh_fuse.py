@@ -27,13 +27,14 @@ import numpy as np
 from spiel_edge.errors import ConfigError
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
 from spiel_edge.robot.description import RobotSpec
-from spiel_edge.robot.fusion import BoardReport, Fuser, record_targets
+from spiel_edge.robot.fusion import BoardReport, Fuser, OdometryBuffer, record_targets
 
 log = logging.getLogger(__name__)
 
 MAX_RECORD_BYTES = 1 << 20  # a board record is a few kB; anything larger is refused
 BAD_RECORDS_LIMIT = 20  # this many unreadable records in a row: the board is dropped
 QUEUE = 4096
+ODOM = "\x00odom"  # the odometry subscriber's name in the queue (no board is named so)
 
 
 def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | None = None):
@@ -57,13 +58,24 @@ def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | N
 class ZenohFuse:
     """Subscribe to every board's key of ``robot``; fused records to ``sink``."""
 
-    def __init__(self, robot: RobotSpec, sink, *, config=None, track: bool = True, spec=None):
+    def __init__(
+        self,
+        robot: RobotSpec,
+        sink,
+        *,
+        config=None,
+        track: bool = True,
+        spec=None,
+        odom_key: str | None = None,
+    ):
         from spiel_edge.outputs.zenoh import _import_zenoh
 
         self.zenoh = _import_zenoh()
         self.robot = robot
         self.sink = sink
         self.queue: queue.Queue = queue.Queue(maxsize=QUEUE)
+        self.odometry = OdometryBuffer()  # the robot's pose in odom, when odom_key is given
+        self.odom_bad = 0
         self.fuser = Fuser(
             {b.name: b.mount for b in robot.boards},
             period_s=robot.trigger.period_ms / 1000.0,
@@ -71,8 +83,10 @@ class ZenohFuse:
             frame_id=robot.frame_id,
             field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
             track=track,
+            odometry=None if odom_key is None else self.odometry,
         )
         self.clocks = {b.name: StampClock() for b in robot.boards}
+        self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
         self.bad = dict.fromkeys(self.clocks, 0)
         self.dropped: dict[str, str] = {}
         self.overflow = 0
@@ -88,9 +102,13 @@ class ZenohFuse:
                 self.subscribers.append(
                     self.session.declare_subscriber(b.key, self._callback(b.name))
                 )
+            if odom_key is not None:
+                self.subscribers.append(
+                    self.session.declare_subscriber(odom_key, self._callback(ODOM))
+                )
         except Exception as exc:
             self.close()
-            raise ConfigError(f"fuse: cannot subscribe to {b.key!r}: {exc}") from exc
+            raise ConfigError(f"fuse: cannot subscribe: {exc}") from exc
         log.info("fusing %s", ", ".join(f"{b.name} on {b.key}" for b in robot.boards))
 
     def _callback(self, name: str):
@@ -117,6 +135,9 @@ class ZenohFuse:
                     break
                 continue
             last = time.monotonic()
+            if name == ODOM:
+                self._odom(payload, arrived)
+                continue
             if name in self.dropped:
                 continue
             report = self._report(name, payload, arrived)
@@ -153,6 +174,13 @@ class ZenohFuse:
                 "(synchronise them: chrony or PTP)",
             )
             return None
+        synced = record.get("stamp_host")  # protocol 2: the board's time on its host's clock
+        synced = isinstance(synced, (int, float)) and np.isfinite(synced) and float(synced)
+        if synced:
+            stamp = synced  # its host's clock, mapped to this one's below
+        if bool(synced) != self.synced.get(name, False):  # another time axis: learn it afresh
+            self.synced[name] = bool(synced)
+            self.clocks[name] = StampClock()
         clock = self.clocks[name]
         clock.observe(stamp, arrived)
         report = BoardReport(
@@ -166,6 +194,23 @@ class ZenohFuse:
             acquired_unix=remote,  # the acquisition's end on its own computer
         )
         return report
+
+    def _odom(self, payload: bytes, arrived: float) -> None:
+        """An odometry message: JSON ``{"stamp": Unix s, "x": m, "y": m, "yaw": rad}`` (the
+        robot's planar pose in odom); its stamp is used when within a second of its arrival."""
+        try:
+            msg = json.loads(payload)
+            x, y, yaw = (float(msg[k]) for k in ("x", "y", "yaw"))
+            stamp = float(msg.get("stamp", arrived))
+        except (ValueError, KeyError, TypeError, AttributeError):
+            stamp, x, y, yaw = float("nan"), 0.0, 0.0, 0.0
+        t = stamp if abs(stamp - arrived) <= MAX_DISAGREEMENT_S else arrived
+        if not self.odometry.add(t, 1000.0 * x, 1000.0 * y, yaw):
+            self.odom_bad += 1
+            if self.odom_bad in (1, 100, 10000):
+                log.warning(
+                    "odometry: %d messages not used (malformed or out of order)", self.odom_bad
+                )
 
     def _drop(self, name: str, why: str) -> None:
         self.dropped[name] = why

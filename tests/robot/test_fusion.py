@@ -146,3 +146,18 @@ def test_record_targets_skips_malformed_entries():
     }
     (t,) = record_targets(record)
     np.testing.assert_allclose(t[0], [1, 2, 3])
+
+
+def test_odometry_buffer_interpolates_and_refuses_what_it_cannot_know():
+    from spiel_edge.robot.fusion import OdometryBuffer
+
+    odom = OdometryBuffer()
+    assert odom(1.0) is None
+    assert odom.add(1.0, 0.0, 0.0, math.pi - 0.1)
+    assert odom.add(2.0, 100.0, 50.0, -math.pi + 0.1)  # yaw crosses +-pi: the short way
+    assert not odom.add(1.5, 0.0, 0.0, 0.0)  # out of order
+    assert not odom.add(3.0, float("nan"), 0.0, 0.0)
+    rot, trans = odom(1.5)
+    np.testing.assert_allclose(trans, [50.0, 25.0, 0.0])
+    np.testing.assert_allclose(rot @ [1, 0, 0], [-1, 0, 0], atol=1e-9)  # yaw pi
+    assert odom(0.5) is None and odom(2.1) is not None and odom(2.5) is None
