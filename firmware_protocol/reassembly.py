@@ -138,7 +138,9 @@ class AcquisitionAssembler:
         carries, its rows in increasing id order; 0: ids 0 .. n_channels - 1."""
         ids = tuple(c for c in range(32) if channel_mask >> c & 1) if channel_mask else None
         self._ids: tuple[int, ...] | None = ids
-        self._row_of: dict[int, int] | None = None if ids is None else {c: i for i, c in enumerate(ids)}
+        self._row_of: dict[int, int] | None = (
+            None if ids is None else {c: i for i, c in enumerate(ids)}
+        )
         self._next_counter: int | None = None
         self._last_done: int | None = None
         self._first: _Head | None = None

@@ -26,7 +26,6 @@ import numpy as np
 from spiel_edge.outputs.ros2 import frame_settings
 from spiel_edge.outputs.ros2_messages import Ros2Messages
 from spiel_edge.profile.frame_section import FrameSpec
-from spiel_edge.recordings.cdr import Ros2Encoder
 
 RATE_HZ = 50.0  # `run --rate`'s default
 

@@ -1,4 +1,4 @@
-"""Scoring the virtual robot (tools/robot_eval.py, tests/robot/): pure functions over fused
+"""Scoring the virtual robot (tools/bench/robot_eval.py, tests/robot/): pure functions over fused
 records and the world's truth.
 
 - *Crossings*: a mover's primary board (the one that sees it nearest its facing, among those

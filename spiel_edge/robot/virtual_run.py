@@ -1,7 +1,7 @@
 """The virtual robot end to end, offline: simulated acquisitions (sim/robot.py) -> each
 board's pipeline -> host side (clocks, cross-talk marking) -> fusion -> scores.
 
-Used by tools/robot_eval.py (the issue's figures) and tests/robot/ (a short run)."""
+Used by tools/bench/robot_eval.py (the issue's figures) and tests/robot/ (a short run)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The virtual robot offline, in virtual time: every board's pulses, clocks and links.
 
 :func:`simulate` drives a :class:`spiel_edge.sim.robot.RobotWorld` without the protocol or a
-host clock, fast and reproducibly (tools/robot_eval.py, tests/robot/): free-running boards, or
+host clock, fast and reproducibly (tools/bench/robot_eval.py, tests/robot/): free-running boards, or
 boards kept in their trigger slots by the host logic of robot/schedule.py and robot/clock.py.
 """
 

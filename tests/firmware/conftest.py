@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tests.firmware.firmware import PosixBoard, build_driver, build_posix
-from tools.firmware_scans import write_scans
+from tools.release.firmware_scans import write_scans
 
 SAMPLE_RATE_HZ = 22000
 

@@ -1,7 +1,7 @@
 /* Test driver of the portable firmware core (firmware_protocol/firmware/core) with an
  * in-memory HAL: the test feeds request bytes and sets the clock; the driver prints what the
  * device wrote. Commands on stdin, one per line; every command prints exactly one line:
- *   scans <path>       A-scans file (tools/firmware_scans.py)     -> ok | error ...
+ *   scans <path>       A-scans file (tools/release/firmware_scans.py)     -> ok | error ...
  *   init               power on (spiel_device_init); flash kept  -> ok
  *   time <us>          set the clock                              -> ok
  *   feed <hex>         give the bytes to the transport, poll until the device is idle

@@ -2,7 +2,7 @@
 
 Two builds, both with the system C compiler and the firmware's warning flags:
 * the posix target (``spiel_fw_posix``): the firmware as a Linux program on a pty, A-scans
-  from a scans file (tools/firmware_scans.py), flash in a file;
+  from a scans file (tools/release/firmware_scans.py), flash in a file;
 * the core driver (tests/firmware/core_driver.c): the portable core with an in-memory HAL,
   fed request bytes on stdin, for exact request/response transcripts.
 """

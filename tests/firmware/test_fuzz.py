@@ -1,4 +1,4 @@
-"""A short libFuzzer run of the device's request decoder (tools/firmware_fuzz.py): the harness
+"""A short libFuzzer run of the device's request decoder (tools/release/firmware_fuzz.py): the harness
 builds with clang -fsanitize=fuzzer,address,undefined, counts its own inputs and ends without
 a crash or a sanitizer report. The long run (10 million inputs) is in docs/firmware.md.
 Skipped where clang or its fuzzer runtime is missing (Debian: clang, libclang-rt-14-dev)."""

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.cli import main
-from tools.firmware_scans import read_folder, write_scans
+from tools.release.firmware_scans import read_folder, write_scans
 
 N_FRAMES = 300
 COMPARED = ("position_mm", "reason", "residual_mm", "echoes", "matched", "targets")

@@ -24,7 +24,9 @@ def test_plain_lines_for_the_journal():
     progress("warning", "save:/x", "compiled kernel k not saved to /x (OSError: full)")
     progress.finish("done")
     lines = out.getvalue().splitlines()
-    assert lines[0].startswith("compiled 1/2: spiel_edge.pipeline.compiled.front._front_kernel (12.5 s")
+    assert lines[0].startswith(
+        "compiled 1/2: spiel_edge.pipeline.compiled.front._front_kernel (12.5 s"
+    )
     assert lines[1] == "warning: compiled kernel k not saved to /x (OSError: full)"
     assert lines[2] == "done"
     assert "\r" not in out.getvalue() and "\x1b" not in out.getvalue()

@@ -15,7 +15,7 @@ from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError
 from tests.firmware.firmware import PosixBoard, build_posix
-from tools.firmware_scans import write_scans
+from tools.release.firmware_scans import write_scans
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 # fuzz/fuzz.mk - the libFuzzer harness of the device's request decoder (fuzz_request.c),
 # included by ../Makefile for TARGET=fuzz. Needs clang with its fuzzer runtime (Debian:
 # clang and libclang-rt-<version>-dev). Output: $(BUILD)/spiel_fuzz. Run it with
-# `python -m tools.firmware_fuzz`.
+# `python -m tools.release.firmware_fuzz`.
 FUZZ_CC ?= clang
 # FUZZ_COVERAGE=-fno-sanitize-coverage=trace-cmp: about 3x the inputs per second, without
 # libFuzzer's comparison-guided mutations (for long runs over a corpus grown with them)

@@ -3,7 +3,7 @@
  * (core/ over ../c/spiel_proto.c) on an in-memory HAL, fed one input per boot.
  *
  *   make TARGET=fuzz            clang -fsanitize=fuzzer,address,undefined
- *   python -m tools.firmware_fuzz --runs 10000000
+ *   python -m tools.release.firmware_fuzz --runs 10000000
  *
  * Input: byte 0 chooses how the rest is read, bytes 1..3 shape the HAL:
  *   bit 0 of byte 0   0: raw transport bytes;  1: records framed here with a valid CRC, so

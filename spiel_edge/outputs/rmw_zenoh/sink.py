@@ -28,8 +28,8 @@ from spiel_edge.errors import ConfigError
 from spiel_edge.outputs import ros2_messages as rm
 from spiel_edge.outputs import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
-from spiel_edge.outputs.zenoh import _import_zenoh, session_config
 from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.zenoh import _import_zenoh, session_config
 
 log = logging.getLogger(__name__)
 

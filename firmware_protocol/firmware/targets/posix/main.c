@@ -5,7 +5,7 @@
  *
  * The transport is a pseudo-terminal (--pty: its slave path is printed on stdout, as
  * `spiel-edge simulate --pty` does) or stdin/stdout. A-scans come from a scans file
- * (tools/firmware_scans.py writes one from spiel-csv recordings or the vendored subset),
+ * (tools/release/firmware_scans.py writes one from spiel-csv recordings or the vendored subset),
  * looped in order; the flash is a file. A reset re-executes the program on the same pty.
  * Fault injection for tests: --flash-cut N kills the process (SIGKILL) in the middle of the
  * N-th flash operation (0-based: erase or write; half of it done), --flash-fail N makes the

@@ -1,6 +1,6 @@
 """Fused output latency over Zenoh on loopback (docs/robot.md): 4 board processes, 1 fuser.
 
-    python -m tools.robot_latency [--frames 600] [--robot virtual-4] [--port 7461]
+    python -m tools.bench.robot_latency [--frames 600] [--robot virtual-4] [--port 7461]
 
 Starts ``spiel-edge fuse --robot R`` listening on tcp/127.0.0.1:PORT, then one
 ``spiel-edge run --port sim://NAME?scene=robot... --zenoh robot/NAME --rate 1/period`` per

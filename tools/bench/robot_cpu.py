@@ -1,6 +1,6 @@
 """CPU per board-acquisition of ``run --robot`` against one board's ``run`` (docs/robot.md).
 
-    python -m tools.robot_cpu [--short 100] [--long 500] [--robot virtual-4]
+    python -m tools.bench.robot_cpu [--short 100] [--long 500] [--robot virtual-4]
 
 Each command runs twice as a child process, ``--short`` and ``--long`` acquisitions per board
 (``--frames``), and the CPU time (user + system, from the children's rusage) of the

@@ -1,8 +1,8 @@
 """Time sync figures (docs/firmware.md, protocol version 2).
 
-    python tools/clock_sync.py                       # 10 simulated minutes, +-200 ppm, 1 ms jitter
-    python tools/clock_sync.py --seeds 8 --reset-at 300
-    python tools/clock_sync.py --real-time 60        # a live session against sim:// in real time
+    python tools/bench/clock_sync.py                       # 10 simulated minutes, +-200 ppm, 1 ms jitter
+    python tools/bench/clock_sync.py --seeds 8 --reset-at 300
+    python tools/bench/clock_sync.py --real-time 60        # a live session against sim:// in real time
 
 The simulated run drives the virtual board on a virtual clock through the real codec and
 estimator (spiel_edge/measure/clock_sync.py): ten minutes of board time in about ten seconds.

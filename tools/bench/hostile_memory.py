@@ -1,6 +1,6 @@
 """Peak memory and time of every command on the hostile inputs of issue 28 (docs/reliability.md).
 
-    python -m tools.hostile_memory [--json]
+    python -m tools.bench.hostile_memory [--json]
 
 Builds each hostile input in a temporary folder (sparse files and small zips: a few MB on
 disk), runs the command in a fresh process that reports its own high-water mark (VmHWM) at

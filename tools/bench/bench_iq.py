@@ -2,7 +2,7 @@
 spiel_edge/device/iq.py in front; the phase is computed only when recorded), on model-scene
 acquisitions of the virtual board.
 
-    python tools/bench_iq.py --repeat 3
+    python tools/bench/bench_iq.py --repeat 3
 
 Prints JSON: median microseconds per acquisition of each and their ratio.
 """

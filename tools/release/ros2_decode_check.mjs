@@ -1,9 +1,9 @@
 // Decode every CDR message of a ros2 MCAP recording with Foxglove's own decoders
 // (@foxglove/rosmsg parses the ros2msg schema, @foxglove/rosmsg2-serialization reads the CDR),
-// as the Foxglove app does. Used by tools/ros2_decode_check.py; prints one JSON line:
+// as the Foxglove app does. Used by tools/release/ros2_decode_check.py; prints one JSON line:
 // {"messages": N, "failures": N, "by_topic": {...}, "first_failures": [...]}.
 //
-//   NODE_PATH=DIR/node_modules node tools/ros2_decode_check.mjs FILE.mcap
+//   NODE_PATH=DIR/node_modules node tools/release/ros2_decode_check.mjs FILE.mcap
 // with DIR holding: npm install @foxglove/rosmsg @foxglove/rosmsg2-serialization @mcap/core fzstd
 import { createRequire } from "node:module";
 import { readFileSync } from "node:fs";

@@ -1,7 +1,7 @@
 """Fuzz the reference firmware's request decoder with libFuzzer, for a bounded count or time.
 
-    python -m tools.firmware_fuzz --runs 10000000          # the figure in docs/firmware.md
-    python -m tools.firmware_fuzz --seconds 30 --json
+    python -m tools.release.firmware_fuzz --runs 10000000          # the figure in docs/firmware.md
+    python -m tools.release.firmware_fuzz --seconds 30 --json
 
 Builds ``make TARGET=fuzz`` (firmware_protocol/firmware/fuzz/fuzz_request.c: the portable core
 on an in-memory HAL, clang -fsanitize=fuzzer,address,undefined), seeds a corpus with the
@@ -138,7 +138,9 @@ def run(
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.firmware_fuzz", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="python -m tools.release.firmware_fuzz", description=__doc__
+    )
     parser.add_argument("--runs", type=int, default=None, help="inputs to run (libFuzzer -runs)")
     parser.add_argument("--seconds", type=float, default=None, help="time limit in seconds")
     parser.add_argument("--corpus", type=Path, default=None, help="corpus folder (kept)")

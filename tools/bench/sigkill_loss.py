@@ -1,6 +1,6 @@
 """What a SIGKILL (or a power cut) costs a recording: acquisitions lost after `recover`.
 
-    python -m tools.sigkill_loss [--seconds 20 --rounds 3 --rate 100]
+    python -m tools.bench.sigkill_loss [--seconds 20 --rounds 3 --rate 100]
 
 Per round: `spiel-edge run --port sim://?scene=model --rate RATE --record R.mcap -o R.ndjson`
 runs for SECONDS, is killed with SIGKILL, `spiel-edge recover R.mcap -o F.mcap` rewrites what

@@ -1,7 +1,7 @@
 """The virtual robot's figures (docs/robot.md): cross-talk with and without the schedule,
 track ids across fields of view, tracked error against one board's own.
 
-    python -m tools.robot_eval [--cycles 2000] [--movers 5] [--seed 0] [--robot virtual-4]
+    python -m tools.bench.robot_eval [--cycles 2000] [--movers 5] [--seed 0] [--robot virtual-4]
         [--mode scheduled|free|both] [--keep-marked]
 
 Offline in virtual time (sim/robot.py's simulate: each board's clock with offset and

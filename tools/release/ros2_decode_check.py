@@ -1,9 +1,9 @@
 """Decode every message of a ros2 MCAP recording of a movers run with three third-party
 decoders: rosbags, mcap-ros2-support, and Foxglove's own (@foxglove/rosmsg2-serialization,
-through node; tools/ros2_decode_check.mjs). Reports messages and failures per decoder and
+through node; tools/release/ros2_decode_check.mjs). Reports messages and failures per decoder and
 topic as JSON.
 
-    python -m tools.ros2_decode_check --frames 1700 -o /tmp/movers.mcap \\
+    python -m tools.release.ros2_decode_check --frames 1700 -o /tmp/movers.mcap \\
         --node-modules /tmp/npm/node_modules
 
 The recording: `spiel-edge run --port 'sim://?scene=model&movers=3&seed=S' --max-targets 4

@@ -14,8 +14,8 @@ vendored subset into one little-endian binary file, which the firmware loops ove
     16      4     sample_rate_hz (integer Hz)
     20      ...   u16 samples [acquisition][channel][sample]
 
-    python -m tools.firmware_scans OUT.spas --folder RECORDINGS [--sample-rate 22000]
-    python -m tools.firmware_scans OUT.spas --subset
+    python -m tools.release.firmware_scans OUT.spas --folder RECORDINGS [--sample-rate 22000]
+    python -m tools.release.firmware_scans OUT.spas --subset
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ s = 1, f = 0 (tools/fit_covariance.collect) and every candidate is scored withou
         --single-background -o train_bg1.npz
     python -m tools.build_scenes ROOT --split train --pairs 0 --triples 0 -o train.npz
     (the same with --split val for val_bg1.npz and val.npz)
-    python -m tools.fit_covariance_positions train_bg1.npz train.npz \\
+    python -m tools.train.fit_covariance_positions train_bg1.npz train.npz \\
         --validate val_bg1.npz val.npz --cache unit.npz
 
 The validation files are only scored after the fit, with the fitted values.
