@@ -10,7 +10,7 @@ import shutil
 
 import pytest
 
-from tools import firmware_fuzz
+from tools.release import firmware_fuzz
 
 RUNS = 5000
 
