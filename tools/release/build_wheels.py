@@ -167,6 +167,9 @@ def verify(runner: Runner, python: str, work: Path, wheel: Path, user: str = "65
     """The wheel in a fresh venv, read-only, as ``user`` (nobody; "root": an interpreter
     nobody cannot run, e.g. under /root/.pyenv), empty cache, compiling forbidden."""
     venv = work / "verifyenv"
+    if runner.root is not None:  # the wheel was written outside the root: install a copy
+        shutil.copy(wheel, work / wheel.name)
+        wheel = work / wheel.name
     vpy = fresh_venv(runner, python, venv, wheel)
     site = runner.run(
         [vpy, "-c", "import spiel_edge, os; print(os.path.dirname(spiel_edge.__file__))"],
