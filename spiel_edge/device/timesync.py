@@ -5,9 +5,15 @@ host's clock when the request left (``sent_us``), when the answer's bytes were r
 (``received_us``), and the board's clock in the answer (``board_us``). As in PTP's two-way
 exchange and MAVLink's TIMESYNC, the board read its clock somewhere inside that round trip, so
 one exchange bounds the offset to +-(round trip / 2) about the midpoint. Over a window the
-estimator fits host time as a straight line of board time (offset and drift) through the
-midpoints of the exchanges with the shortest round trips, which a jittered link delays least
-asymmetrically.
+estimator looks for the line host = offset + rate * board that passes above every request's
+send time and below every answer's read time (both delays are positive): the feasible lines
+form a corridor, and the estimate is its centre line, the rate where the corridor is widest.
+A delayed request or answer only loosens one bound, so jitter costs nothing but the fastest
+exchanges' delays, which shrink as the window fills (with 1 ms of uniform jitter and a few
+hundred exchanges, a few us) -- where a least-squares line through the midpoints keeps the
+spread of their asymmetries. When no line fits every exchange (a clock that wandered inside
+the window), the estimator falls back to a least-squares line through the midpoints of the
+exchanges with the shortest round trips.
 
 Outliers: an answer whose round trip is long, whose board time goes backwards, or that lies
 far from the current line is dropped and counted; several in a row that agree with each other
@@ -26,6 +32,8 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
+import numpy as np
+
 __all__ = ["ClockEstimate", "SyncCounters", "SyncSample", "TimeSyncEstimator"]
 
 MAX_DRIFT = 500e-6  # |board rate / host rate - 1| assumed at most (crystals: +-100 ppm each)
@@ -39,6 +47,7 @@ STEP_AFTER = 5  # consecutive agreeing outliers: the board's clock was stepped
 RESOLUTION_US = 2.0  # both clocks' resolution (whole us on the wire) on top of half a round trip
 FAST_UNTIL = 64  # exchanges in the window before the session syncs at its normal period
 FAST_PERIOD_S = 0.1
+SEARCH_STEPS = 50  # golden-section steps: the rate to 0.618**50 of 1e-3, about 4e-14
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,6 +187,15 @@ class TimeSyncEstimator:
     # --- the estimate ------------------------------------------------------------------
 
     def _refit(self) -> None:
+        self._least_squares()
+        if self._fitted is not None:
+            corridor = _corridor(list(self._samples), self._prior)
+            if corridor is not None:
+                self.estimate = self._fitted = corridor
+                self._rate = corridor.rate
+                self._rate_sd = min(max(corridor.growth / SIGMAS, 1e-9), MAX_DRIFT)
+
+    def _least_squares(self) -> None:
         samples = list(self._samples)
         best = min(samples, key=lambda s: s.rtt_us)
         prior_rate, prior_sd = self._prior if self._prior is not None else (1.0, MAX_DRIFT)
@@ -242,3 +260,61 @@ class TimeSyncEstimator:
     def take_messages(self) -> list[str]:
         out, self.counters.messages = self.counters.messages, []
         return out
+
+
+def _corridor(samples: list[SyncSample], prior: tuple[float, float] | None) -> ClockEstimate | None:
+    """The centre line of the lines above every send and below every read, or None."""
+    board = np.array([x.board_us for x in samples])
+    sent = np.array([x.sent_us for x in samples]) - RESOLUTION_US
+    read = np.array([x.received_us for x in samples]) + RESOLUTION_US
+    b0, h0 = float(board.mean()), float(sent.mean())
+    board, sent, read = board - b0, sent - h0, read - h0  # centred: no cancellation
+
+    def width(rate: float) -> float:  # concave in rate: its maximum is the widest corridor
+        return float(np.min(read - rate * board) - np.max(sent - rate * board))
+
+    lo, hi = 1.0 - MAX_DRIFT, 1.0 + MAX_DRIFT
+    if prior is not None:  # the rate measured before a reset narrows the search
+        lo, hi = max(lo, prior[0] - SIGMAS * prior[1]), min(hi, prior[0] + SIGMAS * prior[1])
+    rate = _widest(width, lo, hi)
+    if width(rate) < 0.0 and prior is not None:
+        lo, hi = 1.0 - MAX_DRIFT, 1.0 + MAX_DRIFT
+        rate = _widest(width, lo, hi)
+    w = width(rate)
+    if w < 0.0:
+        return None
+    # the rates with a corridor at all: how far the rate may be off
+    r_lo = _root(width, lo, rate) if width(lo) < 0.0 else lo
+    r_hi = _root(width, hi, rate) if width(hi) < 0.0 else hi
+    offset = 0.5 * (np.min(read - rate * board) + np.max(sent - rate * board))
+    growth = max(rate - r_lo, r_hi - rate)
+    return ClockEstimate(b0, h0 + float(offset), rate, 0.5 * w + RESOLUTION_US, growth, True)
+
+
+def _widest(f, lo: float, hi: float) -> float:
+    """Golden-section search for the maximum of a concave function on [lo, hi]."""
+    g = 0.5 * (math.sqrt(5.0) - 1.0)
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = f(c), f(d)
+    for _ in range(SEARCH_STEPS):
+        if fc >= fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = f(d)
+    return 0.5 * (a + b)
+
+
+def _root(f, outside: float, inside: float) -> float:
+    """Bisection between f(outside) < 0 <= f(inside): the edge of the feasible rates."""
+    for _ in range(SEARCH_STEPS - 10):  # 0.5**40 of 1e-3
+        mid = 0.5 * (outside + inside)
+        if f(mid) >= 0.0:
+            inside = mid
+        else:
+            outside = mid
+    return inside

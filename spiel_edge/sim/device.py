@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 
 REBOOT_S = 0.3  # how long a rebooting board is gone from the bus
 UNPLUG_GRACE_S = 0.2  # how long an unplug waits for the host to read what was already sent
+ANSWER_SPIN_S = 0.0004  # the last stretch before a delayed answer is spun, not slept (wait())
 
 
 class DeviceGone(OSError):
@@ -213,6 +214,25 @@ class SimDevice:
         self._since_plug = 0
         self.board.boot(now)
         log.debug("%s: plugged in again (generation %d)", self.options.serial, self.generation)
+
+    def wait(self, now: float, deadline: float | None, min_sleep_s: float) -> None:
+        """Sleep a reading link until something may happen (or ``deadline``).
+
+        A jittered link's delayed answer is waited for to within a few us: sleep overshoots
+        by 50-100 us (the kernel's timer slack, more under load), which would delay only
+        the answer's leg of a TIME_SYNC exchange, an asymmetry the link model does not have
+        and no two-way exchange can see. So the last ANSWER_SPIN_S before it is spun."""
+        wake = self.next_event(now)
+        if deadline is not None:
+            wake = min(wake, deadline)
+        answer = self._delayed[0][0] if self._delayed else None
+        if answer is None or answer > wake:
+            time.sleep(max(wake - now, min_sleep_s))
+        elif answer - now > ANSWER_SPIN_S:
+            time.sleep(answer - ANSWER_SPIN_S - now)
+        else:
+            while self.clock() < answer:
+                pass
 
     def next_event(self, now: float) -> float:
         """When something may happen next without host input (for sleeping callers)."""

@@ -116,10 +116,7 @@ class Serial(SerialBase):
             now = time.monotonic()
             if len(data) >= size or (deadline is not None and now >= deadline):
                 break
-            wake = device.next_event(now)
-            if deadline is not None:
-                wake = min(wake, deadline)
-            time.sleep(max(wake - now, MIN_SLEEP_S))
+            device.wait(now, deadline, MIN_SLEEP_S)
         return bytes(data)
 
     def write(self, data: bytes) -> int:

@@ -193,7 +193,7 @@ class FakeUsbBackend(usb.backend.IBackend):
             now = time.monotonic()
             if now >= deadline:
                 raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
-            time.sleep(max(min(device.next_event(now), deadline) - now, MIN_SLEEP_S))
+            device.wait(now, deadline, MIN_SLEEP_S)
 
     def ctrl_transfer(
         self,

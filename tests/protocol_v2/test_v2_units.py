@@ -54,7 +54,24 @@ def test_estimator_recovers_offset_and_drift_from_clean_exchanges() -> None:
     exchanges(est, 5e6, rate, np.arange(0, 60, 0.25))
     board = (70e6 - 5e6) / rate  # 10 s past the last exchange
     host, u = est.map(board)
-    assert abs(host - 70e6) < 5 and u < 200
+    # exact value; the stated uncertainty is the corridor's: +-100 us at the window's centre,
+    # widened by the rates that still fit +-100 us over 60 s, 40 s away (about 235 us)
+    assert abs(host - 70e6) < 5 and 100 < u < 250
+
+
+def test_jittered_exchanges_give_the_corridor_centre_far_inside_the_jitter() -> None:
+    """1 ms of jitter on each leg: the lines above every send and below every read pin the
+    clock to a few us, where a line through the midpoints keeps their spread (~100 us)."""
+    rng = np.random.default_rng(3)
+    est = TimeSyncEstimator()
+    rate, offset = 1 + 200e-6, 7e6
+    for t in np.arange(0, 120, 0.25):
+        up, down = rng.uniform(0, 1000, 2)
+        stamp = t * 1e6 + up
+        est.add(t * 1e6, stamp + down, (stamp - offset) / rate, 1)
+    truth = 125e6
+    host, u = est.map((truth - offset) / rate)
+    assert abs(host - truth) < 15 and abs(host - truth) <= u < 200
 
 
 def test_single_exchange_states_its_hard_bound() -> None:
