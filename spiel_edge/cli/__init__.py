@@ -85,6 +85,9 @@ class ReaderGone(Exception):
     """The reader of stdout went away (``| head``): a normal end, status 0."""
 
 
+SPEAK_WHEN_COLD = ("run", "replay")  # commands that compile kernels before they start
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported when they run, not when the CLI starts."""
 
@@ -97,6 +100,14 @@ class LazyGroup(click.Group):
         from spiel_edge.cli._types import harden_command
 
         return harden_command(importlib.import_module(f"{__name__}.{name}").command)
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        # a first start says so before the command's module imports numba (about a second)
+        if args and args[0] in SPEAK_WHEN_COLD and not {"-h", "--help"} & set(args[1:]):
+            from spiel_edge.runtime.cold_start import say_if_cold
+
+            say_if_cold(args[0])
+        return super().resolve_command(ctx, args)
 
     def invoke(self, ctx: click.Context):
         try:
