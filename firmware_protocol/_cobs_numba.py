@@ -1,6 +1,7 @@
 """numba kernels for firmware_protocol.cobs (imported only when numba is available).
 
-Error code as in firmware_protocol.cobs: -2 a code past the end (the caller rejects zero bytes).
+Error codes as in firmware_protocol.cobs: -2 a code past the end (the caller rejects zero bytes);
+``decode_pieces`` adds -3 (a piece over its size limit) and -4 (an empty piece).
 """
 
 from __future__ import annotations
@@ -15,29 +16,55 @@ except ImportError:  # pragma: no cover - firmware_protocol copied without spiel
     jit = njit(cache=True, nogil=True)
 
 
+@jit(inline="always")
+def _decode_span(src, pos, end, dst, out):  # pragma: no cover - compiled
+    # src[pos:end] holds no zero byte; decoded into dst from ``out``: its size, or -2
+    first = out
+    while pos < end:
+        code = np.int64(src[pos])
+        stop = pos + code
+        if stop > end:
+            return -2
+        if code > 32:  # a slice copy pays off on long blocks, a plain loop on short ones
+            dst[out : out + code - 1] = src[pos + 1 : stop]
+            out += code - 1
+        else:
+            for i in range(pos + 1, stop):
+                dst[out] = src[i]
+                out += 1
+        if code != 0xFF and stop < end:
+            dst[out] = 0
+            out += 1
+        pos = stop
+    return out - first
+
+
 @jit
 def decode(src, dst):  # pragma: no cover - compiled
     # the caller has checked that src holds no zero byte (a C-speed scan)
-    size = src.shape[0]
-    pos = 0
-    out = 0
-    while pos < size:
-        code = np.int64(src[pos])
-        end = pos + code
-        if end > size:
-            return -2
-        if code > 32:  # a slice copy pays off on long blocks, a plain loop on short ones
-            dst[out : out + code - 1] = src[pos + 1 : end]
-            out += code - 1
+    return _decode_span(src, 0, src.shape[0], dst, 0)
+
+
+@jit
+def decode_pieces(src, dst, starts, sizes, max_piece):  # pragma: no cover - compiled
+    # every zero byte of src ends a piece; piece k decodes into dst at starts[k] (its own
+    # offset in src: a decoded piece is never longer). sizes[k]: the decoded size, or -2 (a
+    # code past the piece's end), -3 (longer than max_piece), -4 (empty)
+    n = 0
+    begin = 0
+    for pos in range(src.shape[0]):
+        if src[pos] != 0:
+            continue
+        starts[n] = begin
+        if pos == begin:
+            sizes[n] = -4
+        elif pos - begin > max_piece:
+            sizes[n] = -3
         else:
-            for i in range(pos + 1, end):
-                dst[out] = src[i]
-                out += 1
-        if code != 0xFF and end < size:
-            dst[out] = 0
-            out += 1
-        pos = end
-    return out
+            sizes[n] = _decode_span(src, begin, pos, dst, begin)
+        n += 1
+        begin = pos + 1
+    return n
 
 
 @jit

@@ -58,6 +58,24 @@ def decode(data: bytes | bytearray | memoryview) -> bytes:
     return dst[:size].tobytes()
 
 
+PIECE_SHORT, PIECE_OVERSIZE, PIECE_EMPTY = -2, -3, -4  # decode_pieces' size codes (-2: _SHORT)
+
+
+def decode_pieces(data: bytes, max_piece: int) -> tuple[bytes, list[int], list[int]] | None:
+    """Decode every zero-terminated piece of ``data`` (which ends with a zero byte) in one
+    kernel call: (decoded bytes, each piece's start in them, its size or a PIECE_* code).
+    None when the kernels are not loaded: decode each piece with :func:`decode`."""
+    if _kernels is None:
+        return None
+    src = np.frombuffer(data, np.uint8)
+    count = data.count(0)
+    dst = np.empty(len(src), np.uint8)
+    starts = np.empty(count, np.int64)
+    sizes = np.empty(count, np.int64)
+    _kernels.decode_pieces(src, dst, starts, sizes, max_piece)  # type: ignore[union-attr]
+    return dst.tobytes(), starts.tolist(), sizes.tolist()
+
+
 def encode_pure(data: bytes | bytearray | memoryview) -> bytes:
     """The pure-Python encoder (same output as encode)."""
     segments = bytes(data).split(b"\x00")
@@ -132,3 +150,4 @@ def warm_up() -> None:
         if kernels() is not None:
             sample = bytes(range(256)) * 2
             decode(encode(sample))
+            decode_pieces(encode(sample) + b"\x00", 1024)

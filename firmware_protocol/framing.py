@@ -163,24 +163,34 @@ class FrameDecoder:
         if last < 0:
             self._keep(data)
             return []
-        pieces = data[:last].split(DELIMITER)
-        pieces[0] = self._take_first(pieces[0])
+        whole = data[: last + 1]  # complete pieces, each with its delimiter
+        if self._discarding:  # the first piece ends an over-long one: dropped
+            self._discarding = False
+            whole = whole[whole.find(0) + 1 :]
+        elif self._partial:
+            whole = bytes(self._partial) + whole
         self._partial.clear()
         self._keep(data[last + 1 :])
-        frames = []
-        for piece in pieces:
-            if piece:
-                frame = self._decode(piece)
-                if frame is not None:
-                    frames.append(frame)
-        return frames
+        decoded = cobs.decode_pieces(whole, MAX_ENCODED_SIZE)
+        if decoded is None:  # no kernels: piece by piece
+            return [f for p in whole[:-1].split(DELIMITER) if p and (f := self._decode(p))]
+        return self._check_all(*decoded)
 
-    def _take_first(self, piece: bytes) -> bytes:
-        """Join the buffered start of a frame with its end; drop it if it was over-long."""
-        if self._discarding:
-            self._discarding = False
-            return b""
-        return bytes(self._partial) + piece if self._partial else piece
+    def _check_all(self, body: bytes, starts: list[int], sizes: list[int]) -> list[Frame]:
+        """The pieces decoded in one kernel call: counted and checked as :meth:`_decode` does."""
+        frames = []
+        stats = self.stats
+        for start, size in zip(starts, sizes, strict=True):
+            if size < 0:
+                if size == cobs.PIECE_OVERSIZE:
+                    stats.oversize += 1
+                elif size == cobs.PIECE_SHORT:
+                    stats.cobs += 1
+                continue  # PIECE_EMPTY: two delimiters in a row, nothing lost
+            frame = self._checked(body[start : start + size])
+            if frame is not None:
+                frames.append(frame)
+        return frames
 
     def _keep(self, tail: bytes) -> None:
         if self._discarding or not tail:
@@ -201,6 +211,9 @@ class FrameDecoder:
         except cobs.CobsDecodeError:
             self.stats.cobs += 1
             return None
+        return self._checked(body)
+
+    def _checked(self, body: bytes) -> Frame | None:
         if len(body) < _MIN_BODY:
             self.stats.length += 1
             return None

@@ -55,14 +55,17 @@ def tracker_covariance(covariance_mm2: np.ndarray, scale: float, floor_mm: float
     """A target's covariance ``s^2 L + f^2 I`` (the profile's calibration ``scale``,
     ``floor_mm``) re-expressed as the tracker's: TRACKER_COVARIANCE_SCALE^2 L +
     TRACKER_COVARIANCE_FLOOR_MM^2 I. A covariance that cannot be the pipeline's (not finite,
-    or a variance below the floor) is passed on as it is."""
+    or a variance below the floor) is passed on as it is. One 3 x 3 or a stack (K, 3, 3),
+    each judged on its own (one call per acquisition, not per target)."""
     cov = np.asarray(covariance_mm2, dtype=np.float64)
     floor2 = floor_mm**2
-    if not (np.all(np.isfinite(cov)) and np.all(np.diagonal(cov) >= floor2)):
-        return cov
+    usable = np.isfinite(cov).all(axis=(-2, -1)) & (
+        np.diagonal(cov, axis1=-2, axis2=-1) >= floor2
+    ).all(axis=-1)
     eye = np.eye(3)
     linear = (cov - floor2 * eye) / scale**2
-    return TRACKER_COVARIANCE_SCALE**2 * linear + TRACKER_COVARIANCE_FLOOR_MM**2 * eye
+    mapped = TRACKER_COVARIANCE_SCALE**2 * linear + TRACKER_COVARIANCE_FLOOR_MM**2 * eye
+    return np.where(usable[..., None, None], mapped, cov)
 
 
 class ResultTracker:
@@ -89,12 +92,12 @@ class ResultTracker:
             return self.tracker.update(self.last_targets, t_s)
         sc = self.scene
         scale = sc.covariance_scale if captured else sc.covariance_scale_no_background
+        covariances = tracker_covariance(
+            np.array([t.covariance_mm2 for t in self.last_targets]), scale, sc.covariance_floor_mm
+        )
         fed = [
-            replace(
-                t,
-                covariance_mm2=tracker_covariance(t.covariance_mm2, scale, sc.covariance_floor_mm),
-            )
-            for t in self.last_targets
+            replace(t, covariance_mm2=cov)
+            for t, cov in zip(self.last_targets, covariances, strict=True)
         ]
         tracks = self.tracker.update(fed, t_s)
         for target, copy in zip(self.last_targets, fed, strict=True):

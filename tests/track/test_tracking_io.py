@@ -174,6 +174,11 @@ def test_tracker_is_fed_the_covariance_in_its_own_calibration():
         expected,
         rtol=1e-12,
     )
+    bad = np.full((3, 3), np.nan)  # not the pipeline's: passed on as it is
+    stacked = tracker_covariance(np.array([published, bad, expected]), 7.55, 20.0)
+    for got, one in zip(stacked, (published, bad, expected), strict=True):  # bit for bit
+        assert np.array_equal(got, tracker_covariance(one, 7.55, 20.0), equal_nan=True)
+    assert np.isnan(stacked[1]).all()
     profile = load_profile()
     runs = {}
     for scene in (None, profile.scene):
