@@ -69,8 +69,8 @@ class Target:
 
     def record(self) -> dict:
         out = {
-            "position_mm": [round(v, 2) for v in self.position_mm.tolist()],
-            "covariance_mm2": [[round(v, 3) for v in r] for r in self.covariance_mm2.tolist()],
+            "position_mm": _rounded(self.position_mm.tolist(), 2),
+            "covariance_mm2": [_rounded(r, 3) for r in self.covariance_mm2.tolist()],
             "residual_mm": round(float(self.residual_mm), 3),
             "matched": self.matched,
             "score": round(float(self.score), 4),
@@ -78,6 +78,12 @@ class Target:
         if self.track_id is not None:
             out["track_id"] = int(self.track_id)
         return out
+
+
+def _rounded(values: list[float], digits: int) -> list[float]:
+    """Three values rounded (no comprehension: this runs for every target of every record)."""
+    a, b, c = values
+    return [round(a, digits), round(b, digits), round(c, digits)]
 
 
 @dataclass

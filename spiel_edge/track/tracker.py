@@ -105,12 +105,14 @@ class Track:
         row = self._snapshot[self._row].tolist()  # one conversion: state, then 6 x 6 covariance
         return {
             "track_id": int(self.track_id),
-            "position_mm": [round(v, 2) for v in row[0:3]],
-            "velocity_mm_s": [round(v, 2) for v in row[3:6]],
-            "covariance_mm2": [[round(v, 3) for v in row[at : at + 3]] for at in (6, 12, 18)],
+            "position_mm": _three(row, 0, 2),
+            "velocity_mm_s": _three(row, 3, 2),
+            "covariance_mm2": [_three(row, 6, 3), _three(row, 12, 3), _three(row, 18, 3)],
             # the velocity block of the 6 x 6 covariance: rows and columns 3-5
             "velocity_covariance_mm2_s2": [
-                [round(v, 3) for v in row[at : at + 3]] for at in (27, 33, 39)
+                _three(row, 27, 3),
+                _three(row, 33, 3),
+                _three(row, 39, 3),
             ],
             "age": int(self.age),
             "hits": int(self.hits),
@@ -119,6 +121,12 @@ class Track:
     def __repr__(self) -> str:
         pos = ", ".join(f"{v:.1f}" for v in self.position_mm)
         return f"Track({self.track_id}, [{pos}] mm, age {self.age}, hits {self.hits})"
+
+
+def _three(row: list[float], at: int, digits: int) -> list[float]:
+    """row[at : at + 3] rounded (a record's vector or covariance row; no comprehension: this
+    runs for every track of every record)."""
+    return [round(row[at], digits), round(row[at + 1], digits), round(row[at + 2], digits)]
 
 
 class Tracker:
