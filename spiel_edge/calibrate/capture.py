@@ -30,7 +30,8 @@ def capture(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """``n`` acquisitions (n, channels, samples) and the board's background, if it sends one."""
     frames, background = [], None
-    session.start_stream(rate_hz=rate_hz, n_samples=n_samples)
+    # exactly n: the board stops by itself, so none more is in flight when the host stops it
+    session.start_stream(rate_hz=rate_hz, n_samples=n_samples, n_acquisitions=n)
     try:
         for acq in session.acquisitions(threading.Event()):
             frames.append(np.asarray(acq.samples, dtype=np.float64))

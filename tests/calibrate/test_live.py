@@ -27,11 +27,14 @@ class FakeSession:
         self.rng = np.random.default_rng(seed)
         self.target = None
         self.streams = 0
+        self.asks: list[int] = []  # n_acquisitions of each STREAM_START
         self.closed = False
 
-    def start_stream(self, *, rate_hz: float, n_samples: int):
+    def start_stream(self, *, rate_hz: float, n_samples: int, n_acquisitions: int = 0):
         assert n_samples == self.n_samples
         self.streams += 1
+        self.asked = n_acquisitions  # a board sends exactly this many, then stops (0: endless)
+        self.asks.append(n_acquisitions)
 
     def stop_stream(self):
         pass
@@ -40,7 +43,9 @@ class FakeSession:
         self.closed = True
 
     def acquisitions(self, stop):
-        while True:
+        sent = 0
+        while not self.asked or sent < self.asked:
+            sent += 1
             far = np.array([[0.0, 0.0, 5000.0]])  # beyond the frame: an empty scene
             p = far if self.target is None else np.asarray(self.target)[None]
             frames, bg = render(self.truth, p, FS, self.n_samples, self.rng, noise=4.0)
@@ -68,6 +73,8 @@ def test_capture_positions_follows_the_robot(send_background):
     assert np.array_equal(where, np.repeat(positions, 3, axis=0))
     assert calls == ([0, 1] if send_background else [-1, 0, 1])
     assert sum(progressed) == 6
+    # each stream asks for exactly what it keeps: none is left in flight to slip into the next
+    assert session.asks == ([1, 3, 3] if send_background else [1, 3, 3, 3])
     if not send_background:  # the background is the mean of the empty-scene captures
         assert np.all(bgs[:, :, 30:].std(axis=0) == 0) and abs(bgs[0, 0, 30:].mean() - 40.0) < 2.0
 

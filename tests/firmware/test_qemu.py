@@ -210,11 +210,9 @@ def test_calibrate_captures_from_the_board(tmp_path_factory, tmp_path, subset):
         b.kill()
     assert "Traceback" not in ran.stderr
     assert "Place the target at position 8/8" in ran.stderr, ran.stderr  # every capture done
-    if ran.returncode == 0:
-        assert "[geometry]" in out.read_text()
-    else:
-        assert ran.returncode == 2 and not out.exists(), ran.stderr
-        assert ran.stderr.strip().splitlines()[-1].startswith("error: these target positions")
+    # every STREAM_START asks for exactly the acquisitions it keeps: no slip under load
+    assert ran.returncode == 0, ran.stderr
+    assert "[geometry]" in out.read_text()
 
 
 def _commit_in_background(port: str, config: Path) -> subprocess.Popen:
