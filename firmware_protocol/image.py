@@ -124,7 +124,9 @@ def check_body(body: bytes, target: str) -> None:
             f"{target} takes the flat binary (app.bin, which make TARGET=mps2 writes), not an ELF"
         )
     if len(body) < 8:
-        raise ImageError(f"a {target} body starts with a vector table: {len(body)} bytes is too short")
+        raise ImageError(
+            f"a {target} body starts with a vector table: {len(body)} bytes is too short"
+        )
     sp, pc = struct.unpack_from("<II", body)
     if not (ram_lo < sp <= ram_hi and pc & 1 and base < pc < base + len(body)):
         raise ImageError(
