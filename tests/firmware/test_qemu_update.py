@@ -109,6 +109,18 @@ def steps(port: str, img: bytes, upto: str) -> None:
         assert main(["firmware", "confirm", "--port", port]) == 0
 
 
+def reboot(port: str):
+    """REBOOT (a reset through the SCB, the boot stage runs); the HELLO of the next boot."""
+    with DeviceSession(port, reconnect=False) as dev:
+        boot_id = dev.hello.boot_id
+        dev.request(Reboot(0))
+    deadline = time.monotonic() + 15
+    while (h := hello(port)).boot_id == boot_id:
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+    return h
+
+
 def power_cycle(b: QemuBoard):
     b.kill()
     b.disarm()
@@ -135,9 +147,7 @@ def test_pack_update_confirm_and_roll_back(elf, tmp_path, capsys) -> None:
                 "MPS2-AN386-0009",
             )
             assert firmware_info(dev).boot_state == BootState.TRIAL
-            dev.request(Reboot(0))
-        time.sleep(0.3)
-        h = hello(b.port)
+        h = reboot(b.port)
         assert (h.firmware_version, h.serial) == (FACTORY, SERIAL.decode())
 
         assert main(["firmware", "update", "--port", b.port, str(packed)]) == 0
@@ -245,17 +255,18 @@ def test_power_cut_at_chunks_and_state_changes_boots_a_complete_image(elf, tmp_p
         shutil.copyfile(base, flash)
         return QemuBoard(elf, flash)
 
-    # SPIEL_QEMU_UPDATE_SWEEP=1: qemu killed between operations too, after each state change
-    # (the flash then holds what a cut at the next operation below leaves; "test": during the
-    # test boot, either image)
+    # SPIEL_QEMU_UPDATE_SWEEP=1: qemu killed (or the board reset by REBOOT) between operations
+    # too, after each state change (the flash then holds what a cut at the next operation below
+    # leaves; "test": during the test boot, either image)
     expect = {"write": {old}, "verify": {old}, "test": {old, new}, "trial": {old}, "confirm": {new}}
-    for stage, allowed in expect.items() if SWEEP else ():
-        b = case(stage)
+    stops = [(s, how) for s in expect for how in ("kill", "reset") if how == "kill" or s != "test"]
+    for stage, how in stops if SWEEP else ():
+        b = case(f"{stage}-{how}")
         b.start()
         try:
             steps(b.port, img, stage)
-            h = power_cycle(b)
-            assert (h.firmware_version, h.serial) in allowed, stage
+            h = power_cycle(b) if how == "kill" else reboot(b.port)
+            assert (h.firmware_version, h.serial) in expect[stage], (stage, how)
         finally:
             b.kill()
 
