@@ -1,5 +1,6 @@
 """Firmware images: a 96-byte header (magic, version, target, protocol range, size, hashes) and
-the body. Pure: ``pack_image`` builds one, ``parse_image`` checks one (PROTOCOL.md § 14.3).
+the body. Pure: ``pack_image`` builds one, ``parse_image`` checks one (PROTOCOL.md § 14.3), ``check_body`` checks
+that a body can run on a target whose boot stage jumps into a flat binary (mps2-an386).
 
 The header carries the body's size, CRC-32C and SHA-256 and its own CRC-32C, so a host checks
 an image file before it sends a byte, and a device checks the slot again before it boots it.
@@ -22,6 +23,7 @@ __all__ = [
     "IMAGE_MAGIC",
     "ImageError",
     "ImageHeader",
+    "check_body",
     "pack_image",
     "parse_image",
 ]
@@ -102,6 +104,35 @@ def pack_image(
     )
     head = head[:-4] + crc32c(head[:-4]).to_bytes(4, "little")
     return head + body
+
+
+# Targets whose body is a flat binary the boot stage jumps into: (run address, RAM start, RAM
+# end) of its vector table's reset handler and initial stack pointer (targets/*/mps2.h).
+FLAT_TARGETS: dict[str, tuple[int, int, int]] = {
+    "mps2-an386": (0x0001_0000, 0x2000_0000, 0x2020_0000),
+}
+
+
+def check_body(body: bytes, target: str) -> None:
+    """ImageError when ``body`` cannot run on ``target``'s boot stage (a flat binary linked for
+    its execution region, starting with a vector table); other targets are not checked."""
+    if target not in FLAT_TARGETS:
+        return
+    base, ram_lo, ram_hi = FLAT_TARGETS[target]
+    if body[:4] == b"\x7fELF":
+        raise ImageError(
+            f"{target} takes the flat binary (app.bin, which make TARGET=mps2 writes), not an ELF"
+        )
+    if len(body) < 8:
+        raise ImageError(
+            f"a {target} body starts with a vector table: {len(body)} bytes is too short"
+        )
+    sp, pc = struct.unpack_from("<II", body)
+    if not (ram_lo < sp <= ram_hi and pc & 1 and base < pc < base + len(body)):
+        raise ImageError(
+            f"not a {target} application: initial SP {sp:#x}, reset handler {pc:#x} "
+            f"(expected a stack in {ram_lo:#x}-{ram_hi:#x} and code linked at {base:#x})"
+        )
 
 
 def parse_image(image: bytes) -> ImageHeader:

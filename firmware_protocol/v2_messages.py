@@ -211,7 +211,7 @@ class FwInfo(Message):
     _STRUCT: ClassVar[struct.Struct] = struct.Struct("<BBBBI16sB16sIIB16sII")
     running_slot: int = 0
     boot_state: int = BootState.CONFIRMED
-    confirmed_slot: int = 0  # the slot a reset boots when no test is pending
+    confirmed_slot: int = 0  # the slot a reset boots when no test is pending (0xFF: built-in image)
     reserved: int = 0
     slot_size: int = 0  # bytes an image may take (header included)
     target: str = ""  # the image target this board runs, e.g. "posix", "mps2-an386", "sim"

@@ -122,15 +122,18 @@ def confirm_cmd(port: str) -> int:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False))
 @force_option
 def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, force: bool) -> int:
-    """Wrap a firmware BODY (the target's binary) in an image header."""
-    from firmware_protocol.image import ImageError, pack_image
+    """Wrap a firmware BODY (the target's binary) in an image header.
+
+    For mps2-an386 the BODY is build/mps2/app.bin (make TARGET=mps2), the application linked
+    for the boot stage's execution region."""
+    from firmware_protocol.image import ImageError, check_body, pack_image
 
     FilePlan(force).output(output, "--output")
     try:
         low, high = (int(v) for v in protocol.split("-"))
-        image = pack_image(
-            _read_image(body), version=version, target=target, min_protocol=low, max_protocol=high
-        )
+        raw = _read_image(body)
+        check_body(raw, target)
+        image = pack_image(raw, version=version, target=target, min_protocol=low, max_protocol=high)
     except ValueError as exc:
         raise InputError(f"--protocol must be LOW-HIGH, e.g. 1-2: {exc}") from exc
     except ImageError as exc:

@@ -116,7 +116,8 @@ def describe_info(info: FwInfo, hello=None) -> list[str]:
     lines.append(
         f"target {info.target}, slot size {info.slot_size} bytes, running slot "
         f"{info.running_slot if info.running_slot != 0xFF else 'none (recovery)'}, "
-        f"{boot.get(info.boot_state, info.boot_state)}, confirmed slot {info.confirmed_slot}"
+        f"{boot.get(info.boot_state, info.boot_state)}, confirmed slot "
+        f"{info.confirmed_slot if info.confirmed_slot != 0xFF else 'none (built-in image)'}"
     )
     for slot in (0, 1):
         state = getattr(info, f"slot{slot}_state")

@@ -6,8 +6,10 @@ into a skip). :class:`QemuBoard` boots an image on a pty with its flash in a hos
 maps the board's PSRAM, where the target keeps its flash, onto that file (a
 ``memory-backend-file`` with ``share=on``), so the flash outlives a kill and a restart of qemu
 exactly as the board wrote it. The same file holds the target's power-cut mailbox
-(``targets/mps2-an386/hal_mps2.c``): :meth:`QemuBoard.arm` makes the n-th flash operation stop
-the board half done.
+(``targets/mps2-an386/nor_mps2.c``): :meth:`QemuBoard.arm` makes the n-th flash operation stop
+the board half done (counted from the arming, across resets: the boot stage's record writes
+count too). ``firmware.elf`` is the boot stage with the built-in application; ``app.bin`` beside
+it is the application image that ``spiel-edge firmware pack --target mps2-an386`` wraps.
 """
 
 from __future__ import annotations
@@ -27,8 +29,13 @@ FIRMWARE = REPO / "firmware_protocol" / "firmware"
 QEMU = "qemu-system-arm"
 ARM_CC = "arm-none-eabi-gcc"
 PSRAM_SIZE = 16 << 20  # the machine's RAM: the file must be exactly this long
-FLASH_SIZE = 64 << 10  # hal_mps2.c: FLASH_SIZE, at file offset 0
-MAILBOX = 0x00F00000  # hal_mps2.c: FI_BASE - PSRAM_BASE
+FLASH_SIZE = 64 << 10  # mps2.h: CFG_FLASH_SIZE, the config store at file offset 0
+# mps2.h: the boot record's two sectors at 0x10000, image slots 0 and 1 at 0x100000 and
+# 0x200000 (1 MiB each): erased (0xFF) up to PERSISTENT_END in a new flash file
+SLOT_SIZE = 1 << 20
+SLOT0, BOOT_RECORD = 0x100000, 0x10000
+PERSISTENT_END = SLOT0 + 2 * SLOT_SIZE
+MAILBOX = 0x00F00000  # mps2.h: FI_OFF
 MAILBOX_MAGIC = 0x49465053
 CUT, FAIL = 1, 2
 
@@ -67,11 +74,17 @@ def build_mps2(out_dir: Path, target: str = "mps2", extra: tuple[str, ...] = ())
 
 
 def new_flash(path: Path) -> Path:
-    """An erased flash (0xFF) in a PSRAM-sized file, mailbox disarmed."""
+    """An erased flash (0xFF: config store, boot record, image slots) in a PSRAM-sized file,
+    mailbox disarmed."""
     with open(path, "wb") as f:
-        f.write(b"\xff" * FLASH_SIZE)
+        f.write(b"\xff" * PERSISTENT_END)
         f.truncate(PSRAM_SIZE)
     return path
+
+
+def app_bin(elf: Path) -> Path:
+    """The application's flat image beside ``firmware.elf`` (what ``firmware pack`` wraps)."""
+    return Path(elf).with_name("app.bin")
 
 
 class QemuBoard:
@@ -149,8 +162,8 @@ class QemuBoard:
     # ---- the power-cut mailbox ----------------------------------------------------------
 
     def arm(self, mode: int, at: int) -> None:
-        """Before start(): the flash operation number ``at`` (0-based, from boot) is cut in
-        half and the board stops (CUT), or fails (FAIL)."""
+        """Before start(): the flash operation number ``at`` (0-based, counted from now across
+        resets) is cut in half and the board stops (CUT), or fails (FAIL); once."""
         with open(self.flash, "r+b") as f:
             f.seek(MAILBOX)
             f.write(struct.pack("<5I", MAILBOX_MAGIC, mode, at, 0, 0))

@@ -289,7 +289,7 @@ def test_a_failing_flash_write_keeps_the_old_config(board, tmp_path):
         == 0
     )
     b.kill()
-    b.arm(FAIL, 1)  # counted from this boot: the commit's second flash operation fails
+    b.arm(FAIL, 1)  # counted from the arming: the commit's second flash operation fails
     b.start()
     ran = cli(
         "config", "push", "--port", b.port, "--commit", board_config(tmp_path / "b.toml", "lost")

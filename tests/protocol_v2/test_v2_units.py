@@ -7,7 +7,13 @@ import logging
 import numpy as np
 import pytest
 
-from firmware_protocol.image import IMAGE_HEADER_SIZE, ImageError, pack_image, parse_image
+from firmware_protocol.image import (
+    IMAGE_HEADER_SIZE,
+    ImageError,
+    check_body,
+    pack_image,
+    parse_image,
+)
 from firmware_protocol.v2_messages import Heartbeat, LogMessage
 from spiel_edge.device.iq import iq_envelope, iq_envelope_reference
 from spiel_edge.device.telemetry import BoardTelemetry
@@ -38,6 +44,21 @@ def test_image_round_trip_and_every_damage_is_named() -> None:
         parse_image(b"ELF!" + image[4:])
     with pytest.raises(ImageError):
         pack_image(BODY, version="x" * 17, target="posix")
+
+
+def test_an_mps2_body_is_a_flat_binary_with_its_vector_table() -> None:
+    import struct
+
+    app = struct.pack("<II", 0x2000_4000, 0x0001_0101) + bytes(0x200)
+    check_body(app, "mps2-an386")
+    check_body(b"\x7fELF anything", "posix")  # other targets are not checked
+    with pytest.raises(ImageError, match="app.bin"):
+        check_body(b"\x7fELF" + app, "mps2-an386")
+    with pytest.raises(ImageError, match="too short"):
+        check_body(app[:6], "mps2-an386")
+    for sp, pc in ((0x2000_4000, 0x0000_0101), (0x2000_4000, 0x0001_0100), (0x0, 0x0001_0101)):
+        with pytest.raises(ImageError, match="not a mps2-an386 application"):
+            check_body(struct.pack("<II", sp, pc) + app[8:], "mps2-an386")
 
 
 def exchanges(est, offset_us, rate, times_s, rtt_us=200.0, boot=1):

@@ -45,8 +45,8 @@ static int newest(uint32_t *gen, boot_record_t *r)
 void boot_record_read(boot_record_t *r)
 {
     uint32_t gen;
-    if (newest(&gen, r) != 0 || r->confirmed > 1u) {
-        r->confirmed = 0;
+    if (newest(&gen, r) != 0 || (r->confirmed > 1u && r->confirmed != BOOT_NO_SLOT)) {
+        r->confirmed = SPIEL_FW_FACTORY ? BOOT_NO_SLOT : 0u; /* the built-in image, or slot 0 */
         r->trial = BOOT_NO_SLOT;
         r->state = SP_BOOT_CONFIRMED;
     }
@@ -121,7 +121,7 @@ int boot_choose(void)
     boot_record_t r, w;
     int choice;
     boot_record_read(&r);
-    choice = r.confirmed;
+    choice = r.confirmed == BOOT_NO_SLOT ? -1 : (int)r.confirmed; /* -1: the built-in image */
     w.confirmed = r.confirmed;
     w.trial = BOOT_NO_SLOT;
     w.state = SP_BOOT_CONFIRMED;
@@ -134,6 +134,9 @@ int boot_choose(void)
         boot_record_write(&w);
     } else if (r.state == SP_BOOT_TRIAL) { /* reset before FW_CONFIRM: roll back */
         boot_record_write(&w);
+    }
+    if (choice < 0) {
+        return -1;
     }
     if (image_check(choice, NULL, NULL, NULL) != 0) {
         int other = 1 - choice;

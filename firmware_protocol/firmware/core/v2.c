@@ -292,8 +292,9 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
         *code = SP_ERR_INVALID, *text = "an image is at least its 96-byte header";
         return 0;
     }
-    slot = v2.running < 0 ? 0 : 1 - v2.running;
     boot_record_read(&r);
+    /* never the running slot, nor the confirmed one while the built-in image runs */
+    slot = v2.running >= 0 ? 1 - v2.running : r.confirmed == 0u ? 1 : 0;
     if (r.state == SP_BOOT_TEST_PENDING) { /* cancel: the slot it names is about to change */
         r.state = SP_BOOT_CONFIRMED;
         r.trial = BOOT_NO_SLOT;

@@ -95,6 +95,13 @@ void hal_apply_settings(const hal_settings_t *settings);
 #ifndef SPIEL_FW_UPDATE
 #define SPIEL_FW_UPDATE 0
 #endif
+/* A target that also has a built-in (factory) image outside the two slots, run when no slot
+ * holds a bootable image, builds with -DSPIEL_FW_FACTORY=1: without a boot record the built-in
+ * image is the confirmed one (FW_INFO confirmed_slot 0xFF), so an unconfirmed trial started
+ * from it rolls back to it. Without it slot 0 holds the first image. */
+#ifndef SPIEL_FW_FACTORY
+#define SPIEL_FW_FACTORY 0
+#endif
 /* I/Q samples (PROTOCOL.md 14.4): a target whose front end gives I/Q pairs (SonicLib's
  * ch_get_iq_data) builds with -DSPIEL_IQ_SAMPLES=1 and implements this; the core then accepts
  * STREAM_START sample_format I16_IQ. Fills qi[0 .. 2n) with q0 i0 q1 i1 ... (two's complement
@@ -112,6 +119,7 @@ int hal_image_erase(int slot);                      /* 0 ok, <0 error */
 int hal_image_write(int slot, uint32_t offset, const uint8_t *data, uint32_t len);
 int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len); /* erased: 0xFF */
 int hal_image_running(void);                        /* the slot running now: 0, 1, -1 none */
+/* (-1: the built-in image with SPIEL_FW_FACTORY, else the recovery loader) */
 #endif
 
 #ifdef __cplusplus

@@ -9,9 +9,9 @@
  * A-scans    the vendored recordings as constant data (ascans.c, generated), in order and
  *            looped, one per measurement that was read; ready after the listening time
  *            n_samples / sample rate.
- * flash      64 KiB of NOR-like memory (erase sets 0xFF, a write can only clear bits) in the
- *            PSRAM, which qemu can back with a host file; plus a test hook for power cuts.
- * reset      SCB AIRCR SYSRESETREQ.
+ * flash      64 KiB of NOR-like memory in the PSRAM, which qemu can back with a host file
+ *            (nor_mps2.c, with the tests' power-cut hook); the image slots are image_mps2.c.
+ * reset      SCB AIRCR SYSRESETREQ: the boot stage (boot_mps2.c) runs again.
  */
 #include <string.h>
 
@@ -25,6 +25,7 @@ void timer0_handler(void);
 void timer1_handler(void);
 void mps2_hal_init(void);
 void mps2_wait(uint32_t us);
+int mps2_image_version(char version[17]); /* image_mps2.c */
 
 /* ---- transport ------------------------------------------------------------------------- */
 
@@ -124,8 +125,8 @@ uint64_t hal_time_us(void)
 
 /* ---- measurement ------------------------------------------------------------------------ */
 
-static const hal_board_info_t board = {
-    "1.0.0+mps2-an386", /* firmware_version */
+static hal_board_info_t board = {
+    "1.0.0+mps2-an386", /* firmware_version: the built-in image's; an image's from its header */
     "MPS2-AN386-0001",  /* serial */
     "spiel-c mps2",     /* board_name */
     0,
@@ -201,116 +202,39 @@ int hal_acq_read(uint8_t channel, uint16_t *samples, uint16_t n_samples)
 
 /* ---- flash ------------------------------------------------------------------------------ */
 
-#define FLASH_SIZE 0x10000u  /* 64 KiB */
-#define FLASH_SECTOR 0x1000u /* 4 KiB */
-#define FLASH ((volatile uint8_t *)(uintptr_t)PSRAM_BASE)
-
-/* Power-cut hook for the tests (tests/firmware): a mailbox in the PSRAM, which the test
- * writes into the host file that backs it before booting the board. When armed, the n-th
- * flash operation (erase or write, 0-based, counted from boot) does only its first half and then the
- * board stops dead (mode CUT), or the n-th write fails (mode FAIL). Unarmed on a real board. */
-#define FI_BASE (PSRAM_BASE + 0x00F00000u)
-#define FI_MAGIC REG32(FI_BASE + 0u) /* "SPFI" */
-#define FI_MODE REG32(FI_BASE + 4u)  /* 1 CUT, 2 FAIL */
-#define FI_AT REG32(FI_BASE + 8u)    /* operation number, 0-based, counted from boot */
-#define FI_OPS REG32(FI_BASE + 12u)  /* operations so far (written by the board) */
-#define FI_FIRED REG32(FI_BASE + 16u) /* 1 once the cut or failure happened */
-#define FI_MAGIC_VALUE 0x49465053u
-#define FI_CUT 1u
-#define FI_FAIL 2u
-
-static uint32_t flash_ops;
-
-/* Count one operation; 1: do it whole, 0: cut it in half and die, -1: fail it. */
-static int flash_op(void)
-{
-    uint32_t op = flash_ops++;
-    if (FI_MAGIC != FI_MAGIC_VALUE) {
-        return 1;
-    }
-    FI_OPS = flash_ops;
-    if (op != FI_AT) {
-        return 1;
-    }
-    return FI_MODE == FI_CUT ? 0 : FI_MODE == FI_FAIL ? -1 : 1;
-}
-
-static void flash_die(void)
-{
-    FI_FIRED = 1u;
-    irq_disable();
-    NVIC_ICER0 = 0xFFFFFFFFu; /* nothing may pend and wake the WFI again */
-    for (;;) {
-        __asm volatile("wfi");
-    }
-}
+/* The config store's 64 KiB at the start of the persistent PSRAM (nor_mps2.c, mps2.h). */
 
 uint32_t hal_flash_size(void)
 {
-    return FLASH_SIZE;
+    return CFG_FLASH_SIZE;
 }
 
 uint32_t hal_flash_sector_size(void)
 {
-    return FLASH_SECTOR;
+    return NOR_SECTOR;
 }
 
 static int in_range(uint32_t addr, uint32_t len)
 {
-    return addr <= FLASH_SIZE && len <= FLASH_SIZE - addr;
+    return addr <= CFG_FLASH_SIZE && len <= CFG_FLASH_SIZE - addr;
 }
 
 int hal_flash_erase(uint32_t addr, uint32_t len)
 {
-    uint32_t i;
-    int op;
-    if (!in_range(addr, len) || addr % FLASH_SECTOR != 0 || len % FLASH_SECTOR != 0) {
-        return -1;
-    }
-    op = flash_op();
-    if (op < 0) {
-        FI_FIRED = 1u;
-        return -1;
-    }
-    for (i = 0; i < (op ? len : len / 2u); i++) {
-        FLASH[addr + i] = 0xFFu;
-    }
-    if (!op) {
-        flash_die();
-    }
-    return 0;
+    return in_range(addr, len) ? nor_erase(CFG_FLASH_OFF + addr, len) : -1;
 }
 
 int hal_flash_write(uint32_t addr, const uint8_t *data, uint32_t len)
 {
-    uint32_t i;
-    int op;
-    if (!in_range(addr, len)) {
-        return -1;
-    }
-    op = flash_op();
-    if (op < 0) {
-        FI_FIRED = 1u;
-        return -1;
-    }
-    for (i = 0; i < (op ? len : len / 2u); i++) {
-        FLASH[addr + i] &= data[i]; /* NOR: programming only clears bits */
-    }
-    if (!op) {
-        flash_die();
-    }
-    return 0;
+    return in_range(addr, len) ? nor_write(CFG_FLASH_OFF + addr, data, len) : -1;
 }
 
 int hal_flash_read(uint32_t addr, uint8_t *data, uint32_t len)
 {
-    uint32_t i;
     if (!in_range(addr, len)) {
         return -1;
     }
-    for (i = 0; i < len; i++) {
-        data[i] = FLASH[addr + i];
-    }
+    nor_read(CFG_FLASH_OFF + addr, data, len);
     return 0;
 }
 
@@ -318,7 +242,7 @@ int hal_flash_read(uint32_t addr, uint8_t *data, uint32_t len)
 
 void hal_reset(int to_bootloader)
 {
-    (void)to_bootloader; /* no bootloader on this target: both modes restart the firmware */
+    (void)to_bootloader; /* both modes restart through the boot stage (boot_mps2.c) */
     dsb();
     SCB_AIRCR = AIRCR_VECTKEY | AIRCR_SYSRESETREQ;
     dsb();
@@ -372,6 +296,12 @@ void mps2_wait(uint32_t us)
 
 void mps2_hal_init(void)
 {
+#if SPIEL_FW_UPDATE
+    static char version[17];
+    if (mps2_image_version(version) == 0) {
+        board.firmware_version = version;
+    }
+#endif
     TIMER_CTRL(TIMER0_BASE) = 0;
     TIMER_RELOAD(TIMER0_BASE) = 0xFFFFFFFFu;
     TIMER_VALUE(TIMER0_BASE) = 0xFFFFFFFFu;

@@ -50,6 +50,33 @@
  * this target puts its emulated flash there and links nothing else into it. */
 #define PSRAM_BASE 0x21000000u
 
+/* What lives in that persistent PSRAM (offsets), NOR-like (nor_mps2.c): erased 0xFF, a write
+ * only clears bits, erased in 4 KiB sectors. */
+#define NOR_SECTOR 0x1000u
+#define CFG_FLASH_OFF 0x000000u  /* 64 KiB: the config store (hal_flash_*) */
+#define CFG_FLASH_SIZE 0x10000u
+#define BOOT_REC_OFF 0x010000u   /* two sectors: the boot record's two 16-byte copies */
+#define SLOT0_OFF 0x100000u      /* image slot 0; slot 1 follows */
+#define IMAGE_SLOT_SIZE 0x100000u /* 1 MiB per slot, the 96-byte image header included */
+#define FI_OFF 0x00F00000u       /* the power-cut mailbox of the tests (nor_mps2.c) */
+
+/* Where every application image runs (RAM load): ZBT SSRAM1 above the boot stage. The boot
+ * stage copies the chosen slot's body here; qemu's loader puts the built-in (factory) image
+ * here at every reset. */
+#define EXEC_BASE 0x00010000u
+#define EXEC_SIZE (IMAGE_SLOT_SIZE - 96u)
+#define APP_RAM_BASE 0x20000000u /* the application's data and stack: 2 MiB */
+#define APP_RAM_SIZE 0x00200000u
+/* The boot stage tells the application which slot it copied: two words at the top of SSRAM2/3,
+ * outside both programs' RAM. */
+#define HANDOFF_ADDR 0x203FFF00u
+#define HANDOFF_MAGIC 0x4F464E48u /* "HNFO" */
+#define HANDOFF_FACTORY 0xFFFFFFFFu
+
+int nor_erase(uint32_t off, uint32_t len);                     /* 0 ok, -1 failed */
+int nor_write(uint32_t off, const uint8_t *data, uint32_t len); /* 0 ok, -1 failed */
+void nor_read(uint32_t off, uint8_t *data, uint32_t len);
+
 /* System control block and NVIC */
 #define SCB_AIRCR REG32(0xE000ED0Cu)
 #define SCB_CPACR REG32(0xE000ED88u)
@@ -72,5 +99,6 @@ static inline void irq_restore(uint32_t primask)
     __asm volatile("msr primask, %0" ::"r"(primask) : "memory");
 }
 static inline void dsb(void) { __asm volatile("dsb 0xF" ::: "memory"); }
+static inline void isb(void) { __asm volatile("isb 0xF" ::: "memory"); }
 
 #endif /* SPIEL_MPS2_H */

@@ -1,7 +1,8 @@
 /*
  * startup.c - reset handler and vector table of the mps2-an386 target (Cortex-M4F).
  *
- * The reset handler copies .data from its load address, zeroes .bss, turns the FPU on
+ * Linked at 0 (the bring-up image) or at EXEC_BASE (the application the boot stage jumps to).
+ * The reset handler points VTOR at this table, copies .data from its load address, zeroes .bss, turns the FPU on
  * (CPACR) and calls main(). Faults end in fault_handler(), which resets the board (a real
  * port would log the fault first).
  */
@@ -19,9 +20,14 @@ void uart0_tx_handler(void); /* hal_mps2.c */
 void timer0_handler(void);   /* hal_mps2.c */
 void timer1_handler(void);   /* hal_mps2.c */
 
+typedef void (*vector_t)(void);
+
+extern const vector_t vector_table[];
+
 void reset_handler(void)
 {
     uint32_t *src = &_sidata, *dst = &_sdata;
+    SCB_VTOR = (uint32_t)(uintptr_t)vector_table; /* the boot stage set it too; a debugger may not */
     while (dst < &_edata) {
         *dst++ = *src++;
     }
@@ -48,8 +54,6 @@ void default_handler(void)
     for (;;) {
     }
 }
-
-typedef void (*vector_t)(void);
 
 #define N_IRQ 32
 
