@@ -240,7 +240,7 @@ def test_power_cut_at_chunks_and_state_changes_boots_a_complete_image(elf, tmp_p
     with QemuBoard(elf, base) as b:  # slot 0 confirmed: the old image
         assert update_firmware(b.port, image(elf, *old), boot_wait_s=15).confirmed
         # the host killed after chunk k: the board goes on running the old image
-        for k in range(1, n + 1) if SWEEP else (1, n // 2, n):
+        for k in range(1, n + 1) if SWEEP else (n // 2,):
 
             def progress(sent, total, k=k):
                 if sent >= min(k * CHUNK, total):
@@ -278,7 +278,9 @@ def test_power_cut_at_chunks_and_state_changes_boots_a_complete_image(elf, tmp_p
     def outcome(op: int) -> tuple[str, str]:
         return new if op in (n + 3, n + 4, n + 7) else old
 
-    for op in range(n + 8) if SWEEP else (1, n // 2, n, n + 1, n + 2, n + 4, n + 6):
+    # by default (the suite's time): a chunk, the test record written, the trial's record, the
+    # confirm record; the sweep (figures in docs/firmware.md) every operation
+    for op in range(n + 8) if SWEEP else (n // 2, n + 2, n + 4, n + 6):
         b = case(f"cut{op}")
         b.arm(CUT, op)
         b.start()
