@@ -41,6 +41,7 @@ from spiel_edge.profile.frame_section import frame_id_problem, quaternion_from_r
 MAX_BOARDS = 16
 MAX_FILE_BYTES = 256 * 1024
 ROTATION_TOLERANCE = 1e-3  # |R^T R - I| and |det R - 1| allowed (rounded digits)
+DETECTION_DEG = 55.0  # a board's default detection half-angle (docs/robot.md: chosen on seeds 1, 4)
 _BOARD_KEYS = {
     "name",
     "port",
@@ -54,6 +55,7 @@ _BOARD_KEYS = {
     "slot",
     "slot_ms",
     "field_of_view_deg",
+    "detection_deg",
 }
 
 
@@ -91,6 +93,9 @@ class BoardSpec:
     slot_ms: float | None
     key: str = ""  # the Zenoh key its records come on (``fuse``); default robot/<name>
     field_of_view_deg: float = 90.0  # half-angle off its facing within which targets are fused
+    # half-angle within which it reliably sees a target: a fused track predicted outside every
+    # board's is charged no miss (it coasts; robot/coast.py)
+    detection_deg: float = DETECTION_DEG
 
 
 @dataclass(frozen=True)
@@ -328,9 +333,10 @@ def _board(i: int, b: dict, fail) -> BoardSpec:
     if slot_ms is not None:
         slot_ms = _number(slot_ms, f"{where}.slot_ms", fail, 0, 10000)
     fov = _number(b.get("field_of_view_deg", 90.0), f"{where}.field_of_view_deg", fail, 5, 90)
+    seen = _number(b.get("detection_deg", DETECTION_DEG), f"{where}.detection_deg", fail, 5, 90)
     mount = Mount(rotation, np.array(translation) * 1000.0)
     return BoardSpec(
-        name, port, profile, calibration, mount, slot, slot_ms, key or f"robot/{name}", fov
+        name, port, profile, calibration, mount, slot, slot_ms, key or f"robot/{name}", fov, seen
     )
 
 

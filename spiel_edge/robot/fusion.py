@@ -15,6 +15,9 @@ when every board expected has reported for the cycle, or ``WAIT_CYCLES`` cycles 
 Optionally in ``odom``: given the robot's pose in ``odom`` at a time (``odometry``, a
 callable), each board's targets go on into ``odom`` at their acquisition's time before
 tracking, so the robot's own motion is not the targets' motion.
+
+With a ``coast`` policy (robot/coast.py) a track predicted outside every board's view is
+charged no miss for the cycle: it coasts across the gaps between fields of view.
 """
 
 from __future__ import annotations
@@ -27,10 +30,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spiel_edge.profile.track_section import TrackSpec
+from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import Mount
+from spiel_edge.robot.odometry import OdometryBuffer, planar_pose
 from spiel_edge.track import Tracker
 
 log = logging.getLogger(__name__)
+__all__ = ["BaseTarget", "BoardReport", "Fuser", "OdometryBuffer", "merge_targets", "planar_pose"]
 
 WAIT_CYCLES = 3  # an incomplete cycle is fused once a report this many cycles later arrives
 QUIET_CYCLES = 3  # a board missing this many cycles in a row is not waited for
@@ -65,51 +71,6 @@ def to_base(mount: Mount, position_mm, covariance_mm2) -> tuple[np.ndarray, np.n
     p = mount.to_base(np.asarray(position_mm, float))
     c = mount.covariance_to_base(np.asarray(covariance_mm2, float))
     return p, 0.5 * (c + c.T)
-
-
-def planar_pose(x_mm: float, y_mm: float, yaw_rad: float) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) of base_link in odom for a pose on the floor."""
-    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([x_mm, y_mm, 0.0])
-
-
-class OdometryBuffer:
-    """The robot's planar pose in ``odom`` over time, from an odometry stream: ``add`` poses
-    (time s, x mm, y mm, yaw rad) in time order, call it at a time for (R, t), linearly
-    interpolated (yaw the short way round); None outside the poses held (more than
-    ``MAX_EXTRAPOLATION_S`` beyond the newest, or before the oldest)."""
-
-    MAX_POSES = 512
-    MAX_EXTRAPOLATION_S = 0.2
-
-    def __init__(self) -> None:
-        self._poses: list[tuple[float, float, float, float]] = []
-
-    def add(self, t: float, x_mm: float, y_mm: float, yaw_rad: float) -> bool:
-        values = (t, x_mm, y_mm, yaw_rad)
-        if not all(math.isfinite(v) for v in values):
-            return False
-        if self._poses and t <= self._poses[-1][0]:
-            return False  # out of order or repeated: kept out
-        self._poses.append(values)
-        del self._poses[: -self.MAX_POSES]
-        return True
-
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
-        poses = self._poses
-        if not poses or t < poses[0][0] or t > poses[-1][0] + self.MAX_EXTRAPOLATION_S:
-            return None
-        if t >= poses[-1][0]:
-            _, x, y, yaw = poses[-1]
-            return planar_pose(x, y, yaw)
-        lo, hi = 0, len(poses) - 1
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            lo, hi = (mid, hi) if poses[mid][0] <= t else (lo, mid)
-        (t0, x0, y0, a0), (t1, x1, y1, a1) = poses[lo], poses[hi]
-        w = (t - t0) / (t1 - t0)
-        da = math.remainder(a1 - a0, 2 * math.pi)
-        return planar_pose(x0 + w * (x1 - x0), y0 + w * (y1 - y0), a0 + w * da)
 
 
 def merge_targets(
@@ -182,6 +143,7 @@ class Fuser:
         drop_marked: bool = True,
         track: bool = True,
         field_of_view_deg: dict[str, float] | None = None,
+        coast: CoastPolicy | None = None,
     ):
         self.mounts = dict(mounts)
         fov = field_of_view_deg or {}
@@ -192,6 +154,7 @@ class Fuser:
         self.odometry = odometry
         self.drop_marked = drop_marked  # targets of an acquisition marked with cross-talk
         self.tracker = Tracker(spec) if track else None
+        self.coast = coast  # tracks outside every board's view are charged no miss (coast.py)
         if self.tracker is not None:  # compile (or load) its kernels now, not at the first cycle
             self.tracker.update([], 0.0)
             self.tracker.reset()
@@ -222,6 +185,13 @@ class Fuser:
         d = np.linalg.norm(pos + vel * (t_b - t_last) - p, axis=1)
         k = int(np.argmin(d))
         return p + vel[k] * (t - t_b) if d[k] < ALIGN_MM else p
+
+    def _to_base_at(self, t: float):
+        """Positions in the tracking frame into base_link at ``t`` (None: pose unknown)."""
+        if self.odometry is None:
+            return None
+        pose = self.odometry(t)
+        return lambda p: None if pose is None else (p - pose[1]) @ pose[0]
 
     def drop(self, board: str) -> None:
         """A board gone for good: cycles no longer wait for it."""
@@ -310,6 +280,8 @@ class Fuser:
         fused = merge_targets(targets)
         tracks = None
         if self.tracker is not None:
+            if self.coast is not None:
+                self.coast.hold(self.tracker, t, self._to_base_at(t))
             confirmed = self.tracker.update(fused, t)
             tracks = [_track_record(tr) for tr in confirmed]
             self._motion = (

@@ -52,6 +52,35 @@ def coverage(
     return ids, errors
 
 
+def paired_errors(
+    records: list[dict], truths: list[np.ndarray], primary: np.ndarray, names, own: dict
+) -> dict:
+    """Like for like: per cycle and mover whose primary board's acquisition in that cycle has
+    its own tracker's error for it (``own[(board, acquisition)][mover]``) and a fused track
+    matched to it, both errors (the same movers, the same cycles); their means and medians."""
+    fused, single = [], []
+    for k, (rec, truth) in enumerate(zip(records, truths, strict=True)):
+        tracks = rec.get("tracks") or []
+        pos = np.array([t["position_mm"] for t in tracks]).reshape(-1, 3)
+        for j, (_, d) in match(pos, truth).items():
+            b = primary[k, j]
+            acq = rec["boards"].get(names[b], {}).get("acquisition") if b >= 0 else None
+            e = own.get((names[b], acq), {}).get(j) if acq is not None else None
+            if e is not None:
+                fused.append(d)
+                single.append(e)
+    if not fused:
+        return {"n": 0}
+    f, s = np.asarray(fused), np.asarray(single)
+    return {
+        "n": len(f),
+        "fused_mean": round(float(f.mean()), 2),
+        "own_mean": round(float(s.mean()), 2),
+        "fused_median": round(float(np.median(f)), 2),
+        "own_median": round(float(np.median(s)), 2),
+    }
+
+
 def primary_boards(world, truths: list[np.ndarray]) -> np.ndarray:
     """(cycles, movers) index of the board seeing each mover nearest its facing, -1: none."""
     names = world.names

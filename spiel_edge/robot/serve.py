@@ -30,6 +30,7 @@ import numpy as np
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError, SpielError
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse, wait_until
+from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import BoardSpec, RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, reports_targets
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
@@ -280,6 +281,7 @@ class RobotRunner:
             period_s=self.schedule.period_s,
             frame_id=robot.frame_id,
             field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
+            coast=CoastPolicy.from_robot(robot),
             track=track,
             spec=spec or robot.track_spec(),
         )

@@ -13,6 +13,7 @@ import numpy as np
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.robot import score
 from spiel_edge.robot.clock import StampClock
+from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser, reports_targets
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
 from spiel_edge.track import Tracker
@@ -31,6 +32,9 @@ class RunFigures:
     restarts: dict = field(default_factory=dict)
     board_errors: list = field(default_factory=list)
     board_tracked_errors: list = field(default_factory=list)  # each board's own tracker
+    # like for like (score.paired_errors): per mover-cycle the fused track and the primary
+    # board's own tracker, with `run`'s [track] and with the fused tracker's [track]
+    paired: dict = field(default_factory=dict)
     tracked_errors: list = field(default_factory=list)
     tracked_errors_in_view: list = field(default_factory=list)  # movers some board faces
     crossings: dict = field(default_factory=dict)
@@ -55,6 +59,7 @@ class RunFigures:
             "board_tracked_error_mm": _stats(self.board_tracked_errors),
             "tracked_error_mm": _stats(self.tracked_errors),
             "tracked_error_in_view_mm": _stats(self.tracked_errors_in_view),
+            "paired_error_mm": self.paired,
             "crossings": c,
             "crossings_kept_share": round(c.get("kept", 0) / tracked, 4) if tracked else None,
             "crossings_kept_share_of_all": round(c.get("kept", 0) / c["crossings"], 4)
@@ -88,7 +93,9 @@ def run_virtual_robot(
     ghosts: bool = True,
     drop_marked: bool = True,
     spec=None,
+    coast: CoastPolicy | None | str = "robot",
 ) -> tuple[RunFigures, list[dict]]:
+    """``coast``: the fuser's coasting policy; "robot": the robot file's (robot/coast.py)."""
     from spiel_edge.sim.robot_offline import simulate
 
     figs = RunFigures()
@@ -105,11 +112,15 @@ def run_virtual_robot(
         spec=spec,
         drop_marked=drop_marked,
         field_of_view_deg=fov,
+        coast=CoastPolicy.from_robot(world.robot) if coast == "robot" else coast,
     )
     fire = {}
     records = []
     own = load_profile(world.robot.boards[0].profile).track  # what `run` tracks one board with
     own_trackers = {n: Tracker(own) for n in world.names}
+    same_trackers = {n: Tracker(fuser.tracker.spec if fuser.tracker else own) for n in world.names}
+    own_err: dict = {}  # (board, acquisition): {mover: error} of its own tracker, `run`'s [track]
+    same_err: dict = {}  # ... with the fused tracker's [track]
     for a in acqs:
         t = time.perf_counter()
         res = pipeline.process(
@@ -139,13 +150,15 @@ def run_virtual_robot(
         own = [world.mounts[a.board].to_base(p) for p, _, _ in targets]
         m = score.match(np.array(own).reshape(-1, 3), truth)
         figs.board_errors += [d for _, d in m.values()]
-        own_tracks = own_trackers[a.board].update(
-            [BaseTarget(p, c, [a.board]) for p, c, _ in targets], a.board_us / 1e6
-        )
-        pos = np.array([world.mounts[a.board].to_base(t.position_mm) for t in own_tracks])
-        in_view = truth[world.in_view(a.board, truth)]
-        m = score.match(pos.reshape(-1, 3), in_view)
-        figs.board_tracked_errors += [d for _, d in m.values()]
+        in_view = np.flatnonzero(world.in_view(a.board, truth))
+        for trackers, errs in ((own_trackers, own_err), (same_trackers, same_err)):
+            tracks = trackers[a.board].update(
+                [BaseTarget(p, c, [a.board]) for p, c, _ in targets], a.board_us / 1e6
+            )
+            pos = np.array([world.mounts[a.board].to_base(t.position_mm) for t in tracks])
+            m = score.match(pos.reshape(-1, 3), truth[in_view])
+            errs[(a.board, a.index)] = {int(in_view[j]): d for j, (_, d) in m.items()}
+        figs.board_tracked_errors += list(own_err[(a.board, a.index)].values())
         t = time.perf_counter()
         out = fuser.add(
             BoardReport(
@@ -174,7 +187,12 @@ def run_virtual_robot(
         if ids
         else 0.0
     )
-    figs.crossings = score.crossing_ids(ids, score.crossings(score.primary_boards(world, truths)))
+    primary = score.primary_boards(world, truths)
+    figs.crossings = score.crossing_ids(ids, score.crossings(primary))
+    figs.paired = {
+        "own": score.paired_errors(records, truths, primary, world.names, own_err),
+        "same_track_settings": score.paired_errors(records, truths, primary, world.names, same_err),
+    }
     return figs, records
 
 

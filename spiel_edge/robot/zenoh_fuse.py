@@ -26,6 +26,7 @@ import numpy as np
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
+from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, OdometryBuffer, record_targets
 
@@ -82,6 +83,7 @@ class ZenohFuse:
             spec=spec or robot.track_spec(),
             frame_id=robot.frame_id,
             field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
+            coast=CoastPolicy.from_robot(robot),
             track=track,
             odometry=None if odom_key is None else self.odometry,
         )

@@ -26,8 +26,11 @@ import numpy as np
 from spiel_edge.errors import InputError
 from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.track.layout import (
+    CONFIRMED,
     DROPPED,
+    HITS,
     ID,
+    MISSES,
     NEXT_ID,
     SLOTS,
     STATUS,
@@ -191,6 +194,30 @@ class Tracker:
             for target in targets[MAX_TARGETS:]:
                 target.track_id = None
         return _tracks(snapshot, ints)
+
+    def confirmed_state(self) -> tuple[np.ndarray, ...]:
+        """The confirmed tracks as they stand (before the next update's prediction): slots,
+        ids, hits, states (n, 6) and covariances (n, 6, 6), copies; for a caller deciding which
+        tracks the next update may not charge a miss (:meth:`hold_misses`)."""
+        slots = np.flatnonzero(self._meta[STATUS] == CONFIRMED)
+        return (
+            slots,
+            self._meta[ID, slots].copy(),
+            self._meta[HITS, slots].copy(),
+            self._x[slots].copy(),
+            self._p[slots].copy(),
+        )
+
+    @property
+    def last_time(self) -> float | None:
+        """The time of the last update (None before the first, or after a restart)."""
+        return self._last_t
+
+    def hold_misses(self, slots: np.ndarray) -> None:
+        """The next update charges these tracks (slots from :meth:`confirmed_state`) no miss:
+        they could not have been seen (e.g. outside every sensor's field of view). A hit
+        still counts; the step adds one miss, which this takes back beforehand."""
+        self._meta[MISSES, slots] -= 1
 
     def _write_measurements(self, targets: Sequence[TargetLike]) -> None:
         """:func:`_measurements` into the step's buffers: the same numbers (a target's

@@ -1,0 +1,116 @@
+"""Field-of-view-aware track maintenance (robot/coast.py): a fused track is charged a miss
+only where some board could have seen it; outside every field of view it coasts, within
+bounds, and keeps its id across the gap between two fields of view."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from spiel_edge.profile.track_section import TrackSpec
+from spiel_edge.robot.coast import CoastPolicy
+from spiel_edge.robot.description import load_robot
+from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser
+from spiel_edge.track import Tracker
+
+PERIOD = 0.025
+CV = {"imm_switch_probability": 0.0, "imm_static_share": 0.0}
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("virtual-4")
+
+
+def _tracker_with_a_track(velocity=(0.0, 0.0, 0.0)) -> Tracker:
+    tracker = Tracker(TrackSpec(max_misses=3, **CV))
+    for k in range(4):  # confirmed (3 hits) and moving along x
+        p = np.array(velocity) * k * PERIOD
+        tracker.update([BaseTarget(p, np.eye(3) * 4.0, ["a"])], k * PERIOD)
+    assert len(tracker.tracks()) == 1
+    return tracker
+
+
+def _misses_after_empty_update(policy, tracker, t) -> tuple[int, list]:
+    held = policy.hold(tracker, t)
+    (track,) = tracker.update([], t) or [None]
+    return (track.misses if track else None), held.tolist()
+
+
+def test_a_track_is_charged_a_miss_only_inside_some_field_of_view():
+    # one board at the origin facing +x, 45 degrees, 800 mm
+    policy = CoastPolicy([(np.zeros(3), np.array([1.0, 0, 0]), 45.0)], range_mm=800.0)
+    np.testing.assert_array_equal(
+        policy.visible(np.array([[500.0, 0, 0], [500, 600, 0], [-100, 0, 0], [900, 0, 0]])),
+        [True, False, False, False],
+    )
+    inside = _tracker_with_a_track()
+    inside.update([], 4 * PERIOD)  # ... then the object goes unseen: a miss
+    policy_far = CoastPolicy([(np.array([10.0, 0, 0]), np.array([1.0, 0, 0]), 45.0)], range_mm=800)
+    # the track sits at the origin, behind the board at x = 10 mm: outside, its misses hold
+    assert _misses_after_empty_update(policy_far, inside, 5 * PERIOD)[0] == 1
+    # in front of a board: charged
+    policy_near = CoastPolicy(
+        [(np.array([-10.0, 0, 0]), np.array([1.0, 0, 0]), 45.0)], range_mm=800.0
+    )
+    misses, held = _misses_after_empty_update(policy_near, inside, 6 * PERIOD)
+    assert misses == 2 and held == []
+    # a hit still resets the count while the track is held
+    policy_far.hold(inside, 7 * PERIOD)
+    (track,) = inside.update([BaseTarget(np.zeros(3), np.eye(3) * 4.0, ["a"])], 7 * PERIOD)
+    assert track.misses == 0
+
+
+def test_the_coast_is_bounded_in_time_and_in_covariance():
+    behind = [(np.array([10.0, 0, 0]), np.array([1.0, 0, 0]), 45.0)]
+    timed = CoastPolicy(behind, range_mm=800.0, max_coast_s=0.1, max_sigma_mm=1e4)
+    tracker = _tracker_with_a_track()
+    held = []
+    for t in PERIOD * np.arange(4, 12):
+        held.append(len(timed.hold(tracker, t)))
+        tracker.update([], t)
+    assert held[:4] == [1, 1, 1, 1] and sum(held[4:]) == 0  # 0.1 s after the last hit
+    assert not tracker.tracks()  # then charged: deleted after max_misses
+    tight = CoastPolicy(behind, range_mm=800.0, max_coast_s=10.0, max_sigma_mm=20.0)
+    tracker = _tracker_with_a_track()
+    held = []
+    for t in PERIOD * np.arange(4, 40):
+        held.append(len(tight.hold(tracker, t)))
+        if not tracker.update([], t):
+            break
+    assert held[0] == 1 and held[-1] == 0  # held until its position std passed 20 mm
+    assert not tracker.tracks()
+
+
+def _circling(robot, coast, *, rate=0.5, half_angle=50.0, cycles=140):
+    """A target circling the robot at 280 mm, each board seeing it within ``half_angle`` of
+    its facing: 50 degrees leaves a gap of 22 degrees of arc (0.77 s at 0.5 rad/s, 31 cycles)
+    between two boards' fields of view. The ids of the fused confirmed tracks near it per cycle."""
+    rng = np.random.default_rng(7)
+    spec = TrackSpec(max_misses=20, **CV)
+    fuser = Fuser({b.name: b.mount for b in robot.boards}, period_s=PERIOD, spec=spec, coast=coast)
+    offsets = {"front": 0.0, "left": 0.0057, "back": 0.0113, "right": 0.017}
+    ids = []
+    for cycle in range(cycles):
+        for name, off in offsets.items():
+            t = cycle * PERIOD + off
+            p = np.array([280 * math.cos(rate * t + 0.3), 280 * math.sin(rate * t + 0.3), 0.0])
+            m = robot.board(name).mount
+            v = p - m.translation_mm
+            targets = []
+            if v @ m.facing >= math.cos(math.radians(half_angle)) * np.linalg.norm(v):
+                q = m.to_board(p) + rng.normal(0, 4.0, 3)
+                targets = [(q, np.eye(3) * 16.0, 1.0)]
+            for rec in fuser.add(BoardReport(name, t, targets)):
+                ids.append({tr["track_id"] for tr in rec["tracks"]})
+    return ids
+
+
+def test_a_target_crossing_the_gap_between_two_fields_of_view_keeps_its_id(robot):
+    # from front's field of view (0.3 rad) across the gap into left's (past 1.05 rad)
+    kept = _circling(robot, CoastPolicy.from_robot(robot))
+    assert set().union(*kept[20:]) == {0}  # one id throughout, coasting across the gap
+    dropped = _circling(robot, None)  # the old rule: every cycle without a target is a miss
+    assert len(set().union(*dropped[20:])) == 2
