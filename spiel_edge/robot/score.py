@@ -116,11 +116,27 @@ def crossings(primary: np.ndarray) -> list[tuple[int, int]]:
     return out
 
 
-def crossing_ids(ids: list[dict[int, int]], events: list[tuple[int, int]]) -> dict[str, int]:
+def crossing_ids(
+    ids: list[dict[int, int]],
+    events: list[tuple[int, int]],
+    reported: list[set[int]] | None = None,
+    truths: list[np.ndarray] | None = None,
+) -> dict[str, int]:
     """Per crossing: ``untracked`` (no track covered the mover in the ``LOOK`` cycles before
     it: no id to keep), else ``kept`` (the first track covering it in the ``LOOK`` cycles
-    after is the same), ``changed`` (another track) or ``lost`` (none)."""
+    after is the same), ``changed`` (another track) or ``lost`` (none). With ``reported``
+    (per cycle the movers some board reported a target within ``GATE_MM`` of, before any
+    fusion), ``unreported_after`` counts the changed or lost ones no board reported in the
+    ``LOOK`` cycles after: no measurement there to keep the id with. With ``truths``,
+    ``near_another`` counts (first) the changed or lost ones with another mover within
+    2 ``GATE_MM`` of it in the ``LOOK`` cycles either side (two movers one target, or tracks
+    that the one-to-one matching may swap).
+    """
     out = {"crossings": len(events), "untracked": 0, "kept": 0, "changed": 0, "lost": 0}
+    if reported is not None:
+        out["unreported_after"] = 0
+    if truths is not None:
+        out["near_another"] = 0
     for c, j in events:
         before = next(
             (ids[k][j] for k in range(c - 1, max(c - 1 - LOOK, -1), -1) if j in ids[k]), None
@@ -132,4 +148,15 @@ def crossing_ids(ids: list[dict[int, int]], events: list[tuple[int, int]]) -> di
             out["lost"] += 1
         else:
             out["kept" if before == after else "changed"] += 1
+        if before is None or before == after:
+            continue
+        if truths is not None and any(
+            np.sort(np.linalg.norm(truths[k] - truths[k][j], axis=1))[1] < 2 * GATE_MM
+            for k in range(max(c - LOOK, 0), min(c + LOOK, len(truths)))
+        ):
+            out["near_another"] += 1
+        elif reported is not None and not any(
+            j in reported[k] for k in range(c, min(c + LOOK, len(reported)))
+        ):
+            out["unreported_after"] += 1
     return out

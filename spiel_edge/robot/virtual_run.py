@@ -121,6 +121,7 @@ def run_virtual_robot(
     same_trackers = {n: Tracker(fuser.tracker.spec if fuser.tracker else own) for n in world.names}
     own_err: dict = {}  # (board, acquisition): {mover: error} of its own tracker, `run`'s [track]
     same_err: dict = {}  # ... with the fused tracker's [track]
+    reported: dict = {}  # (board, acquisition): the movers it reported a target near
     for a in acqs:
         t = time.perf_counter()
         res = pipeline.process(
@@ -150,6 +151,7 @@ def run_virtual_robot(
         own = [world.mounts[a.board].to_base(p) for p, _, _ in targets]
         m = score.match(np.array(own).reshape(-1, 3), truth)
         figs.board_errors += [d for _, d in m.values()]
+        reported[(a.board, a.index)] = set(m)
         in_view = np.flatnonzero(world.in_view(a.board, truth))
         for trackers, errs in ((own_trackers, own_err), (same_trackers, same_err)):
             tracks = trackers[a.board].update(
@@ -188,7 +190,11 @@ def run_virtual_robot(
         else 0.0
     )
     primary = score.primary_boards(world, truths)
-    figs.crossings = score.crossing_ids(ids, score.crossings(primary))
+    seen = [
+        set().union(*(reported.get((n, b["acquisition"]), set()) for n, b in rec["boards"].items()))
+        for rec in records
+    ]
+    figs.crossings = score.crossing_ids(ids, score.crossings(primary), seen, truths)
     figs.paired = {
         "own": score.paired_errors(records, truths, primary, world.names, own_err),
         "same_track_settings": score.paired_errors(records, truths, primary, world.names, same_err),
