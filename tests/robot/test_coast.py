@@ -12,7 +12,7 @@ import pytest
 from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import load_robot
-from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser
+from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser, planar_pose
 from spiel_edge.track import Tracker
 
 PERIOD = 0.025
@@ -22,6 +22,25 @@ CV = {"imm_switch_probability": 0.0, "imm_static_share": 0.0}
 @pytest.fixture(scope="module")
 def robot():
     return load_robot("virtual-4")
+
+
+def test_in_odom_the_cones_are_checked_in_base_link(robot):
+    """With odometry the tracks are in odom; the robot's pose at the cycle's time moves their
+    predicted positions back into base_link, where the cones are (no pose: none is held)."""
+    pose = {"now": planar_pose(100.0, 0.0, math.pi / 2)}
+    fuser = Fuser(
+        {b.name: b.mount for b in robot.boards},
+        period_s=PERIOD,
+        odometry=lambda t: pose["now"],
+        coast=CoastPolicy.from_robot(robot),
+    )
+    np.testing.assert_allclose(
+        fuser._to_base_at(0.0)(np.array([[100.0, 300, 0]])), [[300, 0, 0]], atol=1e-9
+    )
+    pose["now"] = None
+    assert fuser._to_base_at(0.0)(np.zeros((1, 3))) is None
+    tracker = _tracker_with_a_track()
+    assert len(fuser.coast.hold(tracker, 5 * PERIOD, fuser._to_base_at(0.0))) == 0
 
 
 def _tracker_with_a_track(velocity=(0.0, 0.0, 0.0)) -> Tracker:

@@ -18,6 +18,9 @@ def test_virtual_robot_boards_face_out_90_degrees_apart():
     np.testing.assert_allclose(facing["right"], [0, -1, 0], atol=1e-12)
     for b in robot.boards:  # the board sits on the robot's rim, 0.1 m out, facing out
         np.testing.assert_allclose(b.mount.translation_mm, 100.0 * b.mount.facing, atol=1e-9)
+        assert (b.field_of_view_deg, b.detection_deg) == (65.0, 55.0)
+    spec = robot.track_spec()  # the fused tracker: constant velocity alone
+    assert spec.imm_switch_probability == spec.imm_static_share == 0.0
 
 
 def test_mount_round_trip_and_covariance_rotation():
@@ -101,6 +104,7 @@ def test_a_period_too_short_for_the_boards(write_robot):
         ('[[board]]\nname = "a"\n[[board]]\nname = "a"\n', "two boards are named 'a'"),
         ('[[board]]\nname = "a"\n[trigger]\nmax_range_m = -1\n', "max_range_m must be in"),
         ("[[board]\n", "not valid TOML"),
+        ('[[board]]\nname = "a"\ndetection_deg = 120\n', "detection_deg must be in"),
     ],
 )
 def test_other_bad_files(tmp_path, text, words):
