@@ -77,7 +77,8 @@ def _one_child(step: str, progress, compiled: set, first: list[str]):
 
 
 def child_main(argv: list[str]) -> int:
-    """``STEP [KERNEL SIGNATURE]``: compile KERNEL for SIGNATURE (pickled, base64) first, then
+    """``STEP [KERNEL SIGNATURE [outermost]]``: compile KERNEL for SIGNATURE (pickled, base64)
+    first (``outermost``: alone, its callees handed over), then
     run STEP; each compile report and then the report as JSON lines on stdout. Past the
     budget, exit with :data:`RESTART` before a kernel compiles, naming it (``handover``)."""
     from spiel_edge import _kernel_cache
@@ -86,12 +87,14 @@ def child_main(argv: list[str]) -> int:
     out = sys.stdout
     budget = budget_mib()
     first = argv[1] if len(argv) > 2 else None
+    alone = argv[3:] == ["outermost"]  # the handed kernel compiles with its callees cached
     done = {"compiled": 0, "open": 0}  # kernels compiled; compiles started, not ended
 
     def send(event: str, name: str, detail: object) -> None:
-        if event == "compile" and _hand_over(name, first, done, budget):
+        if event == "compile" and _hand_over(name, first, alone, done, budget):
             signature = base64.b64encode(pickle.dumps(detail)).decode("ascii")
-            out.write(json.dumps({"handover": [name, signature]}) + "\n")
+            outermost = "outermost" if done["open"] == 0 else "nested"
+            out.write(json.dumps({"handover": [name, signature, outermost]}) + "\n")
             out.flush()
             os._exit(RESTART)  # numba's compiler holds its lock: nothing to clean up
         done["compiled"] += event == "compiled"
@@ -115,16 +118,16 @@ def child_main(argv: list[str]) -> int:
     return 0
 
 
-def _hand_over(name: str, first: str | None, done: dict, budget: float) -> bool:
+def _hand_over(name: str, first: str | None, alone: bool, done: dict, budget: float) -> bool:
     """Whether the kernel ``name``, about to compile, goes to a fresh child instead.
 
-    - a callee of the kernel this child was handed (``first``, not compiled yet): always, so
-      that kernel compiles alone, its callees loaded from the cache;
     - an outermost compile (a kernel called from Python: the acquisition kernels, the
-      heaviest) once this child compiled anything;
+      heaviest) once this child compiled anything: it starts in a fresh child;
+    - there (``alone``), each of its callees not in the cache: it compiles with its callees
+      loaded, not on top of their compiles;
     - any kernel once this child's resident size passed the budget (after >= 1 kernel, or
       when it is not the handed one: a fresh child always makes progress)."""
-    if first is not None and not done["compiled"] and name != first:
+    if alone and not done["compiled"] and name != first:
         return True
     if not done["compiled"]:
         return name != first and resident_mib() > budget
