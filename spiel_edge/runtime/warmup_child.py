@@ -26,7 +26,7 @@ import time
 log = logging.getLogger(__name__)
 
 ENV_BUDGET = "SPIEL_EDGE_WARMUP_BUDGET_MIB"
-BUDGET_MIB = 200.0
+BUDGET_MIB = 220.0
 RESTART = 75  # a child's exit status: past the budget, go on in a fresh one
 MAX_CHILDREN = 400  # per step: a bound, never reached (each child makes progress)
 
