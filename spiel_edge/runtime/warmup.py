@@ -21,7 +21,10 @@ import time
 
 import numpy as np
 
+from spiel_edge.runtime.warmup_child import WarmupError, _run_child
+
 log = logging.getLogger(__name__)
+__all__ = ["STEPS", "WarmupError", "_run_child", "pipeline_kernels", "warmup"]
 
 
 KERNEL_PACKAGES = (
@@ -230,35 +233,6 @@ def _isolated(t0: float, progress) -> dict:
     }
 
 
-def _run_child(step: str, progress) -> dict:
-    """One step in ``python -m spiel_edge.runtime.warmup STEP``: its compile reports (JSON
-    lines on its stdout) go to ``progress``; its last line is its report."""
-    import json
-    import subprocess
-    import sys
-
-    cmd = [sys.executable, "-m", "spiel_edge.runtime.warmup", step]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-    report = None
-    with proc.stdout:
-        for line in proc.stdout:
-            try:
-                message = json.loads(line)
-            except ValueError:
-                continue
-            if "report" in message:
-                report = message["report"]
-            elif progress is not None:
-                progress(message["event"], message["name"], message["detail"])
-    if proc.wait() != 0 or report is None:
-        raise WarmupError(f"the warm-up step {step!r} failed (exit status {proc.returncode})")
-    return report
-
-
-class WarmupError(RuntimeError):
-    """A warm-up child process failed (its error is on stderr)."""
-
-
 def peak_rss_mib() -> float:
     """The largest resident set of this process and of any child it waited for, in MiB."""
     import resource
@@ -266,30 +240,6 @@ def peak_rss_mib() -> float:
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     return round(max(own, children) / 1024.0, 1)  # Linux: KiB
-
-
-def _child_main(step: str) -> int:
-    """Run one step here, each compile report and then the report as JSON lines on stdout."""
-    import json
-    import sys
-
-    from spiel_edge import _kernel_cache
-
-    out = sys.stdout
-
-    def send(event: str, name: str, detail: object) -> None:
-        value = detail if isinstance(detail, (int, float)) else str(detail)
-        out.write(json.dumps({"event": event, "name": name, "detail": value}) + "\n")
-        out.flush()
-
-    _kernel_cache.listeners.append(send)
-    t0 = time.perf_counter()
-    STEPS[step]()
-    report = _report(t0, pipeline_kernels())
-    used = [n for n, k in pipeline_kernels().items() if k.signatures]
-    out.write(json.dumps({"report": {**report, "kernels": used}}) + "\n")
-    out.flush()
-    return 0
 
 
 def cache_dir() -> str | None:
@@ -306,4 +256,6 @@ def cache_dir() -> str | None:
 if __name__ == "__main__":
     import sys
 
-    sys.exit(_child_main(sys.argv[1]))
+    from spiel_edge.runtime.warmup_child import child_main
+
+    sys.exit(child_main(sys.argv[1:]))

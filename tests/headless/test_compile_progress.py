@@ -104,3 +104,24 @@ def test_a_warmup_step_in_a_child_reports_its_kernels():
     assert names <= set(report["kernels"])
     assert set(report["compiled"]) | set(report["cache_hits"]) >= names
     assert {name for event, name, _ in seen if event == "compiled"} == set(report["compiled"])
+
+
+def test_a_child_past_its_memory_budget_hands_the_kernel_to_a_fresh_one(tmp_path, monkeypatch):
+    from spiel_edge.runtime import warmup, warmup_child
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))  # empty: the kernel compiles
+    monkeypatch.setenv(warmup_child.ENV_BUDGET, "0")  # every child is past it at once
+    children = []
+    one_child = warmup_child._one_child
+    monkeypatch.setattr(
+        warmup_child, "_one_child", lambda *a: children.append(one_child(*a)) or children[-1]
+    )
+    seen = []
+    report = warmup._run_child("csv", lambda *event: seen.append(event))
+    kernel = "spiel_edge.recordings.spiel_csv._scan_integers"
+    # the first child stops before compiling, naming the kernel; the second compiles it
+    assert [status for _, status, _ in children] == [warmup_child.RESTART, 0]
+    assert children[0][2][0] == kernel
+    assert [(event, name) for event, name, _ in seen] == [("compile", kernel), ("compiled", kernel)]
+    assert report["compiled"] == [kernel] and kernel in report["kernels"]
+    assert kernel not in report["cache_hits"]

@@ -59,9 +59,15 @@ def _packed_front(
         ff[FF_SPLIT_SIGMA], ff[FF_SPLIT_RATIO], fi[FI_TOA], env, bg_env, cleaned, peaks,
         ws_counts, params, iterations, unsorted, ws_features,
     )  # fmt: skip
-    if status == 0:
-        features[:] = ws_features
-        counts[:] = ws_counts
+    if status == 0:  # element loops: an array-to-array slice assignment would compile
+        # numba's shape-mismatch message (its string formatting) into every acquisition
+        # kernel, 50 MiB and seconds of each cold compile (docs/first-start.md)
+        n_ch, k_max, n_f = features.shape
+        for c in range(n_ch):
+            counts[c] = ws_counts[c]
+            for k in range(k_max):
+                for f in range(n_f):
+                    features[c, k, f] = ws_features[c, k, f]
     return status
 
 
