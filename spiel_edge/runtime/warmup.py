@@ -256,6 +256,7 @@ def cache_dir() -> str | None:
 if __name__ == "__main__":
     import sys
 
+    from spiel_edge.runtime import warmup  # this module under its own name, not __main__
     from spiel_edge.runtime.warmup_child import child_main
 
-    sys.exit(child_main(sys.argv[1:]))
+    sys.exit(child_main(sys.argv[1:], warmup))

@@ -79,13 +79,13 @@ def _one_child(step: str, progress, compiled: set, first: list[str]):
     return report, proc.wait(), handover
 
 
-def child_main(argv: list[str]) -> int:
+def child_main(argv: list[str], warmup) -> int:
     """``STEP [KERNEL SIGNATURE [outermost]]``: compile KERNEL for SIGNATURE (pickled, base64)
     first (``outermost``: alone, its callees handed over), then
-    run STEP; each compile report and then the report as JSON lines on stdout. Past the
-    budget, exit with :data:`RESTART` before a kernel compiles, naming it (``handover``)."""
+    run STEP of ``warmup`` (the module, handed in: no import cycle); each compile report and
+    then the report as JSON lines on stdout. Past the budget, exit with :data:`RESTART` before
+    a kernel compiles, naming it (``handover``)."""
     from spiel_edge import _kernel_cache
-    from spiel_edge.runtime import warmup
 
     out = sys.stdout
     budget = budget_mib()
