@@ -25,6 +25,7 @@ from spiel_edge import _shipped
 
 PROBE_SOURCE = Path(__file__).resolve().parents[2] / "firmware_protocol" / "_cobs_numba.py"
 PROBE_PATTERN = "_cobs_numba.encode-*.nbi"  # numba's index file: <qualname>-<line>.pyXY.nbi
+WHAT_WAITS = {"run": "the board is opened", "replay": "the first file is read"}
 
 
 def _numba_subpath(source: Path) -> str:
@@ -72,7 +73,7 @@ def say_if_cold(command: str, stream: TextIO | None = None) -> bool:
     stream = stream or sys.stderr
     print(
         f"spiel-edge {command}: no compiled kernels in the cache ({probe_folders()[0].parent}): "
-        "they compile now, before the board is opened; counting them...",
+        f"they compile now, before {WHAT_WAITS.get(command, 'it starts')}; counting them...",
         file=stream,
         flush=True,
     )
