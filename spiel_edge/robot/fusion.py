@@ -127,6 +127,7 @@ class BoardReport:
     error: str | None = None
     truth_mm: np.ndarray | None = None  # (K, 3) in base_link, when the source knows it
     acquired_unix: float | None = None  # when the acquisition reached its host (Unix time)
+    received_unix: float | None = None  # when its record reached the fuser (``fuse``: Unix time)
 
 
 class Fuser:
@@ -329,6 +330,8 @@ def _board_summary(r: BoardReport) -> dict:
         out["device_time_us"] = r.device_time_us
     if r.acquired_unix is not None:
         out["acquired"] = round(r.acquired_unix, 6)
+    if r.received_unix is not None:
+        out["received"] = round(r.received_unix, 6)
     if r.error:
         out["error"] = r.error
     return out

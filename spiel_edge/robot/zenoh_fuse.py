@@ -194,6 +194,7 @@ class ZenohFuse:
             crosstalk=list(record.get("crosstalk") or []),
             error=record.get("reason") if record.get("error") else None,
             acquired_unix=remote,  # the acquisition's end on its own computer
+            received_unix=arrived,  # its record's arrival here
         )
         return report
 
@@ -227,6 +228,9 @@ class ZenohFuse:
             latency = (now - max(acquired)) * 1e3
             record["latency_ms"] = round(latency, 3)
             self.latencies_ms.append(latency)
+        received = [b["received"] for b in record["boards"].values() if "received" in b]
+        if received:  # the fuser's share: from the last board record's arrival to the write
+            record["fuser_ms"] = round((now - max(received)) * 1e3, 3)
         for name, why in self.dropped.items():
             record.setdefault("dropped", {})[name] = why
         self.sink.write(record)

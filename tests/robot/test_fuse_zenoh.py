@@ -114,6 +114,11 @@ def test_fuse_over_zenoh(clock_off_s):
     assert any(r["tracks"] for r in late)
     # fused as the last board of a cycle comes in (the final cycle waits for the idle end)
     assert np.median([r["latency_ms"] for r in late[:-1]]) < 500
+    # the fuser's share: from the last board record's arrival here to the write (one clock)
+    for r in late[:-1]:
+        assert all("received" in b for b in r["boards"].values())
+        if not clock_off_s:
+            assert 0.0 <= r["fuser_ms"] <= r["latency_ms"] + 1e-3
 
 
 def test_fuse_in_odom_from_an_odometry_key():
