@@ -74,3 +74,13 @@ jobs_option = click.option(
     show_default=True,
     help="Worker processes over a spiel-csv folder's files (0: one per CPU; records as with 1).",
 )
+realtime_option = click.option(
+    "--realtime",
+    type=click.IntRange(1, 99),
+    default=None,
+    metavar="PRIORITY",
+    help="Once the kernels are ready, stream in Linux's real-time class SCHED_FIFO at this "
+    "priority (10 is plenty): low latency on a loaded computer (docs/robot.md). Needs the "
+    "right (the systemd unit's LimitRTPRIO, or rtprio in limits.conf); without it a warning "
+    "and normal scheduling.",
+)

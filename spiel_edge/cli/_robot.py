@@ -16,6 +16,7 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.robot.description import RobotSpec, load_robot
+from spiel_edge.runtime.realtime import apply_realtime
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,15 @@ def quaternion_from_matrix(r: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(v) / n for v in q)  # type: ignore[return-value]
 
 
+def _prepare_kernels(robot: RobotSpec, association, max_targets, track: bool) -> None:
+    """Every board profile's kernels loaded (or compiled, with progress) in this thread."""
+    from spiel_edge.profile.schema import load_profile
+    from spiel_edge.runtime.first_start import prepare_for_run
+
+    for name in dict.fromkeys(b.profile for b in robot.boards):
+        prepare_for_run(load_profile(name), association, max_targets, track, None)
+
+
 def open_fused_outputs(robot: RobotSpec, plan_force: bool, outputs: dict, metadata: dict):
     """The sinks of a fused run (NDJSON, MCAP, UDP, Foxglove, Zenoh) in the robot's frame."""
     plan = FilePlan(plan_force)
@@ -86,10 +96,14 @@ def run_robot(
     reconnect_timeout: float | None,
     track: bool,
     show_status: bool | None,
+    realtime: int | None = None,
 ) -> int:
     from spiel_edge.robot.serve import RobotRunner
 
     robot = load_robot(robot_file)  # every problem of the file: one line, before any board
+    if realtime is not None:  # the kernels first (they would compile in the boards' threads)
+        _prepare_kernels(robot, association, max_targets, track)
+        apply_realtime(realtime)
     sink = open_fused_outputs(
         robot,
         force,

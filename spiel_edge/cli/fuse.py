@@ -9,7 +9,7 @@ import threading
 import click
 
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
-from spiel_edge.cli._options import force_option
+from spiel_edge.cli._options import force_option, realtime_option
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 
 
@@ -75,6 +75,7 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
 )
 @click.option("--track/--no-track", default=True, show_default=True, help="One tracker over all.")
 @force_option
+@realtime_option
 def command(
     robot_file,
     frames,
@@ -93,6 +94,7 @@ def command(
     odom_key,
     track,
     force,
+    realtime,
 ) -> int:
     """Subscribe to every board of a robot on Zenoh (each published by its own `spiel-edge run
     --zenoh KEY`, on this computer or another) and write their targets fused in the robot's
@@ -104,6 +106,12 @@ def command(
 
     robot = load_robot(robot_file)
     config = make_config(connect, listen, mode, zenoh_config)
+    if realtime is not None:  # the tracker's kernels first, then Zenoh's threads inherit it
+        from spiel_edge.runtime.realtime import apply_realtime
+        from spiel_edge.track import Tracker
+
+        Tracker(robot.track_spec()).update([], 0.0)
+        apply_realtime(realtime)
     outputs = dict(
         output=output,
         record=record,

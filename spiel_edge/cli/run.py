@@ -18,6 +18,7 @@ from spiel_edge.cli._options import (
     max_targets_option,
     port_option,
     profile_option,
+    realtime_option,
     toa_correction_option,
 )
 from spiel_edge.cli._ros2 import ros2_options, ros2_output_options
@@ -35,6 +36,7 @@ from spiel_edge.runtime.loop import (
     load_background,
     open_pipeline,
 )
+from spiel_edge.runtime.realtime import apply_realtime
 from spiel_edge.runtime.replay import chosen_toa_correction
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier
@@ -131,6 +133,7 @@ from spiel_edge.service.systemd import Notifier
     default=None,
     help="Status line on stderr every few seconds (default: when stderr is a terminal).",
 )
+@realtime_option
 def command(
     port,
     robot_file,
@@ -153,6 +156,7 @@ def command(
     track,
     samples,
     show_status,
+    realtime,
     **ros2,
 ) -> int:
     """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
@@ -178,6 +182,7 @@ def command(
             reconnect_timeout=reconnect_timeout,
             track=track,
             show_status=show_status,
+            realtime=realtime,
         )
     plan = FilePlan(force)  # every file checked before the board is touched
     for path, option in ((background, "--background"), (calibration, "--calibration")):
@@ -195,6 +200,7 @@ def command(
     # the board is opened (its stream never waits on a silent host)
     notifier = Notifier()
     prepare_for_run(chosen, association, max_targets, track, toa_correction, notifier=notifier)
+    apply_realtime(realtime)  # compiled: the link's and the outputs' threads inherit it
     if show_status is None:
         show_status = sys.stderr.isatty()
     session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)
