@@ -6,16 +6,26 @@ records and the world's truth.
   ``HOLD`` cycles; see :func:`crossing_ids` for how each is counted.
 - *Coverage*: per cycle, confirmed tracks matched one-to-one to movers within ``GATE_MM``
   (nearest pairs first); the tracked error is the matched distance.
+- *The association's share* (:func:`oracle_records`): the same fused targets, associated to the
+  movers by the truth instead of by the tracker, one track per mover with the same filter
+  and coasting; scored the same way, it bounds what a better association could win.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
+
+from spiel_edge.robot.coast import CoastPolicy
+from spiel_edge.robot.fusion import BaseTarget
+from spiel_edge.track import Tracker
 
 GATE_MM = 40.0
 VIEW_DEG = 50.0
 HOLD = 4
 LOOK = 12
+ORACLE_GATE_MM = 80.0  # a fused target this near its mover (and nearest to it) is the mover's
 
 
 def match(
@@ -159,4 +169,46 @@ def crossing_ids(
             j in reported[k] for k in range(c, min(c + LOOK, len(reported)))
         ):
             out["unreported_after"] += 1
+    return out
+
+
+def oracle_records(
+    records: list[dict],
+    truths: list[np.ndarray],
+    make_tracker: Callable[[], Tracker],
+    make_coast: Callable[[], CoastPolicy | None] = lambda: None,
+    gate: float = ORACLE_GATE_MM,
+) -> list[dict]:
+    """Records whose ``tracks`` come from one tracker per mover, fed the cycle's fused target
+    nearest that mover when the mover is also the target's nearest and within ``gate`` (the
+    truth's association, no confusion between movers), with the same coasting (ids: mover
+    ``j``'s track ``i`` is ``1000 j + i``)."""
+    n = len(truths[0]) if truths else 0
+    trackers = [make_tracker() for _ in range(n)]
+    coasts = [make_coast() for _ in range(n)]
+    out = []
+    for rec, truth in zip(records, truths, strict=True):
+        t = float(rec["host_time"])
+        targets = rec.get("targets") or []
+        pos = np.array([x["position_mm"] for x in targets], float).reshape(-1, 3)
+        d = np.linalg.norm(pos[:, None, :] - truth[None, :, :], axis=2)  # (targets, movers)
+        owner = np.argmin(d, axis=1) if len(pos) else np.zeros(0, int)
+        tracks = []
+        for j in range(n):
+            mine = np.flatnonzero((owner == j) & (d[:, j] < gate)) if len(pos) else []
+            given = []
+            if len(mine):
+                i = int(mine[np.argmin(d[mine, j])])
+                cov = np.asarray(targets[i]["covariance_mm2"], float)
+                given = [BaseTarget(pos[i], cov, list(targets[i].get("boards", [])))]
+            if coasts[j] is not None:
+                coasts[j].hold(trackers[j], t)
+            for tr in trackers[j].update(given, t):
+                tracks.append(
+                    {
+                        "track_id": 1000 * j + int(tr.track_id),
+                        "position_mm": tr.position_mm.tolist(),
+                    }
+                )
+        out.append({"tracks": tracks})
     return out

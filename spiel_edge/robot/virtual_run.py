@@ -5,6 +5,7 @@ Used by tools/bench/robot_eval.py (the issue's figures) and tests/robot/ (a shor
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 
@@ -38,6 +39,7 @@ class RunFigures:
     tracked_errors: list = field(default_factory=list)
     tracked_errors_in_view: list = field(default_factory=list)  # movers some board faces
     crossings: dict = field(default_factory=dict)
+    oracle: dict = field(default_factory=dict)  # the truth's association (score.oracle_records)
     cycles: int = 0
     covered: float = 0.0
     pipeline_s: float = 0.0
@@ -66,6 +68,7 @@ class RunFigures:
             if c.get("crossings")
             else None,
             "mover_coverage": round(self.covered, 4),
+            **({"oracle_association": self.oracle} if self.oracle else {}),
             "fused_records": self.cycles,
             "pipeline_ms_per_acquisition": round(1e3 * self.pipeline_s / n, 3),
             "fusion_ms_per_cycle": round(1e3 * self.fusion_s / max(self.cycles, 1), 3),
@@ -94,8 +97,10 @@ def run_virtual_robot(
     drop_marked: bool = True,
     spec=None,
     coast: CoastPolicy | None | str = "robot",
+    oracle: bool = False,
 ) -> tuple[RunFigures, list[dict]]:
-    """``coast``: the fuser's coasting policy; "robot": the robot file's (robot/coast.py)."""
+    """``coast``: the fuser's coasting policy; "robot": the robot file's (robot/coast.py).
+    ``oracle``: also score the same fused targets associated by the truth (``figs.oracle``)."""
     from spiel_edge.sim.robot_offline import simulate
 
     figs = RunFigures()
@@ -195,11 +200,37 @@ def run_virtual_robot(
         for rec in records
     ]
     figs.crossings = score.crossing_ids(ids, score.crossings(primary), seen, truths)
+    if oracle:
+        figs.oracle = _oracle_figures(world, fuser, coast, records, truths, primary)
     figs.paired = {
         "own": score.paired_errors(records, truths, primary, world.names, own_err),
         "same_track_settings": score.paired_errors(records, truths, primary, world.names, same_err),
     }
     return figs, records
+
+
+def _oracle_figures(world, fuser, coast, records, truths, primary) -> dict:
+    """Crossings and coverage of score.oracle_records: the fused tracker's settings and
+    coasting, the truth's association."""
+    spec = fuser.tracker.spec if fuser.tracker is not None else None
+
+    def fresh_coast() -> CoastPolicy | None:  # one per tracker: a policy keeps per-track state
+        if coast == "robot":
+            return CoastPolicy.from_robot(world.robot)
+        return copy.deepcopy(coast)
+
+    oracle = score.oracle_records(records, truths, lambda: Tracker(spec), fresh_coast)
+    ids, _ = score.coverage(oracle, truths)
+    c = score.crossing_ids(ids, score.crossings(primary))
+    tracked = c["kept"] + c["changed"] + c["lost"]
+    return {
+        "crossings": c,
+        "crossings_kept_share": round(c["kept"] / tracked, 4) if tracked else None,
+        "mover_coverage": round(
+            float(np.mean([len(i) / max(len(t), 1) for i, t in zip(ids, truths, strict=True)])),
+            4,
+        ),
+    }
 
 
 def _has_ghost(world, acq, targets, clean_targets) -> bool:

@@ -2,12 +2,14 @@
 track ids across fields of view, tracked error against one board's own.
 
     python -m tools.bench.robot_eval [--cycles 2000] [--movers 5] [--seed 0] [--robot virtual-4]
-        [--mode scheduled|free|both] [--keep-marked]
+        [--mode scheduled|free|both] [--keep-marked] [--oracle]
 
 Offline in virtual time (sim/robot.py's simulate: each board's clock with offset and
 +-200 ppm drift, link latency), every acquisition through the pipeline (--max-targets 4, no
 learned ToA correction: the echo model's envelope), then the host side and the fusion of
-spiel_edge/robot. Prints one JSON object per mode.
+spiel_edge/robot. ``--oracle`` adds ``oracle_association``: the same fused targets associated
+to the movers by the truth, one track per mover with the same filter and coasting (what a
+perfect association would keep; robot/score.py). Prints one JSON object per mode.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def main(argv: list[str] | None = None) -> None:
         "--track", action="append", default=[], metavar="KEY=VALUE", help="[track] override"
     )
     ap.add_argument("--no-ghosts", action="store_true", help="skip the clean-frame comparison")
+    ap.add_argument("--oracle", action="store_true", help="also the truth's association")
     args = ap.parse_args(argv)
     robot = load_robot(args.robot)
     profile = load_profile(robot.boards[0].profile)
@@ -62,6 +65,7 @@ def main(argv: list[str] | None = None) -> None:
             ghosts=not args.no_ghosts,
             drop_marked=not args.keep_marked,
             spec=spec,
+            oracle=args.oracle,
         )
         out = {"mode": mode, "seed": args.seed, "movers": args.movers, **figs.summary()}
         out["wall_s"] = round(time.time() - t, 1)
