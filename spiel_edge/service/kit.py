@@ -75,6 +75,9 @@ RestartSec=3
 # SIGTERM finalizes the recording and exits; 130/143 are the interrupted-run statuses.
 TimeoutStopSec=5
 SuccessExitStatus=130 143
+# `--realtime 10` in SPIEL_RUN_OPTIONS (docs/robot.md: latency on a loaded computer) may take
+# Linux's SCHED_FIFO up to this priority; without the option nothing changes.
+LimitRTPRIO=10
 NoNewPrivileges=yes
 ProtectSystem=strict
 ProtectHome=yes
@@ -135,6 +138,8 @@ SPIEL_PORT=/dev/spiel-0
 #   ROS 2 (docs/ros2.md): --record-profile ros2   --zenoh-encoding cdr   --frame-id spiel
 #   the sensor's pose on the robot: [frame] in the profile, or --parent-frame base_link
 #   --translation-m 0.10,0,0.25 --rotation-rpy-deg 0,0,90   (metres, degrees)
+#   low latency on a loaded computer (docs/robot.md): --realtime 10 (Linux SCHED_FIFO once the
+#   kernels are ready; the unit's LimitRTPRIO=10 allows it)
 # NDJSON goes to /dev/null here: on stdout it would fill the journal at the frame rate.
 SPIEL_RUN_OPTIONS=--profile spiel-icra23 --output /dev/null --udp 127.0.0.1:9870
 
