@@ -5,6 +5,9 @@ No rclpy, no rosbags at run time: a message is the 4-byte encapsulation header
 The layouts that do not change with the data are packed once (``struct.Struct`` per frame id),
 so a PointStamped costs about one ``pack`` call (52 bytes for the frame id ``spiel``).
 
+Read back: spiel_msgs/msg/Acquisition (:func:`decode_acquisition`) and the planar pose of a
+nav_msgs/msg/Odometry (:func:`decode_odometry`, either byte order).
+
 Messages: geometry_msgs/msg/PointStamped, sensor_msgs/msg/PointCloud2 (the targets, with
 the covariance's upper triangle),
 tf2_msgs/msg/TFMessage (the static transform), std_msgs/msg/String (the JSON record), and
@@ -29,6 +32,7 @@ POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 STRING = "std_msgs/msg/String"
 ACQUISITION = "spiel_msgs/msg/Acquisition"
+ODOMETRY = "nav_msgs/msg/Odometry"
 
 # the point layout of /spiel/targets: (name, PointField datatype, offset); FLOAT32=7, INT32=5
 TARGET_FIELDS = (
@@ -221,6 +225,31 @@ def decode_acquisition(data: bytes) -> tuple[int, np.ndarray]:
     except struct.error as exc:
         raise InputError(f"truncated Acquisition message: {exc}") from exc
     return seq, frames.astype(np.float64)
+
+
+def decode_odometry(data: bytes) -> tuple[float, float, float, float]:
+    """(stamp s, x m, y m, yaw rad) of a nav_msgs/msg/Odometry in CDR (either byte order):
+    its header's stamp and its pose's position and heading (the rest is not read);
+    InputError when malformed."""
+    try:
+        order = {b"\x00\x01": "<", b"\x00\x00": ">"}.get(bytes(data[:2]))
+        if order is None:
+            raise InputError(f"not CDR (header {bytes(data[:4]).hex()})")
+        body = memoryview(data)[4:]
+        sec, nanosec = struct.unpack_from(order + "iI", body, 0)
+        pos = 8
+        for _ in range(2):  # header.frame_id, child_frame_id: length (with the NUL), bytes
+            pos += -pos % 4
+            (length,) = struct.unpack_from(order + "I", body, pos)
+            pos += 4 + length
+        pos += -pos % 8
+        x, y, _z, qx, qy, qz, qw = struct.unpack_from(order + "7d", body, pos)
+    except struct.error as exc:
+        raise InputError(f"truncated Odometry message: {exc}") from exc
+    if not all(math.isfinite(v) for v in (x, y, qx, qy, qz, qw)):
+        raise InputError("Odometry pose not finite")
+    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return sec + nanosec * 1e-9, x, y, yaw
 
 
 # message definitions stored in the MCAP (schema encoding ros2msg), as rosbag2 writes them

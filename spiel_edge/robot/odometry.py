@@ -1,11 +1,19 @@
-"""The robot's pose in ``odom`` for the fuser (robot/fusion.py): a planar pose as (R, t), and a
-buffer of poses from an odometry stream, interpolated at a time."""
+"""The robot's pose in ``odom`` for the fuser (robot/fusion.py): a planar pose as (R, t), a
+buffer of poses from an odometry stream, interpolated at a time, and the messages that carry
+them: JSON ``{"stamp": Unix s, "x": m, "y": m, "yaw": rad}`` or a ROS 2 nav_msgs/msg/Odometry
+in CDR (as rmw_zenoh publishes it, or rosbag2 records it), live or from a file."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
+
+from spiel_edge.errors import InputError
+
+ODOM_TOPIC = "/odom"  # ROS's name for the robot's odometry
 
 
 def planar_pose(x_mm: float, y_mm: float, yaw_rad: float) -> tuple[np.ndarray, np.ndarray]:
@@ -23,8 +31,9 @@ class OdometryBuffer:
     MAX_POSES = 512
     MAX_EXTRAPOLATION_S = 0.2
 
-    def __init__(self) -> None:
+    def __init__(self, max_poses: int | None = MAX_POSES) -> None:
         self._poses: list[tuple[float, float, float, float]] = []
+        self.max_poses = max_poses  # None: every pose (a recording)
 
     def add(self, t: float, x_mm: float, y_mm: float, yaw_rad: float) -> bool:
         values = (t, x_mm, y_mm, yaw_rad)
@@ -33,8 +42,12 @@ class OdometryBuffer:
         if self._poses and t <= self._poses[-1][0]:
             return False  # out of order or repeated: kept out
         self._poses.append(values)
-        del self._poses[: -self.MAX_POSES]
+        if self.max_poses is not None:
+            del self._poses[: -self.max_poses]
         return True
+
+    def __len__(self) -> int:
+        return len(self._poses)
 
     def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
         poses = self._poses
@@ -51,3 +64,74 @@ class OdometryBuffer:
         w = (t - t0) / (t1 - t0)
         da = math.remainder(a1 - a0, 2 * math.pi)
         return planar_pose(x0 + w * (x1 - x0), y0 + w * (y1 - y0), a0 + w * da)
+
+
+def parse_odometry(payload: bytes) -> tuple[float | None, float, float, float]:
+    """(stamp s or None, x m, y m, yaw rad) of one odometry message: JSON (``stamp``
+    optional) or a nav_msgs/msg/Odometry in CDR; InputError when it is neither."""
+    from spiel_edge.recordings.cdr import decode_odometry
+
+    data = bytes(payload)
+    if data[:2] in (b"\x00\x01", b"\x00\x00"):
+        return decode_odometry(data)
+    try:
+        msg = json.loads(data)
+        x, y, yaw = (float(msg[k]) for k in ("x", "y", "yaw"))
+        stamp = msg.get("stamp")
+        stamp = None if stamp is None else float(stamp)
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise InputError(
+            f"not an odometry message (JSON x, y, yaw or nav_msgs/Odometry): {exc}"
+        ) from exc
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise InputError("odometry pose not finite")
+    return stamp, x, y, yaw
+
+
+def read_odometry_file(path: str | Path, topic: str = ODOM_TOPIC) -> OdometryBuffer:
+    """Every pose of a recording, in time order: an MCAP (the messages on ``topic``:
+    rosbag2's nav_msgs/msg/Odometry in CDR, or the JSON message; a damaged file is read as far
+    as it goes) or NDJSON lines of the JSON message. Each pose needs its stamp. InputError
+    naming the file and what is wrong."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            if f.read(8).startswith(b"\x89MCAP"):
+                messages = _mcap_messages(f, topic, path)
+            else:
+                f.seek(0)
+                messages = [line for line in f.read().splitlines() if line.strip()]
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the odometry: {exc.strerror or exc}") from exc
+    poses = []
+    for n, payload in enumerate(messages, 1):
+        try:
+            stamp, x, y, yaw = parse_odometry(payload)
+        except InputError as exc:
+            raise InputError(f"{path}: odometry message {n}: {exc}") from exc
+        if stamp is None:
+            raise InputError(f"{path}: odometry message {n} has no stamp")
+        poses.append((stamp, 1000.0 * x, 1000.0 * y, yaw))
+    buffer = OdometryBuffer(max_poses=None)
+    for pose in sorted(poses):
+        buffer.add(*pose)  # a repeated stamp is kept once
+    if not len(buffer):
+        raise InputError(f"{path}: no odometry in it")
+    return buffer
+
+
+def _mcap_messages(f, topic: str, path: Path) -> list[bytes]:
+    import os
+
+    from spiel_edge.recordings.mcap_scan import McapScanner
+
+    scanner = McapScanner(f, os.fstat(f.fileno()).st_size)
+    messages, topics = [], set()
+    for msg in scanner.messages():
+        topics.add(msg.topic or "?")
+        if msg.topic == topic:
+            messages.append(msg.data)
+    if not messages:
+        seen = ", ".join(sorted(topics)) or "none"
+        raise InputError(f"{path}: no messages on {topic} (topics: {seen}; --odom-topic)")
+    return messages
