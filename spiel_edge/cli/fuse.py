@@ -70,8 +70,27 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
     "odom_key",
     default=None,
     metavar="KEY",
-    help="Track in odom: the robot's pose on this Zenoh key, JSON "
-    '{"stamp": s, "x": m, "y": m, "yaw": rad}.',
+    help="Track in odom: the robot's pose on this Zenoh key (expression), JSON "
+    '{"stamp": s, "x": m, "y": m, "yaw": rad} or a ROS 2 nav_msgs/Odometry from rmw_zenoh '
+    "(e.g. '*/odom/**').",
+)
+@click.option(
+    "--replay",
+    "replay",
+    multiple=True,
+    metavar="BOARD=FILE",
+    help="Offline instead of Zenoh: the board's records as its `run -o` wrote them (NDJSON); "
+    "repeat per board (boards without a file are left out).",
+)
+@click.option(
+    "--odom-file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="With --replay, track in odom with a recording's poses: an MCAP (rosbag2 "
+    "nav_msgs/Odometry, or JSON messages) or NDJSON of the JSON message.",
+)
+@click.option(
+    "--odom-topic", default="/odom", show_default=True, help="The --odom-file MCAP's topic."
 )
 @click.option("--track/--no-track", default=True, show_default=True, help="One tracker over all.")
 @force_option
@@ -92,26 +111,21 @@ def command(
     mode,
     zenoh_config,
     odom_key,
+    replay,
+    odom_file,
+    odom_topic,
     track,
     force,
     realtime,
 ) -> int:
     """Subscribe to every board of a robot on Zenoh (each published by its own `spiel-edge run
     --zenoh KEY`, on this computer or another) and write their targets fused in the robot's
-    frame, one record per trigger cycle (docs/robot.md)."""
+    frame, one record per trigger cycle (docs/robot.md). With --replay, the boards' recorded
+    records instead, offline (no Zenoh)."""
     from spiel_edge.cli._robot import open_fused_outputs
     from spiel_edge.robot.description import load_robot
-    from spiel_edge.robot.zenoh_fuse import ZenohFuse
-    from spiel_edge.robot.zenoh_fuse import zenoh_config as make_config
 
     robot = load_robot(robot_file)
-    config = make_config(connect, listen, mode, zenoh_config)
-    if realtime is not None:  # the tracker's kernels first, then Zenoh's threads inherit it
-        from spiel_edge.runtime.realtime import apply_realtime
-        from spiel_edge.track import Tracker
-
-        Tracker(robot.track_spec()).update([], 0.0)
-        apply_realtime(realtime)
     outputs = dict(
         output=output,
         record=record,
@@ -121,6 +135,25 @@ def command(
         record_profile=record_profile,
         zenoh_encoding=zenoh_encoding,
     )
+    live = dict(connect=connect, listen=listen, mode=mode, zenoh_config=zenoh_config, odom=odom_key)
+    if replay:
+        live.update(frames=frames, idle=idle, realtime=realtime)
+        given = [f"--{k.replace('_', '-')}" for k, v in live.items() if v]
+        if given:
+            raise click.UsageError(f"{given[0]} is for the live fusion, not with --replay")
+        return _replay(robot, replay, odom_file, odom_topic, track, force, outputs)
+    if odom_file:
+        raise click.UsageError("--odom-file goes with --replay (live odometry: --odom KEY)")
+    from spiel_edge.robot.zenoh_fuse import ZenohFuse
+    from spiel_edge.robot.zenoh_fuse import zenoh_config as make_config
+
+    config = make_config(connect, listen, mode, zenoh_config)
+    if realtime is not None:  # the tracker's kernels first, then Zenoh's threads inherit it
+        from spiel_edge.runtime.realtime import apply_realtime
+        from spiel_edge.track import Tracker
+
+        Tracker(robot.track_spec()).update([], 0.0)
+        apply_realtime(realtime)
     sink = open_fused_outputs(robot, force, outputs, {"robot": robot.name, "fused_over": "zenoh"})
     stop = threading.Event()
     finalizers = Finalizers()
@@ -141,5 +174,39 @@ def command(
             if fuse is not None:
                 with contextlib.suppress(OSError):
                     click.echo(fuse.summary(), err=True)
+    failed = bool(sink.failed) or (fuse is not None and bool(fuse.dropped))
+    return EXIT_PARTIAL if failed else EXIT_OK
+
+
+def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
+    """``fuse --replay``: every input read and checked before the outputs open."""
+    from spiel_edge.cli._robot import open_fused_outputs
+    from spiel_edge.robot.odometry import read_odometry_file
+    from spiel_edge.robot.record_fuse import read_replay
+    from spiel_edge.robot.record_fuse import replay as fuse_replay
+
+    files = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise click.UsageError(f"--replay {item!r}: BOARD=FILE, e.g. front=front.ndjson")
+        if name in files:
+            raise click.UsageError(f"--replay: board {name!r} given twice")
+        files[name] = path
+    streams = read_replay(robot, files)
+    odometry = read_odometry_file(odom_file, odom_topic) if odom_file else None
+    meta = {"robot": robot.name, "fused_over": "replay", "replayed": ",".join(sorted(files))}
+    sink = open_fused_outputs(robot, force, outputs, meta)
+    fuse = None
+    try:
+        fuse = fuse_replay(robot, sink, streams, track=track, odometry=odometry)
+    except BrokenPipeError:
+        sys.stdout = None  # type: ignore[assignment]
+    finally:
+        with contextlib.suppress(BrokenPipeError, ValueError):
+            sink.close()
+    if fuse is not None:
+        with contextlib.suppress(OSError):
+            click.echo(fuse.summary(), err=True)
     failed = bool(sink.failed) or (fuse is not None and bool(fuse.dropped))
     return EXIT_PARTIAL if failed else EXIT_OK

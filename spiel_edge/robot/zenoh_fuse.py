@@ -7,11 +7,8 @@ through a router (Zenoh's own configuration: ``--connect``, ``--listen``, ``--mo
 file or ``$ZENOH_CONFIG``), and fuses them as ``run --robot`` does (robot/fusion.py). Zenoh is
 the transport; nothing of our own is put on the wire.
 
-Time: each board's stamps (``device_time_us``) are mapped to this computer's clock from the
-records' arrival (robot/clock.py's lower envelope, which absorbs the network's delay). A
-board whose computer's clock (its records' ``host_time``) is more than a second off this
-one's is dropped with a warning (synchronise them: chrony or PTP), as is a board whose
-records are not records. Per-board diagnostics ride in every fused record (``boards``).
+What happens to a record once here (clocks, drops, fusion, diagnostics, odometry) is
+robot/record_fuse.py's, shared with the offline replay of recorded records.
 """
 
 from __future__ import annotations
@@ -22,18 +19,12 @@ import queue
 import threading
 import time
 
-import numpy as np
-
 from spiel_edge.errors import ConfigError
-from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
-from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
-from spiel_edge.robot.fusion import BoardReport, Fuser, OdometryBuffer, record_targets
+from spiel_edge.robot.record_fuse import RecordFuse
 
 log = logging.getLogger(__name__)
 
-MAX_RECORD_BYTES = 1 << 20  # a board record is a few kB; anything larger is refused
-BAD_RECORDS_LIMIT = 20  # this many unreadable records in a row: the board is dropped
 QUEUE = 4096
 ODOM = "\x00odom"  # the odometry subscriber's name in the queue (no board is named so)
 
@@ -56,8 +47,10 @@ def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | N
     return cfg
 
 
-class ZenohFuse:
-    """Subscribe to every board's key of ``robot``; fused records to ``sink``."""
+class ZenohFuse(RecordFuse):
+    """Subscribe to every board's key of ``robot``; fused records to ``sink``. ``odom_key``:
+    the robot's odometry on Zenoh (JSON, or nav_msgs/msg/Odometry in CDR as rmw_zenoh
+    publishes it: a key expression such as ``*/odom/**``)."""
 
     def __init__(
         self,
@@ -72,28 +65,9 @@ class ZenohFuse:
         from spiel_edge.outputs.zenoh import _import_zenoh
 
         self.zenoh = _import_zenoh()
-        self.robot = robot
-        self.sink = sink
+        super().__init__(robot, sink, track=track, spec=spec, odom_messages=odom_key is not None)
         self.queue: queue.Queue = queue.Queue(maxsize=QUEUE)
-        self.odometry = OdometryBuffer()  # the robot's pose in odom, when odom_key is given
-        self.odom_bad = 0
-        self.fuser = Fuser(
-            {b.name: b.mount for b in robot.boards},
-            period_s=robot.trigger.period_ms / 1000.0,
-            spec=spec or robot.track_spec(),
-            frame_id=robot.frame_id,
-            field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
-            coast=CoastPolicy.from_robot(robot),
-            track=track,
-            odometry=None if odom_key is None else self.odometry,
-        )
-        self.clocks = {b.name: StampClock() for b in robot.boards}
-        self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
-        self.bad = dict.fromkeys(self.clocks, 0)
-        self.dropped: dict[str, str] = {}
         self.overflow = 0
-        self.records = 0
-        self.latencies_ms: list[float] = []
         try:
             self.session = self.zenoh.open(config if config is not None else zenoh_config())
         except Exception as exc:
@@ -138,120 +112,18 @@ class ZenohFuse:
                 continue
             last = time.monotonic()
             if name == ODOM:
-                self._odom(payload, arrived)
+                self.handle_odometry(payload, arrived)
                 continue
-            if name in self.dropped:
-                continue
-            report = self._report(name, payload, arrived)
-            if report is None:
-                continue
-            for record in self.fuser.add(report):
-                self._write(record)
+            self.handle(name, payload, arrived)
             if frames is not None and self.records >= frames:
                 break
         if frames is None or self.records < frames:
-            for record in self.fuser.flush():
-                self._write(record)
+            self.finish()
         return self.records
 
-    def _report(self, name: str, payload: bytes, arrived: float) -> BoardReport | None:
-        try:
-            if len(payload) > MAX_RECORD_BYTES:
-                raise ValueError(f"{len(payload)} bytes")
-            record = json.loads(payload)
-            stamp = float(record["device_time_us"]) / 1e6
-            remote = float(record["host_time"])
-            if not (np.isfinite(stamp) and np.isfinite(remote)):
-                raise ValueError("non-finite time")
-        except (ValueError, KeyError, TypeError) as exc:
-            self.bad[name] += 1
-            if self.bad[name] >= BAD_RECORDS_LIMIT:
-                self._drop(name, f"its messages are not spiel-edge records ({exc})")
-            return None
-        self.bad[name] = 0
-        if abs(arrived - remote) > MAX_DISAGREEMENT_S:
-            self._drop(
-                name,
-                f"its computer's clock is {remote - arrived:+.2f} s off this one's "
-                "(synchronise them: chrony or PTP)",
-            )
-            return None
-        synced = record.get("stamp_host")  # protocol 2: the board's time on its host's clock
-        synced = isinstance(synced, (int, float)) and np.isfinite(synced) and float(synced)
-        if synced:
-            stamp = synced  # its host's clock, mapped to this one's below
-        if bool(synced) != self.synced.get(name, False):  # another time axis: learn it afresh
-            self.synced[name] = bool(synced)
-            self.clocks[name] = StampClock()
-        clock = self.clocks[name]
-        clock.observe(stamp, arrived)
-        report = BoardReport(
-            name,
-            clock.to_host(stamp),
-            record_targets(record),
-            acquisition=int(record.get("acquisition", -1)),
-            device_time_us=int(record["device_time_us"]),
-            crosstalk=list(record.get("crosstalk") or []),
-            error=record.get("reason") if record.get("error") else None,
-            acquired_unix=remote,  # the acquisition's end on its own computer
-            received_unix=arrived,  # its record's arrival here
-        )
-        return report
-
-    def _odom(self, payload: bytes, arrived: float) -> None:
-        """An odometry message: JSON ``{"stamp": Unix s, "x": m, "y": m, "yaw": rad}`` (the
-        robot's planar pose in odom); its stamp is used when within a second of its arrival."""
-        try:
-            msg = json.loads(payload)
-            x, y, yaw = (float(msg[k]) for k in ("x", "y", "yaw"))
-            stamp = float(msg.get("stamp", arrived))
-        except (ValueError, KeyError, TypeError, AttributeError):
-            stamp, x, y, yaw = float("nan"), 0.0, 0.0, 0.0
-        t = stamp if abs(stamp - arrived) <= MAX_DISAGREEMENT_S else arrived
-        if not self.odometry.add(t, 1000.0 * x, 1000.0 * y, yaw):
-            self.odom_bad += 1
-            if self.odom_bad in (1, 100, 10000):
-                log.warning(
-                    "odometry: %d messages not used (malformed or out of order)", self.odom_bad
-                )
-
-    def _drop(self, name: str, why: str) -> None:
-        self.dropped[name] = why
-        self.fuser.drop(name)
-        log.warning("board %s dropped, the others go on: %s", name, why)
-
-    def _write(self, record: dict) -> None:
-        now = time.time()
-        acquired = [b.get("acquired") for b in record["boards"].values()]
-        acquired = [a for a in acquired if a is not None]
-        if acquired:
-            latency = (now - max(acquired)) * 1e3
-            record["latency_ms"] = round(latency, 3)
-            self.latencies_ms.append(latency)
-        received = [b["received"] for b in record["boards"].values() if "received" in b]
-        if received:  # the fuser's share: from the last board record's arrival to the write
-            record["fuser_ms"] = round((now - max(received)) * 1e3, 3)
-        for name, why in self.dropped.items():
-            record.setdefault("dropped", {})[name] = why
-        self.sink.write(record)
-        self.records += 1
-
     def summary(self) -> str:
-        lat = np.array(self.latencies_ms)
-        latency = (
-            f"; latency after the last board's acquisition median {np.median(lat):.2f} ms, "
-            f"p95 {np.percentile(lat, 95):.2f} ms"
-            if lat.size
-            else ""
-        )
-        boards = "; ".join(
-            f"{n}: dropped ({self.dropped[n]})"
-            if n in self.dropped
-            else f"{n}: {s['reports']} records, {s['targets']} targets"
-            for n, s in self.fuser.stats.items()
-        )
         extra = f"; {self.overflow} records lost (queue full)" if self.overflow else ""
-        return f"{self.records} fused records{latency}; {boards}{extra}"
+        return super().summary() + extra
 
     def close(self) -> None:
         for sub in self.subscribers:

@@ -121,9 +121,14 @@ def test_fuse_over_zenoh(clock_off_s):
             assert 0.0 <= r["fuser_ms"] <= r["latency_ms"] + 1e-3
 
 
-def test_fuse_in_odom_from_an_odometry_key():
-    """The robot drives forward past a post; with its odometry on a Zenoh key the fused
-    target stays where the post is, in odom."""
+@pytest.mark.parametrize("encoding", ["json", "cdr"])
+def test_fuse_in_odom_from_an_odometry_key(encoding):
+    """The robot drives forward past a post; with its odometry on a Zenoh key (JSON, or a
+    nav_msgs/msg/Odometry in CDR as rmw_zenoh carries it) the fused target stays where the
+    post is, in odom."""
+    if encoding == "cdr":
+        pytest.importorskip("rosbags.typesys", reason="rosbags (test extra) writes the CDR")
+        from ._odometry import odometry_cdr
     robot = load_robot("virtual-4")
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     off = '"scouting": {"multicast": {"enabled": false}}'
@@ -154,7 +159,10 @@ def test_fuse_in_odom_from_an_odometry_key():
             _sleep_until(t0 + k * 0.025)
             now = t0 + k * 0.025
             x_mm = 200.0 * (now - t0)  # 0.2 m/s along x
-            odom.put(json.dumps({"stamp": now, "x": x_mm / 1000, "y": 0.0, "yaw": 0.0}))
+            if encoding == "cdr":
+                odom.put(odometry_cdr(now, x_mm / 1000, 0.0, 0.0))
+            else:
+                odom.put(json.dumps({"stamp": now, "x": x_mm / 1000, "y": 0.0, "yaw": 0.0}))
             for b in robot.boards:
                 p_base = post_odom - [x_mm, 0.0, 0.0]
                 target = b.mount.to_board(p_base) if b.name == "front" else [0.0, 0.0, 150.0]

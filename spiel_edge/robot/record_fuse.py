@@ -1,0 +1,247 @@
+"""Board records fused in the robot's frame: the part of ``spiel-edge fuse`` that does not
+depend on where the records come from (Zenoh live, robot/zenoh_fuse.py, or the files a board's
+``run -o`` wrote, :func:`read_replay` and :func:`replay`).
+
+A record is ``run``'s JSON (``targets``, ``device_time_us``, ``host_time``, ``stamp_host``
+with protocol 2). Time: each board's stamps are mapped to this computer's clock from the
+records' arrival (robot/clock.py's lower envelope, which absorbs the network's delay). A
+board whose computer's clock (its records' ``host_time``) is more than a second off this
+one's is dropped with a warning (synchronise them: chrony or PTP), as is a board whose
+records are not records. Per-board diagnostics ride in every fused record (``boards``).
+Odometry (``odom`` tracking) comes as messages (robot/odometry.py: JSON or a ROS 2
+nav_msgs/msg/Odometry in CDR) or as a buffer read from a recording.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spiel_edge.errors import ConfigError, InputError
+from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
+from spiel_edge.robot.coast import CoastPolicy
+from spiel_edge.robot.description import RobotSpec
+from spiel_edge.robot.fusion import BoardReport, Fuser, record_targets
+from spiel_edge.robot.odometry import OdometryBuffer, parse_odometry
+
+log = logging.getLogger(__name__)
+
+MAX_RECORD_BYTES = 1 << 20  # a board record is a few kB; anything larger is refused
+BAD_RECORDS_LIMIT = 20  # this many unreadable records in a row: the board is dropped
+
+
+class RecordFuse:
+    """Board records in (``handle``), fused records out to ``sink``. ``odometry``: a buffer
+    of the robot's poses (a recording's) to track in odom; ``odom_messages``: odometry comes
+    as messages (:meth:`handle_odometry`) into a live buffer. ``live``: stamp each fused
+    record's latency (the write against the acquisitions' ``host_time``, one clock)."""
+
+    def __init__(
+        self,
+        robot: RobotSpec,
+        sink,
+        *,
+        track: bool = True,
+        spec=None,
+        odometry: OdometryBuffer | None = None,
+        odom_messages: bool = False,
+        live: bool = True,
+    ):
+        self.robot = robot
+        self.sink = sink
+        self.live = live
+        self.odometry = odometry if odometry is not None else OdometryBuffer()
+        self.odom_bad = 0
+        use_odom = odometry is not None or odom_messages
+        self.fuser = Fuser(
+            {b.name: b.mount for b in robot.boards},
+            period_s=robot.trigger.period_ms / 1000.0,
+            spec=spec or robot.track_spec(),
+            frame_id=robot.frame_id,
+            field_of_view_deg={b.name: b.field_of_view_deg for b in robot.boards},
+            coast=CoastPolicy.from_robot(robot),
+            track=track,
+            odometry=self.odometry if use_odom else None,
+        )
+        self.clocks = {b.name: StampClock() for b in robot.boards}
+        self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
+        self.bad = dict.fromkeys(self.clocks, 0)
+        self.dropped: dict[str, str] = {}
+        self.records = 0
+        self.latencies_ms: list[float] = []
+
+    def handle(self, name: str, payload: bytes, arrived: float) -> None:
+        """One board record (its bytes) that reached this process at ``arrived`` (Unix s)."""
+        if name in self.dropped:
+            return
+        report = self._report(name, payload, arrived)
+        if report is not None:
+            for record in self.fuser.add(report):
+                self._write(record)
+
+    def finish(self) -> None:
+        """The stream ended: fuse every open cycle."""
+        for record in self.fuser.flush():
+            self._write(record)
+
+    def _report(self, name: str, payload: bytes, arrived: float) -> BoardReport | None:
+        try:
+            if len(payload) > MAX_RECORD_BYTES:
+                raise ValueError(f"{len(payload)} bytes")
+            record = json.loads(payload)
+            stamp = float(record["device_time_us"]) / 1e6
+            remote = float(record["host_time"])
+            if not (np.isfinite(stamp) and np.isfinite(remote)):
+                raise ValueError("non-finite time")
+        except (ValueError, KeyError, TypeError) as exc:
+            self.bad[name] += 1
+            if self.bad[name] >= BAD_RECORDS_LIMIT:
+                self._drop(name, f"its messages are not spiel-edge records ({exc})")
+            return None
+        self.bad[name] = 0
+        if abs(arrived - remote) > MAX_DISAGREEMENT_S:
+            self._drop(
+                name,
+                f"its computer's clock is {remote - arrived:+.2f} s off this one's "
+                "(synchronise them: chrony or PTP)",
+            )
+            return None
+        synced = record.get("stamp_host")  # protocol 2: the board's time on its host's clock
+        synced = isinstance(synced, (int, float)) and np.isfinite(synced) and float(synced)
+        if synced:
+            stamp = synced  # its host's clock, mapped to this one's below
+        if bool(synced) != self.synced.get(name, False):  # another time axis: learn it afresh
+            self.synced[name] = bool(synced)
+            self.clocks[name] = StampClock()
+        clock = self.clocks[name]
+        clock.observe(stamp, arrived)
+        report = BoardReport(
+            name,
+            clock.to_host(stamp),
+            record_targets(record),
+            acquisition=int(record.get("acquisition", -1)),
+            device_time_us=int(record["device_time_us"]),
+            crosstalk=list(record.get("crosstalk") or []),
+            error=record.get("reason") if record.get("error") else None,
+            acquired_unix=remote,  # the acquisition's end on its own computer
+            received_unix=arrived if self.live else None,  # its record's arrival here
+        )
+        return report
+
+    def handle_odometry(self, payload: bytes, arrived: float) -> None:
+        """An odometry message (JSON ``{"stamp": Unix s, "x": m, "y": m, "yaw": rad}`` or a
+        ROS 2 nav_msgs/msg/Odometry in CDR: the robot's planar pose in odom); its stamp is used
+        when within a second of its arrival, else the arrival."""
+        try:
+            stamp, x, y, yaw = parse_odometry(payload)
+        except InputError:
+            stamp, x, y, yaw = float("nan"), 0.0, 0.0, 0.0
+        if stamp is None:
+            stamp = arrived
+        t = stamp if abs(stamp - arrived) <= MAX_DISAGREEMENT_S else arrived
+        if not self.odometry.add(t, 1000.0 * x, 1000.0 * y, yaw):
+            self.odom_bad += 1
+            if self.odom_bad in (1, 100, 10000):
+                log.warning(
+                    "odometry: %d messages not used (malformed or out of order)", self.odom_bad
+                )
+
+    def _drop(self, name: str, why: str) -> None:
+        self.dropped[name] = why
+        self.fuser.drop(name)
+        log.warning("board %s dropped, the others go on: %s", name, why)
+
+    def _write(self, record: dict) -> None:
+        if self.live:
+            _stamp_latency(record, time.time(), self.latencies_ms)
+        for name, why in self.dropped.items():
+            record.setdefault("dropped", {})[name] = why
+        self.sink.write(record)
+        self.records += 1
+
+    def summary(self) -> str:
+        lat = np.array(self.latencies_ms)
+        latency = (
+            f"; latency after the last board's acquisition median {np.median(lat):.2f} ms, "
+            f"p95 {np.percentile(lat, 95):.2f} ms"
+            if lat.size
+            else ""
+        )
+        boards = "; ".join(
+            f"{n}: dropped ({self.dropped[n]})"
+            if n in self.dropped
+            else f"{n}: {s['reports']} records, {s['targets']} targets"
+            for n, s in self.fuser.stats.items()
+        )
+        return f"{self.records} fused records{latency}; {boards}"
+
+
+def _stamp_latency(record: dict, now: float, latencies_ms: list[float]) -> None:
+    """``latency_ms`` (the write against the last board's acquisition) and ``fuser_ms`` (the
+    fuser's share: from the last board record's arrival here)."""
+    acquired = [b["acquired"] for b in record["boards"].values() if b.get("acquired") is not None]
+    if acquired:
+        latency = (now - max(acquired)) * 1e3
+        record["latency_ms"] = round(latency, 3)
+        latencies_ms.append(latency)
+    received = [b["received"] for b in record["boards"].values() if "received" in b]
+    if received:
+        record["fuser_ms"] = round((now - max(received)) * 1e3, 3)
+
+
+def read_replay(robot: RobotSpec, files: dict[str, str | Path]) -> list[tuple[float, str, bytes]]:
+    """Boards' records from files (NDJSON, as ``run -o`` writes them) as (host_time, board,
+    line), in the order to fuse them. A name the robot does not have, or a file that cannot be
+    read: ConfigError or InputError. Unreadable lines stay in (as bad records, time 0)."""
+    known = {b.name for b in robot.boards}
+    unknown = sorted(set(files) - known)
+    if unknown:
+        raise ConfigError(
+            f"--replay: the robot has no board {unknown[0]!r} (boards: {', '.join(sorted(known))})"
+        )
+    streams = []
+    for name, path in files.items():
+        try:
+            lines = Path(path).read_bytes().splitlines()
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read board {name}'s records: {exc.strerror}") from exc
+        streams += [(_host_time(line), name, line) for line in lines if line.strip()]
+    streams.sort(key=lambda item: (item[0], item[1]))
+    return streams
+
+
+def replay(
+    robot: RobotSpec,
+    sink,
+    streams: list[tuple[float, str, bytes]],
+    *,
+    track: bool = True,
+    spec=None,
+    odometry: OdometryBuffer | None = None,
+) -> RecordFuse:
+    """:func:`read_replay`'s records fused offline, each taken as arriving at its
+    ``host_time`` (one computer's clock), optionally in odom with a recording's poses; boards
+    of the robot without records are left out. Bad records count as live (a board with too
+    many in a row is dropped)."""
+    fuse = RecordFuse(robot, sink, track=track, spec=spec, odometry=odometry, live=False)
+    present = {name for _, name, _ in streams}
+    for b in robot.boards:
+        if b.name not in present:
+            fuse.fuser.drop(b.name)  # not replayed: no cycle waits for it
+    for t, name, line in streams:
+        fuse.handle(name, line, t)
+    fuse.finish()
+    return fuse
+
+
+def _host_time(line: bytes) -> float:
+    """A record's ``host_time`` for ordering (0: unreadable; its record counts as bad)."""
+    try:
+        t = float(json.loads(line)["host_time"])
+    except (ValueError, KeyError, TypeError):
+        return 0.0
+    return t if np.isfinite(t) else 0.0

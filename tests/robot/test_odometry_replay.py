@@ -1,0 +1,148 @@
+"""Odometry as ROS 2 publishes and records it (nav_msgs/msg/Odometry in CDR) or as JSON, live
+or from a recording, and `fuse --replay`: the boards' recorded records fused offline, in odom
+with a recording's poses."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from mcap.writer import Writer
+
+from spiel_edge.cli import main
+from spiel_edge.errors import InputError
+from spiel_edge.recordings.cdr import decode_odometry
+from spiel_edge.robot.description import load_robot
+from spiel_edge.robot.odometry import parse_odometry, read_odometry_file
+
+pytest.importorskip("rosbags.typesys", reason="rosbags (test extra) writes the reference")
+
+from ._odometry import odometry_cdr  # noqa: E402
+
+
+@pytest.mark.parametrize("little", [True, False])
+@pytest.mark.parametrize("frame", ["", "o", "odom", "odom_frame_7"])  # every alignment
+def test_odometry_cdr_decodes_as_rosbags_wrote_it(little, frame):
+    for yaw in (0.0, 0.7, -2.9, math.pi - 1e-6):
+        data = odometry_cdr(1796220097.25, 1.5, -0.75, yaw, frame=frame, little=little)
+        stamp, x, y, got = decode_odometry(data)
+        assert stamp == pytest.approx(1796220097.25, abs=1e-6)
+        assert (x, y) == (1.5, -0.75)
+        assert math.remainder(got - yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_odometry_messages_json_or_cdr_and_what_is_neither():
+    assert parse_odometry(b'{"stamp": 5.0, "x": 1, "y": 2, "yaw": 0.5}') == (5.0, 1.0, 2.0, 0.5)
+    assert parse_odometry(b'{"x": 1, "y": 2, "yaw": 0}')[0] is None  # no stamp: the arrival's
+    assert parse_odometry(odometry_cdr(3.5, 0.1, 0.2, 0.0))[:3] == (3.5, 0.1, 0.2)
+    for bad in (b"", b"nope", b'{"x": 1}', b'{"x": "NaN", "y": 0, "yaw": 0}', b"\x00\x01\x00\x00"):
+        with pytest.raises(InputError):
+            parse_odometry(bad)
+
+
+def _mcap(path, topics: dict[str, list[bytes]]) -> None:
+    with open(path, "wb") as f:  # as rosbag2 writes it: ros2msg schema, cdr, zstd chunks
+        w = Writer(f)
+        w.start("ros2", "rosbag2")
+        schema = w.register_schema("nav_msgs/msg/Odometry", "ros2msg", b"")
+        for topic, messages in topics.items():
+            channel = w.register_channel(topic, "cdr", schema)
+            for k, data in enumerate(messages):
+                w.add_message(channel, log_time=k, data=data, publish_time=k)
+        w.finish()
+
+
+def test_odometry_from_a_recording(tmp_path):
+    poses = [odometry_cdr(100.0 + 0.02 * k, 0.001 * k, 0.0, 0.01 * k) for k in range(50)]
+    _mcap(tmp_path / "bag.mcap", {"/odom": poses[::-1], "/other": poses[:3]})  # any order
+    odom = read_odometry_file(tmp_path / "bag.mcap")
+    assert len(odom) == 50
+    rot, trans = odom(100.5)  # between poses 25 and 25: x 25 mm, yaw 0.25
+    np.testing.assert_allclose(trans, [25.0, 0.0, 0.0], atol=1e-6)
+    assert math.atan2(rot[1, 0], rot[0, 0]) == pytest.approx(0.25)
+    assert odom(99.0) is None  # before the recording
+    lines = [json.dumps({"stamp": 10.0 + k, "x": k, "y": 0, "yaw": 0}) for k in range(3)]
+    (tmp_path / "odom.ndjson").write_text("\n".join(lines) + "\n")
+    assert len(read_odometry_file(tmp_path / "odom.ndjson")) == 3
+    with pytest.raises(InputError, match=r"no messages on /odom \(topics: /other"):
+        _mcap(tmp_path / "none.mcap", {"/other": poses[:2]})
+        read_odometry_file(tmp_path / "none.mcap")
+    (tmp_path / "nostamp.ndjson").write_text('{"x": 0, "y": 0, "yaw": 0}\n')
+    with pytest.raises(InputError, match="message 1 has no stamp"):
+        read_odometry_file(tmp_path / "nostamp.ndjson")
+    with pytest.raises(InputError, match="cannot read the odometry"):
+        read_odometry_file(tmp_path / "missing.mcap")
+
+
+def _board_files(tmp_path, robot, speed_mm_s: float, n: int = 80) -> dict[str, str]:
+    """Each board's records as its `run -o` writes them: the robot drives along x at
+    ``speed_mm_s`` past a post 600 mm ahead in odom, which the front board sees."""
+    files = {}
+    post_odom = np.array([600.0, 0.0, 0.0])
+    for j, b in enumerate(robot.boards):
+        lines = []
+        for k in range(n):
+            t = 1000.0 + k * 0.025 + j * 0.005
+            p_base = post_odom - [speed_mm_s * (t - 1000.0), 0.0, 0.0]
+            targets = []
+            if b.name == "front":
+                cov = (np.eye(3) * 16).tolist()
+                targets = [{"position_mm": list(b.mount.to_board(p_base)), "covariance_mm2": cov}]
+            record = {"acquisition": k, "device_time_us": int((5.0 + t - 1000) * 1e6)}
+            lines.append(json.dumps({**record, "host_time": t, "targets": targets}))
+        lines.insert(n // 2, "not json")  # a damaged line: counted, not fatal
+        files[b.name] = tmp_path / f"{b.name}.ndjson"
+        files[b.name].write_text("\n".join(lines) + "\n")
+    return {k: str(v) for k, v in files.items()}
+
+
+def test_fuse_replay_in_base_link_and_in_odom(tmp_path, capsys):
+    robot = load_robot("virtual-4")
+    files = _board_files(tmp_path, robot, speed_mm_s=200.0)
+    replay = [a for name, path in files.items() for a in ("--replay", f"{name}={path}")]
+    out = tmp_path / "fused.ndjson"
+    assert main(["fuse", "--robot", "virtual-4", *replay, "-o", out]) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(records) == 80 and all(r["frame_id"] == "base_link" for r in records)
+    assert all(set(r["boards"]) == set(files) and "latency_ms" not in r for r in records)
+    late = [t for r in records[20:] for t in r["tracks"]]
+    assert late and np.median([t["velocity_mm_s"][0] for t in late]) == pytest.approx(-200, abs=20)
+    # with the robot's odometry from a recording (rosbag2's CDR): the post stands still in odom
+    poses = [odometry_cdr(999.9 + 0.01 * k, 0.2 * 0.01 * (k - 10), 0.0, 0.0) for k in range(300)]
+    _mcap(tmp_path / "odom.mcap", {"/odom": poses})
+    out2 = tmp_path / "fused_odom.ndjson"
+    args = ["fuse", "--robot", "virtual-4", *replay, "--odom-file", tmp_path / "odom.mcap"]
+    assert main([*args, "-o", out2]) == 0
+    records = [json.loads(line) for line in out2.read_text().splitlines()]
+    assert all(r["frame_id"] == "odom" for r in records)
+    posts = [t["position_mm"] for r in records[20:] for t in r["targets"]]
+    np.testing.assert_allclose(np.median(posts, axis=0), [600.0, 0.0, 0.0], atol=5.0)
+    tracks = [t for r in records[20:] for t in r["tracks"]]
+    assert abs(np.median([t["velocity_mm_s"][0] for t in tracks])) < 20.0
+
+
+def test_fuse_replay_bad_input_is_one_line_before_any_output(tmp_path, capsys):
+    robot = load_robot("virtual-4")
+    files = _board_files(tmp_path, robot, speed_mm_s=0.0, n=10)
+    out = tmp_path / "fused.ndjson"
+    base = ["fuse", "--robot", "virtual-4", "-o", out]
+    cases = [
+        (["--replay", f"nose={files['front']}"], "the robot has no board 'nose'"),
+        (["--replay", "front"], "BOARD=FILE"),
+        (["--replay", f"front={tmp_path / 'missing.ndjson'}"], "cannot read board front's records"),
+        (["--replay", f"front={files['front']}", "--connect", "tcp/h:7447"], "--connect is for the live"),
+        (["--odom-file", files["front"]], "--odom-file goes with --replay"),
+        (["--replay", f"front={files['front']}", "--odom-file", files["front"]], "odometry message 1"),
+    ]  # fmt: skip
+    for extra, message in cases:
+        capsys.readouterr()
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, err
+        assert not out.exists()
+    # one board only: the others are left out, its cycles are not held back
+    assert main([*base, "--replay", f"left={files['left']}"]) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(records) == 10 and all(list(r["boards"]) == ["left"] for r in records)
