@@ -97,6 +97,7 @@ def run_robot(
     track: bool,
     show_status: bool | None,
     realtime: int | None = None,
+    odom_key: str | None = None,
 ) -> int:
     from spiel_edge.robot.serve import RobotRunner
 
@@ -117,15 +118,20 @@ def run_robot(
     stop = threading.Event()
     finalizers = Finalizers()
     finalizers.add(sink.close_files)
-    runner = RobotRunner(
-        robot,
-        sink,
-        association=association,
-        max_targets=max_targets,
-        toa_correction=toa_correction,
-        reconnect_timeout=reconnect_timeout,
-        track=track,
-    )
+    try:
+        runner = RobotRunner(
+            robot,
+            sink,
+            association=association,
+            max_targets=max_targets,
+            toa_correction=toa_correction,
+            reconnect_timeout=reconnect_timeout,
+            track=track,
+            odom_key=odom_key,
+        )
+    except BaseException:
+        sink.close()
+        raise
     with stop_on_signals(stop, finalizers):
         try:
             runner.run(stop, frames=frames)

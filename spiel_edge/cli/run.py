@@ -134,6 +134,15 @@ from spiel_edge.service.systemd import Notifier
     help="Status line on stderr every few seconds (default: when stderr is a terminal).",
 )
 @realtime_option
+@click.option(
+    "--odom",
+    "odom_key",
+    default=None,
+    metavar="KEY",
+    help="With --robot, track in odom: the robot's pose on this Zenoh key (expression), JSON "
+    '{"stamp": s, "x": m, "y": m, "yaw": rad} or nav_msgs/Odometry from rmw_zenoh '
+    "(docs/robot.md; extra 'zenoh').",
+)
 def command(
     port,
     robot_file,
@@ -157,6 +166,7 @@ def command(
     samples,
     show_status,
     realtime,
+    odom_key,
     **ros2,
 ) -> int:
     """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
@@ -183,7 +193,10 @@ def command(
             track=track,
             show_status=show_status,
             realtime=realtime,
+            odom_key=odom_key,
         )
+    if odom_key:
+        raise click.UsageError("--odom goes with --robot (one board tracks in its own frame)")
     plan = FilePlan(force)  # every file checked before the board is touched
     for path, option in ((background, "--background"), (calibration, "--calibration")):
         if path:

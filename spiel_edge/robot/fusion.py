@@ -14,7 +14,8 @@ when every board expected has reported for the cycle, or ``WAIT_CYCLES`` cycles 
 
 Optionally in ``odom``: given the robot's pose in ``odom`` at a time (``odometry``, a
 callable), each board's targets go on into ``odom`` at their acquisition's time before
-tracking, so the robot's own motion is not the targets' motion.
+tracking, so the robot's own motion is not the targets' motion; an acquisition with no pose
+at its time (none yet, or the stream stalled) is left out (``stats[board]["no_pose"]``).
 
 With a ``coast`` policy (robot/coast.py) a track predicted outside every board's view is
 charged no miss for the cycle: it coasts across the gaps between fields of view.
@@ -168,7 +169,10 @@ class Fuser:
         self._done = -1  # cycles up to this one are fused
         self._motion = (0.0, np.zeros((0, 3)), np.zeros((0, 3)))  # the last confirmed tracks
         self.seq = 0
-        self.stats = {name: {"reports": 0, "targets": 0, "marked": 0, "late": 0} for name in mounts}
+        self.stats = {
+            name: {"reports": 0, "targets": 0, "marked": 0, "late": 0, "no_pose": 0}
+            for name in mounts
+        }
 
     def set_schedule(self, t0: float, offsets: dict[str, float]) -> None:
         """Boards in trigger slots: cycle k holds every board's pulse at ``t0 + k period +
@@ -267,6 +271,9 @@ class Fuser:
                 continue
             mount = self.mounts[r.board]
             pose = self.odometry(r.host_time) if self.odometry is not None else None
+            if self.odometry is not None and pose is None:
+                self.stats[r.board]["no_pose"] += 1  # no pose at its time: not in odom
+                continue
             fov_cos = self._fov_cos[r.board]
             for pos, cov, score in r.targets:
                 if fov_cos > 0 and pos[2] < fov_cos * float(np.linalg.norm(pos)):

@@ -175,6 +175,7 @@ class RecordFuse:
             f"{n}: dropped ({self.dropped[n]})"
             if n in self.dropped
             else f"{n}: {s['reports']} records, {s['targets']} targets"
+            + (f", {s['no_pose']} without a pose" if s["no_pose"] else "")
             for n, s in self.fuser.stats.items()
         )
         return f"{self.records} fused records{latency}; {boards}"

@@ -28,11 +28,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spiel_edge.device import DeviceSession
-from spiel_edge.errors import DeviceError, SpielError
+from spiel_edge.errors import DeviceError, InputError, SpielError
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse, wait_until
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import BoardSpec, RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, reports_targets
+from spiel_edge.robot.odometry import OdometryBuffer, parse_odometry
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
 
 log = logging.getLogger(__name__)
@@ -254,9 +255,15 @@ class RobotRunner:
         reconnect_timeout: float | None = None,
         track: bool = True,
         spec=None,
+        odom_key: str | None = None,
     ):
         self.robot = robot
         self.sink = sink
+        # the robot's pose in odom, on this process's clock (the boards' times are
+        # perf_counter's), from a Zenoh key: JSON or nav_msgs/Odometry (robot/odometry.py)
+        self.odometry = OdometryBuffer() if odom_key else None
+        self.odom_bad = 0
+        self._odom_session = None
         self.schedule = Schedule.from_robot(robot)
         self.stop = threading.Event()
         self.queue: queue.Queue = queue.Queue(maxsize=1024)
@@ -284,7 +291,10 @@ class RobotRunner:
             coast=CoastPolicy.from_robot(robot),
             track=track,
             spec=spec or robot.track_spec(),
+            odometry=self.odometry,
         )
+        if odom_key:
+            self._subscribe_odometry(odom_key)
         self.records = 0
         self.latencies_ms: list[float] = []
 
@@ -307,6 +317,9 @@ class RobotRunner:
                     alive.discard(name)
                     self.fuser.drop(name)
                     continue
+                if kind == "odom":
+                    self._odometry(*payload)
+                    continue
                 report: BoardReport = payload
                 report.crosstalk = self.marker.observe(name, report.host_time)
                 for record in self.fuser.add(report):
@@ -325,7 +338,50 @@ class RobotRunner:
             for w in self.workers:
                 w.join(timeout=3.0)
             sys.setswitchinterval(switch)
+            self._close_odometry()
         return self.records
+
+    def _subscribe_odometry(self, key: str) -> None:
+        """A Zenoh subscriber whose messages join the boards' reports in the queue (the
+        buffer is read and written by the main thread only)."""
+        from spiel_edge.errors import ConfigError
+        from spiel_edge.outputs.zenoh import _import_zenoh
+        from spiel_edge.robot.zenoh_fuse import zenoh_config
+
+        zenoh = _import_zenoh()
+
+        def on_sample(sample) -> None:
+            with contextlib.suppress(queue.Full):
+                self.queue.put_nowait(("odom", None, (sample.payload.to_bytes(), time.time())))
+
+        try:
+            self._odom_session = zenoh.open(zenoh_config())
+            self._odom_session.declare_subscriber(key, on_sample)
+        except Exception as exc:  # zenoh.ZError
+            self._close_odometry()
+            raise ConfigError(f"--odom {key}: cannot subscribe on Zenoh: {exc}") from exc
+
+    def _odometry(self, payload: bytes, arrived: float) -> None:
+        """A pose (its stamp if within a second of its arrival) onto the boards' clock."""
+        try:
+            stamp, x, y, yaw = parse_odometry(payload)
+        except InputError:
+            stamp, x, y, yaw = float("nan"), 0.0, 0.0, 0.0
+        if stamp is None or abs(stamp - arrived) > MAX_DISAGREEMENT_S:
+            stamp = arrived
+        t = stamp + (time.perf_counter() - time.time())  # Unix time onto perf_counter's axis
+        if not self.odometry.add(t, 1000.0 * x, 1000.0 * y, yaw):
+            self.odom_bad += 1
+            if self.odom_bad in (1, 100, 10000):
+                log.warning(
+                    "odometry: %d messages not used (malformed or out of order)", self.odom_bad
+                )
+
+    def _close_odometry(self) -> None:
+        if self._odom_session is not None:
+            with contextlib.suppress(Exception):  # zenoh.ZError on a closing session
+                self._odom_session.close()
+            self._odom_session = None
 
     def _start_streams(self, stop: threading.Event) -> None:
         """Every open board's stream started in its slot of one cycle, from this thread while
@@ -370,7 +426,9 @@ class RobotRunner:
             s = w.stats
             state = f"dropped ({s.dropped})" if s.dropped else f"{s.acquisitions} acquisitions"
             marked = self.marker.marked.get(w.board.name, 0)
-            parts.append(f"{w.board.name}: {state}, {marked} marked, {s.restarts} restarts")
+            no_pose = self.fuser.stats[w.board.name]["no_pose"]
+            extra = f", {no_pose} without a pose" if no_pose else ""
+            parts.append(f"{w.board.name}: {state}, {marked} marked, {s.restarts} restarts{extra}")
         lat = np.array(self.latencies_ms)
         latency = (
             f"; latency median {np.median(lat):.2f} ms, p95 {np.percentile(lat, 95):.2f} ms"

@@ -110,3 +110,67 @@ def test_boards_clocks_from_time_sync_or_from_their_stamps(tmp_path):
     assert synced == {"front": True, "left": False}
     complete = [r for r in sink.records[10:] if set(r["boards"]) == {"front", "left"}]
     assert len(complete) >= 20
+
+
+def test_run_robot_in_odom_with_the_pose_from_zenoh(tmp_path, capsys, monkeypatch):
+    """`run --robot --odom KEY`: the robot stands at (1 m, 0.5 m) turned 90° in odom; its
+    fused targets are the virtual robot's movers moved there (truth is in base_link; five
+    movers around four boards: some are always in view)."""
+    import math
+    import socket
+    import threading
+    import time
+
+    import numpy as np
+    import pytest
+
+    zenoh = pytest.importorskip("zenoh", reason="the 'zenoh' extra is not installed")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    off = '"scouting": {"multicast": {"enabled": false}}'
+    cfg = tmp_path / "zenoh.json5"
+    cfg.write_text(f'{{"mode": "peer", "listen": {{"endpoints": ["{endpoint}"]}}, {off}}}')
+    monkeypatch.setenv("ZENOH_CONFIG", str(cfg))
+    stop = threading.Event()
+
+    def publish():
+        conf = f'{{"mode": "peer", "connect": {{"endpoints": ["{endpoint}"]}}, {off}}}'
+        with zenoh.open(zenoh.Config.from_json5(conf)) as session:
+            pub = session.declare_publisher("rover/odom")
+            while not stop.is_set():
+                pose = {"stamp": time.time(), "x": 1.0, "y": 0.5, "yaw": math.pi / 2}
+                pub.put(json.dumps(pose))
+                time.sleep(0.01)
+
+    publisher = threading.Thread(target=publish, daemon=True)
+    publisher.start()
+    out = tmp_path / "fused.ndjson"
+    try:
+        args = ["run", "--robot", "virtual-4", "--frames", "120", "--max-targets", "4"]
+        status = main([*args, "--odom", "rover/odom", "-o", out])
+    finally:
+        stop.set()
+        publisher.join(timeout=5)
+    assert status == 0, capsys.readouterr().err
+    records = _records(out)
+    assert len(records) == 120 and all(r["frame_id"] == "odom" for r in records)
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    trans = np.array([1000.0, 500.0, 0.0])
+    near_in_base = near_raw = total = 0
+    for r in records[40:]:
+        truth = np.array(r.get("truth_targets_mm") or []).reshape(-1, 3)
+        for t in r["targets"]:
+            p = np.array(t["position_mm"])
+            if not len(truth):
+                continue
+            total += 1
+            near_in_base += np.min(np.linalg.norm(truth - rot.T @ (p - trans), axis=1)) < 40
+            near_raw += np.min(np.linalg.norm(truth - p, axis=1)) < 40
+    assert total > 40
+    assert near_in_base > 0.25 * total and near_raw == 0
+
+
+def test_odom_goes_with_robot(capsys):
+    assert main(["run", "--port", "sim://", "--frames", "1", "--odom", "k"]) == 2
+    assert "--odom goes with --robot" in capsys.readouterr().err
