@@ -169,13 +169,8 @@ def command(
             finalizers.run_all()
             if fuse is not None:
                 fuse.close()
-            with contextlib.suppress(BrokenPipeError, ValueError):
-                sink.close()
-            if fuse is not None:
-                with contextlib.suppress(OSError):
-                    click.echo(fuse.summary(), err=True)
-    failed = bool(sink.failed) or (fuse is not None and bool(fuse.dropped))
-    return EXIT_PARTIAL if failed else EXIT_OK
+            _close_and_summarise(sink, fuse)
+    return _status(sink, fuse)
 
 
 def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
@@ -203,10 +198,19 @@ def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
     except BrokenPipeError:
         sys.stdout = None  # type: ignore[assignment]
     finally:
-        with contextlib.suppress(BrokenPipeError, ValueError):
-            sink.close()
+        _close_and_summarise(sink, fuse)
+    return _status(sink, fuse)
+
+
+def _close_and_summarise(sink, fuse) -> None:
+    with contextlib.suppress(BrokenPipeError, ValueError):
+        sink.close()
     if fuse is not None:
         with contextlib.suppress(OSError):
             click.echo(fuse.summary(), err=True)
+
+
+def _status(sink, fuse) -> int:
+    """Partial when an output failed or a board was dropped."""
     failed = bool(sink.failed) or (fuse is not None and bool(fuse.dropped))
     return EXIT_PARTIAL if failed else EXIT_OK
