@@ -5,8 +5,9 @@ No rclpy, no rosbags at run time: a message is the 4-byte encapsulation header
 The layouts that do not change with the data are packed once (``struct.Struct`` per frame id),
 so a PointStamped costs about one ``pack`` call (52 bytes for the frame id ``spiel``).
 
-Read back: spiel_msgs/msg/Acquisition (:func:`decode_acquisition`) and the planar pose of a
-nav_msgs/msg/Odometry (:func:`decode_odometry`, either byte order).
+Read back: spiel_msgs/msg/Acquisition (:func:`decode_acquisition`), std_msgs/msg/String
+(:func:`decode_string`) and the planar pose of a nav_msgs/msg/Odometry (:func:`decode_odometry`,
+either byte order).
 
 Messages: geometry_msgs/msg/PointStamped, sensor_msgs/msg/PointCloud2 (the targets, with
 the covariance's upper triangle),
@@ -188,6 +189,23 @@ def string_message(text: str) -> bytes:
     """std_msgs/msg/String."""
     raw = text.encode("utf-8") + b"\x00"
     return ENCAPSULATION + struct.pack("<I", len(raw)) + raw
+
+
+def decode_string(data: bytes) -> str:
+    """The text of a std_msgs/msg/String (little-endian CDR); InputError when malformed."""
+    if bytes(data[:4]) != ENCAPSULATION:
+        raise InputError(f"not little-endian CDR (header {bytes(data[:4]).hex()})")
+    try:
+        (length,) = struct.unpack_from("<I", data, 4)
+    except struct.error as exc:
+        raise InputError(f"truncated String message: {exc}") from exc
+    raw = bytes(data[8 : 8 + length])
+    if length == 0 or len(raw) != length or raw[-1:] != b"\x00":
+        raise InputError(f"String message of {len(raw)} bytes where {length} are announced")
+    try:
+        return raw[:-1].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"String message not UTF-8: {exc}") from exc
 
 
 def acquisition_message(

@@ -71,6 +71,7 @@ class RecordFuse:
         self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
         self.bad = dict.fromkeys(self.clocks, 0)
         self.dropped: dict[str, str] = {}
+        self.absent: set[str] = set()  # boards of the robot not in a replay
         self.records = 0
         self.latencies_ms: list[float] = []
 
@@ -174,6 +175,8 @@ class RecordFuse:
         boards = "; ".join(
             f"{n}: dropped ({self.dropped[n]})"
             if n in self.dropped
+            else f"{n}: not replayed"
+            if n in self.absent
             else f"{n}: {s['reports']} records, {s['targets']} targets"
             + (f", {s['no_pose']} without a pose" if s["no_pose"] else "")
             for n, s in self.fuser.stats.items()
@@ -195,8 +198,9 @@ def _stamp_latency(record: dict, now: float, latencies_ms: list[float]) -> None:
 
 
 def read_replay(robot: RobotSpec, files: dict[str, str | Path]) -> list[tuple[float, str, bytes]]:
-    """Boards' records from files (NDJSON, as ``run -o`` writes them) as (host_time, board,
-    line), in the order to fuse them. A name the robot does not have, or a file that cannot be
+    """Boards' records from files (NDJSON, as ``run -o`` writes them, or the MCAP of ``run
+    --record``, either profile: its /spiel/position records) as (host_time, board, line), in
+    the order to fuse them. A name the robot does not have, or a file that cannot be
     read: ConfigError or InputError. Unreadable lines stay in (as bad records, time 0)."""
     known = {b.name for b in robot.boards}
     unknown = sorted(set(files) - known)
@@ -207,7 +211,7 @@ def read_replay(robot: RobotSpec, files: dict[str, str | Path]) -> list[tuple[fl
     streams = []
     for name, path in files.items():
         try:
-            lines = Path(path).read_bytes().splitlines()
+            lines = _record_lines(Path(path))
         except OSError as exc:
             raise InputError(f"{path}: cannot read board {name}'s records: {exc.strerror}") from exc
         streams += [(_host_time(line), name, line) for line in lines if line.strip()]
@@ -233,10 +237,38 @@ def replay(
     for b in robot.boards:
         if b.name not in present:
             fuse.fuser.drop(b.name)  # not replayed: no cycle waits for it
+            fuse.absent.add(b.name)
     for t, name, line in streams:
         fuse.handle(name, line, t)
     fuse.finish()
     return fuse
+
+
+def _record_lines(path: Path) -> list[bytes]:
+    """The JSON records of an NDJSON file, or of an MCAP recording's position topic (JSON, or
+    std_msgs/String in CDR; a damaged file read as far as it goes)."""
+    with open(path, "rb") as f:
+        if not f.read(8).startswith(b"\x89MCAP"):
+            f.seek(0)
+            return f.read().splitlines()
+        import os
+
+        from spiel_edge.recordings.cdr import ENCAPSULATION, decode_string
+        from spiel_edge.recordings.mcap_reader import POSITION_TOPIC
+        from spiel_edge.recordings.mcap_scan import McapScanner
+
+        out = []
+        for msg in McapScanner(f, os.fstat(f.fileno()).st_size).messages():
+            if msg.topic != POSITION_TOPIC:
+                continue
+            data = msg.data
+            if data[:4] == ENCAPSULATION:
+                try:
+                    data = decode_string(data).encode()
+                except InputError:
+                    data = b"not a record"  # counted as a bad record
+            out.append(data)
+        return out
 
 
 def _host_time(line: bytes) -> float:

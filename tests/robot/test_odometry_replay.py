@@ -146,3 +146,36 @@ def test_fuse_replay_bad_input_is_one_line_before_any_output(tmp_path, capsys):
     assert main([*base, "--replay", f"left={files['left']}"]) == 0
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(records) == 10 and all(list(r["boards"]) == ["left"] for r in records)
+
+
+@pytest.mark.parametrize("profile", ["json", "ros2"])
+def test_fuse_replay_takes_a_boards_mcap_recording_as_its_ndjson(tmp_path, capsys, profile):
+    """`run --record` (either profile) carries the same records as `run -o`: fused alike."""
+    port = "sim://front?scene=robot&robot=virtual-4&board=front&movers=5"
+    mcap, ndjson = tmp_path / "front.mcap", tmp_path / "front.ndjson"
+    args = ["run", "--port", port, "--frames", "30", "--rate", "40", "--max-targets", "4"]
+    assert main([*args, "--record", mcap, "--record-profile", profile, "-o", ndjson]) == 0
+    fused = {}
+    for source in (mcap, ndjson):
+        out = tmp_path / f"fused-{source.suffix[1:]}.ndjson"
+        fuse = ["fuse", "--robot", "virtual-4", "--replay", f"front={source}", "-o", out]
+        assert main(fuse) == 0
+        fused[source.suffix] = out.read_text()
+    assert fused[".mcap"] == fused[".ndjson"] and len(fused[".mcap"].splitlines()) >= 25
+    assert "left: not replayed" in capsys.readouterr().err
+
+
+def test_a_string_message_decodes_or_says_why():
+    from spiel_edge.recordings.cdr import decode_string, string_message
+
+    assert decode_string(string_message('{"x": "é"}')) == '{"x": "é"}'
+    good = string_message("abc")
+    for bad, why in (
+        (b"\x00\x00\x00\x00" + good[4:], "not little-endian"),
+        (good[:6], "truncated"),
+        (good[:-1], "announced"),
+        (good[:-1] + b"x", "announced"),  # no terminating NUL
+        (good[:8] + b"\xff\xfe\xfd\x00", "not UTF-8"),
+    ):
+        with pytest.raises(InputError, match=why):
+            decode_string(bad)
