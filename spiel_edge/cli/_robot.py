@@ -21,9 +21,13 @@ from spiel_edge.runtime.realtime import apply_realtime
 log = logging.getLogger(__name__)
 
 
-def robot_ros2(robot: RobotSpec):
-    """The fused records' ROS 2 frame (base_link) and every board's mount on /tf_static."""
+def robot_ros2(robot: RobotSpec, frame_id: str | None = None):
+    """The fused records' ROS 2 settings: messages in the robot's frame (base_link, or odom
+    when the fusion tracks in odom) in its own REP 103 axes, every board's mount on
+    /tf_static; published targets limited by the boards' reach only (each board's field of
+    view was applied by the fusion)."""
     from spiel_edge.outputs.ros2 import Ros2Settings, StaticTransform
+    from spiel_edge.outputs.ros2_limits import SensorLimits
 
     transforms = tuple(
         StaticTransform(
@@ -34,7 +38,13 @@ def robot_ros2(robot: RobotSpec):
         )
         for b in robot.boards
     )
-    return Ros2Settings(frame_id=robot.frame_id, transforms=transforms)
+    reach_m = robot.trigger.max_range_m + max(
+        float(np.linalg.norm(b.mount.translation_mm)) / 1000.0 for b in robot.boards
+    )
+    limits = SensorLimits(2.0 * np.pi, 0.0, reach_m, (0.0, 0.0, 0.0))  # no boresight: all around
+    return Ros2Settings(
+        frame_id=frame_id or robot.frame_id, transforms=transforms, limits=limits, optical=False
+    )
 
 
 def quaternion_from_matrix(r: np.ndarray) -> tuple[float, float, float, float]:
@@ -66,8 +76,11 @@ def _prepare_kernels(robot: RobotSpec, association, max_targets, track: bool) ->
         prepare_for_run(load_profile(name), association, max_targets, track, None)
 
 
-def open_fused_outputs(robot: RobotSpec, plan_force: bool, outputs: dict, metadata: dict):
-    """The sinks of a fused run (NDJSON, MCAP, UDP, Foxglove, Zenoh) in the robot's frame."""
+def open_fused_outputs(
+    robot: RobotSpec, plan_force: bool, outputs: dict, metadata: dict, odom: bool = False
+):
+    """The sinks of a fused run (NDJSON, MCAP, UDP, Foxglove, Zenoh) in the robot's frame
+    (``odom`` when the fusion tracks in odom)."""
     plan = FilePlan(plan_force)
     record = check_outputs(plan, outputs["output"], outputs["record"])
     return open_outputs(
@@ -80,7 +93,7 @@ def open_fused_outputs(robot: RobotSpec, plan_force: bool, outputs: dict, metada
         force=plan_force,
         record_profile=outputs.get("record_profile", "json"),
         zenoh_encoding=outputs.get("zenoh_encoding", "json"),
-        ros2=robot_ros2(robot),
+        ros2=robot_ros2(robot, "odom" if odom else None),
     )
 
 
@@ -114,6 +127,7 @@ def run_robot(
             "robot_file": str(robot_file),
             "boards": ",".join(b.name for b in robot.boards),
         },
+        odom=odom_key is not None,
     )
     stop = threading.Event()
     finalizers = Finalizers()

@@ -154,7 +154,8 @@ def command(
 
         Tracker(robot.track_spec()).update([], 0.0)
         apply_realtime(realtime)
-    sink = open_fused_outputs(robot, force, outputs, {"robot": robot.name, "fused_over": "zenoh"})
+    meta = {"robot": robot.name, "fused_over": "zenoh"}
+    sink = open_fused_outputs(robot, force, outputs, meta, odom=odom_key is not None)
     stop = threading.Event()
     finalizers = Finalizers()
     finalizers.add(sink.close_files)
@@ -191,7 +192,7 @@ def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
     streams = read_replay(robot, files)
     odometry = read_odometry_file(odom_file, odom_topic) if odom_file else None
     meta = {"robot": robot.name, "fused_over": "replay", "replayed": ",".join(sorted(files))}
-    sink = open_fused_outputs(robot, force, outputs, meta)
+    sink = open_fused_outputs(robot, force, outputs, meta, odom=odometry is not None)
     fuse = None
     try:
         fuse = fuse_replay(robot, sink, streams, track=track, odometry=odometry)

@@ -203,13 +203,7 @@ def _mcap_sink(
             from spiel_edge.recordings.ros2_mcap import Ros2McapSink
 
             ros2 = ros2 or Ros2Settings()
-            return Ros2McapSink(
-                path,
-                frame_id=ros2.frame_id,
-                transforms=ros2.transforms,
-                metadata=metadata,
-                exclusive=exclusive,
-            )
+            return Ros2McapSink(path, ros2=ros2, metadata=metadata, exclusive=exclusive)
         return McapSink(path, metadata=metadata, exclusive=exclusive)
     except ConfigError as exc:
         raise ConfigError(f"--record {exc}") from exc

@@ -115,10 +115,12 @@ def optical_frame(frame_id: str) -> str:
     return frame_id if frame_id.endswith(OPTICAL_SUFFIX) else frame_id + OPTICAL_SUFFIX
 
 
-def sensor_transforms(frame_id: str, mount: tuple = ()) -> list[cdr.StaticTransform]:
+def sensor_transforms(
+    frame_id: str, mount: tuple = (), optical: bool = True
+) -> list[cdr.StaticTransform]:
     """The mount transforms (parent -> frame_id) and frame_id -> its optical frame."""
     out = list(mount)
-    if not frame_id.endswith(OPTICAL_SUFFIX):
+    if optical and not frame_id.endswith(OPTICAL_SUFFIX):
         out.append(
             cdr.StaticTransform(
                 frame_id, optical_frame(frame_id), (0.0, 0.0, 0.0), OPTICAL_ROTATION_XYZW
@@ -242,9 +244,12 @@ class Ros2Messages:
         """``ros2``: an outputs.ros2.Ros2Settings (frame id, mount, limits); None: defaults."""
         frame_id = getattr(ros2, "frame_id", DEFAULT_FRAME_ID)
         self.settings = ros2
-        self.frame_id = optical_frame(frame_id)
+        self.optical = getattr(ros2, "optical", True)  # False: a robot frame (fused records)
+        self.frame_id = optical_frame(frame_id) if self.optical else frame_id
         self.encoder = MessageEncoder(self.frame_id)
-        self.transforms = sensor_transforms(frame_id, getattr(ros2, "transforms", ()))
+        self.transforms = sensor_transforms(
+            frame_id, getattr(ros2, "transforms", ()), optical=self.optical
+        )
         self.filter = TargetFilter(getattr(ros2, "limits", None) or SensorLimits())
         self.status_provider = status_provider
         self._next_diagnostics = -math.inf
@@ -268,7 +273,8 @@ class Ros2Messages:
         tracks = record.get("tracks")
         if tracks is not None:
             out.append(("tracks", enc.tracks(tracks, stamp)))
-        out.append(("range", self._range(targets, stamp)))
+        if self.optical:  # sensor_msgs/Range: one sensor's cone, not a robot's scene
+            out.append(("range", self._range(targets, stamp)))
         diagnostics = self.diagnostics_due(stamp)
         if diagnostics is not None:
             out.append(("/diagnostics", diagnostics))

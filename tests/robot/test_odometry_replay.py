@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -179,3 +180,67 @@ def test_a_string_message_decodes_or_says_why():
     ):
         with pytest.raises(InputError, match=why):
             decode_string(bad)
+
+
+def _ros2_messages(path, topics):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        return [(c.topic, m) for _, c, _, m in reader.iter_decoded_messages(topics=topics)]
+
+
+@pytest.mark.parametrize("odom", [False, True])
+def test_the_fused_scene_in_ros2_is_in_the_robots_frame(tmp_path, odom):
+    """Fused records are in base_link (or odom) axes already: their ROS 2 messages are stamped
+    that frame (not a sensor's optical frame), every target kept whatever its direction, no
+    Range; /tf_static carries the boards' mounts."""
+    import struct
+
+    robot = load_robot("virtual-4")
+    files = _board_files(tmp_path, robot, speed_mm_s=0.0, n=40)
+    for name, path in files.items():  # targets all around, some below base_link's plane
+        lines = Path(path).read_text().splitlines()
+        k = list(files).index(name)
+        p_base = np.array([np.cos(k * 1.6), np.sin(k * 1.6), -0.1 * (k % 2)]) * 250.0
+        target = {"position_mm": list(robot.boards[k].mount.to_board(p_base)), "score": 1.0}
+        target["covariance_mm2"] = (np.eye(3) * 16).tolist()
+        lines = [
+            json.dumps({**json.loads(line), "targets": [target]}) if line.startswith("{") else line
+            for line in lines
+        ]
+        Path(path).write_text("\n".join(lines) + "\n")
+    replay = [a for name, path in files.items() for a in ("--replay", f"{name}={path}")]
+    extra = []
+    if odom:
+        poses = [
+            json.dumps({"stamp": 999.0 + 0.01 * k, "x": 0, "y": 0, "yaw": 0}) for k in range(400)
+        ]
+        (tmp_path / "odom.ndjson").write_text("\n".join(poses) + "\n")
+        extra = ["--odom-file", tmp_path / "odom.ndjson"]
+    out, bag = tmp_path / "fused.ndjson", tmp_path / "fused.mcap"
+    args = ["fuse", "--robot", "virtual-4", *replay, *extra, "--record", bag]
+    assert main([*args, "--record-profile", "ros2", "-o", out]) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    messages = _ros2_messages(bag, ["/spiel/targets", "/tf_static", "/spiel/range"])
+    frame = "odom" if odom else "base_link"
+    clouds = [m for topic, m in messages if topic == "/spiel/targets"]
+    assert len(clouds) == len(records) and {c.header.frame_id for c in clouds} == {frame}
+    for cloud, record in zip(clouds, records, strict=True):
+        points = [
+            struct.unpack_from("<3f", bytes(cloud.data), i * cloud.point_step)
+            for i in range(cloud.width)
+        ]
+        want = [np.array(t["position_mm"]) / 1000.0 for t in record["targets"]]
+        assert len(points) == len(want)  # none left out for its direction
+        np.testing.assert_allclose(points, np.array(want).reshape(-1, 3), atol=1e-6)
+    assert sum(c.width for c in clouds) > 100
+    assert not [m for topic, m in messages if topic == "/spiel/range"]
+    tf = [
+        (t.header.frame_id, t.child_frame_id)
+        for topic, m in messages
+        if topic == "/tf_static"
+        for t in m.transforms
+    ]
+    assert set(tf) == {("base_link", b.name) for b in robot.boards}
