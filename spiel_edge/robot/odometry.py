@@ -6,12 +6,15 @@ in CDR (as rmw_zenoh publishes it, or rosbag2 records it), live or from a file."
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 
 import numpy as np
 
 from spiel_edge.errors import InputError
+
+log = logging.getLogger(__name__)
 
 ODOM_TOPIC = "/odom"  # ROS's name for the robot's odometry
 
@@ -30,10 +33,12 @@ class OdometryBuffer:
 
     MAX_POSES = 512
     MAX_EXTRAPOLATION_S = 0.2
+    MAX_STAMP_SKEW_S = 1.0  # a message's stamp this far from its arrival: the arrival is used
 
     def __init__(self, max_poses: int | None = MAX_POSES) -> None:
         self._poses: list[tuple[float, float, float, float]] = []
         self.max_poses = max_poses  # None: every pose (a recording)
+        self.rejected = 0  # messages not used (malformed or out of order)
 
     def add(self, t: float, x_mm: float, y_mm: float, yaw_rad: float) -> bool:
         values = (t, x_mm, y_mm, yaw_rad)
@@ -48,6 +53,25 @@ class OdometryBuffer:
 
     def __len__(self) -> int:
         return len(self._poses)
+
+    def add_message(self, payload: bytes, arrived: float, shift_s: float = 0.0) -> bool:
+        """One odometry message (:func:`parse_odometry`) that arrived at ``arrived`` (Unix s):
+        its stamp when within ``MAX_STAMP_SKEW_S`` of the arrival, else the arrival, plus
+        ``shift_s`` (onto the caller's clock). A message not used is counted and said (the
+        1st, 100th, 10000th)."""
+        try:
+            stamp, x, y, yaw = parse_odometry(payload)
+        except InputError:
+            return self._reject()
+        if stamp is None or not abs(stamp - arrived) <= self.MAX_STAMP_SKEW_S:
+            stamp = arrived
+        return self.add(stamp + shift_s, 1000.0 * x, 1000.0 * y, yaw) or self._reject()
+
+    def _reject(self) -> bool:
+        self.rejected += 1
+        if self.rejected in (1, 100, 10000):
+            log.warning("odometry: %d messages not used (malformed or out of order)", self.rejected)
+        return False
 
     def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
         poses = self._poses

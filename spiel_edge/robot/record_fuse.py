@@ -26,7 +26,7 @@ from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, record_targets
-from spiel_edge.robot.odometry import OdometryBuffer, parse_odometry
+from spiel_edge.robot.odometry import OdometryBuffer
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,6 @@ class RecordFuse:
         self.sink = sink
         self.live = live
         self.odometry = odometry if odometry is not None else OdometryBuffer()
-        self.odom_bad = 0
         use_odom = odometry is not None or odom_messages
         self.fuser = Fuser(
             {b.name: b.mount for b in robot.boards},
@@ -134,22 +133,9 @@ class RecordFuse:
         return report
 
     def handle_odometry(self, payload: bytes, arrived: float) -> None:
-        """An odometry message (JSON ``{"stamp": Unix s, "x": m, "y": m, "yaw": rad}`` or a
-        ROS 2 nav_msgs/msg/Odometry in CDR: the robot's planar pose in odom); its stamp is used
-        when within a second of its arrival, else the arrival."""
-        try:
-            stamp, x, y, yaw = parse_odometry(payload)
-        except InputError:
-            stamp, x, y, yaw = float("nan"), 0.0, 0.0, 0.0
-        if stamp is None:
-            stamp = arrived
-        t = stamp if abs(stamp - arrived) <= MAX_DISAGREEMENT_S else arrived
-        if not self.odometry.add(t, 1000.0 * x, 1000.0 * y, yaw):
-            self.odom_bad += 1
-            if self.odom_bad in (1, 100, 10000):
-                log.warning(
-                    "odometry: %d messages not used (malformed or out of order)", self.odom_bad
-                )
+        """An odometry message (JSON or a ROS 2 nav_msgs/msg/Odometry in CDR: the robot's
+        planar pose in odom), see OdometryBuffer.add_message."""
+        self.odometry.add_message(payload, arrived)
 
     def _drop(self, name: str, why: str) -> None:
         self.dropped[name] = why

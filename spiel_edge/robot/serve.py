@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spiel_edge.device import DeviceSession
-from spiel_edge.errors import DeviceError, InputError, SpielError
+from spiel_edge.errors import DeviceError, SpielError
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse, wait_until
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import BoardSpec, RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, reports_targets
-from spiel_edge.robot.odometry import OdometryBuffer, parse_odometry
+from spiel_edge.robot.odometry import OdometryBuffer
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
 
 log = logging.getLogger(__name__)
@@ -262,7 +262,6 @@ class RobotRunner:
         # the robot's pose in odom, on this process's clock (the boards' times are
         # perf_counter's), from a Zenoh key: JSON or nav_msgs/Odometry (robot/odometry.py)
         self.odometry = OdometryBuffer() if odom_key else None
-        self.odom_bad = 0
         self._odom_session = None
         self.schedule = Schedule.from_robot(robot)
         self.stop = threading.Event()
@@ -362,20 +361,8 @@ class RobotRunner:
             raise ConfigError(f"--odom {key}: cannot subscribe on Zenoh: {exc}") from exc
 
     def _odometry(self, payload: bytes, arrived: float) -> None:
-        """A pose (its stamp if within a second of its arrival) onto the boards' clock."""
-        try:
-            stamp, x, y, yaw = parse_odometry(payload)
-        except InputError:
-            stamp, x, y, yaw = float("nan"), 0.0, 0.0, 0.0
-        if stamp is None or abs(stamp - arrived) > MAX_DISAGREEMENT_S:
-            stamp = arrived
-        t = stamp + (time.perf_counter() - time.time())  # Unix time onto perf_counter's axis
-        if not self.odometry.add(t, 1000.0 * x, 1000.0 * y, yaw):
-            self.odom_bad += 1
-            if self.odom_bad in (1, 100, 10000):
-                log.warning(
-                    "odometry: %d messages not used (malformed or out of order)", self.odom_bad
-                )
+        """A pose onto the boards' clock (Unix time onto perf_counter's axis)."""
+        self.odometry.add_message(payload, arrived, time.perf_counter() - time.time())
 
     def _close_odometry(self) -> None:
         if self._odom_session is not None:

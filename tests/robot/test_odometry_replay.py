@@ -244,3 +244,19 @@ def test_the_fused_scene_in_ros2_is_in_the_robots_frame(tmp_path, odom):
         for t in m.transforms
     ]
     assert set(tf) == {("base_link", b.name) for b in robot.boards}
+
+
+def test_an_odometry_message_joins_the_buffer_on_its_stamp_or_its_arrival():
+    from spiel_edge.robot.odometry import OdometryBuffer
+
+    odom = OdometryBuffer()
+    assert odom.add_message(b'{"stamp": 100.0, "x": 1, "y": 0, "yaw": 0}', arrived=100.3)
+    assert odom.add_message(b'{"stamp": 5.0, "x": 2, "y": 0, "yaw": 0}', arrived=101.0)  # skewed
+    assert odom.add_message(odometry_cdr(101.5, 3.0, 0.0, 0.0), arrived=101.6, shift_s=0.0)
+    assert not odom.add_message(b"garbage", arrived=102.0)
+    assert not odom.add_message(b'{"stamp": 50.0, "x": 9, "y": 0, "yaw": 0}', arrived=50.2)
+    assert odom.rejected == 2 and len(odom) == 3  # the malformed and the out-of-order one
+    np.testing.assert_allclose(odom(101.0)[1], [2000.0, 0.0, 0.0])  # at its arrival
+    shifted = OdometryBuffer()
+    assert shifted.add_message(b'{"x": 1, "y": 0, "yaw": 0}', arrived=10.0, shift_s=-9.0)
+    np.testing.assert_allclose(shifted(1.0)[1], [1000.0, 0.0, 0.0])  # on the caller's clock
