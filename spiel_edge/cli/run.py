@@ -38,6 +38,7 @@ from spiel_edge.runtime.loop import (
 )
 from spiel_edge.runtime.realtime import apply_realtime
 from spiel_edge.runtime.replay import chosen_toa_correction
+from spiel_edge.runtime.slotted_stream import slot_keeper_of, start_in_slot
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier
 
@@ -143,6 +144,14 @@ from spiel_edge.service.systemd import Notifier
     '{"stamp": s, "x": m, "y": m, "yaw": rad} or nav_msgs/Odometry from rmw_zenoh '
     "(docs/robot.md; extra 'zenoh').",
 )
+@click.option(
+    "--slot",
+    default=None,
+    metavar="ROBOT:BOARD",
+    help="Fire in this board's trigger slot of a robot file (e.g. rover.toml:front), on the "
+    "clock the robot's computers share (chrony/PTP): boards in earshot served by different "
+    "processes take turns (docs/robot.md). Needs protocol 2; the rate is the robot's.",
+)
 def command(
     port,
     robot_file,
@@ -167,6 +176,7 @@ def command(
     show_status,
     realtime,
     odom_key,
+    slot,
     **ros2,
 ) -> int:
     """Stream from the board and write one record per acquisition (NDJSON on stdout by default).
@@ -176,6 +186,8 @@ def command(
     waits for the same board to come back and streams again. SIGINT or SIGTERM stops the
     stream and exits cleanly; SIGINT, SIGTERM or SIGHUP finalize the outputs within 1 s.
     """
+    if slot and robot_file:
+        raise click.UsageError("--slot is for one board's process; --robot schedules its boards")
     if robot_file:  # several boards, fused (spiel_edge/robot)
         from spiel_edge.cli._robot import run_robot
 
@@ -197,6 +209,10 @@ def command(
         )
     if odom_key:
         raise click.UsageError("--odom goes with --robot (one board tracks in its own frame)")
+    keeper = slot_keeper_of(slot) if slot else None  # the robot file: before the board
+    source = click.get_current_context().get_parameter_source("rate")
+    if keeper is not None and source == click.core.ParameterSource.COMMANDLINE:
+        raise click.UsageError("--rate with --slot: the slot's rate is the robot file's period")
     plan = FilePlan(force)  # every file checked before the board is touched
     for path, option in ((background, "--background"), (calibration, "--calibration")):
         if path:
@@ -257,11 +273,16 @@ def command(
             )
             runner.on_record = notifier.ping
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
-            session.start_stream(
-                rate_hz=rate,
+            stream = dict(
                 n_samples=profile.acquisition.n_samples,
                 sample_format=SampleFormat.I16_IQ if samples == "iq" else SampleFormat.U16_ENVELOPE,
             )
+            if keeper is None:
+                session.start_stream(rate_hz=rate, **stream)
+            else:
+                slotted = start_in_slot(session, keeper, stop, stream)
+                runner.on_acquisition = slotted.on_acquisition
+                finalizers.add(lambda: click.echo(slotted.summary(), err=True))
             check_stream_shape(session, pipeline)
             notifier.ready(f"streaming from {port}")
             runner.run(stop, frames=frames, status=_reporter(show_status, notifier))

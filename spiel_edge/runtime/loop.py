@@ -176,6 +176,7 @@ class LiveRunner:
         self.keep_latencies = keep_latencies
         self.tracker = tracker  # records gain ``tracks`` (runtime/tracking.py)
         self.on_record: Callable[[], None] | None = None  # e.g. the systemd watchdog ping
+        self.on_acquisition: Callable[[LiveAcquisition], None] | None = None  # run --slot
         self.stats = LiveStats()
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
         self._warned_no_background = False
@@ -198,6 +199,8 @@ class LiveRunner:
         waiting = getattr(getattr(self.session, "tracker", None), "ready", ())
         for acq in self.session.acquisitions(stop):
             self.handle(acq)
+            if self.on_acquisition is not None:
+                self.on_acquisition(acq)
             if batch is not None and not waiting:
                 self.sink.flush()
             if frames is not None and self.stats.records >= frames:

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from spiel_edge.cli import main
 
 
@@ -122,7 +124,6 @@ def test_run_robot_in_odom_with_the_pose_from_zenoh(tmp_path, capsys, monkeypatc
     import time
 
     import numpy as np
-    import pytest
 
     zenoh = pytest.importorskip("zenoh", reason="the 'zenoh' extra is not installed")
     with socket.socket() as s:
@@ -174,3 +175,55 @@ def test_run_robot_in_odom_with_the_pose_from_zenoh(tmp_path, capsys, monkeypatc
 def test_odom_goes_with_robot(capsys):
     assert main(["run", "--port", "sim://", "--frames", "1", "--odom", "k"]) == 2
     assert "--odom goes with --robot" in capsys.readouterr().err
+
+
+def _phase_ms(t: float, period: float, offset: float) -> float:
+    import math
+
+    x = math.fmod(t - offset, period)
+    x = x + period if x < 0 else x
+    return 1e3 * (x - period if x > period / 2 else x)
+
+
+def test_run_slot_fires_in_the_boards_slot_of_the_shared_clock(tmp_path, capsys):
+    """`run --slot virtual-4:left`: one board's process (as on its own computer) keeps its
+    pulses in slot 1 (5.66 ms into each 25 ms cycle of the Unix clock)."""
+    import numpy as np
+
+    port = "sim://left?scene=robot&robot=virtual-4&board=left&movers=5"
+    out = tmp_path / "left.ndjson"
+    assert (
+        main(["run", "--port", port, "--slot", "virtual-4:left", "--frames", "160", "-o", out]) == 0
+    )
+    err = capsys.readouterr().err
+    restarts = int(err.split("slot: ")[1].split(" restarts")[0])
+    records = _records(out)
+    phases = [_phase_ms(r["stamp_host"], 0.025, 0.00566) for r in records if r.get("stamp_host")]
+    assert len(phases) >= 150 and restarts <= 10, err
+    assert np.median(np.abs(phases[-60:])) <= 0.5  # in the slot, within the sync margin
+    hosts = [r["stamp_host"] for r in records[-60:]]
+    assert np.median(np.diff(hosts)) == pytest.approx(0.025, abs=1e-4)  # the robot's period
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--slot", "virtual-4"], "ROBOT:BOARD"),
+        (["--slot", "virtual-4:nose"], "the robot has no board 'nose'"),
+        (["--slot", "missing.toml:front"], "missing.toml"),
+        (["--slot", "virtual-4:front", "--rate", "40"], "--rate with --slot"),
+        (["--slot", "virtual-4:front", "--robot", "virtual-4"], "--slot is for one board"),
+    ],
+)
+def test_run_slot_bad_input_is_one_line(extra, message, capsys):
+    assert main(["run", "--port", "sim://", "--frames", "3", *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err
+
+
+def test_run_slot_needs_protocol_2(tmp_path, capsys):
+    out = tmp_path / "r.ndjson"
+    args = ["run", "--port", "sim://?protocol=1", "--slot", "virtual-4:front", "--frames", "3"]
+    assert main([*args, "-o", out]) != 0
+    err = capsys.readouterr().err
+    assert "--slot needs protocol version 2" in err and "Traceback" not in err, err

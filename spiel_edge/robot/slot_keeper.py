@@ -1,0 +1,119 @@
+"""One board's trigger slot kept on a clock that several computers share (``run --slot``).
+
+Boards of one robot served by different processes or computers (``fuse`` over Zenoh) can
+still take turns: every process reads the same robot file, so each board's slot is known,
+and the computers' clocks are one clock when they are synchronised (chrony or PTP keep them
+within tens of microseconds on a LAN; the robot file's ``sync_margin_ms`` must cover that).
+Cycles are counted from the Unix epoch: board B fires at ``n P + offset_B`` for integers
+``n``. With protocol version 2 each acquisition's ``stamp_host`` is its pulse on the host's
+Unix clock (TIME_SYNC), so a process can see where its board fires against its slot.
+
+:class:`SlotKeeper` is the pure logic (no clock, no I/O: times go in, decisions come out):
+
+- when to send STREAM_START so the first pulse lands on a slot start: ``start_time(now)``,
+  ``lead_s`` earlier than the slot, where ``lead_s`` is learned from how late the previous
+  starts landed (the median phase of the first ``SETTLE`` pulses after each start);
+- whether to restart: after a start that landed outside the sync margin, or when the median
+  phase of the last ``CHECK_EVERY`` pulses strays past ``KEEP_WITHIN`` of it (the board's clock
+  drifts against the host's: restarted before its pulses leave the slot); before such a restart the requested period is corrected by the drift fitted
+  over the last pulses, so restarts become rare.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+SETTLE = 8  # pulses after a start that tell how late it landed
+CHECK_EVERY = 8  # pulses between checks of the phase
+DRIFT_WINDOW = 128  # pulses the drift is fitted over
+START_AHEAD_S = 0.03  # a start is planned at least this far ahead (the request's way out)
+KEEP_WITHIN = 0.75  # a drifting stream is restarted once its phase is this share of the margin
+
+
+class SlotKeeper:
+    """See the module docstring. Times are seconds on the shared clock (Unix)."""
+
+    def __init__(self, period_s: float, offset_s: float, margin_s: float):
+        if not (period_s > 0 and 0 <= offset_s < period_s and margin_s > 0):
+            raise ValueError(f"slot {offset_s} s in a {period_s} s period, margin {margin_s} s")
+        self.period_s = period_s
+        self.offset_s = offset_s
+        self.margin_s = margin_s
+        self.lead_s = 0.0  # a start goes out this long before its slot (learned)
+        self.requested_period_s = period_s  # asked of the board (drift corrected)
+        self.restarts = 0
+        self._settle: list[float] = []
+        self._recent: deque[float] = deque(maxlen=CHECK_EVERY)
+        self._history: deque[tuple[float, float]] = deque(maxlen=DRIFT_WINDOW)
+        self._seen = 0
+
+    @classmethod
+    def from_robot(cls, robot, board: str) -> SlotKeeper:
+        """The slot of ``board`` in ``robot`` (robot/schedule.py's, checked there)."""
+        from spiel_edge.robot.schedule import Schedule
+
+        schedule = Schedule.from_robot(robot)
+        return cls(schedule.period_s, schedule.slots[board].offset_s, schedule.margin_s)
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / self.requested_period_s
+
+    def phase_error(self, t: float) -> float:
+        """Signed seconds from the nearest slot start to ``t``."""
+        x = math.fmod(t - self.offset_s, self.period_s)
+        x = x + self.period_s if x < 0 else x
+        return x - self.period_s if x > self.period_s / 2 else x
+
+    def start_time(self, now: float) -> float:
+        """When to send STREAM_START: ``lead_s`` before the first slot start that leaves at
+        least ``START_AHEAD_S`` from ``now``."""
+        first = now + START_AHEAD_S + self.lead_s - self.offset_s
+        n = math.ceil(first / self.period_s)
+        return n * self.period_s + self.offset_s - self.lead_s
+
+    def started(self) -> None:
+        """A stream was just started (at ``start_time``): the pulses from now on are its."""
+        self._settle = []
+        self._recent.clear()
+        self._seen = 0
+
+    def observe(self, t_pulse: float) -> bool:
+        """One pulse of the current stream (its time on the shared clock); True: restart
+        the stream (at ``start_time``, at ``rate_hz``)."""
+        e = self.phase_error(t_pulse)
+        self._history.append((t_pulse, e))
+        self._seen += 1
+        if len(self._settle) < SETTLE:
+            self._settle.append(e)
+            if len(self._settle) < SETTLE:
+                return False
+            landed = float(np.median(self._settle))
+            self.lead_s += landed  # the next start goes out this much earlier (or later)
+            return self._restart() if abs(landed) > self.margin_s else False
+        self._recent.append(e)
+        if self._seen % CHECK_EVERY:
+            return False
+        if abs(float(np.median(self._recent))) <= KEEP_WITHIN * self.margin_s:
+            return False
+        self._correct_period()
+        return self._restart()
+
+    def _correct_period(self) -> None:
+        """The board's pulses drift by ``slope`` seconds per second against the shared
+        clock: ask for a period that much shorter (or longer)."""
+        h = np.array(self._history)
+        if len(h) < 2 * CHECK_EVERY or np.ptp(h[:, 0]) <= 0:
+            return
+        errors = np.unwrap(h[:, 1] * (2 * np.pi / self.period_s)) * (self.period_s / (2 * np.pi))
+        slope = float(np.polyfit(h[:, 0] - h[0, 0], errors, 1)[0])
+        if abs(slope) < 0.01:  # a drift of 1 % is no clock's: a jump (a restart) in the window
+            self.requested_period_s /= 1.0 + slope
+        self._history.clear()
+
+    def _restart(self) -> bool:
+        self.restarts += 1
+        return True

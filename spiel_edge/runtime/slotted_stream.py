@@ -1,0 +1,98 @@
+"""``run --slot ROBOT:BOARD``: the board's stream started on its trigger slot of the clock the
+robot's computers share, and kept there (the logic: robot/slot_keeper.py; this module is
+its I/O: the session and the clock)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from spiel_edge.robot.slot_keeper import SlotKeeper
+
+log = logging.getLogger(__name__)
+
+
+class SlottedStream:
+    """Starts ``session``'s stream at its slot (``start``) and restarts it there when the
+    keeper says so (``on_acquisition``, for every acquisition of the stream)."""
+
+    def __init__(self, session, keeper: SlotKeeper, stop: threading.Event, **start_options):
+        self.session = session
+        self.keeper = keeper
+        self.stop = stop
+        self.start_options = start_options  # n_samples, sample_format
+        self._first: int | None = None  # the current stream's first acquisition
+        self.phases_s: list[float] = []  # every observed pulse's phase (the summary)
+
+    def start(self):
+        """Wait for the slot's start on the shared (Unix) clock, then start the stream."""
+        at = self.keeper.start_time(time.time())
+        _sleep_until_unix(at, self.stop)
+        answer = self.session.start_stream(rate_hz=self.keeper.rate_hz, **self.start_options)
+        self.keeper.started()
+        self._first = answer.first_acquisition
+        return answer
+
+    def on_acquisition(self, acq) -> None:
+        if acq.stamp_host is None or self._first is None:
+            return  # the clocks are not synced yet: nothing to place the pulse with
+        if (acq.index - self._first) & 0xFFFFFFFF >= 1 << 31:
+            return  # left over from before the last start
+        self.phases_s.append(self.keeper.phase_error(acq.stamp_host))
+        if self.keeper.observe(acq.stamp_host) and not self.stop.is_set():
+            log.info("the board left its slot; restarting it in the slot")
+            self.start()
+
+    def summary(self) -> str:
+        p = np.abs(np.array(self.phases_s[-2000:])) * 1e3
+        phase = (
+            f", |phase| median {np.median(p):.3f} ms, p95 {np.percentile(p, 95):.3f} ms"
+            if p.size
+            else ""
+        )
+        return f"slot: {self.keeper.restarts} restarts{phase} (margin {self.keeper.margin_s * 1e3:g} ms)"
+
+
+def _sleep_until_unix(at: float, stop: threading.Event) -> None:
+    """Sleep until the Unix clock reads ``at`` (spinning the last 2 ms)."""
+    while not stop.is_set():
+        wait = at - time.time()
+        if wait <= 0:
+            return
+        time.sleep(wait - 0.002 if wait > 0.003 else 0)
+
+
+def slot_keeper_of(slot: str) -> SlotKeeper:
+    """``--slot ROBOT:BOARD`` (a robot file or a built-in name, and one of its boards): its
+    keeper; ConfigError naming what is wrong."""
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.robot.description import load_robot
+
+    robot_file, sep, board = slot.rpartition(":")
+    if not sep or not robot_file or not board:
+        raise ConfigError(f"--slot {slot!r}: ROBOT:BOARD, e.g. rover.toml:front")
+    robot = load_robot(robot_file)
+    names = [b.name for b in robot.boards]
+    if board not in names:
+        raise ConfigError(f"--slot {slot!r}: the robot has no board {board!r} ({', '.join(names)})")
+    return SlotKeeper.from_robot(robot, board)
+
+
+def start_in_slot(
+    session, keeper: SlotKeeper, stop: threading.Event, stream: dict
+) -> SlottedStream:
+    """The stream started in the keeper's slot; protocol version 2 needed (its pulses on the
+    host's clock), else DeviceError before any start."""
+    from spiel_edge.errors import DeviceError
+
+    if session.protocol_version < 2:
+        raise DeviceError(
+            f"{session.url}: --slot needs protocol version 2 (TIME_SYNC puts the board's pulses "
+            f"on the shared clock); the board speaks {session.protocol_version}"
+        )
+    slotted = SlottedStream(session, keeper, stop, **stream)
+    slotted.start()
+    return slotted
