@@ -31,6 +31,8 @@ class SlottedStream:
         """Wait for the slot's start on the shared (Unix) clock, then start the stream."""
         at = self.keeper.start_time(time.time())
         _sleep_until_unix(at, self.stop)
+        if self.stop.is_set():  # stopping: no new stream
+            return None
         answer = self.session.start_stream(rate_hz=self.keeper.rate_hz, **self.start_options)
         self.keeper.started()
         self._first = answer.first_acquisition
