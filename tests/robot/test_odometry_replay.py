@@ -43,9 +43,9 @@ def test_odometry_messages_json_or_cdr_and_what_is_neither():
             parse_odometry(bad)
 
 
-def _mcap(path, topics: dict[str, list[bytes]]) -> None:
+def _mcap(path, topics: dict[str, list[bytes]], chunk_size: int = 1024 * 1024) -> None:
     with open(path, "wb") as f:  # as rosbag2 writes it: ros2msg schema, cdr, zstd chunks
-        w = Writer(f)
+        w = Writer(f, chunk_size=chunk_size)
         w.start("ros2", "rosbag2")
         schema = w.register_schema("nav_msgs/msg/Odometry", "ros2msg", b"")
         for topic, messages in topics.items():
@@ -260,3 +260,32 @@ def test_an_odometry_message_joins_the_buffer_on_its_stamp_or_its_arrival():
     shifted = OdometryBuffer()
     assert shifted.add_message(b'{"x": 1, "y": 0, "yaw": 0}', arrived=10.0, shift_s=-9.0)
     np.testing.assert_allclose(shifted(1.0)[1], [1000.0, 0.0, 0.0])  # on the caller's clock
+
+
+def test_fuse_replay_of_damaged_files_goes_as_far_as_they_go(tmp_path, capsys):
+    """Garbage instead of records drops that board (one warning, status 1); a recording cut
+    short (a robot's power lost) gives what it holds; a cut odometry bag its poses so far."""
+    rng = np.random.default_rng(7)
+    junk = tmp_path / "junk.ndjson"
+    junk.write_bytes(rng.integers(0, 256, 20000, dtype=np.uint8).tobytes())
+    port = "sim://front?scene=robot&robot=virtual-4&board=front&movers=5"
+    mcap = tmp_path / "front.mcap"
+    args = ["run", "--port", port, "--frames", "60", "--rate", "40", "--max-targets", "4"]
+    assert main([*args, "--record", mcap, "-o", tmp_path / "front.ndjson"]) == 0
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(mcap.read_bytes()[: mcap.stat().st_size * 2 // 3])
+    out = tmp_path / "fused.ndjson"
+    replay = ["--replay", f"front={cut}", "--replay", f"left={junk}"]
+    capsys.readouterr()
+    status = main(["fuse", "--robot", "virtual-4", *replay, "-o", out])
+    err = capsys.readouterr().err
+    assert status == 1 and "Traceback" not in err, err
+    assert "board left dropped" in err and "not spiel-edge records" in err
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert 10 <= len(records) < 60  # what the cut recording holds
+    poses = [odometry_cdr(100.0 + 0.01 * k, 0.001 * k, 0.0, 0.0) for k in range(400)]
+    _mcap(tmp_path / "odom.mcap", {"/odom": poses}, chunk_size=4096)  # many chunks
+    data = (tmp_path / "odom.mcap").read_bytes()
+    (tmp_path / "odom_cut.mcap").write_bytes(data[: len(data) // 2])
+    odom = read_odometry_file(tmp_path / "odom_cut.mcap")
+    assert 0 < len(odom) < 400
