@@ -137,6 +137,10 @@ def service_rejects(env: dict[str, str]) -> str | None:
             parse_host_port(target, what="--udp")
         if ctx.params.get("foxglove"):
             parse_host_port(ctx.params["foxglove"], default_host="127.0.0.1", what="--foxglove")
+        if ctx.params.get("slot"):  # the robot file and its board, as run checks them
+            from spiel_edge.runtime.slotted_stream import slot_keeper_of
+
+            slot_keeper_of(ctx.params["slot"])
     except SpielError as exc:
         return f"SPIEL_RUN_OPTIONS: {exc}"
     return None

@@ -140,6 +140,9 @@ def test_exec_paths_that_cannot_be_quoted_are_refused(cli, tmp_path, path):
         ("--profile 'unterminated", "/dev/spiel-0"),
         ("--output /dev/null", "gopher://board"),
         ("--help", "/dev/spiel-0"),
+        ("--slot virtual-4:nose", "/dev/spiel-0"),
+        ("--slot no-such-robot.toml:front", "/dev/spiel-0"),
+        ("--realtime 0", "/dev/spiel-0"),
     ],
 )
 def test_doctor_refuses_what_the_service_would(options, port):
@@ -150,4 +153,6 @@ def test_doctor_accepts_the_shipped_settings():
     from spiel_edge.service.doctor import read_env_file  # noqa: F401 - same parser as doctor
 
     ok = "--profile spiel-icra23 --output /dev/null --udp 127.0.0.1:9870"
+    assert service_rejects({"SPIEL_RUN_OPTIONS": ok, "SPIEL_PORT": "/dev/spiel-0"}) is None
+    ok += " --realtime 10 --slot virtual-4:left"
     assert service_rejects({"SPIEL_RUN_OPTIONS": ok, "SPIEL_PORT": "/dev/spiel-0"}) is None
