@@ -195,7 +195,7 @@ def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
     sink = open_fused_outputs(robot, force, outputs, meta, odom=odometry is not None)
     fuse = None
     try:
-        fuse = fuse_replay(robot, sink, streams, track=track, odometry=odometry)
+        fuse = fuse_replay(robot, sink, streams, track=track, odometry=odometry, boards=files)
     except BrokenPipeError:
         sys.stdout = None  # type: ignore[assignment]
     finally:

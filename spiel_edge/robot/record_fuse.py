@@ -14,9 +14,12 @@ nav_msgs/msg/Odometry in CDR) or as a buffer read from a recording.
 
 from __future__ import annotations
 
+import heapq
 import json
 import logging
+import os
 import time
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -183,43 +186,47 @@ def _stamp_latency(record: dict, now: float, latencies_ms: list[float]) -> None:
         record["fuser_ms"] = round((now - max(received)) * 1e3, 3)
 
 
-def read_replay(robot: RobotSpec, files: dict[str, str | Path]) -> list[tuple[float, str, bytes]]:
+def read_replay(
+    robot: RobotSpec, files: dict[str, str | Path]
+) -> Iterator[tuple[float, str, bytes]]:
     """Boards' records from files (NDJSON, as ``run -o`` writes them, or the MCAP of ``run
-    --record``, either profile: its /spiel/position records) as (host_time, board, line), in
-    the order to fuse them. A name the robot does not have, or a file that cannot be
-    read: ConfigError or InputError. Unreadable lines stay in (as bad records, time 0)."""
+    --record``, either profile: its /spiel/position records) as (host_time, board, line) in
+    the order to fuse them: each file is in its own time order, so they are merged as they are
+    read (memory does not grow with the drive's length). A name the robot does not have, or a
+    file that cannot be opened: ConfigError or InputError at once, before anything is read.
+    An unreadable line stays in its place (a bad record)."""
     known = {b.name for b in robot.boards}
     unknown = sorted(set(files) - known)
     if unknown:
         raise ConfigError(
             f"--replay: the robot has no board {unknown[0]!r} (boards: {', '.join(sorted(known))})"
         )
-    streams = []
     for name, path in files.items():
         try:
-            lines = _record_lines(Path(path))
+            with open(path, "rb") as f:
+                f.read(1)
         except OSError as exc:
             raise InputError(f"{path}: cannot read board {name}'s records: {exc.strerror}") from exc
-        streams += [(_host_time(line), name, line) for line in lines if line.strip()]
-    streams.sort(key=lambda item: (item[0], item[1]))
-    return streams
+    streams = [_timed(name, _record_lines(Path(path))) for name, path in files.items()]
+    return heapq.merge(*streams, key=lambda item: (item[0], item[1]))
 
 
 def replay(
     robot: RobotSpec,
     sink,
-    streams: list[tuple[float, str, bytes]],
+    streams: Iterable[tuple[float, str, bytes]],
     *,
     track: bool = True,
     spec=None,
     odometry: OdometryBuffer | None = None,
+    boards: Iterable[str] | None = None,
 ) -> RecordFuse:
     """:func:`read_replay`'s records fused offline, each taken as arriving at its
-    ``host_time`` (one computer's clock), optionally in odom with a recording's poses; boards
-    of the robot without records are left out. Bad records count as live (a board with too
-    many in a row is dropped)."""
+    ``host_time`` (one computer's clock), optionally in odom with a recording's poses; the
+    robot's boards not in ``boards`` (default: every board) are left out. Bad records count
+    as live (a board with too many in a row is dropped)."""
     fuse = RecordFuse(robot, sink, track=track, spec=spec, odometry=odometry, live=False)
-    present = {name for _, name, _ in streams}
+    present = set(boards) if boards is not None else {b.name for b in robot.boards}
     for b in robot.boards:
         if b.name not in present:
             fuse.fuser.drop(b.name)  # not replayed: no cycle waits for it
@@ -230,20 +237,29 @@ def replay(
     return fuse
 
 
-def _record_lines(path: Path) -> list[bytes]:
-    """The JSON records of an NDJSON file, or of an MCAP recording's position topic (JSON, or
-    std_msgs/String in CDR; a damaged file read as far as it goes)."""
+def _timed(name: str, lines: Iterable[bytes]) -> Iterator[tuple[float, str, bytes]]:
+    """(host_time, board, line); an unreadable line takes the time of the last good one, so it
+    stays where it is in the file."""
+    last = 0.0
+    for line in lines:
+        if line.strip():
+            t = _host_time(line)
+            last = t if t is not None else last
+            yield last, name, line
+
+
+def _record_lines(path: Path) -> Iterator[bytes]:
+    """The JSON records of an NDJSON file, line by line, or of an MCAP recording's position
+    topic (JSON, or std_msgs/String in CDR; a damaged file read as far as it goes)."""
     with open(path, "rb") as f:
         if not f.read(8).startswith(b"\x89MCAP"):
             f.seek(0)
-            return f.read().splitlines()
-        import os
-
+            yield from f
+            return
         from spiel_edge.recordings.cdr import ENCAPSULATION, decode_string
         from spiel_edge.recordings.mcap_reader import POSITION_TOPIC
         from spiel_edge.recordings.mcap_scan import McapScanner
 
-        out = []
         for msg in McapScanner(f, os.fstat(f.fileno()).st_size).messages():
             if msg.topic != POSITION_TOPIC:
                 continue
@@ -253,14 +269,13 @@ def _record_lines(path: Path) -> list[bytes]:
                     data = decode_string(data).encode()
                 except InputError:
                     data = b"not a record"  # counted as a bad record
-            out.append(data)
-        return out
+            yield data
 
 
-def _host_time(line: bytes) -> float:
-    """A record's ``host_time`` for ordering (0: unreadable; its record counts as bad)."""
+def _host_time(line: bytes) -> float | None:
+    """A record's ``host_time`` for ordering (None: unreadable)."""
     try:
         t = float(json.loads(line)["host_time"])
     except (ValueError, KeyError, TypeError):
-        return 0.0
-    return t if np.isfinite(t) else 0.0
+        return None
+    return t if np.isfinite(t) else None
