@@ -177,7 +177,7 @@ def command(
 def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
     """``fuse --replay``: every input read and checked before the outputs open."""
     from spiel_edge.cli._robot import open_fused_outputs
-    from spiel_edge.robot.odometry import read_odometry_file
+    from spiel_edge.robot.odometry_sources import read_odometry_file
     from spiel_edge.robot.record_fuse import read_replay
     from spiel_edge.robot.record_fuse import replay as fuse_replay
 

@@ -1,22 +1,20 @@
 """The robot's pose in ``odom`` for the fuser (robot/fusion.py): a planar pose as (R, t), a
 buffer of poses from an odometry stream, interpolated at a time, and the messages that carry
 them: JSON ``{"stamp": Unix s, "x": m, "y": m, "yaw": rad}`` or a ROS 2 nav_msgs/msg/Odometry
-in CDR (as rmw_zenoh publishes it, or rosbag2 records it), live or from a file."""
+in CDR (as rmw_zenoh publishes it, or rosbag2 records it). Where they come from (a file, a
+Zenoh key) is robot/odometry_sources.py's."""
 
 from __future__ import annotations
 
 import json
 import logging
 import math
-from pathlib import Path
 
 import numpy as np
 
 from spiel_edge.errors import InputError
 
 log = logging.getLogger(__name__)
-
-ODOM_TOPIC = "/odom"  # ROS's name for the robot's odometry
 
 
 def planar_pose(x_mm: float, y_mm: float, yaw_rad: float) -> tuple[np.ndarray, np.ndarray]:
@@ -110,52 +108,3 @@ def parse_odometry(payload: bytes) -> tuple[float | None, float, float, float]:
     if not all(math.isfinite(v) for v in (x, y, yaw)):
         raise InputError("odometry pose not finite")
     return stamp, x, y, yaw
-
-
-def read_odometry_file(path: str | Path, topic: str = ODOM_TOPIC) -> OdometryBuffer:
-    """Every pose of a recording, in time order: an MCAP (the messages on ``topic``:
-    rosbag2's nav_msgs/msg/Odometry in CDR, or the JSON message; a damaged file is read as far
-    as it goes) or NDJSON lines of the JSON message. Each pose needs its stamp. InputError
-    naming the file and what is wrong."""
-    path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            if f.read(8).startswith(b"\x89MCAP"):
-                messages = _mcap_messages(f, topic, path)
-            else:
-                f.seek(0)
-                messages = [line for line in f.read().splitlines() if line.strip()]
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the odometry: {exc.strerror or exc}") from exc
-    poses = []
-    for n, payload in enumerate(messages, 1):
-        try:
-            stamp, x, y, yaw = parse_odometry(payload)
-        except InputError as exc:
-            raise InputError(f"{path}: odometry message {n}: {exc}") from exc
-        if stamp is None:
-            raise InputError(f"{path}: odometry message {n} has no stamp")
-        poses.append((stamp, 1000.0 * x, 1000.0 * y, yaw))
-    buffer = OdometryBuffer(max_poses=None)
-    for pose in sorted(poses):
-        buffer.add(*pose)  # a repeated stamp is kept once
-    if not len(buffer):
-        raise InputError(f"{path}: no odometry in it")
-    return buffer
-
-
-def _mcap_messages(f, topic: str, path: Path) -> list[bytes]:
-    import os
-
-    from spiel_edge.recordings.mcap_scan import McapScanner
-
-    scanner = McapScanner(f, os.fstat(f.fileno()).st_size)
-    messages, topics = [], set()
-    for msg in scanner.messages():
-        topics.add(msg.topic or "?")
-        if msg.topic == topic:
-            messages.append(msg.data)
-    if not messages:
-        seen = ", ".join(sorted(topics)) or "none"
-        raise InputError(f"{path}: no messages on {topic} (topics: {seen}; --odom-topic)")
-    return messages

@@ -16,7 +16,8 @@ from spiel_edge.cli import main
 from spiel_edge.errors import InputError
 from spiel_edge.recordings.cdr import decode_odometry
 from spiel_edge.robot.description import load_robot
-from spiel_edge.robot.odometry import parse_odometry, read_odometry_file
+from spiel_edge.robot.odometry import parse_odometry
+from spiel_edge.robot.odometry_sources import read_odometry_file
 
 pytest.importorskip("rosbags.typesys", reason="rosbags (test extra) writes the reference")
 
