@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
@@ -24,8 +25,8 @@ class SlottedStream:
         self.keeper = keeper
         self.stop = stop
         self.start_options = start_options  # n_samples, sample_format
-        self._first: int | None = None  # the current stream's first acquisition
-        self.phases_s: list[float] = []  # every observed pulse's phase (the summary)
+        self._stream = None  # the stream this started (the session may restart it itself)
+        self.phases_s: deque[float] = deque(maxlen=2000)  # the last pulses' phases (summary)
 
     def start(self):
         """Wait for the slot's start on the shared (Unix) clock, then start the stream."""
@@ -35,13 +36,19 @@ class SlottedStream:
             return None
         answer = self.session.start_stream(rate_hz=self.keeper.rate_hz, **self.start_options)
         self.keeper.started()
-        self._first = answer.first_acquisition
+        self._stream = answer
         return answer
 
     def on_acquisition(self, acq) -> None:
-        if acq.stamp_host is None or self._first is None:
+        if self._stream is None or self.stop.is_set():
+            return
+        if self.session.stream is not self._stream:  # the board came back: the session
+            log.info("the stream was restarted (the board came back); back into its slot")
+            self.start()  # restarted it at once, in no slot
+            return
+        if acq.stamp_host is None:
             return  # the clocks are not synced yet: nothing to place the pulse with
-        if (acq.index - self._first) & 0xFFFFFFFF >= 1 << 31:
+        if (acq.index - self._stream.first_acquisition) & 0xFFFFFFFF >= 1 << 31:
             return  # left over from before the last start
         self.phases_s.append(self.keeper.phase_error(acq.stamp_host))
         if self.keeper.observe(acq.stamp_host) and not self.stop.is_set():
@@ -49,7 +56,7 @@ class SlottedStream:
             self.start()
 
     def summary(self) -> str:
-        p = np.abs(np.array(self.phases_s[-2000:])) * 1e3
+        p = np.abs(np.array(self.phases_s)) * 1e3
         phase = (
             f", |phase| median {np.median(p):.3f} ms, p95 {np.percentile(p, 95):.3f} ms"
             if p.size

@@ -79,3 +79,40 @@ def test_the_slot_comes_from_the_robot_file():
     left = SlotKeeper.from_robot(robot, "left")
     assert (left.period_s, left.margin_s) == (0.025, 0.0005)
     assert left.offset_s == pytest.approx(0.00566, abs=1e-5)  # slot 1 of 5.66 ms slots
+
+
+def test_a_stream_the_session_restarted_goes_back_into_its_slot():
+    """The board came back and its session restarted the stream on its own (in no slot): the
+    next acquisition starts it again in the slot; acquisitions left over from before a start
+    are not taken as the new stream's."""
+    import threading
+    import types
+
+    from spiel_edge.runtime.slotted_stream import SlottedStream
+
+    class Session:
+        def __init__(self):
+            self.stream, self.starts = None, []
+
+        def start_stream(self, rate_hz, **options):
+            self.starts.append(rate_hz)
+            self.stream = types.SimpleNamespace(first_acquisition=100 * len(self.starts))
+            return self.stream
+
+    session = Session()
+    keeper = SlotKeeper(0.025, 0.005, 0.0005)
+    slotted = SlottedStream(session, keeper, threading.Event())
+    slotted.start()
+    assert session.starts == [40.0]
+
+    def acq(index, t):
+        return types.SimpleNamespace(index=index, stamp_host=t)
+
+    slotted.on_acquisition(acq(5, 1000.0))  # before this stream's first: left over
+    assert not slotted.phases_s
+    slotted.on_acquisition(acq(100, 1000.0052))
+    assert list(slotted.phases_s) == [pytest.approx(0.0002, abs=1e-9)]
+    session.stream = types.SimpleNamespace(first_acquisition=0)  # the session's own restart
+    slotted.on_acquisition(acq(0, 1000.5))
+    assert len(session.starts) == 2 and slotted.phases_s.maxlen == 2000
+    assert "slot: 0 restarts" in slotted.summary()
