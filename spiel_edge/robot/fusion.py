@@ -37,7 +37,15 @@ from spiel_edge.robot.odometry import OdometryBuffer, planar_pose
 from spiel_edge.track import Tracker
 
 log = logging.getLogger(__name__)
-__all__ = ["BaseTarget", "BoardReport", "Fuser", "OdometryBuffer", "merge_targets", "planar_pose"]
+__all__ = [
+    "BaseTarget",
+    "BoardReport",
+    "Fuser",
+    "OdometryBuffer",
+    "merge_targets",
+    "planar_pose",
+    "stamp_latency",
+]
 
 WAIT_CYCLES = 3  # an incomplete cycle is fused once a report this many cycles later arrives
 QUIET_CYCLES = 3  # a board missing this many cycles in a row is not waited for
@@ -324,6 +332,19 @@ def _track_record(tr) -> dict:
         "age": int(tr.age),
         "hits": int(tr.hits),
     }
+
+
+def stamp_latency(record: dict, now: float, latencies_ms: list[float]) -> None:
+    """``latency_ms`` (the write against the last board's acquisition) and ``fuser_ms`` (the
+    fuser's share: from the last board record's arrival here)."""
+    acquired = [b["acquired"] for b in record["boards"].values() if b.get("acquired") is not None]
+    if acquired:
+        latency = (now - max(acquired)) * 1e3
+        record["latency_ms"] = round(latency, 3)
+        latencies_ms.append(latency)
+    received = [b["received"] for b in record["boards"].values() if "received" in b]
+    if received:
+        record["fuser_ms"] = round((now - max(received)) * 1e3, 3)
 
 
 def _board_summary(r: BoardReport) -> dict:

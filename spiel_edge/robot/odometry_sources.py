@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -68,8 +69,6 @@ class OdometrySubscription:
     ``$ZENOH_CONFIG`` or Zenoh's defaults. ConfigError when it cannot subscribe."""
 
     def __init__(self, key: str, deliver: Callable[[bytes, float], None]):
-        import time
-
         from spiel_edge.outputs.zenoh import _import_zenoh
         from spiel_edge.robot.zenoh_fuse import zenoh_config
 

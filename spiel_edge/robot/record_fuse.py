@@ -28,7 +28,7 @@ from spiel_edge.errors import ConfigError, InputError
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
-from spiel_edge.robot.fusion import BoardReport, Fuser, record_targets
+from spiel_edge.robot.fusion import BoardReport, Fuser, record_targets, stamp_latency
 from spiel_edge.robot.odometry import OdometryBuffer
 
 log = logging.getLogger(__name__)
@@ -147,7 +147,7 @@ class RecordFuse:
 
     def _write(self, record: dict) -> None:
         if self.live:
-            _stamp_latency(record, time.time(), self.latencies_ms)
+            stamp_latency(record, time.time(), self.latencies_ms)
         for name, why in self.dropped.items():
             record.setdefault("dropped", {})[name] = why
         self.sink.write(record)
@@ -171,19 +171,6 @@ class RecordFuse:
             for n, s in self.fuser.stats.items()
         )
         return f"{self.records} fused records{latency}; {boards}"
-
-
-def _stamp_latency(record: dict, now: float, latencies_ms: list[float]) -> None:
-    """``latency_ms`` (the write against the last board's acquisition) and ``fuser_ms`` (the
-    fuser's share: from the last board record's arrival here)."""
-    acquired = [b["acquired"] for b in record["boards"].values() if b.get("acquired") is not None]
-    if acquired:
-        latency = (now - max(acquired)) * 1e3
-        record["latency_ms"] = round(latency, 3)
-        latencies_ms.append(latency)
-    received = [b["received"] for b in record["boards"].values() if "received" in b]
-    if received:
-        record["fuser_ms"] = round((now - max(received)) * 1e3, 3)
 
 
 def read_replay(

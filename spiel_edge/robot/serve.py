@@ -28,7 +28,7 @@ from spiel_edge.robot.board_worker import BoardWorker, toa_of
 from spiel_edge.robot.clock import wait_until
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
-from spiel_edge.robot.fusion import BoardReport, Fuser
+from spiel_edge.robot.fusion import BoardReport, Fuser, stamp_latency
 from spiel_edge.robot.odometry import OdometryBuffer
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
 
@@ -175,11 +175,7 @@ class RobotRunner:
             w.go.set()
 
     def _write(self, record: dict, last: BoardReport) -> None:
-        acquired = [b["acquired"] for b in record["boards"].values() if "acquired" in b]
-        if acquired:  # after the last board's acquisition reached this host
-            latency = (time.time() - max(acquired)) * 1e3
-            record["latency_ms"] = round(latency, 3)
-            self.latencies_ms.append(latency)
+        stamp_latency(record, time.time(), self.latencies_ms)  # after the last acquisition
         for name, diag in record["boards"].items():
             w = next(w for w in self.workers if w.board.name == name)
             diag["restarts"] = w.stats.restarts
