@@ -38,6 +38,7 @@ from tests.core.spiel_csv_fixture import write_spiel_csv
 from tests.firmware.qemu_board import (
     CUT,
     FAIL,
+    SEED,
     QemuBoard,
     Unavailable,
     build_mps2,
@@ -327,6 +328,20 @@ def test_reboot_resets_the_board_through_the_scb(board):
                     hello = msg
     assert b.alive() and hello is not None
     assert hello.boot_id != first
+    # the MPS2 has no TRNG: the boot_id is drawn from an xorshift state kept in the persistent
+    # PSRAM (mps2.h SEED_OFF) and stirred with the timer, so the chain goes on across resets and
+    # power cuts instead of restarting from the few values the timer gives at boot
+    assert seed_word(b.flash) == hello.boot_id
+    b.restart()
+    with DeviceSession(b.port, reconnect=False) as dev:
+        after_cut = dev.hello.boot_id
+    assert after_cut not in (first, hello.boot_id) and seed_word(b.flash) == after_cut
+
+
+def seed_word(flash: Path) -> int:
+    with open(flash, "rb") as f:
+        f.seek(SEED)
+        return int.from_bytes(f.read(4), "little")
 
 
 def test_a_board_with_max_payload_256(mps2_elf, tmp_path, tmp_path_factory):

@@ -250,20 +250,23 @@ void hal_reset(int to_bootloader)
     }
 }
 
-static uint32_t random_state;
+#define RANDOM_SEED REG32(PSRAM_BASE + SEED_OFF)
 
 uint32_t hal_random(void)
 {
-    /* No entropy source on the MPS2: xorshift32 stirred with the free-running timer, whose
-     * value at the first call depends on how long qemu took to boot. A port uses its TRNG. */
-    uint32_t x = random_state ^ TIMER_VALUE(TIMER0_BASE) ^ (uint32_t)(hal_time_us() >> 3);
+    /* No entropy source on the MPS2, and the timer read at boot takes few values under qemu
+     * (41 boots drew 40 distinct boot_ids; a repeat on consecutive boots hides the reboot
+     * from the host). So the xorshift32 state lives in the persistent PSRAM and every
+     * draw stirs in the free-running timer: boot_ids follow one chain across resets and power
+     * cuts. A port uses its TRNG. */
+    uint32_t x = RANDOM_SEED ^ TIMER_VALUE(TIMER0_BASE) ^ (uint32_t)(hal_time_us() >> 3);
     if (x == 0) {
         x = 0x9E3779B9u;
     }
     x ^= x << 13;
     x ^= x >> 17;
     x ^= x << 5;
-    random_state = x;
+    RANDOM_SEED = x;
     return x;
 }
 

@@ -59,6 +59,7 @@
 #define SLOT0_OFF 0x100000u      /* image slot 0; slot 1 follows */
 #define IMAGE_SLOT_SIZE 0x100000u /* 1 MiB per slot, the 96-byte image header included */
 #define FI_OFF 0x00F00000u       /* the power-cut mailbox of the tests (nor_mps2.c) */
+#define SEED_OFF 0x00F01000u     /* a plain word carried across boots: hal_random's state */
 
 /* Where every application image runs (RAM load): ZBT SSRAM1 above the boot stage. The boot
  * stage copies the chosen slot's body here; qemu's loader puts the built-in (factory) image
