@@ -34,6 +34,8 @@ from firmware_protocol.v2_messages import (
     FwWrite,
     FwWriteResponse,
     SlotState,
+    TimeSync,
+    TimeSyncResponse,
 )
 from spiel_edge.errors import DeviceError
 
@@ -197,6 +199,7 @@ def update_firmware(
         assert isinstance(verify, FwVerifyResponse)
         if verify.sha256 != sha or verify.image_size != len(image):
             raise DeviceError(f"{url}: the board's copy differs from the image (SHA-256)")
+        clock_at_test = _board_clock_us(session)
         session.request(FwTest(test_delay_ms))
         log.info(
             "%s: firmware %s written to slot %d; booting it once", url, header.version, begin.slot
@@ -204,11 +207,50 @@ def update_firmware(
     finally:
         _close(session)
     return _await_new_firmware(
-        url, header, previous, boot_id, open_session, boot_wait_s, len(image), started
+        url,
+        header,
+        previous,
+        (boot_id, clock_at_test),
+        open_session,
+        boot_wait_s,
+        len(image),
+        started,
     )
 
 
-def _await_new_firmware(url, header, previous, boot_id, open_session, wait_s, sent, started):
+def _board_clock_us(session) -> int | None:
+    """The board's clock (us since boot) by TIME_SYNC, None where it has none to offer."""
+    hello = session.hello
+    if not (hello.protocol_version >= 2 and hello.capabilities & Capability.TIME_SYNC):
+        return None
+    try:
+        answer = session.request(TimeSync(time.perf_counter_ns() // 1000))
+    except DeviceError as exc:
+        log.debug("time sync: %s", exc)
+        return None
+    return answer.board_time_us if isinstance(answer, TimeSyncResponse) else None
+
+
+def _rebooted(session, boot_id: int, clock_at_test: int | None) -> bool:
+    """A new boot_id, or (a board whose entropy gave the same one again) its clock, us since
+    boot, behind where it stood at FW_TEST."""
+    if session.hello.boot_id != boot_id:
+        return True
+    if clock_at_test is None:
+        return False
+    now = _board_clock_us(session)
+    if now is None or now >= clock_at_test:
+        return False
+    log.warning(
+        "the board rebooted with the same boot_id %08x (its clock restarted): its random "
+        "source is weak; boot_id should differ at every boot",
+        boot_id,
+    )
+    return True
+
+
+def _await_new_firmware(url, header, previous, before, open_session, wait_s, sent, started):
+    boot_id, clock_at_test = before
     deadline = time.monotonic() + wait_s
     last_error = "no answer"
     time.sleep(0.05)
@@ -221,7 +263,7 @@ def _await_new_firmware(url, header, previous, boot_id, open_session, wait_s, se
             continue
         try:
             hello = session.hello
-            if hello.boot_id == boot_id:  # not rebooted yet
+            if not _rebooted(session, boot_id, clock_at_test):  # not yet
                 _close(session)
                 time.sleep(RETRY_OPEN_S)
                 continue

@@ -55,6 +55,20 @@ def test_update_confirms_a_firmware_that_answers(sim_url) -> None:
     assert hello_version(url) == "sim-0.2.0"
 
 
+def test_a_reboot_that_repeats_the_boot_id_is_seen_by_the_clock(sim_url, caplog) -> None:
+    """A port with a weak random source can draw the same boot_id at the next boot (the mps2
+    target did, one boot in hundreds): the host then sees the reboot by the board's clock,
+    us since boot, behind where it stood at FW_TEST."""
+    url = sim_url()
+    board = device_for_url(url).board
+    board._rng.getrandbits = lambda bits: 0x5EED  # every boot draws the same id
+    board.boot_id = 0x5EED
+    with caplog.at_level("WARNING", logger="spiel_edge.device.firmware"):
+        result = update_firmware(url, NEW, boot_wait_s=5)
+    assert result.confirmed and result.version == "sim-0.2.0"
+    assert "same boot_id" in caplog.text
+
+
 def test_a_firmware_that_never_answers_is_rolled_back(sim_url) -> None:
     url = sim_url("watchdog_ms=500")
     silent = pack_image(b"SIM:SILENT", version="sim-bad", target="sim")
