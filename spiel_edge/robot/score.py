@@ -148,10 +148,7 @@ def crossing_ids(
     if truths is not None:
         out["near_another"] = 0
     for c, j in events:
-        before = next(
-            (ids[k][j] for k in range(c - 1, max(c - 1 - LOOK, -1), -1) if j in ids[k]), None
-        )
-        after = next((ids[k][j] for k in range(c, min(c + LOOK, len(ids))) if j in ids[k]), None)
+        before, after = crossing_outcome(ids, c, j)
         if before is None:
             out["untracked"] += 1
         elif after is None:
@@ -170,6 +167,14 @@ def crossing_ids(
         ):
             out["unreported_after"] += 1
     return out
+
+
+def crossing_outcome(ids: list[dict[int, int]], c: int, j: int) -> tuple[int | None, int | None]:
+    """Mover ``j``'s crossing at cycle ``c``: the id of the last track covering it in the
+    ``LOOK`` cycles before and of the first in the ``LOOK`` cycles after (None: none)."""
+    before = next((ids[k][j] for k in range(c - 1, max(c - 1 - LOOK, -1), -1) if j in ids[k]), None)
+    after = next((ids[k][j] for k in range(c, min(c + LOOK, len(ids))) if j in ids[k]), None)
+    return before, after
 
 
 def oracle_records(
