@@ -146,6 +146,7 @@ class Capability(IntFlag):
     TELEMETRY = 0x40  # version 2: TELEMETRY, HEARTBEAT and LOG
     FIRMWARE_UPDATE = 0x80  # version 2: FW_INFO/BEGIN/WRITE/VERIFY/TEST/CONFIRM
     IQ_SAMPLES = 0x100  # version 2: SampleFormat.I16_IQ
+    START_AT = 0x200  # version 2: STREAM_START's start_at_us (a start on the device's clock)
 
 
 class RebootMode(IntEnum):
@@ -272,12 +273,15 @@ class RebootResponse(Message):
 @dataclass(frozen=True)
 class StreamStart(Message):
     MSG_TYPE: ClassVar[int] = MsgType.STREAM_START
-    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IfHBB")
+    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<IfHBBQ")
     n_acquisitions: int = 0  # 0 = endless, until STREAM_STOP
     rate_hz: float = 10.0  # acquisitions (pings) per second; 0 = as fast as possible
     n_samples: int = 0  # samples per channel; 0 = device default
     sample_format: int = SampleFormat.U16_ENVELOPE
     channel_mask: int = 0  # bit i = receiver i; 0 = all
+    # v2, Capability.START_AT: the device clock (us since boot) at which acquisition 0 is due;
+    # 0 = at once. A board without the capability ignores it (bytes after what it knows).
+    start_at_us: int = 0
 
 
 @register

@@ -15,7 +15,7 @@
 #define SP_PROTOCOL_VERSION_MIN 1u /* message-layer versions, negotiated by HELLO */
 #define SP_PROTOCOL_VERSION_MAX 2u
 #define SP_MIN_PAYLOAD 64u /* the smallest max_payload a HELLO may state */
-#define SP_SCHEMA_HASH 0x6759C40Cu /* CRC-32C of every message layout */
+#define SP_SCHEMA_HASH 0x8E6B381Fu /* CRC-32C of every message layout */
 #define SP_HEADER_SIZE 12u
 #define SP_CRC_SIZE 4u
 #define SP_MAX_PAYLOAD 8256u
@@ -66,6 +66,7 @@
 #define SP_CAP_TELEMETRY       0x40u
 #define SP_CAP_FIRMWARE_UPDATE 0x80u
 #define SP_CAP_IQ_SAMPLES      0x100u
+#define SP_CAP_START_AT        0x200u
 
 /* REBOOT modes */
 #define SP_REBOOT_NORMAL     0u

@@ -8,11 +8,13 @@ import logging
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 
 import numpy as np
 
 from firmware_protocol import (
     MAX_RETRIES,
+    Capability,
     SampleFormat,
     StreamStart,
     StreamStartResponse,
@@ -55,15 +57,28 @@ class StreamingMixin:
         n_acquisitions: int = 0,
         channel_mask: int = 0,
         sample_format: int = SampleFormat.U16_ENVELOPE,
+        start_at_us: int = 0,
     ) -> StreamStartResponse:
         """Start streaming (stopping any stream the board still runs). ``channel_mask``: the
         physical channels to stream (0: all); a subset needs protocol version 2, where the
         acquisitions' rows are the mask's channels in increasing order. ``sample_format``
-        I16_IQ asks for I/Q pairs (protocol 2; the acquisitions then carry envelope and phase)."""
+        I16_IQ asks for I/Q pairs (protocol 2; the acquisitions then carry envelope and phase).
+        ``start_at_us``: acquisition 0 at that time of the board's clock (protocol 2 and
+        Capability.START_AT; :meth:`board_time_at` converts a Unix time); a restart after
+        the board came back starts at once."""
         if channel_mask and self.protocol_version < 2:
             raise DeviceError(
                 f"{self.url}: a channel subset needs protocol version 2; the board speaks "
                 f"{self.protocol_version}"
+            )
+        if not 0 <= start_at_us < 1 << 64:
+            raise DeviceError(
+                f"{self.url}: start_at_us {start_at_us} is not a time of the board's clock"
+            )
+        if start_at_us and not self.offers_start_at():
+            raise DeviceError(
+                f"{self.url}: the board cannot start a stream at a time of its clock "
+                "(no START_AT capability under protocol 2)"
             )
         frame = STREAM_HEADER.size + SAMPLE_SIZE[SampleFormat.U16_ENVELOPE] * n_samples
         if n_samples and frame > self.max_payload:
@@ -72,7 +87,7 @@ class StreamingMixin:
                 f"the board's HELLO allows {self.max_payload} (max_payload)"
             )
         request = StreamStart(
-            n_acquisitions, float(rate_hz), n_samples, sample_format, channel_mask
+            n_acquisitions, float(rate_hz), n_samples, sample_format, channel_mask, start_at_us
         )
         if sample_format == SampleFormat.I16_IQ:  # compile (or load) the kernel before data flows
             warm = np.zeros((1, 2), dtype=np.int16)
@@ -87,9 +102,20 @@ class StreamingMixin:
         assert isinstance(answer, StreamStartResponse)
         self.tracker.sanity.expect(board_name(self.url, self.hello), self.hello, answer)
         self.tracker.started(answer.first_acquisition)
-        self.stream, self._stream_request = answer, request
-        self._last_data = time.monotonic()
+        # a restart (the board came back, its clock restarted) starts at once
+        self.stream, self._stream_request = answer, replace(request, start_at_us=0)
+        self._last_data = time.monotonic() + self._wait_for_start_s(start_at_us)
         return answer
+
+    def offers_start_at(self) -> bool:
+        """STREAM_START can name a start on the board's clock (protocol 2, START_AT)."""
+        return self._offers(Capability.START_AT)
+
+    def _wait_for_start_s(self, start_at_us: int) -> float:
+        """How long the stream will be silent before its first acquisition (the stall
+        watchdog waits that much longer); 0 when it starts at once or cannot be mapped."""
+        at = self.stamp(start_at_us) if start_at_us else None
+        return max(0.0, at[0] - time.time()) if at else 0.0
 
     def stop_stream(self, *, retries: int = MAX_RETRIES) -> None:
         self._stream_request = None

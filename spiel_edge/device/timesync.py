@@ -253,6 +253,14 @@ class TimeSyncEstimator:
         hard, u_bound = bound.map(board_us)
         return value, min(u_fit, u_bound + abs(value - hard))
 
+    def unmap(self, host_us: float) -> float | None:
+        """The board time that :meth:`map` takes to ``host_us`` (the line's value), or None
+        before the first exchange."""
+        line = getattr(self, "_fitted", None) or self.estimate
+        if line is None:
+            return None
+        return line.board_ref_us + (host_us - line.host_ref_us) / line.rate
+
     def interval(self, normal_s: float) -> float:
         """The time to the next exchange: faster (0.1 s) while the window is short."""
         return min(normal_s, FAST_PERIOD_S) if len(self._samples) < FAST_UNTIL else normal_s

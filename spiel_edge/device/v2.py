@@ -110,6 +110,12 @@ class SessionV2Mixin:
         host_us, uncertainty = mapped
         return (host_us * 1000.0 + self._wall_minus_perf_ns) / 1e9, uncertainty
 
+    def board_time_at(self, unix_s: float) -> int | None:
+        """The board's clock (us since boot) when the Unix clock reads ``unix_s``, or None
+        while unsynced (the inverse of :meth:`stamp`)."""
+        board_us = self.clock.unmap((unix_s * 1e9 - self._wall_minus_perf_ns) / 1000.0)
+        return None if board_us is None else round(board_us)
+
     # --- frames the board sends by itself --------------------------------------------------
 
     def _v2_frame(self, frame: Frame, ns: int) -> bool:

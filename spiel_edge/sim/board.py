@@ -303,6 +303,9 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
             )
         elif not (math.isfinite(req.rate_hz) and 0.0 <= req.rate_hz <= MAX_RATE_HZ):
             error = (ErrorCode.INVALID, f"rate_hz must be in [0, {MAX_RATE_HZ:g}]")
+        due = self.first_due(req.start_at_us, 1.0 / req.rate_hz if req.rate_hz else 0.0, now)
+        if not error and due is None:
+            error = (ErrorCode.INVALID, "start_at_us more than 60 s ahead")
         if error:
             return ErrorResponse(error[0], req.MSG_TYPE, error[1])
         remaining = req.n_acquisitions or None
@@ -313,7 +316,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
             req.rate_hz,
             n_samples,
             remaining,
-            now,
+            due,
             seq=self._request_seq,
             channels=channels,
             sample_format=req.sample_format,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 from collections import deque
 
 from crc32c import crc32c
@@ -36,6 +37,7 @@ DEFAULT_HEARTBEAT_MS = 1000
 SYNC_FAULT_EVERY = 7  # sync_fault=...: every 7th TIME_SYNC answer is wrong
 MONTHS_US = 90 * 86400 * 10**6
 FW_MIN_PAYLOAD = 128  # a link's max_payload below this gets no FIRMWARE_UPDATE
+START_AT_AHEAD_S = 60.0  # a STREAM_START's start_at_us at most this far ahead
 _MASK = 0xFFFFFFFF
 
 __all__ = ["KNOWN_ERROR_FLAGS", "BoardV2Mixin"]
@@ -67,7 +69,7 @@ class BoardV2Mixin:
         """HELLO capability bits of the negotiated version."""
         if self.version < 2:
             return 0
-        caps = Capability.TIME_SYNC | Capability.TELEMETRY
+        caps = Capability.TIME_SYNC | Capability.TELEMETRY | Capability.START_AT
         if self.max_payload >= FW_MIN_PAYLOAD:  # FW_INFO's answer needs 74 bytes
             caps |= Capability.FIRMWARE_UPDATE
         if hasattr(self.scene, "iq_supported"):
@@ -130,6 +132,19 @@ class BoardV2Mixin:
     def clock_us(self, now: float) -> int:
         """The board's clock (us since boot), drifting ``drift_ppm`` against the caller's."""
         return int((now - self._boot_time) * (1e6 + self.drift_ppm))
+
+    def first_due(self, start_at_us: int, period_s: float, now: float) -> float | None:
+        """The caller's time when acquisition 0 of a stream is due (PROTOCOL.md § 6.4,
+        ``start_at_us``): at once (0, or a version-1 link), at that board time, or, past, the
+        first point of its grid not yet past; None: more than 60 s ahead."""
+        if self.version < 2 or not start_at_us:
+            return now
+        due = self._boot_time + start_at_us / (1e6 + self.drift_ppm)
+        if due - now > START_AT_AHEAD_S:
+            return None
+        if due < now and period_s > 0:
+            due += math.ceil((now - due) / period_s) * period_s
+        return max(due, now)
 
     def _need_v2(self, req: m.Message) -> ErrorResponse | None:
         if self.version < 2:

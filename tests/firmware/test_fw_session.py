@@ -10,6 +10,7 @@ import numpy as np
 
 from spiel_edge.device import DeviceSession
 from tests.firmware.conftest import frames_of
+from tests.protocol_v2.start_at_check import check_start_at
 
 
 def take(session, n):
@@ -52,12 +53,19 @@ def test_a_channel_subset_keeps_the_physical_channel_ids(posix_board, subset_sca
         np.testing.assert_array_equal(acq.samples, frames[k][[1, 3]])
 
 
+def test_a_stream_starts_at_a_time_of_the_boards_clock(posix_board):
+    """STREAM_START's start_at_us (v2, START_AT): ahead, past (its grid kept), too far."""
+    with DeviceSession(posix_board().port, reconnect=False) as session:
+        check_start_at(session)
+
+
 def test_a_version_1_build_keeps_working(posix_board, fw_build, subset_scans):
     from tests.firmware.firmware import build_posix
 
     board = posix_board(exe=build_posix(fw_build, SPIEL_PROTOCOL_MAX=1))
     with DeviceSession(board.port, reconnect=False) as session:
         assert (session.hello.protocol_version, session.hello.max_version) == (1, 1)
+        assert not session.offers_start_at()  # START_AT is version 2's
         answer = session.start_stream(rate_hz=200, n_samples=64)
         assert answer.channel_mask == 0  # absent in version 1
         got = take(session, 4)

@@ -253,9 +253,31 @@ static uint32_t all_channels(void)
     return n >= 32 ? 0xFFFFFFFFu : ((1u << n) - 1u);
 }
 
+/* When acquisition 0 of a stream is due: at once, or (v2, START_AT) at start_at on the
+ * device clock; a start_at already past keeps its grid (start_at + k periods, the slot the
+ * host chose), the first point not yet past. 1 and *due set, or 0: more than
+ * START_AT_AHEAD_US ahead. */
+#define START_AT_AHEAD_US 60000000u
+static int first_due(uint64_t start_at, uint64_t period_us, uint64_t now, uint64_t *due)
+{
+    *due = now;
+    if (start_at == 0u) {
+        return 1;
+    }
+    if (start_at > now) {
+        *due = start_at;
+        return start_at - now <= START_AT_AHEAD_US;
+    }
+    if (period_us != 0u) {
+        *due = start_at + ((now - start_at + period_us - 1u) / period_us) * period_us;
+    }
+    return 1;
+}
+
 static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
 {
-    uint8_t in[12] = {0};
+    uint8_t in[20] = {0};
+    uint64_t due, period_us, start_at;
     uint32_t n_acq, mask;
     float rate;
     uint16_t n_samples, max_samples;
@@ -302,14 +324,19 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     if (rate > 0.0f && rate < 1.0e-3f) { /* its period would overflow the microsecond clock */
         return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "rate_hz below 0.001");
     }
+    period_us = rate > 0.0f ? (uint64_t)(1.0e6 / (double)rate + 0.5) : 0u;
+    start_at = dev.version >= 2u ? sp_le_get_u64(in + 12) : 0u; /* version 1: at once */
+    if (!first_due(start_at, period_us, hal_time_us(), &due)) {
+        return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "start_at_us more than 60 s ahead");
+    }
     memset(&st, 0, sizeof st);
     st.on = 1;
     st.seq = seq;
     st.mask = mask;
     st.n_channels = popcount(mask);
     st.n_samples = n_samples;
-    st.period_us = rate > 0.0f ? (uint64_t)(1.0e6 / (double)rate + 0.5) : 0u;
-    st.next_us = hal_time_us();
+    st.period_us = period_us;
+    st.next_us = due;
     st.remaining = n_acq;
     st.endless = n_acq == 0;
     sp_le_put_u32(payload, dev.acquisition);

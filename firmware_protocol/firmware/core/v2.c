@@ -54,7 +54,7 @@ void v2_init(void)
 
 uint32_t v2_capabilities(void)
 {
-    uint32_t caps = SP_CAP_TIME_SYNC | SP_CAP_TELEMETRY;
+    uint32_t caps = SP_CAP_TIME_SYNC | SP_CAP_TELEMETRY | SP_CAP_START_AT;
 #if SPIEL_FW_UPDATE
     if (hal_image_slot_size() != 0 && core_max_payload() >= FW_MIN_PAYLOAD) {
         caps |= SP_CAP_FIRMWARE_UPDATE;
