@@ -78,6 +78,7 @@ class BoardWorker(threading.Thread):
         self._bias_s = 0.0
         self._timed = None  # the stream this thread started in the slot (StreamStartResponse)
         self.synced = False  # its pulses come from TIME_SYNC (protocol 2), not the estimate
+        self.on_its_clock = False  # its last start was named in its clock (START_AT)
         self._recent: deque[float] = deque(maxlen=PHASE_CHECK_EVERY)
         self._disagree = 0
 
@@ -127,14 +128,29 @@ class BoardWorker(threading.Thread):
     def _start_in_slot(self) -> None:
         """(Re)start the stream at the slot's next start (from the board's own thread)."""
         at = self.schedule.next_fire(self.board.name, self.t0, time.perf_counter() + 0.01)
-        if wait_until(at, self.stop):
-            self.start_stream_now()
+        if self.starts_on_its_clock() or wait_until(at, self.stop):
+            self.start_stream(at)
 
-    def start_stream_now(self) -> None:
+    def starts_on_its_clock(self) -> bool:
+        """The board can be told when to start in its own clock (START_AT, TIME_SYNC synced):
+        its start needs no waiting for the slot's moment, and carries no request latency."""
+        return (
+            self.session.offers_start_at() and self.session.board_time_at(time.time()) is not None
+        )
+
+    def start_stream(self, at: float) -> None:
+        """Start the stream so that it fires at ``at`` (perf_counter's axis): named in the
+        board's clock where :meth:`starts_on_its_clock`, else at once (the caller waited)."""
         sched = self.schedule
         n_samples = self.pipeline.profile.acquisition.n_samples
         period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
-        self._timed = self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
+        board_at = None
+        if self.starts_on_its_clock():
+            board_at = self.session.board_time_at(at - time.perf_counter() + time.time())
+        self._timed = self.session.start_stream(
+            rate_hz=1.0 / period, n_samples=n_samples, start_at_us=board_at or 0
+        )
+        self.on_its_clock = board_at is not None
         self._bias = []
         self._recent.clear()
 

@@ -165,10 +165,11 @@ class RobotRunner:
         for w in order:
             if w.stats.dropped or w.pipeline is None:
                 continue
-            if not wait_until(self.schedule.fire_time(w.board.name, t0, 0), stop):
+            at = self.schedule.fire_time(w.board.name, t0, 0)
+            if not (w.starts_on_its_clock() or wait_until(at, stop)):
                 return
             try:
-                w.start_stream_now()
+                w.start_stream(at)
             except SpielError as exc:
                 w.stats.dropped = str(exc)  # its thread reports the drop
         for w in self.workers:

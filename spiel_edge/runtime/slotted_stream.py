@@ -26,16 +26,24 @@ class SlottedStream:
         self.stop = stop
         self.start_options = start_options  # n_samples, sample_format
         self._stream = None  # the stream this started (the session may restart it itself)
+        self.on_clock_of_board = False  # the last start named the slot in the board's clock
         self.phases_s: deque[float] = deque(maxlen=2000)  # the last pulses' phases (summary)
 
     def start(self):
-        """Wait for the slot's start on the shared (Unix) clock, then start the stream."""
+        """Start the stream on the slot's start of the shared (Unix) clock: named in the
+        board's clock where it offers that (START_AT, through TIME_SYNC), else by sending
+        STREAM_START at that moment."""
         at = self.keeper.start_time(time.time())
-        _sleep_until_unix(at, self.stop)
+        board_at = self.session.board_time_at(at) if self.session.offers_start_at() else None
+        if board_at is None:
+            _sleep_until_unix(at, self.stop)
         if self.stop.is_set():  # stopping: no new stream
             return None
-        answer = self.session.start_stream(rate_hz=self.keeper.rate_hz, **self.start_options)
+        answer = self.session.start_stream(
+            rate_hz=self.keeper.rate_hz, start_at_us=board_at or 0, **self.start_options
+        )
         self.keeper.started()
+        self.on_clock_of_board = board_at is not None
         self._stream = answer
         return answer
 
@@ -62,7 +70,11 @@ class SlottedStream:
             if p.size
             else ""
         )
-        return f"slot: {self.keeper.restarts} restarts{phase} (margin {self.keeper.margin_s * 1e3:g} ms)"
+        how = "started on the board's clock" if self.on_clock_of_board else "started by the host"
+        return (
+            f"slot: {self.keeper.restarts} restarts{phase} (margin {self.keeper.margin_s * 1e3:g} "
+            f"ms; {how})"
+        )
 
 
 def _sleep_until_unix(at: float, stop: threading.Event) -> None:

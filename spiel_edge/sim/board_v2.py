@@ -59,6 +59,7 @@ class BoardV2Mixin:
 
     def _v2_init(self, drift_ppm, firmware, sync_fault, heartbeat_flags, log_flood) -> None:
         self.drift_ppm = drift_ppm
+        self.offers_start_at = True  # STREAM_START's start_at_us (SimOptions.start_at)
         self.fw = firmware or FirmwareFlash()
         self.sync_fault = sync_fault
         self.heartbeat_extra_flags = heartbeat_flags
@@ -69,7 +70,9 @@ class BoardV2Mixin:
         """HELLO capability bits of the negotiated version."""
         if self.version < 2:
             return 0
-        caps = Capability.TIME_SYNC | Capability.TELEMETRY | Capability.START_AT
+        caps = Capability.TIME_SYNC | Capability.TELEMETRY
+        if self.offers_start_at:
+            caps |= Capability.START_AT
         if self.max_payload >= FW_MIN_PAYLOAD:  # FW_INFO's answer needs 74 bytes
             caps |= Capability.FIRMWARE_UPDATE
         if hasattr(self.scene, "iq_supported"):
@@ -137,8 +140,8 @@ class BoardV2Mixin:
         """The caller's time when acquisition 0 of a stream is due (PROTOCOL.md § 6.4,
         ``start_at_us``): at once (0, or a version-1 link), at that board time, or, past, the
         first point of its grid not yet past; None: more than 60 s ahead."""
-        if self.version < 2 or not start_at_us:
-            return now
+        if self.version < 2 or not start_at_us or not self.offers_start_at:
+            return now  # a board without START_AT ignores the field (bytes after its part)
         due = self._boot_time + start_at_us / (1e6 + self.drift_ppm)
         if due - now > START_AT_AHEAD_S:
             return None

@@ -66,6 +66,7 @@ class SimDevice:
             log_flood=options.log_flood,
             max_payload=options.max_payload,
         )
+        self.board.offers_start_at = options.start_at
         install_lie(self.board, options.lie)  # a hostile firmware mode, when asked
         self.faults = LineFaults(options.ber, options.drop, options.dup, seed=options.seed + 1)
         self.generation = 1  # +1 each time it comes back

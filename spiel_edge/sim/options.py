@@ -40,6 +40,7 @@ class SimOptions:
     heartbeat_flags: int = 0  # extra HEARTBEAT error_flags bits (unknown ones: 0x8000)
     log_flood: float = 0.0  # LOG lines per second past the board's own limit (a bad firmware)
     watchdog_ms: float = 3000.0  # a trial image that never answers is reset after this
+    start_at: bool = True  # offers START_AT (False: a version-2 firmware from before it)
     # identity
     serial: str = "SIM0001"
     vid: int = BOARD_USB_IDS[0][0]  # the board's own ids (link/usb_ids.py)

@@ -344,6 +344,15 @@ def seed_word(flash: Path) -> int:
         return int.from_bytes(f.read(4), "little")
 
 
+def test_a_stream_starts_at_a_time_of_the_boards_clock(board):
+    """STREAM_START's start_at_us on the Cortex-M4 (TIME_SYNC through the UART, the core's
+    schedule on the CMSDK timer): ahead, past (its grid kept), too far ahead."""
+    from tests.protocol_v2.start_at_check import check_start_at
+
+    with DeviceSession(board().port, reconnect=False) as session:
+        check_start_at(session)
+
+
 def test_a_board_with_max_payload_256(mps2_elf, tmp_path, tmp_path_factory):
     """The image built with -DSPIEL_MAX_PAYLOAD=256: HELLO says 256, a config of ~500 bytes moves in
     several chunks that fit it, and run streams (a 4 x 64 channel frame is 152 bytes of payload)."""

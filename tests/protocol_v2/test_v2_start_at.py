@@ -19,8 +19,10 @@ def test_a_stream_starts_at_a_time_of_the_boards_clock(sim_url, drift) -> None:
         check_start_at(session)
 
 
-def test_a_version_1_board_is_not_asked(sim_url) -> None:
-    with DeviceSession(sim_url("protocol=1"), reconnect=False) as session:
+@pytest.mark.parametrize("query", ["protocol=1", "start_at=0"])
+def test_a_board_without_start_at_is_not_asked(sim_url, query) -> None:
+    """A version-1 board, or a version-2 one from before START_AT: no start on its clock."""
+    with DeviceSession(sim_url(query), reconnect=False) as session:
         assert not session.offers_start_at()
         with pytest.raises(DeviceError, match="START_AT"):
             session.start_stream(rate_hz=10, start_at_us=1_000_000)

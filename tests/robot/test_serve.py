@@ -89,8 +89,9 @@ def test_an_unplugged_board_does_not_stop_the_others(tmp_path, capsys):
 
 
 def test_boards_clocks_from_time_sync_or_from_their_stamps(tmp_path):
-    """A version-2 board's pulses come from TIME_SYNC (stamp_host); a version-1 board's from
-    the one-way estimate; both are fused in their slots."""
+    """A version-2 board's pulses come from TIME_SYNC (stamp_host) and its start names the slot
+    in its clock; a version-1 board's pulses come from the one-way estimate and the host starts
+    it at the slot's moment; both are fused in their slots."""
     from spiel_edge.robot.description import load_robot
     from spiel_edge.robot.serve import RobotRunner
 
@@ -110,6 +111,10 @@ def test_boards_clocks_from_time_sync_or_from_their_stamps(tmp_path):
     assert runner.run(frames=40) >= 40  # a report may complete two cycles at once
     synced = {w.board.name: w.synced for w in runner.workers}
     assert synced == {"front": True, "left": False}
+    # the version-2 board was told its slot in its own clock (START_AT); the other was
+    # started by the host at the slot's moment
+    on_clock = {w.board.name: w.on_its_clock for w in runner.workers}
+    assert on_clock == {"front": True, "left": False}
     complete = [r for r in sink.records[10:] if set(r["boards"]) == {"front", "left"}]
     assert len(complete) >= 20
 
@@ -201,6 +206,10 @@ def test_run_slot_fires_in_the_boards_slot_of_the_shared_clock(tmp_path, capsys)
     phases = [_phase_ms(r["stamp_host"], 0.025, 0.00566) for r in records if r.get("stamp_host")]
     assert len(phases) >= 150 and restarts <= 10, err
     assert np.median(np.abs(phases[-60:])) <= 0.5  # in the slot, within the sync margin
+    # the virtual board offers START_AT: the slot is named in its clock, so even the first
+    # pulses land in it (a start sent at the slot's moment lands late by the request's way)
+    assert "started on the board's clock" in err
+    assert np.median(np.abs(phases[:20])) <= 0.25, phases[:20]
     hosts = [r["stamp_host"] for r in records[-60:]]
     assert np.median(np.diff(hosts)) == pytest.approx(0.025, abs=1e-4)  # the robot's period
 

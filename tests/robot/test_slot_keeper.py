@@ -94,7 +94,11 @@ def test_a_stream_the_session_restarted_goes_back_into_its_slot():
         def __init__(self):
             self.stream, self.starts = None, []
 
-        def start_stream(self, rate_hz, **options):
+        def offers_start_at(self):
+            return False  # started by the host, at the slot's time
+
+        def start_stream(self, rate_hz, start_at_us=0, **options):
+            assert start_at_us == 0
             self.starts.append(rate_hz)
             self.stream = types.SimpleNamespace(first_acquisition=100 * len(self.starts))
             return self.stream
@@ -116,3 +120,35 @@ def test_a_stream_the_session_restarted_goes_back_into_its_slot():
     slotted.on_acquisition(acq(0, 1000.5))
     assert len(session.starts) == 2 and slotted.phases_s.maxlen == 2000
     assert "slot: 0 restarts" in slotted.summary()
+
+
+def test_a_board_with_start_at_is_given_its_slot_in_its_own_clock():
+    """A board that offers START_AT gets STREAM_START at once, naming the slot's start in its
+    clock (the session's TIME_SYNC mapping), not sent at the slot's moment."""
+    import threading
+    import time
+    import types
+
+    from spiel_edge.runtime.slotted_stream import SlottedStream
+
+    boot_unix = time.time() - 100.0  # the board's clock: us since this Unix time
+
+    class Session:
+        stream = None
+
+        def offers_start_at(self):
+            return True
+
+        def board_time_at(self, unix_s):
+            return round((unix_s - boot_unix) * 1e6)
+
+        def start_stream(self, rate_hz, start_at_us=0, **options):
+            self.sent_at, self.start_at_us = time.time(), start_at_us
+            self.stream = types.SimpleNamespace(first_acquisition=0)
+            return self.stream
+
+    session, keeper = Session(), SlotKeeper(0.5, 0.2, 0.0005)
+    SlottedStream(session, keeper, threading.Event()).start()
+    slot = boot_unix + session.start_at_us / 1e6
+    assert keeper.phase_error(slot) == pytest.approx(0.0, abs=2e-6)  # a slot start
+    assert slot - session.sent_at >= 0.02  # asked ahead, not at the moment

@@ -2,6 +2,7 @@
 --slot``, docs/robot.md).
 
     python -m tools.bench.slot_keeping [--frames 1200] [--robot virtual-4] [--load N] [--free]
+        [--no-start-at]
 
 Starts one ``spiel-edge run --port <board's sim port> --slot ROBOT:BOARD`` process per board
 of the robot at once (as if each were on its own computer; here they share this computer's
@@ -12,8 +13,9 @@ its process reported. Across boards: the share of acquisitions whose window anot
 pulse reached (``Schedule.hears`` on the measured pulses, without the marker's margin for clock
 uncertainty). ``--load
 N`` runs N busy processes beside them; ``--free``: the same processes without ``--slot`` (each
-stream started when its process is ready, at the robot's rate), for comparison. Prints one
-JSON object.
+stream started when its process is ready, at the robot's rate), for comparison;
+``--no-start-at``: boards without START_AT (``start_at=0``), each start sent at its slot's
+moment instead of named in the board's clock. Prints one JSON object.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frames", type=int, default=1200, help="acquisitions per board")
     ap.add_argument("--load", type=int, default=0, help="busy processes beside the boards'")
     ap.add_argument("--free", action="store_true", help="without --slot, for comparison")
+    ap.add_argument("--no-start-at", action="store_true", help="boards without START_AT")
     args = ap.parse_args(argv)
     robot = load_robot(args.robot)
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
@@ -51,7 +54,16 @@ def main(argv: list[str] | None = None) -> None:
             p.kill()
             p.wait()
     figures = _figures(robot, pulses, restarts)
-    print(json.dumps({**figures, "slotted": not args.free, "load_processes": args.load}))
+    print(
+        json.dumps(
+            {
+                **figures,
+                "slotted": not args.free,
+                "start_at": not args.no_start_at,
+                "load_processes": args.load,
+            }
+        )
+    )
 
 
 def _run(args, robot) -> tuple[dict[str, np.ndarray], dict[str, int]]:
@@ -63,7 +75,10 @@ def _run(args, robot) -> tuple[dict[str, np.ndarray], dict[str, int]]:
             timing = ["--slot", f"{args.robot}:{b.name}"]
             if args.free:
                 timing = ["--rate", f"{1000.0 / robot.trigger.period_ms:g}"]
-            cmd = [*exe, "--port", b.port, *timing, "--frames", str(args.frames), "-o", out]
+            port = b.port
+            if args.no_start_at:
+                port += ("&" if "?" in port else "?") + "start_at=0"
+            cmd = [*exe, "--port", port, *timing, "--frames", str(args.frames), "-o", out]
             procs[b.name] = (subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True), out)
         pulses, restarts = {}, {}
         for name, (proc, out) in procs.items():
