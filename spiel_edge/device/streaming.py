@@ -107,6 +107,20 @@ class StreamingMixin:
         self._last_data = time.monotonic() + self._wait_for_start_s(start_at_us)
         return answer
 
+    def start_stream_at(self, unix_s: float, **stream) -> StreamStartResponse | None:
+        """:meth:`start_stream` with acquisition 0 at Unix time ``unix_s``, named in the
+        board's clock (START_AT, through TIME_SYNC); None where the board cannot be told (no
+        START_AT, clocks not synced) or refused it (logged): then the caller sends
+        STREAM_START at that moment instead."""
+        board_at = self.board_time_at(unix_s) if self.offers_start_at() else None
+        if board_at is None:
+            return None
+        try:
+            return self.start_stream(start_at_us=board_at, **stream)
+        except DeviceRequestError as exc:  # e.g. a clock mapping gone wrong
+            log.warning("%s: the board refused a start on its clock (%s)", self.url, exc)
+            return None
+
     def offers_start_at(self) -> bool:
         """STREAM_START can name a start on the board's clock (protocol 2, START_AT)."""
         return self._offers(Capability.START_AT)

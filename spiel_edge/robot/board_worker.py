@@ -128,29 +128,24 @@ class BoardWorker(threading.Thread):
     def _start_in_slot(self) -> None:
         """(Re)start the stream at the slot's next start (from the board's own thread)."""
         at = self.schedule.next_fire(self.board.name, self.t0, time.perf_counter() + 0.01)
-        if self.starts_on_its_clock() or wait_until(at, self.stop):
-            self.start_stream(at)
-
-    def starts_on_its_clock(self) -> bool:
-        """The board can be told when to start in its own clock (START_AT, TIME_SYNC synced):
-        its start needs no waiting for the slot's moment, and carries no request latency."""
-        return (
-            self.session.offers_start_at() and self.session.board_time_at(time.time()) is not None
-        )
+        self.start_stream(at)
 
     def start_stream(self, at: float) -> None:
         """Start the stream so that it fires at ``at`` (perf_counter's axis): named in the
-        board's clock where :meth:`starts_on_its_clock`, else at once (the caller waited)."""
+        board's clock where it can be (START_AT, TIME_SYNC synced: no request latency, no
+        waiting), else sent at that moment."""
         sched = self.schedule
         n_samples = self.pipeline.profile.acquisition.n_samples
         period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
-        board_at = None
-        if self.starts_on_its_clock():
-            board_at = self.session.board_time_at(at - time.perf_counter() + time.time())
-        self._timed = self.session.start_stream(
-            rate_hz=1.0 / period, n_samples=n_samples, start_at_us=board_at or 0
-        )
-        self.on_its_clock = board_at is not None
+        unix_at = at - time.perf_counter() + time.time()
+        timed = self.session.start_stream_at(unix_at, rate_hz=1.0 / period, n_samples=n_samples)
+        self.on_its_clock = timed is not None
+        if timed is None:
+            at = self.schedule.next_fire(self.board.name, self.t0, max(at, time.perf_counter()))
+            if not wait_until(at, self.stop):
+                return
+            timed = self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
+        self._timed = timed
         self._bias = []
         self._recent.clear()
 

@@ -25,7 +25,6 @@ import numpy as np
 
 from spiel_edge.errors import SpielError
 from spiel_edge.robot.board_worker import BoardWorker, toa_of
-from spiel_edge.robot.clock import wait_until
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, stamp_latency
@@ -165,11 +164,10 @@ class RobotRunner:
         for w in order:
             if w.stats.dropped or w.pipeline is None:
                 continue
-            at = self.schedule.fire_time(w.board.name, t0, 0)
-            if not (w.starts_on_its_clock() or wait_until(at, stop)):
+            if stop.is_set():
                 return
             try:
-                w.start_stream(at)
+                w.start_stream(self.schedule.fire_time(w.board.name, t0, 0))
             except SpielError as exc:
                 w.stats.dropped = str(exc)  # its thread reports the drop
         for w in self.workers:

@@ -34,16 +34,14 @@ class SlottedStream:
         board's clock where it offers that (START_AT, through TIME_SYNC), else by sending
         STREAM_START at that moment."""
         at = self.keeper.start_time(time.time())
-        board_at = self.session.board_time_at(at) if self.session.offers_start_at() else None
-        if board_at is None:
-            _sleep_until_unix(at, self.stop)
-        if self.stop.is_set():  # stopping: no new stream
-            return None
-        answer = self.session.start_stream(
-            rate_hz=self.keeper.rate_hz, start_at_us=board_at or 0, **self.start_options
-        )
+        answer = self.session.start_stream_at(at, rate_hz=self.keeper.rate_hz, **self.start_options)
+        self.on_clock_of_board = answer is not None
+        if answer is None:  # sent at the slot's moment instead
+            _sleep_until_unix(self.keeper.start_time(time.time()), self.stop)
+            if self.stop.is_set():  # stopping: no new stream
+                return None
+            answer = self.session.start_stream(rate_hz=self.keeper.rate_hz, **self.start_options)
         self.keeper.started()
-        self.on_clock_of_board = board_at is not None
         self._stream = answer
         return answer
 

@@ -94,11 +94,10 @@ def test_a_stream_the_session_restarted_goes_back_into_its_slot():
         def __init__(self):
             self.stream, self.starts = None, []
 
-        def offers_start_at(self):
-            return False  # started by the host, at the slot's time
+        def start_stream_at(self, unix_s, **stream):
+            return None  # a board that cannot be told: started by the host, at the slot's time
 
-        def start_stream(self, rate_hz, start_at_us=0, **options):
-            assert start_at_us == 0
+        def start_stream(self, rate_hz, **options):
             self.starts.append(rate_hz)
             self.stream = types.SimpleNamespace(first_acquisition=100 * len(self.starts))
             return self.stream
@@ -131,24 +130,44 @@ def test_a_board_with_start_at_is_given_its_slot_in_its_own_clock():
 
     from spiel_edge.runtime.slotted_stream import SlottedStream
 
-    boot_unix = time.time() - 100.0  # the board's clock: us since this Unix time
-
     class Session:
         stream = None
 
-        def offers_start_at(self):
-            return True
-
-        def board_time_at(self, unix_s):
-            return round((unix_s - boot_unix) * 1e6)
-
-        def start_stream(self, rate_hz, start_at_us=0, **options):
-            self.sent_at, self.start_at_us = time.time(), start_at_us
+        def start_stream_at(self, unix_s, **stream):
+            self.sent_at, self.start_at_unix = time.time(), unix_s
             self.stream = types.SimpleNamespace(first_acquisition=0)
             return self.stream
 
     session, keeper = Session(), SlotKeeper(0.5, 0.2, 0.0005)
-    SlottedStream(session, keeper, threading.Event()).start()
-    slot = boot_unix + session.start_at_us / 1e6
-    assert keeper.phase_error(slot) == pytest.approx(0.0, abs=2e-6)  # a slot start
-    assert slot - session.sent_at >= 0.02  # asked ahead, not at the moment
+    slotted = SlottedStream(session, keeper, threading.Event())
+    slotted.start()
+    assert keeper.phase_error(session.start_at_unix) == pytest.approx(0.0, abs=1e-9)
+    assert session.start_at_unix - session.sent_at >= 0.02  # asked ahead, not at the moment
+    assert "started on the board's clock" in slotted.summary()
+
+
+def test_a_start_on_the_boards_clock_that_is_refused_is_made_by_the_host(caplog):
+    """A board that offers START_AT but refuses the time it is given (here: a clock mapping
+    a minute off): one warning, and the stream is started by the host at the slot's moment."""
+    import threading
+    import time
+
+    from spiel_edge.device import DeviceSession
+    from spiel_edge.runtime.slotted_stream import SlottedStream
+    from spiel_edge.sim import protocol_sim
+
+    keeper = SlotKeeper(0.05, 0.01, 0.0005)
+    url = "sim://slot-start-refused"
+    with DeviceSession(url, reconnect=False) as session:
+        session.sync_clock()
+        mapped = session.board_time_at
+        session.board_time_at = lambda unix_s: mapped(unix_s) + 61_000_000  # a minute off
+        slotted = SlottedStream(session, keeper, threading.Event(), n_samples=64)
+        with caplog.at_level("WARNING"):
+            answer = slotted.start()
+        sent = time.time()
+        session.stop_stream()
+    protocol_sim.forget(url)
+    assert answer is not None and not slotted.on_clock_of_board
+    assert "refused a start on its clock" in caplog.text and "60 s" in caplog.text
+    assert abs(keeper.phase_error(sent)) < 0.01  # sent at the slot's moment
