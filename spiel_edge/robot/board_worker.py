@@ -24,6 +24,7 @@ from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse,
 from spiel_edge.robot.description import BoardSpec
 from spiel_edge.robot.fusion import BoardReport, reports_targets
 from spiel_edge.robot.schedule import Schedule
+from spiel_edge.robot.slot_keeper import StartAtTrust
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +80,8 @@ class BoardWorker(threading.Thread):
         self._timed = None  # the stream this thread started in the slot (StreamStartResponse)
         self.synced = False  # its pulses come from TIME_SYNC (protocol 2), not the estimate
         self.on_its_clock = False  # its last start was named in its clock (START_AT)
+        self.trust = StartAtTrust(schedule.margin_s)  # does it keep the time it is named?
+        self._named: tuple[float, float] | None = None  # (when, period) of such a start
         self._recent: deque[float] = deque(maxlen=PHASE_CHECK_EVERY)
         self._disagree = 0
 
@@ -138,8 +141,11 @@ class BoardWorker(threading.Thread):
         n_samples = self.pipeline.profile.acquisition.n_samples
         period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
         unix_at = at - time.perf_counter() + time.time()
-        timed = self.session.start_stream_at(unix_at, rate_hz=1.0 / period, n_samples=n_samples)
+        timed = None
+        if self.trust.usable:
+            timed = self.session.start_stream_at(unix_at, rate_hz=1.0 / period, n_samples=n_samples)
         self.on_its_clock = timed is not None
+        self._named = (at, period) if timed is not None else None
         if timed is None:
             at = self.schedule.next_fire(self.board.name, self.t0, max(at, time.perf_counter()))
             if not wait_until(at, self.stop):
@@ -179,7 +185,12 @@ class BoardWorker(threading.Thread):
             elif (acq.index - timed.first_acquisition) & 0xFFFFFFFF >= 1 << 31:
                 off_slot, t = False, pulse  # left over from before the last start
             else:
-                off_slot = self._off_slot(pulse)
+                missed = (
+                    self._named is not None
+                    and self.synced
+                    and self._missed_named_start(acq.index - timed.first_acquisition, pulse)
+                )
+                off_slot = self._off_slot(pulse) or missed
                 t = self._on_schedule(pulse - self._bias_s)
             report = self._report(acq, t, arrival)
             self.stats.acquisitions += 1
@@ -188,6 +199,21 @@ class BoardWorker(threading.Thread):
                 self.stats.restarts += 1
                 log.info("board %s left its slot; restarting it in the slot", self.board.name)
                 self._start_in_slot()
+
+    def _missed_named_start(self, k: int, pulse: float) -> bool:
+        """The first pulse (the ``k``-th of the stream) after a start named in the board's
+        clock: True when it missed the slot (the stream is restarted; a board that misses
+        twice in a row is started by the host from then on)."""
+        (at, period), self._named = self._named, None
+        if self.trust.landed(at + (k & 0xFFFFFFFF) * period, pulse):
+            return False
+        if not self.trust.usable:
+            log.warning(
+                "board %s does not start at the time of its clock it is given; starting it "
+                "by the host from now on",
+                self.board.name,
+            )
+        return True
 
     def _report(self, acq, pulse: float, arrival: float) -> BoardReport:
         error = None

@@ -117,3 +117,28 @@ class SlotKeeper:
     def _restart(self) -> bool:
         self.restarts += 1
         return True
+
+
+class StartAtTrust:
+    """Whether a board keeps the start time it is named (START_AT): ``STRIKES`` starts in a row
+    whose first pulse lands more than ``margin_s`` from the named time (a firmware that offers
+    the capability and ignores the field, or a clock mapping gone wrong) end it; the host then
+    starts the board by itself, at the slot's moment. Pure: times in, a decision out."""
+
+    STRIKES = 2
+
+    def __init__(self, margin_s: float):
+        self.margin_s = margin_s
+        self.usable = True
+        self._strikes = 0
+
+    def landed(self, named_s: float, first_pulse_s: float) -> bool:
+        """The first pulse of a stream started at ``named_s`` (both on one clock): whether it
+        landed within the margin (a miss counts towards ending the trust: ``usable``)."""
+        if abs(first_pulse_s - named_s) <= self.margin_s:
+            self._strikes = 0
+            return True
+        self._strikes += 1
+        if self._strikes >= self.STRIKES:
+            self.usable = False
+        return False

@@ -11,7 +11,7 @@ from collections import deque
 
 import numpy as np
 
-from spiel_edge.robot.slot_keeper import SlotKeeper
+from spiel_edge.robot.slot_keeper import SlotKeeper, StartAtTrust
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +27,8 @@ class SlottedStream:
         self.start_options = start_options  # n_samples, sample_format
         self._stream = None  # the stream this started (the session may restart it itself)
         self.on_clock_of_board = False  # the last start named the slot in the board's clock
+        self.trust = StartAtTrust(keeper.margin_s)  # does the board keep the named time?
+        self._named: float | None = None  # the time the current stream was named to start
         self.phases_s: deque[float] = deque(maxlen=2000)  # the last pulses' phases (summary)
 
     def start(self):
@@ -34,8 +36,13 @@ class SlottedStream:
         board's clock where it offers that (START_AT, through TIME_SYNC), else by sending
         STREAM_START at that moment."""
         at = self.keeper.start_time(time.time())
-        answer = self.session.start_stream_at(at, rate_hz=self.keeper.rate_hz, **self.start_options)
+        answer = None
+        if self.trust.usable:
+            answer = self.session.start_stream_at(
+                at, rate_hz=self.keeper.rate_hz, **self.start_options
+            )
         self.on_clock_of_board = answer is not None
+        self._named = at if answer is not None else None
         if answer is None:  # sent at the slot's moment instead
             _sleep_until_unix(self.keeper.start_time(time.time()), self.stop)
             if self.stop.is_set():  # stopping: no new stream
@@ -56,6 +63,16 @@ class SlottedStream:
             return  # the clocks are not synced yet: nothing to place the pulse with
         if (acq.index - self._stream.first_acquisition) & 0xFFFFFFFF >= 1 << 31:
             return  # left over from before the last start
+        if self._named is not None:  # the first pulse of a stream named to start at a time
+            k = (acq.index - self._stream.first_acquisition) & 0xFFFFFFFF
+            named = self._named + k * self.keeper.requested_period_s
+            self._named = None
+            if not self.trust.landed(named, acq.stamp_host) and not self.trust.usable:
+                log.warning(
+                    "the board does not start at the time of its clock it is given (%.2f ms "
+                    "off); starting it by the host from now on",
+                    (acq.stamp_host - named) * 1e3,
+                )
         self.phases_s.append(self.keeper.phase_error(acq.stamp_host))
         if self.keeper.observe(acq.stamp_host) and not self.stop.is_set():
             log.info("the board left its slot; restarting it in the slot")

@@ -19,6 +19,7 @@ oversized-config   CONFIG_READ answers twice the bytes that were asked
 mute-config        CONFIG_READ is never answered
 start-channels     STREAM_START answers one channel more than HELLO
 hello-control      HELLO's serial and firmware version hold control characters / escapes
+start-at-ignored   it offers START_AT and starts every stream at once, whatever time it is given
 =================  ===========================================================================
 """
 
@@ -45,6 +46,7 @@ LIES = (
     "mute-config",
     "start-channels",
     "hello-control",
+    "start-at-ignored",
 )
 HOSTILE_SERIAL = "SIM\x1b[2J\x07\n"  # clear screen, bell, newline: 9 bytes (fits 16)
 HOSTILE_FIRMWARE = "evil\r\x1b]0;x\x07"
@@ -63,6 +65,8 @@ def install(board, lie: str) -> None:
         _answer_lies(board, lie)
     elif lie == "mute-stream":
         board.due = lambda now, room, limit=None: []
+    elif lie == "start-at-ignored":
+        board.first_due = lambda start_at_us, period_s, now: now
     else:
         _stream_lies(board, lie)
 

@@ -214,6 +214,46 @@ def test_run_slot_fires_in_the_boards_slot_of_the_shared_clock(tmp_path, capsys)
     assert np.median(np.diff(hosts)) == pytest.approx(0.025, abs=1e-4)  # the robot's period
 
 
+def test_a_board_that_ignores_its_start_time_is_started_by_the_host(tmp_path, capsys):
+    """A firmware that offers START_AT and starts at once whatever time it is given
+    (lie=start-at-ignored): after two starts whose first pulse misses the named time, the
+    process stops naming times and starts the board itself; its pulses end in the slot."""
+    import numpy as np
+
+    port = "sim://liar?scene=robot&robot=virtual-4&board=left&movers=2&lie=start-at-ignored"
+    out = tmp_path / "left.ndjson"
+    status = main(["run", "--port", port, "--slot", "virtual-4:left", "--frames", "200", "-o", out])
+    err = capsys.readouterr().err
+    assert status == 0, err
+    assert "does not start at the time of its clock it is given" in err, err
+    assert "started by the host)" in err
+    records = _records(out)
+    phases = [_phase_ms(r["stamp_host"], 0.025, 0.00566) for r in records if r.get("stamp_host")]
+    assert np.median(np.abs(phases[-40:])) <= 0.5
+
+
+def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_path):
+    from spiel_edge.robot.description import load_robot
+    from spiel_edge.robot.serve import RobotRunner
+
+    class Keep:
+        records: list = []
+
+        def write(self, record):
+            self.records.append(record)
+
+        def close(self):
+            pass
+
+    robot = load_robot(_robot(tmp_path, {"left": "&lie=start-at-ignored"}))
+    runner = RobotRunner(robot, Keep())
+    runner.run(frames=120)
+    trusted = {w.board.name: w.trust.usable for w in runner.workers}
+    on_clock = {w.board.name: w.on_its_clock for w in runner.workers}
+    assert trusted == {"front": True, "left": False}
+    assert on_clock == {"front": True, "left": False}
+
+
 @pytest.mark.parametrize(
     "extra, message",
     [

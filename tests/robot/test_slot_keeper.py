@@ -171,3 +171,14 @@ def test_a_start_on_the_boards_clock_that_is_refused_is_made_by_the_host(caplog)
     assert answer is not None and not slotted.on_clock_of_board
     assert "refused a start on its clock" in caplog.text and "60 s" in caplog.text
     assert abs(keeper.phase_error(sent)) < 0.01  # sent at the slot's moment
+
+
+def test_start_at_trust_ends_after_two_starts_in_a_row_that_miss():
+    from spiel_edge.robot.slot_keeper import StartAtTrust
+
+    trust = StartAtTrust(0.0005)
+    assert trust.landed(10.0, 10.0003) and trust.usable  # within the margin
+    assert not trust.landed(20.0, 20.004) and trust.usable  # one miss
+    assert trust.landed(30.0, 30.0001) and trust.usable  # a hit clears it
+    assert not trust.landed(40.0, 39.99) and trust.usable
+    assert not trust.landed(50.0, 50.01) and not trust.usable  # two in a row: no more
