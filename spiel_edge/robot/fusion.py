@@ -15,10 +15,9 @@ when every board expected has reported for the cycle, or ``WAIT_CYCLES`` cycles 
 Optionally in ``odom``: given the robot's pose in ``odom`` at a time (``odometry``, a
 callable), each board's targets go on into ``odom`` at their acquisition's time before
 tracking, so the robot's own motion is not the targets' motion; an acquisition with no pose
-at its time (none yet, or the stream stalled) is left out (``stats[board]["no_pose"]``).
-
-With a ``coast`` policy (robot/coast.py) a track predicted outside every board's view is
-charged no miss for the cycle: it coasts across the gaps between fields of view.
+at its time (none yet, or the stream stalled) is left out (``stats[board]["no_pose"]``). With
+a ``coast`` policy (robot/coast.py) a track predicted outside every board's view is charged no
+miss for the cycle: it coasts across the gaps between fields of view.
 """
 
 from __future__ import annotations
