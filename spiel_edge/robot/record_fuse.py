@@ -17,6 +17,7 @@ from __future__ import annotations
 import heapq
 import json
 import logging
+import math
 import os
 import time
 from collections.abc import Iterable, Iterator
@@ -95,17 +96,14 @@ class RecordFuse:
         try:
             if len(payload) > MAX_RECORD_BYTES:
                 raise ValueError(f"{len(payload)} bytes")
-            record = json.loads(payload)
-            stamp = float(record["device_time_us"]) / 1e6
-            remote = float(record["host_time"])
-            if not (np.isfinite(stamp) and np.isfinite(remote)):
-                raise ValueError("non-finite time")
+            fields = _record_fields(json.loads(payload))
         except (ValueError, KeyError, TypeError) as exc:
             self.bad[name] += 1
             if self.bad[name] >= BAD_RECORDS_LIMIT:
                 self._drop(name, f"its messages are not spiel-edge records ({exc})")
             return None
         self.bad[name] = 0
+        stamp, remote = fields["stamp"], fields["remote"]
         if abs(arrived - remote) > MAX_DISAGREEMENT_S:
             self._drop(
                 name,
@@ -113,8 +111,7 @@ class RecordFuse:
                 "(synchronise them: chrony or PTP)",
             )
             return None
-        synced = record.get("stamp_host")  # protocol 2: the board's time on its host's clock
-        synced = isinstance(synced, (int, float)) and np.isfinite(synced) and float(synced)
+        synced = fields["synced"]  # protocol 2: the board's time on its host's clock
         if synced:
             stamp = synced  # its host's clock, mapped to this one's below
         if bool(synced) != self.synced.get(name, False):  # another time axis: learn it afresh
@@ -122,18 +119,17 @@ class RecordFuse:
             self.clocks[name] = StampClock()
         clock = self.clocks[name]
         clock.observe(stamp, arrived)
-        report = BoardReport(
+        return BoardReport(
             name,
             clock.to_host(stamp),
-            record_targets(record),
-            acquisition=int(record.get("acquisition", -1)),
-            device_time_us=int(record["device_time_us"]),
-            crosstalk=list(record.get("crosstalk") or []),
-            error=record.get("reason") if record.get("error") else None,
+            fields["targets"],
+            acquisition=fields["acquisition"],
+            device_time_us=fields["device_time_us"],
+            crosstalk=fields["crosstalk"],
+            error=fields["error"],
             acquired_unix=remote,  # the acquisition's end on its own computer
             received_unix=arrived if self.live else None,  # its record's arrival here
         )
-        return report
 
     def handle_odometry(self, payload: bytes, arrived: float) -> None:
         """An odometry message (JSON or a ROS 2 nav_msgs/msg/Odometry in CDR: the robot's
@@ -266,3 +262,39 @@ def _host_time(line: bytes) -> float | None:
     except (ValueError, KeyError, TypeError):
         return None
     return t if np.isfinite(t) else None
+
+
+def _record_fields(record) -> dict:
+    """What the fuser takes from a board's record (``run``'s JSON); ValueError, KeyError or
+    TypeError when it is not one (a wrong type anywhere is the whole record's fault)."""
+    device_us = record["device_time_us"]
+    remote = float(record["host_time"])
+    if isinstance(device_us, bool) or not isinstance(device_us, (int, float)):
+        raise TypeError("device_time_us is not a number")
+    if not (math.isfinite(device_us) and math.isfinite(remote)):
+        raise ValueError("non-finite time")
+    acquisition = record.get("acquisition", -1)
+    if isinstance(acquisition, bool) or not isinstance(acquisition, int):
+        raise TypeError("acquisition is not an integer")
+    targets = record.get("targets") or []
+    crosstalk = record.get("crosstalk") or []
+    if not isinstance(targets, list):
+        raise TypeError("targets is not a list")
+    if not (isinstance(crosstalk, list) and all(isinstance(b, str) for b in crosstalk)):
+        raise TypeError("crosstalk is not a list of board names")
+    synced = record.get("stamp_host")
+    synced = (
+        float(synced)
+        if isinstance(synced, (int, float)) and not isinstance(synced, bool) and math.isfinite(synced)
+        else 0.0
+    )
+    return {
+        "stamp": float(device_us) / 1e6,
+        "remote": remote,
+        "synced": synced,
+        "acquisition": acquisition,
+        "device_time_us": int(device_us),
+        "targets": record_targets(record),
+        "crosstalk": crosstalk,
+        "error": str(record.get("reason")) if record.get("error") else None,
+    }

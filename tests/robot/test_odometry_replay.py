@@ -150,6 +150,35 @@ def test_fuse_replay_bad_input_is_one_line_before_any_output(tmp_path, capsys):
     assert len(records) == 10 and all(list(r["boards"]) == ["left"] for r in records)
 
 
+def test_fuse_counts_records_of_the_wrong_shape_and_goes_on(tmp_path, capsys):
+    """A record whose fields have the wrong types (a hostile or broken publisher) is counted
+    as a bad record like a line that is not JSON: the fusion goes on with the good ones."""
+    robot = load_robot("virtual-4")
+    files = _board_files(tmp_path, robot, speed_mm_s=0.0, n=40)
+    good = {"acquisition": 1, "device_time_us": 5_000_000, "host_time": 1000.5}
+    bad = [
+        {**good, "acquisition": None},
+        {**good, "acquisition": "x"},
+        {**good, "targets": 5},
+        {**good, "crosstalk": 7},
+        {**good, "crosstalk": [3]},
+        {**good, "device_time_us": "5"},
+        {**good, "host_time": None},
+        5,
+        [],
+    ]
+    path = tmp_path / "front.ndjson"
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:20] + [json.dumps(b) for b in bad] + lines[20:]) + "\n")
+    out = tmp_path / "fused.ndjson"
+    replay = [a for name, f in files.items() for a in ("--replay", f"{name}={f}")]
+    capsys.readouterr()
+    assert main(["fuse", "--robot", "virtual-4", *replay, "-o", out]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(records) == 40 and all("front" in r["boards"] for r in records)
+
+
 @pytest.mark.parametrize("profile", ["json", "ros2"])
 def test_fuse_replay_takes_a_boards_mcap_recording_as_its_ndjson(tmp_path, capsys, profile):
     """`run --record` (either profile) carries the same records as `run -o`: fused alike."""
