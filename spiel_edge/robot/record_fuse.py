@@ -285,7 +285,9 @@ def _record_fields(record) -> dict:
     synced = record.get("stamp_host")
     synced = (
         float(synced)
-        if isinstance(synced, (int, float)) and not isinstance(synced, bool) and math.isfinite(synced)
+        if isinstance(synced, (int, float))
+        and not isinstance(synced, bool)
+        and math.isfinite(synced)
         else 0.0
     )
     return {
