@@ -76,21 +76,35 @@ def _prepare_kernels(robot: RobotSpec, association, max_targets, track: bool) ->
         prepare_for_run(load_profile(name), association, max_targets, track, None)
 
 
+def robot_inputs(plan: FilePlan, robot_file: str, robot: RobotSpec, option: str) -> None:
+    """The robot file and every board's profile and calibration file noted as inputs of the
+    command: no output may replace them, even with --force."""
+    plan.input_if_file(robot_file, option)
+    for b in robot.boards:
+        plan.input_if_file(b.profile, f"board {b.name}'s profile")
+        if b.calibration:
+            plan.input_if_file(b.calibration, f"board {b.name}'s calibration")
+
+
+def check_fused_outputs(plan: FilePlan, outputs: dict) -> dict:
+    """The output files checked against the command's inputs (``plan``) and each other
+    before any work: the outputs to open."""
+    return {**outputs, "record": check_outputs(plan, outputs["output"], outputs["record"])}
+
+
 def open_fused_outputs(
-    robot: RobotSpec, plan_force: bool, outputs: dict, metadata: dict, odom: bool = False
+    robot: RobotSpec, force: bool, outputs: dict, metadata: dict, odom: bool = False
 ):
     """The sinks of a fused run (NDJSON, MCAP, UDP, Foxglove, Zenoh) in the robot's frame
-    (``odom`` when the fusion tracks in odom)."""
-    plan = FilePlan(plan_force)
-    record = check_outputs(plan, outputs["output"], outputs["record"])
+    (``odom`` when the fusion tracks in odom); ``outputs`` from :func:`check_fused_outputs`."""
     return open_outputs(
         outputs["output"],
-        record,
+        outputs["record"],
         outputs["udp"],
         outputs["foxglove"],
         outputs["zenoh"],
         metadata=metadata,
-        force=plan_force,
+        force=force,
         record_profile=outputs.get("record_profile", "json"),
         zenoh_encoding=outputs.get("zenoh_encoding", "json"),
         ros2=robot_ros2(robot, "odom" if odom else None),
@@ -115,6 +129,9 @@ def run_robot(
     from spiel_edge.robot.serve import RobotRunner
 
     robot = load_robot(robot_file)  # every problem of the file: one line, before any board
+    plan = FilePlan(force)
+    robot_inputs(plan, robot_file, robot, "--robot")
+    outputs = check_fused_outputs(plan, outputs)
     if realtime is not None:  # the kernels first (they would compile in the boards' threads)
         _prepare_kernels(robot, association, max_targets, track)
         apply_realtime(realtime)

@@ -63,7 +63,7 @@ def pull_cmd(port: str, file: str | None, force: bool) -> int:
     if config is None:
         raise DeviceError("the board holds no config yet: `spiel-edge config push` one")
     text = bc.to_toml(config)
-    if file:
+    if file and file != "-":
         with atomic_write(file) as fh:
             fh.write(text)
         click.echo(f"config of {config['board']['name']!r} written to {file}", err=True)

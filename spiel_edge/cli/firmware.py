@@ -128,7 +128,9 @@ def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, f
     for the boot stage's execution region."""
     from firmware_protocol.image import ImageError, check_body, pack_image
 
-    FilePlan(force).output(output, "--output")
+    plan = FilePlan(force)
+    plan.input_file(body, "BODY")
+    plan.output(output, "--output")
     try:
         low, high = (int(v) for v in protocol.split("-"))
         raw = _read_image(body)

@@ -122,10 +122,13 @@ def command(
     --zenoh KEY`, on this computer or another) and write their targets fused in the robot's
     frame, one record per trigger cycle (docs/robot.md). With --replay, the boards' recorded
     records instead, offline (no Zenoh)."""
-    from spiel_edge.cli._robot import open_fused_outputs
+    from spiel_edge.cli._robot import check_fused_outputs, open_fused_outputs, robot_inputs
+    from spiel_edge.io.guard import FilePlan
     from spiel_edge.robot.description import load_robot
 
     robot = load_robot(robot_file)
+    plan = FilePlan(force)
+    robot_inputs(plan, robot_file, robot, "--robot")
     outputs = dict(
         output=output,
         record=record,
@@ -141,9 +144,10 @@ def command(
         given = [f"--{k.replace('_', '-')}" for k, v in live.items() if v]
         if given:
             raise click.UsageError(f"{given[0]} is for the live fusion, not with --replay")
-        return _replay(robot, replay, odom_file, odom_topic, track, force, outputs)
+        return _replay(robot, replay, odom_file, odom_topic, track, plan, outputs)
     if odom_file:
         raise click.UsageError("--odom-file goes with --replay (live odometry: --odom KEY)")
+    outputs = check_fused_outputs(plan, outputs)
     from spiel_edge.robot.zenoh_fuse import ZenohFuse
     from spiel_edge.robot.zenoh_fuse import zenoh_config as make_config
 
@@ -174,9 +178,9 @@ def command(
     return _status(sink, fuse)
 
 
-def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
+def _replay(robot, items, odom_file, odom_topic, track, plan, outputs) -> int:
     """``fuse --replay``: every input read and checked before the outputs open."""
-    from spiel_edge.cli._robot import open_fused_outputs
+    from spiel_edge.cli._robot import check_fused_outputs, open_fused_outputs
     from spiel_edge.robot.odometry_sources import read_odometry_file
     from spiel_edge.robot.record_fuse import read_replay
     from spiel_edge.robot.record_fuse import replay as fuse_replay
@@ -189,10 +193,14 @@ def _replay(robot, items, odom_file, odom_topic, track, force, outputs) -> int:
         if name in files:
             raise click.UsageError(f"--replay: board {name!r} given twice")
         files[name] = path
+        plan.input_if_file(path, f"--replay {name}")
+    if odom_file:
+        plan.input_if_file(odom_file, "--odom-file")
+    outputs = check_fused_outputs(plan, outputs)
     streams = read_replay(robot, files)
     odometry = read_odometry_file(odom_file, odom_topic) if odom_file else None
     meta = {"robot": robot.name, "fused_over": "replay", "replayed": ",".join(sorted(files))}
-    sink = open_fused_outputs(robot, force, outputs, meta, odom=odometry is not None)
+    sink = open_fused_outputs(robot, plan.force, outputs, meta, odom=odometry is not None)
     fuse = None
     try:
         fuse = fuse_replay(robot, sink, streams, track=track, odometry=odometry, boards=files)

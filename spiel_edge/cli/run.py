@@ -218,6 +218,8 @@ def command(
         if path:
             plan.input_file(path, option)
     plan.input_if_file(profile_name, "--profile")
+    if slot:
+        plan.input_if_file(slot.rpartition(":")[0], "--slot")
     record = check_outputs(plan, output, record)
     # a bad profile, calibration or frame option: before the board
     chosen = resolve_profile(profile_name, calibration)

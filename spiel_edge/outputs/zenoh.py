@@ -75,12 +75,28 @@ def session_config(config: Any = None, settings: Any = None, *, rmw_zenoh: bool 
     return cfg
 
 
+def publish_key_problem(key: str) -> str | None:
+    """Why ``key`` cannot be a key records are published on (None when it can): a concrete
+    Zenoh key, chunks between single slashes, no wildcard (``*``, ``$*``) or reserved
+    character (``?``, ``#``); a wildcard would reach other publishers' subscribers."""
+    if key.startswith("/") or key.endswith("/") or "//" in key:
+        return "has an empty chunk (a leading, trailing or double '/')"
+    for bad, what in (("*", "a wildcard"), ("$", "a wildcard"), ("?", "'?'"), ("#", "'#'")):
+        if bad in key:
+            return f"holds {what}: records go out on one concrete key"
+    if any(c.isspace() for c in key):
+        return "holds white space"
+    return None
+
+
 def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, settings: Any = None):
     """(session, {name: publisher}) for the key expressions ``keys``; ``encoding`` names a
     ``zenoh.Encoding`` attribute. Bad keys or an unreachable network: ConfigError."""
     zenoh = _import_zenoh()
     exprs = {}
     for name, key in keys.items():
+        if problem := publish_key_problem(key):
+            raise ConfigError(f"--zenoh {key!r} {problem}")
         try:
             exprs[name] = zenoh.KeyExpr(key)
         except Exception as exc:

@@ -36,6 +36,7 @@ import numpy as np
 
 from spiel_edge.compat import tomllib
 from spiel_edge.errors import ConfigError
+from spiel_edge.outputs.zenoh import publish_key_problem
 from spiel_edge.profile.frame_section import frame_id_problem, quaternion_from_rpy
 
 MAX_BOARDS = 16
@@ -265,8 +266,12 @@ def _track(t: dict, origin: str) -> dict:
     values = {}
     for key, value in t.items():
         kind = type(getattr(TrackSpec(), key))
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{origin}: track.{key} must be a number, got {value!r}")
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+        ):
+            raise ConfigError(f"{origin}: track.{key} must be a finite number, got {value!r}")
         if kind is int and value != int(value):
             raise ConfigError(f"{origin}: track.{key} must be an integer, got {value!r}")
         values[key] = kind(value)
@@ -290,10 +295,15 @@ def _board(i: int, b: dict, fail) -> BoardSpec:
     key = b.get("key", "")
     if not isinstance(key, str):
         fail(f"{where}: key must be a string")
+    key = key or f"robot/{name}"
+    if problem := publish_key_problem(key):
+        fail(f"{where}: key {key!r} {problem}")
     profile = b.get("profile", "spiel-icra23")
     calibration = b.get("calibration", "") or None
     if not isinstance(profile, str) or not (calibration is None or isinstance(calibration, str)):
         fail(f"{where}: profile and calibration must be strings")
+    if not profile.strip():
+        fail(f"{where}: profile is empty (a profile's name, e.g. spiel-icra23, or its file)")
     translation = _vector(
         b.get("translation_m", [0, 0, 0]), f"{where}.translation_m", fail, 3, -100, 100
     )
@@ -335,9 +345,7 @@ def _board(i: int, b: dict, fail) -> BoardSpec:
     fov = _number(b.get("field_of_view_deg", 90.0), f"{where}.field_of_view_deg", fail, 5, 90)
     seen = _number(b.get("detection_deg", DETECTION_DEG), f"{where}.detection_deg", fail, 5, 90)
     mount = Mount(rotation, np.array(translation) * 1000.0)
-    return BoardSpec(
-        name, port, profile, calibration, mount, slot, slot_ms, key or f"robot/{name}", fov, seen
-    )
+    return BoardSpec(name, port, profile, calibration, mount, slot, slot_ms, key, fov, seen)
 
 
 def _check_unique(boards: tuple[BoardSpec, ...], fail) -> None:

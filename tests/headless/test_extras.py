@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import socket
 import struct
 import time
@@ -154,12 +155,24 @@ def test_zenoh_publishes_records_on_the_key():
         sink.close()
 
 
-def test_zenoh_rejects_a_bad_key():
+@pytest.mark.parametrize(
+    ("key", "words"),
+    [
+        ("robots//bad/", "empty chunk"),
+        ("robot/*", "holds a wildcard"),
+        ("robot/**", "holds a wildcard"),
+        ("robot/$*a", "holds a wildcard"),
+        ("", "not a valid key expression"),
+    ],
+)
+def test_zenoh_rejects_a_bad_key(key, words):
+    """A key records cannot go out on, wildcards included (a publisher on ``robot/*`` would
+    reach every subscriber of every board's key)."""
     pytest.importorskip(
         "zenoh", reason="extra 'zenoh' not installed (pip install 'spiel-edge[zenoh]')"
     )
     from spiel_edge.errors import ConfigError
     from spiel_edge.outputs.zenoh import ZenohSink
 
-    with pytest.raises(ConfigError, match="not a valid key expression"):
-        ZenohSink("robots//bad/")
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        ZenohSink(key)

@@ -37,6 +37,46 @@ def _twin(path, tmp_path, name):
 # --- hard links: the same file under two names ------------------------------------------------
 
 
+ROBOT_TOML = """[robot]
+name = "mine"
+[trigger]
+period_ms = 25.0
+[[board]]
+name = "front"
+port = "sim://front?scene=robot&robot=virtual-4&board=front&movers=1"
+slot = 0
+"""
+
+
+@pytest.mark.parametrize(
+    "command",
+    ["run --robot", "run --slot", "fuse --robot", "fuse --replay", "fuse --record", "pack"],
+)
+def test_robot_fuse_and_pack_never_overwrite_their_inputs_even_forced(cli, tmp_path, command):
+    """The robot file, a board's recorded records and a firmware body are inputs: no output
+    replaces them, --force or not, and nothing runs."""
+    robot = tmp_path / "mine.toml"
+    robot.write_text(ROBOT_TOML)
+    records = tmp_path / "front.ndjson"
+    records.write_text('{"acquisition": 0, "device_time_us": 1, "host_time": 1.0}\n')
+    recording = tmp_path / "front.mcap"
+    recording.write_bytes(b"\x89MCAP0\r\n")
+    body = tmp_path / "body.bin"
+    body.write_bytes(bytes(range(256)) * 8)
+    args, victim = {
+        "run --robot": (["run", "--robot", robot, "--frames", "2", "-o", robot], robot),
+        "run --slot": (["run", "--port", "sim://", "--frames", "2", "--slot", f"{robot}:front", "-o", robot], robot),
+        "fuse --robot": (["fuse", "--robot", robot, "--replay", f"front={records}", "-o", robot], robot),
+        "fuse --replay": (["fuse", "--robot", robot, "--replay", f"front={records}", "-o", records], records),
+        "fuse --record": (["fuse", "--robot", robot, "--replay", f"front={recording}", "--record", recording], recording),
+        "pack": (["firmware", "pack", body, "--version", "1.0", "--target", "sim", "-o", body], body),
+    }[command]  # fmt: skip
+    before = digest(victim)
+    ran = cli(*args, "--force")
+    assert ran.status == 2 and "is the input" in ran.err, ran
+    assert digest(victim) == before
+
+
 @pytest.mark.parametrize("force", [[], ["--force"]], ids=["plain", "forced"])
 @pytest.mark.parametrize(
     ("option", "output"),

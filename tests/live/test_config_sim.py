@@ -37,7 +37,7 @@ def pulled(port: str, capsys) -> dict:
     return tomllib.loads(capsys.readouterr().out)
 
 
-def test_push_commit_pull_show_round_trip(sim_url, tmp_path, capsys):
+def test_push_commit_pull_show_round_trip(sim_url, tmp_path, capsys, monkeypatch):
     port = sim_url("scene=model")
     assert main(["config", "pull", "--port", port]) == 2
     assert "holds no config" in capsys.readouterr().err
@@ -58,6 +58,11 @@ def test_push_commit_pull_show_round_trip(sim_url, tmp_path, capsys):
         1.9,
         1.7,
     ]
+    # "-" is stdout, as for every other output of the tool: no file named "-"
+    monkeypatch.chdir(tmp_path)
+    capsys.readouterr()
+    assert main(["config", "pull", "--port", port, "-"]) == 0
+    assert tomllib.loads(capsys.readouterr().out) == config and not (tmp_path / "-").exists()
     assert bc.validate(config) == config
     assert (
         main(

@@ -105,6 +105,13 @@ def test_a_period_too_short_for_the_boards(write_robot):
         ('[[board]]\nname = "a"\n[trigger]\nmax_range_m = -1\n', "max_range_m must be in"),
         ("[[board]\n", "not valid TOML"),
         ('[[board]]\nname = "a"\ndetection_deg = 120\n', "detection_deg must be in"),
+        ('[[board]]\nname = "a"\n[track]\nmax_misses = inf\n', "track.max_misses must be a finite"),
+        ('[[board]]\nname = "a"\n[track]\ngate_chi2 = nan\n', "track.gate_chi2 must be a finite"),
+        ('[[board]]\nname = "a"\nkey = "robot/*"\n', "holds a wildcard"),
+        ('[[board]]\nname = "a"\nkey = "robot/**"\n', "holds a wildcard"),
+        ('[[board]]\nname = "a"\nkey = "robot//a"\n', "empty chunk"),
+        ('[[board]]\nname = "a"\nkey = "a b"\n', "white space"),
+        ('[[board]]\nname = "a"\nprofile = ""\n', "profile is empty"),
     ],
 )
 def test_other_bad_files(tmp_path, text, words):
