@@ -108,6 +108,7 @@ def open_fused_outputs(
         record_profile=outputs.get("record_profile", "json"),
         zenoh_encoding=outputs.get("zenoh_encoding", "json"),
         ros2=robot_ros2(robot, "odom" if odom else None),
+        zenoh_settings=outputs.get("zenoh_settings"),
     )
 
 

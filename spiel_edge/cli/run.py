@@ -21,7 +21,7 @@ from spiel_edge.cli._options import (
     realtime_option,
     toa_correction_option,
 )
-from spiel_edge.cli._ros2 import ros2_options, ros2_output_options
+from spiel_edge.cli._ros2 import ros2_options, ros2_output_options, zenoh_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
@@ -191,8 +191,13 @@ def command(
     if robot_file:  # several boards, fused (spiel_edge/robot)
         from spiel_edge.cli._robot import run_robot
 
+        _refuse_per_board_options()
         outputs = dict(output=output, record=record, udp=udp, foxglove=foxglove, zenoh=zenoh)
-        outputs.update(record_profile=ros2["record_profile"], zenoh_encoding=ros2["zenoh_encoding"])
+        outputs.update(
+            record_profile=ros2["record_profile"],
+            zenoh_encoding=ros2["zenoh_encoding"],
+            zenoh_settings=zenoh_settings(ros2),
+        )
         return run_robot(
             robot_file,
             outputs=outputs,
@@ -331,3 +336,35 @@ def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status:
             click.echo("", err=True)
         if runner is not None and (runner.stats.records or session.hello is not None):
             click.echo(runner.summary(), err=True)
+
+
+# one board's options: with --robot each board's come from the robot file
+PER_BOARD_OPTIONS = (
+    "profile_name",
+    "calibration",
+    "use_board",
+    "rate",
+    "background",
+    "samples",
+    "frame_id",
+    "parent_frame",
+    "translation_m",
+    "rotation_rpy_deg",
+    "rotation_xyzw",
+    "static_tf",
+)
+
+
+def _refuse_per_board_options() -> None:
+    """UsageError for a one-board option given with --robot (it would be ignored)."""
+    ctx = click.get_current_context()
+    for param in ctx.command.params:
+        if param.name not in PER_BOARD_OPTIONS:
+            continue
+        if ctx.get_parameter_source(param.name) == click.core.ParameterSource.COMMANDLINE:
+            why = (
+                "the rate is the robot file's trigger period"
+                if param.name == "rate"
+                else "each board's settings are in the robot file (docs/robot.md)"
+            )
+            raise click.UsageError(f"{param.opts[0]} is one board's option: with --robot {why}")

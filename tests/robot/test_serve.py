@@ -63,6 +63,44 @@ def test_every_board_in_one_process_fused(tmp_path, capsys):
     assert "40 fused records" in err
 
 
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (["--profile", "spiel-icra23"], "--profile is one board's option"),
+        (["--calibration", "cal.toml"], "--calibration is one board's option"),
+        (["--rate", "5"], "the rate is the robot file's trigger period"),
+        (["--samples", "iq"], "--samples is one board's option"),
+        (["--no-board-config"], "--board-config is one board's option"),
+        (["--frame-id", "x"], "--frame-id is one board's option"),
+        (["--translation-m", "1,2,3"], "--translation-m is one board's option"),
+    ],
+)
+def test_run_robot_refuses_one_boards_options(extra, words, capsys):
+    """They would be ignored: each board's come from the robot file."""
+    assert main(["run", "--robot", "virtual-4", "--frames", "2", *extra]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err, err
+
+
+def test_run_robot_publishes_with_the_zenoh_options(tmp_path, monkeypatch):
+    """--zenoh-connect and --zenoh-mode reach the fused records' Zenoh session."""
+    from spiel_edge.outputs import fanout
+
+    seen = []
+
+    class Sink:
+        def write(self, record):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(fanout, "_zenoh_sink", lambda *a: seen.append(a[3]) or Sink())
+    args = ["run", "--robot", str(_robot(tmp_path)), "--frames", "2", "-o", str(tmp_path / "o")]
+    assert main([*args, "--zenoh", "robot/fused", "--zenoh-connect", "tcp/10.0.0.9:7447"]) == 0
+    assert seen and seen[0].connect == ("tcp/10.0.0.9:7447",)
+
+
 def test_a_board_that_never_answers_is_dropped_and_the_others_go_on(tmp_path, capsys):
     out = tmp_path / "fused.ndjson"
     status = main(
