@@ -62,6 +62,7 @@ def info_cmd(port: str) -> int:
 @click.option(
     "--wait",
     "wait_s",
+    type=click.FloatRange(min=0.0, min_open=True, max=3600.0),
     default=20.0,
     show_default=True,
     help="seconds to wait for the new firmware to answer",
@@ -78,14 +79,22 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
         f"{image}: firmware {header.version} for {header.target}, {len(data)} bytes", err=True
     )
 
-    def progress(sent: int, total: int) -> None:
-        click.echo(f"\r  {sent}/{total} bytes", nl=sent >= total, err=True)
+    line_open = [False]
 
-    result = update_firmware(url, data, progress=progress, boot_wait_s=wait_s)
+    def progress(sent: int, total: int) -> None:
+        line_open[0] = sent < total
+        click.echo(f"\r  {sent}/{total} bytes", nl=not line_open[0], err=True)
+
+    try:
+        result = update_firmware(url, data, progress=progress, boot_wait_s=wait_s)
+    finally:
+        if line_open[0]:  # the error goes on a line of its own
+            click.echo("", err=True)
     if result.rolled_back:
         click.echo(
-            f"the board came back with {result.version}: firmware {header.version} did not start and "
-            "was rolled back",
+            f"the board came back with {result.version}: firmware {header.version} was rolled "
+            "back (it did not answer in time, or the board lost power before its confirmation "
+            "was stored)",
             err=True,
         )
         return EXIT_ERROR
@@ -133,12 +142,13 @@ def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, f
     plan.output(output, "--output")
     try:
         low, high = (int(v) for v in protocol.split("-"))
+    except ValueError as exc:
+        raise InputError(f"--protocol must be LOW-HIGH, e.g. 1-2, got {protocol!r}") from exc
+    try:
         raw = _read_image(body)
         check_body(raw, target)
         image = pack_image(raw, version=version, target=target, min_protocol=low, max_protocol=high)
-    except ValueError as exc:
-        raise InputError(f"--protocol must be LOW-HIGH, e.g. 1-2: {exc}") from exc
-    except ImageError as exc:
+    except (ValueError, ImageError) as exc:
         raise InputError(str(exc)) from exc
     with atomic_write(output, "wb") as fh:
         fh.write(image)

@@ -180,27 +180,15 @@ def update_firmware(
                 "confirm` it (or reset the board to roll back) before another update"
             )
         session.stop_stream(retries=1) if getattr(session, "_stream_request", None) else None
-        begin = _ask(session, FwBegin(len(image), crc, sha), FwBeginResponse)
-        assert isinstance(begin, FwBeginResponse)
-        chunk = min(getattr(session, "max_payload", MAX_PAYLOAD), MAX_PAYLOAD) - WRITE_OVERHEAD
-        offset = 0
-        while offset < len(image):
-            piece = image[offset : offset + chunk]
-            answer = _ask(session, FwWrite(offset, piece), FwWriteResponse)
-            assert isinstance(answer, FwWriteResponse)
-            if answer.written != offset + len(piece):
-                raise DeviceError(
-                    f"{url}: the board holds {answer.written} bytes, {offset + len(piece)} were sent"
-                )
-            offset += len(piece)
-            if progress is not None:
-                progress(offset, len(image))
-        verify = _ask(session, FwVerify(), FwVerifyResponse)
-        assert isinstance(verify, FwVerifyResponse)
-        if verify.sha256 != sha or verify.image_size != len(image):
-            raise DeviceError(f"{url}: the board's copy differs from the image (SHA-256)")
-        clock_at_test = _board_clock_us(session)
-        session.request(FwTest(test_delay_ms))
+        try:
+            begin = _upload(session, url, image, crc, sha, progress)
+            clock_at_test = _board_clock_us(session)
+            session.request(FwTest(test_delay_ms))
+        except DeviceError as exc:  # nothing switched yet: the running firmware stays
+            raise DeviceError(
+                f"{exc}; the board keeps firmware {previous} (the new one was not started): "
+                "run the update again"
+            ) from exc
         log.info(
             "%s: firmware %s written to slot %d; booting it once", url, header.version, begin.slot
         )
@@ -216,6 +204,30 @@ def update_firmware(
         len(image),
         started,
     )
+
+
+def _upload(session, url: str, image: bytes, crc: int, sha: bytes, progress) -> FwBeginResponse:
+    """FW_BEGIN, the image in FW_WRITE chunks, FW_VERIFY: the inactive slot holds the image."""
+    begin = _ask(session, FwBegin(len(image), crc, sha), FwBeginResponse)
+    assert isinstance(begin, FwBeginResponse)
+    chunk = min(getattr(session, "max_payload", MAX_PAYLOAD), MAX_PAYLOAD) - WRITE_OVERHEAD
+    offset = 0
+    while offset < len(image):
+        piece = image[offset : offset + chunk]
+        answer = _ask(session, FwWrite(offset, piece), FwWriteResponse)
+        assert isinstance(answer, FwWriteResponse)
+        if answer.written != offset + len(piece):
+            raise DeviceError(
+                f"{url}: the board holds {answer.written} bytes, {offset + len(piece)} were sent"
+            )
+        offset += len(piece)
+        if progress is not None:
+            progress(offset, len(image))
+    verify = _ask(session, FwVerify(), FwVerifyResponse)
+    assert isinstance(verify, FwVerifyResponse)
+    if verify.sha256 != sha or verify.image_size != len(image):
+        raise DeviceError(f"{url}: the board's copy differs from the image (SHA-256)")
+    return begin
 
 
 def _board_clock_us(session) -> int | None:

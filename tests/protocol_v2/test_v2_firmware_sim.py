@@ -169,6 +169,36 @@ def test_refused_before_the_switch(sim_url, tmp_path, capsys) -> None:
     assert device_for_url(url).board.fw.lengths[1] in (0, len(NEW))  # never switched to it
 
 
+def test_the_cli_says_what_a_failed_upload_leaves(sim_url, tmp_path, capsys) -> None:
+    """A power cut while the image is uploaded: one error on a line of its own (not after
+    the progress), saying the running firmware stays and to run the update again; a bad
+    --wait is refused before the board is touched; pack names the value at fault."""
+    path = tmp_path / "new.img"
+    path.write_bytes(pack_image(bytes(range(256)) * 200, version="sim-0.2.0", target="sim"))
+    url = sim_url("max_payload=1024&fw_power_cut=3")
+    capsys.readouterr()
+    assert main(["firmware", "update", "--port", url, str(path)]) == 2
+    err = capsys.readouterr().err
+    last = err.rstrip("\n").splitlines()[-1]
+    assert last.startswith("error:") and "keeps firmware sim-0.1.0" in last, err
+    assert "run the update again" in last
+    assert hello_version(url) == "sim-0.1.0"
+    quiet = sim_url()
+    assert main(["firmware", "update", "--port", quiet, str(path), "--wait", "-5"]) == 2
+    assert "--wait" in capsys.readouterr().err and device_for_url(quiet).board.fw.ops == 0
+    body = tmp_path / "body.bin"
+    body.write_bytes(b"SIM:OK")
+    base = ["firmware", "pack", str(body), "-o", str(tmp_path / "x.img")]
+    for extra, words in (
+        (["--version", "1" * 17, "--target", "sim"], "version must be 1 to 16 bytes"),
+        (["--version", "1", "--target", ""], "target must be 1 to 16 bytes"),
+        (["--version", "1", "--target", "sim", "--protocol", "x"], "--protocol must be LOW-HIGH"),
+    ):
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert words in err and ("--protocol" in err) == ("--protocol" in extra), err
+
+
 def test_firmware_info_and_a_version_1_board(sim_url, capsys) -> None:
     url = sim_url()
     assert main(["firmware", "info", "--port", url]) == 0
