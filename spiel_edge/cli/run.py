@@ -324,7 +324,8 @@ def _reporter(show_status: bool, notifier: Notifier):
 
 
 def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status: bool) -> None:
-    if runner is not None and session.stream is not None:
+    streamed = session.stream is not None  # a stream was started: its summary says how it went
+    if runner is not None and streamed:
         runner.refresh_device_counters()
     with contextlib.suppress(DeviceError):
         session.close()
@@ -334,7 +335,7 @@ def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status:
     with contextlib.suppress(OSError):  # stderr may be a terminal that hung up
         if show_status:
             click.echo("", err=True)
-        if runner is not None and (runner.stats.records or session.hello is not None):
+        if runner is not None and (runner.stats.records or streamed):
             click.echo(runner.summary(), err=True)
 
 

@@ -100,8 +100,9 @@ class TruthTargets(Message):
     positions: bytes = b""
 
     def positions_mm(self) -> np.ndarray | None:
-        """(K, 3) float64, or None when malformed or not finite."""
-        if not self.positions or len(self.positions) % 12:
+        """(K, 3) float64 (K = 0: a scene without targets), or None when malformed or not
+        finite."""
+        if len(self.positions) % 12:
             return None
         arr = np.frombuffer(self.positions, "<f4").reshape(-1, 3).astype(np.float64)
         return arr if np.all(np.isfinite(arr)) else None

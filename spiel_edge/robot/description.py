@@ -169,7 +169,8 @@ def load_robot(path: str | Path) -> RobotSpec:
     origin = str(path)
     try:
         if not path.is_file():
-            raise ConfigError(f"{origin}: no such robot file")
+            what = "a folder" if path.is_dir() else "not a regular file"
+            raise ConfigError(f"{origin}: {what if path.exists() else 'no such robot file'}")
         if path.stat().st_size > MAX_FILE_BYTES:
             raise ConfigError(f"{origin}: a robot file is at most {MAX_FILE_BYTES} bytes")
         text = path.read_text(encoding="utf-8")
@@ -191,7 +192,9 @@ def robot_from_dict(data: dict, *, origin: str = "robot") -> RobotSpec:
         fail(f"unknown section(s) {sorted(unknown)}; known: robot, trigger, board, track")
     track = _track(_table(data.get("track", {}), "[track]", fail), origin)
     head = _table(data.get("robot", {}), "[robot]", fail)
-    name = str(head.get("name", "robot"))
+    name = head.get("name", "robot")
+    if not isinstance(name, str) or not name.strip():
+        fail(f"[robot] name must be a non-empty string, got {name!r}")
     frame_id = head.get("frame_id", "base_link")
     problem = frame_id_problem(frame_id)
     if problem:

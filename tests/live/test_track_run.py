@@ -82,3 +82,7 @@ def test_truth_targets_annotation_round_trip_and_bad_payloads():
     nan = TruthTargets(7, np.full(3, np.nan, "<f4").tobytes()).pack()
     assert stream.feed(Frame(TARGETS_TYPE, 0, 0, 7, nan), 0)
     assert stream.bad_messages == 2
+    empty = TruthTargets(8, b"").pack()  # a scene without targets now: no targets, not bad
+    assert stream.feed(Frame(TARGETS_TYPE, 0, 0, 8, empty), 0)
+    assert stream.bad_messages == 2
+    assert TruthTargets.unpack(empty).positions_mm().shape == (0, 3)

@@ -112,6 +112,7 @@ def test_a_period_too_short_for_the_boards(write_robot):
         ('[[board]]\nname = "a"\nkey = "robot//a"\n', "empty chunk"),
         ('[[board]]\nname = "a"\nkey = "a b"\n', "white space"),
         ('[[board]]\nname = "a"\nprofile = ""\n', "profile is empty"),
+        ('[robot]\nname = {a = 1}\n[[board]]\nname = "a"\n', "name must be a non-empty string"),
     ],
 )
 def test_other_bad_files(tmp_path, text, words):
@@ -120,6 +121,13 @@ def test_other_bad_files(tmp_path, text, words):
     with pytest.raises(ConfigError) as exc:
         load_robot(path)
     assert words in _one_line(exc)
+
+
+def test_a_folder_or_a_missing_file_is_named_so(tmp_path):
+    with pytest.raises(ConfigError, match="a folder"):
+        load_robot(tmp_path)
+    with pytest.raises(ConfigError, match="no such robot file"):
+        load_robot(tmp_path / "none.toml")
 
 
 def test_cli_refuses_a_bad_robot_file_in_one_line(write_robot, capsys):
