@@ -39,7 +39,8 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.tty = self._isatty() if tty is None else tty
         self.total = max(total, 1)
-        self.done = 0
+        self.done = 0  # kernels compiled (one with several signatures counts once)
+        self._compiled: set[str] = set()
         self.t0 = time.perf_counter()
         self.current = ""
         self._drawn = False
@@ -64,7 +65,8 @@ class Progress:
             self.current = short
             self._draw()
         elif event == "compiled":
-            self.done += 1
+            self._compiled.add(name)
+            self.done = len(self._compiled)
             if self.notifier is not None:
                 self.notifier.starting(f"compiling kernels: {self.done}/{self.total} ({short})")
             if self.tty:

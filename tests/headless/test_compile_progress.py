@@ -32,6 +32,14 @@ def test_plain_lines_for_the_journal():
     assert "\r" not in out.getvalue() and "\x1b" not in out.getvalue()
 
 
+def test_a_kernel_compiled_for_a_second_signature_counts_once():
+    out = io.StringIO()
+    progress = Progress(total=2, stream=out)
+    for _ in range(3):
+        progress("compiled", "spiel_edge.pipeline.stages.locate.locate_kernel", 0.5)
+    assert progress.done == 1 and out.getvalue().splitlines()[-1].startswith("compiled 1/2: ")
+
+
 def test_a_bar_redrawn_in_place_on_a_terminal():
     out = FakeTty()
     progress = Progress(total=4, stream=out)
