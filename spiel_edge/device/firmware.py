@@ -37,7 +37,7 @@ from firmware_protocol.v2_messages import (
     TimeSync,
     TimeSyncResponse,
 )
-from spiel_edge.errors import DeviceError
+from spiel_edge.errors import DeviceError, DeviceRequestError
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +184,9 @@ def update_firmware(
             begin = _upload(session, url, image, crc, sha, progress)
             clock_at_test = _board_clock_us(session)
             session.request(FwTest(test_delay_ms))
-        except DeviceError as exc:  # nothing switched yet: the running firmware stays
+        except DeviceRequestError:
+            raise  # the board refused: the reason says why, running it again would not help
+        except DeviceError as exc:  # the link failed; nothing switched: the running one stays
             raise DeviceError(
                 f"{exc}; the board keeps firmware {previous} (the new one was not started): "
                 "run the update again"
