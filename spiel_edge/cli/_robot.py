@@ -15,6 +15,7 @@ from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
+from spiel_edge.outputs.zenoh import check_output_key
 from spiel_edge.robot.description import RobotSpec, load_robot
 from spiel_edge.runtime.realtime import apply_realtime
 
@@ -89,6 +90,8 @@ def robot_inputs(plan: FilePlan, robot_file: str, robot: RobotSpec, option: str)
 def check_fused_outputs(plan: FilePlan, outputs: dict) -> dict:
     """The output files checked against the command's inputs (``plan``) and each other
     before any work: the outputs to open."""
+    if outputs.get("zenoh") is not None:
+        check_output_key(outputs["zenoh"], outputs.get("zenoh_encoding", "json"))
     return {**outputs, "record": check_outputs(plan, outputs["output"], outputs["record"])}
 
 

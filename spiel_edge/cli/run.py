@@ -27,6 +27,7 @@ from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
+from spiel_edge.outputs.zenoh import check_output_key
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.loop import (
@@ -229,6 +230,8 @@ def command(
     # a bad profile, calibration or frame option: before the board
     chosen = resolve_profile(profile_name, calibration)
     ros2_kwargs = ros2_output_options(ros2, chosen)
+    if zenoh is not None:
+        check_output_key(zenoh, ros2["zenoh_encoding"])
     fixed_background = load_background(background) if background else None
     port = board_port(port)
     toa_correction = live_toa_correction(port, toa_correction)

@@ -148,7 +148,7 @@ class TimeSyncEstimator:
             if off > max(8.0 * u, OUTLIER_FLOOR_US) + 0.5 * s.rtt_us:
                 c.outliers += 1
                 c.messages.append(
-                    f"TIME_SYNC answer {(s.mid_us - host) / 1e6:+.6f} s off the board's clock "
+                    f"TIME_SYNC answer {(host - s.mid_us) / 1e6:+.6f} s off the board's clock "
                     "estimate: ignored"
                 )
                 return self._suspect(s)

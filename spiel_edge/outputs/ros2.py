@@ -24,6 +24,7 @@ from spiel_edge.profile.frame_section import (
     validate_frame,
     with_overrides,
 )
+from spiel_edge.profile.ranges import RANGES, in_range
 from spiel_edge.recordings.cdr import StaticTransform
 
 RECORD_PROFILES = ("json", "ros2")
@@ -68,8 +69,13 @@ def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform
             f"--static-tf {text!r}: expected PARENT:X,Y,Z[,ROLL,PITCH,YAW] (metres, radians), "
             "e.g. base_link:0.10,0,0.25"
         )
-    if parent == child:
-        raise ConfigError(f"--static-tf {text!r}: the parent frame is the sensor frame {child!r}")
+    if parent in (child, f"{child}_optical"):
+        raise ConfigError(f"--static-tf {text!r}: the parent frame is the sensor's own {parent!r}")
+    if problem := frame_id_problem(parent):
+        raise ConfigError(f"--static-tf {text[:80]!r}: the parent frame {problem}")
+    if not all(in_range("frame.translation_m", v) for v in values[:3]):
+        low, high = RANGES["frame.translation_m"]
+        raise ConfigError(f"--static-tf {text[:80]!r}: X, Y, Z must be in [{low:g}, {high:g}] m")
     rotation = quaternion_from_rpy(*values[3:]) if len(values) == 6 else (0.0, 0.0, 0.0, 1.0)
     return StaticTransform(parent, child, tuple(values[:3]), rotation)  # type: ignore[arg-type]
 
@@ -106,6 +112,12 @@ def frame_settings(
     validate_frame(spec, origin, labels)
     transforms = [frame_transform(spec)] if spec.parent else []
     transforms += [parse_static_tf(t, spec.frame_id) for t in static_tf]
+    if len(transforms) > 1:  # tf2: a frame has one parent
+        given = "--parent-frame (or the profile's [frame] parent)" if spec.parent else "--static-tf"
+        raise ConfigError(
+            f"--static-tf: {spec.frame_id!r} would have {len(transforms)} parents (with {given}); "
+            "a frame has one parent in tf2: give one transform"
+        )
     return Ros2Settings(spec.frame_id, tuple(transforms), limits or _default_limits())
 
 

@@ -20,6 +20,15 @@ from spiel_edge.outputs.sink import Sink
 log = logging.getLogger(__name__)
 
 
+_RUST_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
+
+
+def zenoh_reason(exc: BaseException) -> str:
+    """A Zenoh error's text without the Rust source location it carries (``timeout at
+    /root/.cargo/.../orchestrator.rs:1253.`` -> ``timeout``)."""
+    return _RUST_SOURCE.sub("", str(exc)).strip() or type(exc).__name__
+
+
 def _import_zenoh():
     try:
         import zenoh
@@ -39,17 +48,23 @@ def load_config(config: Any = None):
     try:
         return zenoh.Config.from_file(str(Path(path)))
     except Exception as exc:  # zenoh.ZError and I/O errors alike
-        raise ConfigError(f"Zenoh config {path}: {exc}") from exc
+        raise ConfigError(f"Zenoh config {path}: {zenoh_reason(exc)}") from exc
 
 
-_ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/\S+")
+# proto/HOST:PORT (HOST a name, IPv4 or [IPv6]), optional ?metadata or #config; or a socket path
+_ENDPOINT = re.compile(
+    r"(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+(?:%\w+)?\]|[A-Za-z0-9_.-]+)"
+    r":(?P<port>\d{1,5})(?:[?#]\S*)?|unixsock-stream/\S+"
+)
 
 
 def check_endpoint(endpoint: str) -> str:
     """A Zenoh locator such as ``tcp/127.0.0.1:7447`` (ConfigError naming --zenoh-connect)."""
-    if not _ENDPOINT.fullmatch(endpoint or ""):
+    m = _ENDPOINT.fullmatch(endpoint or "")
+    if not m or (m["port"] is not None and not 1 <= int(m["port"]) <= 65535):
         raise ConfigError(
-            f"--zenoh-connect {endpoint!r}: expected a Zenoh endpoint such as tcp/HOST:7447"
+            f"--zenoh-connect {endpoint!r}: expected a Zenoh endpoint such as tcp/HOST:7447 "
+            "(a port 1-65535; an IPv6 address in brackets)"
         )
     return endpoint
 
@@ -70,7 +85,7 @@ def session_config(config: Any = None, settings: Any = None, *, rmw_zenoh: bool 
         if rmw_zenoh and not given_file:
             cfg.insert_json5("scouting/multicast/enabled", "false")
     except Exception as exc:  # zenoh.ZError
-        raise ConfigError(f"--zenoh: bad Zenoh setting: {exc}") from exc
+        raise ConfigError(f"--zenoh: bad Zenoh setting: {zenoh_reason(exc)}") from exc
     del zenoh
     return cfg
 
@@ -79,6 +94,8 @@ def publish_key_problem(key: str) -> str | None:
     """Why ``key`` cannot be a key records are published on (None when it can): a concrete
     Zenoh key, chunks between single slashes, no wildcard (``*``, ``$*``) or reserved
     character (``?``, ``#``); a wildcard would reach other publishers' subscribers."""
+    if not key:
+        return "is empty"
     if key.startswith("/") or key.endswith("/") or "//" in key:
         return "has an empty chunk (a leading, trailing or double '/')"
     for bad, what in (("*", "a wildcard"), ("$", "a wildcard"), ("?", "'?'"), ("#", "'#'")):
@@ -87,6 +104,17 @@ def publish_key_problem(key: str) -> str | None:
     if any(c.isspace() for c in key):
         return "holds white space"
     return None
+
+
+def check_output_key(key: str, encoding: str) -> None:
+    """``--zenoh KEY`` checked before any board is opened (ConfigError): a concrete key, and
+    for the ROS 2 encodings a prefix of valid ROS 2 topics."""
+    if encoding in ("rmw_zenoh", "cdr"):
+        from spiel_edge.outputs.rmw_zenoh.sink import topics_of
+
+        topics_of(key)
+    if problem := publish_key_problem(key.strip("/") if encoding != "json" else key):
+        raise ConfigError(f"--zenoh {key!r} {problem}")
 
 
 def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, settings: Any = None):
@@ -100,13 +128,20 @@ def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, set
         try:
             exprs[name] = zenoh.KeyExpr(key)
         except Exception as exc:
-            raise ConfigError(f"--zenoh {key!r} is not a valid key expression: {exc}") from exc
+            raise ConfigError(
+                f"--zenoh {key!r} is not a valid key expression: {zenoh_reason(exc)}"
+            ) from exc
     try:
         session = zenoh.open(session_config(config, settings))
     except ConfigError:
         raise
     except Exception as exc:
-        raise ConfigError(f"--zenoh: cannot open a Zenoh session: {exc}") from exc
+        raise ConfigError(
+            f"--zenoh: cannot open a Zenoh session ({zenoh_reason(exc)}): in client mode a "
+            "router must be reachable at --zenoh-connect"
+            if getattr(settings, "mode", "") == "client"
+            else f"--zenoh: cannot open a Zenoh session: {zenoh_reason(exc)}"
+        ) from exc
     publishers = {
         name: session.declare_publisher(
             expr,

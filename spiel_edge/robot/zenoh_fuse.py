@@ -20,6 +20,7 @@ import threading
 import time
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.outputs.zenoh import zenoh_reason
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.record_fuse import RecordFuse
 
@@ -43,7 +44,7 @@ def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | N
         if listen:
             cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
     except Exception as exc:  # zenoh.ZError
-        raise ConfigError(f"Zenoh configuration: {exc}") from exc
+        raise ConfigError(f"Zenoh configuration: {zenoh_reason(exc)}") from exc
     return cfg
 
 
@@ -71,7 +72,7 @@ class ZenohFuse(RecordFuse):
         try:
             self.session = self.zenoh.open(config if config is not None else zenoh_config())
         except Exception as exc:
-            raise ConfigError(f"fuse: cannot open a Zenoh session: {exc}") from exc
+            raise ConfigError(f"fuse: cannot open a Zenoh session: {zenoh_reason(exc)}") from exc
         self.subscribers = []
         try:
             for b in robot.boards:
@@ -84,7 +85,7 @@ class ZenohFuse(RecordFuse):
                 )
         except Exception as exc:
             self.close()
-            raise ConfigError(f"fuse: cannot subscribe: {exc}") from exc
+            raise ConfigError(f"fuse: cannot subscribe: {zenoh_reason(exc)}") from exc
         log.info("fusing %s", ", ".join(f"{b.name} on {b.key}" for b in robot.boards))
 
     def _callback(self, name: str):

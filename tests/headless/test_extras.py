@@ -162,7 +162,7 @@ def test_zenoh_publishes_records_on_the_key():
         ("robot/*", "holds a wildcard"),
         ("robot/**", "holds a wildcard"),
         ("robot/$*a", "holds a wildcard"),
-        ("", "not a valid key expression"),
+        ("", "is empty"),
     ],
 )
 def test_zenoh_rejects_a_bad_key(key, words):
@@ -176,3 +176,12 @@ def test_zenoh_rejects_a_bad_key(key, words):
 
     with pytest.raises(ConfigError, match=re.escape(words)):
         ZenohSink(key)
+
+
+def test_zenoh_errors_lose_their_rust_source_location():
+    from spiel_edge.outputs.zenoh import zenoh_reason
+
+    text = "timeout at /root/.cargo/git/checkouts/zenoh-9/commons/orchestrator.rs:1253."
+    assert zenoh_reason(RuntimeError(text)) == "timeout"
+    assert zenoh_reason(RuntimeError("plain words")) == "plain words"
+    assert zenoh_reason(RuntimeError(" at x.rs:1")) == "RuntimeError"

@@ -278,6 +278,14 @@ def test_domain_ids_out_of_range(bad):
         (["--zenoh", "spiel", "--zenoh-encoding", "rmw_zenoh", "--ros-domain-id", "300"], "0-232"),
         (["--zenoh", "spiel", "--zenoh-connect", "localhost:7447"], "--zenoh-connect"),
         (["--frame-id", "/sonar"], "--frame-id"),
+        (["--zenoh", "spiel", "--zenoh-connect", "tcp/127.0.0.1:99999"], "--zenoh-connect"),
+        (["--zenoh", "spiel", "--zenoh-connect", "tcp/[::1"], "--zenoh-connect"),
+        (["--zenoh", "robot/*"], "holds a wildcard"),
+        (["--static-tf", "/base:1,2,3"], "the parent frame must be"),
+        (["--static-tf", "base:1e308,0,0"], "X, Y, Z must be in"),
+        (["--static-tf", "spiel_optical:0,0,0"], "the sensor's own"),
+        (["--parent-frame", "spiel_optical"], "the sensor's own frame"),
+        (["--static-tf", "base:0,0,0", "--static-tf", "base:1,0,0"], "a frame has one parent"),
     ],
 )
 def test_bad_ros_options_fail_at_start_in_one_line(args, message, tmp_path, capsys, monkeypatch):
@@ -288,6 +296,15 @@ def test_bad_ros_options_fail_at_start_in_one_line(args, message, tmp_path, caps
     err = capsys.readouterr().err.strip()
     assert code != 0 and message in err and len(err.splitlines()) == 1, err
     assert not out.exists() or out.read_text() == ""
+
+
+@pytest.mark.parametrize("encoding", ["json", "cdr", "rmw_zenoh"])
+def test_a_bad_zenoh_key_is_refused_before_the_board(encoding, tmp_path, capsys):
+    """The key is checked with the other options: the missing board is never reached."""
+    args = ["run", "--port", str(tmp_path / "no-tty"), "--frames", "3", "-o", str(tmp_path / "o")]
+    assert main([*args, "--zenoh", "a//b", "--zenoh-encoding", encoding]) == 2
+    err = capsys.readouterr().err
+    assert "--zenoh 'a//b'" in err and "no-tty" not in err, err
 
 
 # --- over Zenoh, on loopback --------------------------------------------------------------

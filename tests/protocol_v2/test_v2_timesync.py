@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.device import DeviceSession
+from spiel_edge.device.timesync import TimeSyncEstimator
 from spiel_edge.measure.clock_sync import simulate
 from spiel_edge.sim.protocol_sim import device_for_url
 
@@ -34,6 +35,18 @@ def test_bad_answers_are_dropped_and_sync_goes_on(fault) -> None:
     assert r.dropped >= 0.1 * r.exchanges  # every 7th answer is wrong
     assert r.counters["steps"] == 0
     assert float(np.percentile(np.abs(r.errors_us[r.times_s > 30]), 95)) < 150
+
+
+def test_an_answer_ahead_of_the_estimate_is_said_to_be_ahead() -> None:
+    est = TimeSyncEstimator()
+    for k in range(8):  # a board whose clock reads the host's minus 5 s
+        t = 10e6 + k * 1e6
+        assert est.add(t, t + 200, t + 100 - 5e6, boot_id=1)
+    est.take_messages()
+    t = 20e6  # an answer 90 days ahead of where the board's clock stands
+    assert not est.add(t, t + 200, t + 100 - 5e6 + 90 * 86400e6, boot_id=1)
+    (message,) = est.take_messages()
+    assert "TIME_SYNC answer +7776000" in message, message
 
 
 def test_records_carry_stamp_host_within_its_uncertainty(sim_url) -> None:

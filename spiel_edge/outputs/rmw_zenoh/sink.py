@@ -29,7 +29,7 @@ from spiel_edge.outputs import ros2_messages as rm
 from spiel_edge.outputs import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
 from spiel_edge.outputs.sink import Sink
-from spiel_edge.outputs.zenoh import _import_zenoh, session_config
+from spiel_edge.outputs.zenoh import _import_zenoh, session_config, zenoh_reason
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ class RmwZenohSink(Sink):
         except ConfigError:
             raise
         except Exception as exc:  # zenoh.ZError: no router for a client, ...
-            self._warn_once(f"cannot open the Zenoh session ({exc})")
+            self._warn_once(f"cannot open the Zenoh session ({zenoh_reason(exc)})")
             self._retry = threading.Thread(target=self._retry_open, daemon=True, name="rmw-zenoh")
             self._retry.start()
 
