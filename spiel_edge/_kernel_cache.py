@@ -7,9 +7,12 @@ Each ``spiel_edge._jit.jit`` kernel (and the stream decoder's) gets a :class:`Ke
   read-only, each file checked against the manifest's SHA-256 before numba reads it:
   ``spiel_edge._shipped``), then in numba's own cache (beside the sources, NUMBA_CACHE_DIR or
   the user's cache folder), where it saves what it compiles;
+- seals every file it writes with a SHA-256 of its content and checks it before numba reads
+  it: a flipped bit in a kernel's machine code would otherwise run (SIGILL, SIGSEGV);
 - treats an unreadable, damaged or foreign cache file as a miss (the kernel compiles; numba
   itself would raise), and a failed save (read-only folder, full disk) as a warning (the
-  kernel runs from memory; numba would raise);
+  kernel runs from memory; numba would raise); a file written without a seal (by numba
+  itself, or before seals) is a miss without a warning;
 - works without any writable folder (numba raises at import): kernels compile each start,
   said once;
 - tells :data:`listeners` when a kernel starts and ends compiling (``spiel_edge.runtime.
@@ -23,6 +26,7 @@ changed compiles again, wherever its files come from.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import inspect
 import io
 import logging
@@ -134,6 +138,60 @@ class _Impl(caching.CompileResultCacheImpl):
     _locator_classes = [_BuildLocator, *caching.CacheImpl._locator_classes, _NowhereLocator]
 
 
+SEAL_TAG = b"\nspiel-edge sha256:"  # a cache file ends with this and the SHA-256 of what precedes
+
+
+def _seal(body: bytes) -> bytes:
+    return body + SEAL_TAG + hashlib.sha256(body).digest()
+
+
+class _Unsealed(Exception):
+    """A cache file without a seal: written by numba itself or an older spiel-edge."""
+
+
+def _unseal(data: bytes, path: str) -> bytes:
+    """What a sealed file holds; _Unsealed without a seal, ValueError when damaged."""
+    n = len(SEAL_TAG) + 32
+    if len(data) < n or data[-n:-32] != SEAL_TAG:
+        raise _Unsealed(path)
+    body = data[:-n]
+    if hashlib.sha256(body).digest() != data[-32:]:
+        raise ValueError(f"{path} is damaged (its SHA-256 does not match its content)")
+    return body
+
+
+class _SealedIndex(caching.IndexDataCacheFile):
+    """numba's index and data files, each sealed with its SHA-256 when written and checked
+    before it is unpickled; an unsealed index is an empty one (its kernels compile again)."""
+
+    def _read(self, path: str) -> bytes:
+        with open(path, "rb") as fh:
+            return _unseal(fh.read(), path)
+
+    def _load_index(self):
+        try:
+            stream = io.BytesIO(self._read(self._index_path))
+        except (FileNotFoundError, _Unsealed):
+            return {}
+        if pickle.load(stream) != self._version:
+            return {}
+        stamp, overloads = pickle.loads(stream.read())
+        return overloads if stamp == self._source_stamp else {}
+
+    def _save_index(self, overloads):
+        body = pickle.dumps(self._version, protocol=-1)
+        body += self._dump((self._source_stamp, overloads))
+        with self._open_for_write(self._index_path) as fh:
+            fh.write(_seal(body))
+
+    def _load_data(self, name):
+        return pickle.loads(self._read(self._data_path(name)))
+
+    def _save_data(self, name, data):
+        with self._open_for_write(self._data_path(name)) as fh:
+            fh.write(_seal(self._dump(data)))
+
+
 class _ShippedIndex(caching.IndexDataCacheFile):
     """numba's index and data files, read-only, each checked against the wheel's manifest."""
 
@@ -168,6 +226,11 @@ class KernelCache(caching.FunctionCache):
 
     def __init__(self, py_func):
         super().__init__(py_func)
+        self._cache_file = _SealedIndex(
+            cache_path=self._cache_path,
+            filename_base=self._impl.filename_base,
+            source_stamp=self._impl.locator.get_source_stamp(),
+        )
         self._name = f"{py_func.__module__}.{py_func.__qualname__}"
         self.writable = not isinstance(self._impl.locator, _NowhereLocator)
         shipped = _shipped.index_folder(inspect.getfile(py_func))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from spiel_edge import _jit, _shipped
+from spiel_edge import _jit, _kernel_cache, _shipped
 
 TINY = """
 from spiel_edge._jit import jit
@@ -86,6 +86,28 @@ def test_a_damaged_cache_file_is_compiled_again(tmp_path):
     index.write_bytes(b"\x80\x04garbage")
     assert _probe(tmp_path)["value"] == 41
     assert _probe(tmp_path)["counts"]["hits"] == 1  # the index was written afresh
+
+
+def test_a_flipped_bit_in_a_cached_kernel_is_found_before_it_runs(tmp_path):
+    """Bytes changed inside a cache file's machine code (an SD card's bit rot) would run as
+    they are (SIGILL, SIGSEGV): the file's seal no longer matches, the kernel compiles."""
+    assert _probe(tmp_path)["counts"]["compiled"] == 1
+    (data,) = _cache_files(tmp_path, "*.nbc")
+    raw = bytearray(data.read_bytes())
+    elf = raw.find(b"\x7fELF")
+    assert elf > 0
+    raw[elf + 200 : elf + 328] = bytes(range(128))
+    data.write_bytes(bytes(raw))
+    second = _probe(tmp_path)
+    assert second["value"] == 41 and second["counts"]["compiled"] == 1
+    assert any("SHA-256 does not match" in w for w in second["warnings"]), second
+    assert _probe(tmp_path)["counts"]["hits"] == 1  # rewritten whole, sealed
+    # a file numba itself wrote (no seal) is a quiet miss, then sealed
+    for path in _cache_files(tmp_path, "*.nb*"):
+        path.write_bytes(path.read_bytes()[: -(len(_kernel_cache.SEAL_TAG) + 32)])
+    third = _probe(tmp_path)
+    assert third["counts"]["compiled"] == 1 and not third["warnings"], third
+    assert _probe(tmp_path)["counts"]["hits"] == 1
 
 
 def test_no_writable_folder_compiles_in_memory_and_says_so(tmp_path):
