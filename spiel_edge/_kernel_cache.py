@@ -32,6 +32,7 @@ import io
 import logging
 import os
 import pickle
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -221,6 +222,24 @@ class _ShippedIndex(caching.IndexDataCacheFile):
         raise OSError("the shipped kernels are read-only")
 
 
+def cache_dir_problem() -> str | None:
+    """Why NUMBA_CACHE_DIR, when set, is not a folder numba can keep kernels in (numba then
+    falls back to the sources' __pycache__ without a word); None when it is, or is not set."""
+    from numba.core import config
+
+    folder = config.CACHE_DIR
+    if not folder:
+        return None
+    try:
+        os.makedirs(folder, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        return f"NUMBA_CACHE_DIR {folder} is not a folder this user can write ({reason})"
+    return None
+
+
 class KernelCache(caching.FunctionCache):
     _impl_class = _Impl
 
@@ -233,6 +252,8 @@ class KernelCache(caching.FunctionCache):
         )
         self._name = f"{py_func.__module__}.{py_func.__qualname__}"
         self.writable = not isinstance(self._impl.locator, _NowhereLocator)
+        if self.writable and (problem := _cache_dir_problem_once()):
+            _warn_once("cache-dir", f"{problem}: compiled kernels are kept in {self._cache_path}")
         shipped = _shipped.index_folder(inspect.getfile(py_func))
         self._shipped = None
         if shipped is not None and not os.environ.get(_shipped.ENV_BUILD):
@@ -313,6 +334,16 @@ class KernelCache(caching.FunctionCache):
             )
         seconds = time.perf_counter() - started if started is not None else 0.0
         _emit("compiled", self._name, seconds)
+
+
+_checked_dir: dict[str, str | None] = {}
+
+
+def _cache_dir_problem_once() -> str | None:
+    """:func:`cache_dir_problem`, looked at once per process (not per kernel)."""
+    if "problem" not in _checked_dir:
+        _checked_dir["problem"] = cache_dir_problem()
+    return _checked_dir["problem"]
 
 
 def make(py_func) -> caching._Cache:

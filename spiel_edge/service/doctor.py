@@ -191,6 +191,10 @@ def check_numba_cache_dir(path: Path | None) -> Check:
         "set NUMBA_CACHE_DIR to a folder this user can write (the unit uses "
         "/var/cache/spiel-edge/numba with CacheDirectory=spiel-edge)"
     )
+    from spiel_edge._kernel_cache import cache_dir_problem
+
+    if problem := cache_dir_problem():
+        return Check("numba cache", False, problem, fix)
     if path is None:
         return Check("numba cache", False, "numba finds no writable cache location", fix)
     try:

@@ -124,6 +124,23 @@ def test_no_writable_folder_compiles_in_memory_and_says_so(tmp_path):
     assert any("not kept" in w for w in result["warnings"])
 
 
+def test_an_unusable_numba_cache_dir_is_said_not_ignored(tmp_path, monkeypatch):
+    """numba quietly falls back to __pycache__ when NUMBA_CACHE_DIR cannot be written: the
+    run says where the kernels go instead, and doctor fails the check."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    result = _probe(tmp_path, NUMBA_CACHE_DIR=str(blocker))
+    assert result["value"] == 41
+    assert any(f"NUMBA_CACHE_DIR {blocker} is not a folder" in w for w in result["warnings"])
+    from numba.core import config
+
+    from spiel_edge.service.doctor import check_numba_cache_dir
+
+    monkeypatch.setattr(config, "CACHE_DIR", str(blocker / "sub"))
+    check = check_numba_cache_dir(tmp_path)
+    assert not check.ok and "NUMBA_CACHE_DIR" in check.detail, check
+
+
 def test_a_full_disk_while_saving_leaves_the_kernel_running(tmp_path):
     result = _probe(tmp_path, FSIZE="200")
     assert result["value"] == 41 and result["counts"]["compiled"] == 1
