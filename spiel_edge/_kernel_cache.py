@@ -84,7 +84,9 @@ def _warn_once(key: str, message: str) -> None:
     if key in _warned:
         return
     _warned.add(key)
-    log.warning("%s", message)
+    # a display listening (compile progress, a warm-up child's relay) says it: once, not again
+    # through the log
+    (log.debug if listeners else log.warning)("%s", message)
     _emit("warning", key, message)
 
 
@@ -292,6 +294,8 @@ class KernelCache(caching.FunctionCache):
                     counts["shipped_hits"] += shipped
                     return result
             except Exception as exc:  # a damaged or foreign file: compile instead
+                if _forbid["on"]:
+                    continue  # a probe: whoever compiles it next says why
                 where = "prebuilt kernel" if shipped else "cached kernel"
                 _warn_once(
                     f"load:{layer._index_path}",
