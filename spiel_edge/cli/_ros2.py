@@ -65,8 +65,8 @@ _FRAME = [
         "--static-tf",
         multiple=True,
         metavar="PARENT:X,Y,Z[,R,P,Y]",
-        help="A further pose of the sensor frame in a robot frame (metres, radians), also on "
-        "/tf_static (repeatable).",
+        help="The sensor frame's pose in a robot frame (metres, radians), on /tf_static, "
+        "instead of --parent-frame (tf2 gives a frame one parent).",
     ),
 ]
 _ZENOH = [

@@ -27,7 +27,7 @@ from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
-from spiel_edge.outputs.zenoh import check_output_key
+from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.loop import (

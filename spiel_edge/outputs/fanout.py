@@ -188,6 +188,19 @@ def open_outputs(
     return MultiSink(sinks)
 
 
+def check_output_key(key: str, encoding: str) -> None:
+    """``--zenoh KEY`` checked before any board is opened (ConfigError): a concrete key, and
+    for the ROS 2 encodings a prefix of valid ROS 2 topics."""
+    if encoding in ("rmw_zenoh", "cdr"):
+        from spiel_edge.outputs.rmw_zenoh.sink import topics_of
+
+        topics_of(key)
+    from spiel_edge.outputs.zenoh import publish_key_problem
+
+    if problem := publish_key_problem(key.strip("/") if encoding != "json" else key):
+        raise ConfigError(f"--zenoh {key!r} {problem}")
+
+
 def _mcap_sink(
     path: Path,
     metadata: dict[str, Any] | None,

@@ -106,17 +106,6 @@ def publish_key_problem(key: str) -> str | None:
     return None
 
 
-def check_output_key(key: str, encoding: str) -> None:
-    """``--zenoh KEY`` checked before any board is opened (ConfigError): a concrete key, and
-    for the ROS 2 encodings a prefix of valid ROS 2 topics."""
-    if encoding in ("rmw_zenoh", "cdr"):
-        from spiel_edge.outputs.rmw_zenoh.sink import topics_of
-
-        topics_of(key)
-    if problem := publish_key_problem(key.strip("/") if encoding != "json" else key):
-        raise ConfigError(f"--zenoh {key!r} {problem}")
-
-
 def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, settings: Any = None):
     """(session, {name: publisher}) for the key expressions ``keys``; ``encoding`` names a
     ``zenoh.Encoding`` attribute. Bad keys or an unreachable network: ConfigError."""

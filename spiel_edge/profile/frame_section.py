@@ -56,8 +56,10 @@ def validate_frame(spec: FrameSpec, origin: str, labels: dict[str, str] | None =
         problem = frame_id_problem(value) if key == "frame_id" or value else None
         if problem:
             fail(key, f"{problem}, got {_short(value)}")
-    if spec.parent in (spec.frame_id, f"{spec.frame_id}_optical"):
-        fail("parent", f"is the sensor's own frame ({spec.parent!r}); name the robot frame")
+    if spec.parent == spec.frame_id:
+        fail("parent", f"is the sensor frame itself ({spec.frame_id!r}); name the robot frame")
+    if spec.parent == f"{spec.frame_id}_optical":
+        fail("parent", f"is the sensor's own optical frame ({spec.parent!r}): a cycle")
     for key, count in (("translation_m", 3), ("rotation_rpy_deg", 3)):
         values = getattr(spec, key)
         if len(values) != count or not all(in_range(f"frame.{key}", v) for v in values):

@@ -61,8 +61,10 @@ def test_options_override_key_by_key():
     assert (tf.parent, tf.child, tf.translation_m) == ("base_link", "sonar", (0.1, 0.0, 0.2))
     np.testing.assert_allclose(tf.rotation_xyzw, [0, 0, 1, 0], atol=1e-15)
     assert frame_settings(mounted.frame, parent="").transforms == ()  # "" drops it
-    both = frame_settings(mounted.frame, static_tf=("odom:0,0,1",)).transforms
-    assert [t.parent for t in both] == ["base_link", "odom"]
+    with pytest.raises(ConfigError, match="a frame has one parent in tf2"):
+        frame_settings(mounted.frame, static_tf=("odom:0,0,1",))  # two parents of 'spiel'
+    (alone,) = frame_settings(FrameSpec(), static_tf=("odom:0,0,1",)).transforms
+    assert (alone.parent, alone.child, alone.translation_m) == ("odom", "spiel", (0.0, 0.0, 1.0))
 
 
 @pytest.mark.parametrize(

@@ -284,7 +284,7 @@ def test_domain_ids_out_of_range(bad):
         (["--static-tf", "/base:1,2,3"], "the parent frame must be"),
         (["--static-tf", "base:1e308,0,0"], "X, Y, Z must be in"),
         (["--static-tf", "spiel_optical:0,0,0"], "the sensor's own"),
-        (["--parent-frame", "spiel_optical"], "the sensor's own frame"),
+        (["--parent-frame", "spiel_optical"], "the sensor's own optical frame"),
         (["--static-tf", "base:0,0,0", "--static-tf", "base:1,0,0"], "a frame has one parent"),
     ],
 )

@@ -177,7 +177,7 @@ def test_run_records_ros2_profile(tmp_path):
     ]
     args += ["--record", str(path), "--record-profile", "ros2", "--frame-id", "sonar"]
     mount = ["--parent-frame", "base_link", "--translation-m", "0,0,0.3"]
-    assert main([*args, *mount, "--static-tf", "odom:1,0,0"]) == 0
+    assert main([*args, *mount]) == 0
     fixes = sum(
         json.loads(line)["position_mm"] is not None
         for line in (tmp_path / "o.ndjson").read_text().splitlines()
@@ -189,7 +189,6 @@ def test_run_records_ros2_profile(tmp_path):
         (tf,) = [reader.deserialize(r, c.msgtype) for c, _t, r in reader.messages(statics)]
         assert [(t.header.frame_id, t.child_frame_id) for t in tf.transforms] == [
             ("base_link", "sonar"),
-            ("odom", "sonar"),
             ("sonar", "sonar_optical"),
         ]
         diagnostics = [c for c in reader.connections if c.topic == "/diagnostics"]
