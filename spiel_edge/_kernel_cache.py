@@ -26,6 +26,7 @@ changed compiles again, wherever its files come from.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import inspect
 import io
@@ -340,14 +341,10 @@ class KernelCache(caching.FunctionCache):
         _emit("compiled", self._name, seconds)
 
 
-_checked_dir: dict[str, str | None] = {}
-
-
+@functools.cache
 def _cache_dir_problem_once() -> str | None:
     """:func:`cache_dir_problem`, looked at once per process (not per kernel)."""
-    if "problem" not in _checked_dir:
-        _checked_dir["problem"] = cache_dir_problem()
-    return _checked_dir["problem"]
+    return cache_dir_problem()
 
 
 def make(py_func) -> caching._Cache:
