@@ -148,10 +148,12 @@ def command(
     if odom_file:
         raise click.UsageError("--odom-file goes with --replay (live odometry: --odom KEY)")
     outputs = check_fused_outputs(plan, outputs)
-    if connect or mode:  # the fused records go out the way the boards' come in
+    if connect or mode or zenoh_config:  # the fused records go out the way the boards' come in
         from spiel_edge.outputs.ros2 import ZenohSettings
 
-        outputs["zenoh_settings"] = ZenohSettings(mode=mode or "peer", connect=tuple(connect))
+        outputs["zenoh_settings"] = ZenohSettings(
+            mode=mode or "", connect=tuple(connect), config_file=zenoh_config
+        )
     from spiel_edge.robot.zenoh_fuse import ZenohFuse
     from spiel_edge.robot.zenoh_fuse import zenoh_config as make_config
 

@@ -48,12 +48,13 @@ class Ros2Settings:
 
 @dataclass(frozen=True)
 class ZenohSettings:
-    """How the Zenoh session meets the others: mode, routers or peers to connect to, and the
-    ROS domain (rmw_zenoh)."""
+    """How the Zenoh session meets the others: mode, routers or peers to connect to, the ROS
+    domain (rmw_zenoh), and a Zenoh configuration file under them (None: $ZENOH_CONFIG)."""
 
     mode: str = "peer"
     connect: tuple[str, ...] = ()
     domain_id: int = 0
+    config_file: str | None = None
 
 
 def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform:

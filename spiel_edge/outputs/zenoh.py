@@ -75,6 +75,8 @@ def session_config(config: Any = None, settings: Any = None, *, rmw_zenoh: bool 
     sessions use no multicast scouting (they meet through a router), so neither does ours in
     that encoding unless a configuration file says otherwise."""
     zenoh = _import_zenoh()
+    if config is None:
+        config = getattr(settings, "config_file", None)
     cfg = load_config(config)
     given_file = config is not None or bool(os.environ.get("ZENOH_CONFIG"))
     try:

@@ -185,3 +185,23 @@ def test_zenoh_errors_lose_their_rust_source_location():
     assert zenoh_reason(RuntimeError(text)) == "timeout"
     assert zenoh_reason(RuntimeError("plain words")) == "plain words"
     assert zenoh_reason(RuntimeError(" at x.rs:1")) == "RuntimeError"
+
+
+def test_a_zenoh_configuration_file_in_the_settings_is_used_under_them(tmp_path):
+    """``fuse --zenoh-config`` reaches its own --zenoh output too: the file, with the mode
+    and endpoints given on the command line over it."""
+    pytest.importorskip("zenoh", reason="extra 'zenoh' not installed")
+    from spiel_edge.outputs.ros2 import ZenohSettings
+    from spiel_edge.outputs.zenoh import session_config
+
+    path = tmp_path / "z.json5"
+    path.write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:7999"] } }\n')
+    cfg = session_config(None, ZenohSettings(mode="", config_file=str(path)))
+    assert json.loads(cfg.get_json("mode")) == "client"
+    assert json.loads(cfg.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7999"]
+    assert (
+        json.loads(
+            session_config(None, ZenohSettings(mode="peer", config_file=str(path))).get_json("mode")
+        )
+        == "peer"
+    )

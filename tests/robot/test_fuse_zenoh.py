@@ -180,3 +180,43 @@ def test_fuse_in_odom_from_an_odometry_key(encoding):
     # acquisition and the odometry were stamped and mapped: within 10 mm)
     np.testing.assert_allclose(np.median(posts, axis=0), post_odom, atol=10.0)
     assert np.ptp(np.array(posts)[:, 0]) < 25.0
+
+
+def test_fuse_publishes_with_its_own_zenoh_settings(tmp_path, monkeypatch):
+    """`fuse --connect/--mode/--zenoh-config` reach the session of its --zenoh output too."""
+    from spiel_edge.cli import main
+    from spiel_edge.outputs import fanout
+    from spiel_edge.robot import zenoh_fuse
+
+    seen = []
+
+    class Sink:
+        def write(self, record):
+            pass
+
+        def close(self):
+            pass
+
+    class NoBoards:  # no subscriptions: the run ends at once
+        def __init__(self, *a, **kw):
+            self.dropped = {}
+
+        def run(self, stop, **kw):
+            pass
+
+        def close(self):
+            pass
+
+        def summary(self):
+            return "0 fused records"
+
+    monkeypatch.setattr(fanout, "_zenoh_sink", lambda *a: seen.append(a[3]) or Sink())
+    monkeypatch.setattr(zenoh_fuse, "ZenohFuse", NoBoards)
+    config = tmp_path / "z.json5"
+    config.write_text("{}\n")
+    args = ["fuse", "--robot", "virtual-4", "-o", str(tmp_path / "o.ndjson"), "--zenoh", "fused"]
+    extra = ["--connect", "tcp/127.0.0.1:7447", "--mode", "client", "--zenoh-config", str(config)]
+    assert main([*args, *extra]) in (0, 1)
+    (settings,) = seen
+    assert settings.connect == ("tcp/127.0.0.1:7447",) and settings.mode == "client"
+    assert settings.config_file == str(config)
