@@ -26,6 +26,7 @@ log = logging.getLogger(__name__)
 _MASK = 0xFFFFFFFF
 MAX_PENDING_TRUTH = 256
 MAX_INDEX_GAP = 1 << 16  # acquisitions; a larger jump is a reset or corrupt index, not loss
+LOST_BURST = 20  # this many acquisitions lost at once are said, not only counted
 
 
 @dataclass(frozen=True)
@@ -100,8 +101,12 @@ class StreamTracker:
     def _count_gap(self, gap: int) -> None:
         if gap > MAX_INDEX_GAP:
             self.jumps += 1
-        else:
-            self.lost += gap
+            return
+        self.lost += gap
+        if gap >= LOST_BURST:  # counters alone would hide a freeze of the board or the link
+            log.warning(
+                "%d acquisitions lost in a row (the board froze, or the link dropped them)", gap
+            )
 
     def started(self, first_acquisition: int) -> None:
         """The board's answer: the stream began at ``first_acquisition``."""

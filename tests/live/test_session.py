@@ -169,7 +169,7 @@ def test_reconnect_gives_up_after_its_timeout(sim_url):
         assert time.monotonic() - t0 < 2.0
 
 
-def test_a_short_stall_is_ridden_out_by_retries(sim_url):
+def test_a_short_stall_is_ridden_out_by_retries(sim_url, caplog):
     url = sim_url("stall_after=20&stall_ms=600&scene=model")
     with DeviceSession(url, stall_s=0.2) as session:
         session.start_stream(rate_hz=200)
@@ -177,6 +177,7 @@ def test_a_short_stall_is_ridden_out_by_retries(sim_url):
         assert session.counters.retries >= 1 and session.counters.disconnects == 0
     assert device_for_url(url).board.stats.overruns > 0  # the pings it missed while frozen
     assert [a.index for a in acqs][:20] == list(range(20))
+    assert "acquisitions lost in a row (the board froze" in caplog.text  # said, not only counted
 
 
 def test_a_board_silent_for_longer_is_reopened_and_streams_again(sim_url):
