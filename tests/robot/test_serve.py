@@ -314,3 +314,4 @@ def test_run_slot_needs_protocol_2(tmp_path, capsys):
     assert main([*args, "-o", out]) != 0
     err = capsys.readouterr().err
     assert "--slot needs protocol version 2" in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err  # no summary of a stream never started
