@@ -15,6 +15,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 import warnings
 
 import click
@@ -207,11 +208,36 @@ class _SignalPhase:
     def handler(cls, signum: int, frame: object) -> None:
         if cls.ending:
             return
+        _end_if_stuck()
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         from spiel_edge.cli._signals import Terminated
 
         raise Terminated(f"signal {signum}")
+
+
+STUCK_EXIT_S = 10.0  # after a signal, a clean-up still running this long is stuck
+_stuck_timer: list[threading.Timer] = []
+
+
+def _end_if_stuck() -> None:
+    """The signal's exception unwinds the command; should its clean-up block (a lock that a
+    library held when the signal came never released), the process still ends, status 130,
+    saying so: nothing hangs. Armed once; a daemon thread, so a normal end never waits."""
+    if _stuck_timer:
+        return
+
+    def force() -> None:
+        with contextlib.suppress(OSError):
+            os.write(
+                2, f"aborted: the clean-up after the signal took over {STUCK_EXIT_S:g} s\n".encode()
+            )
+        os._exit(130)
+
+    timer = threading.Timer(STUCK_EXIT_S, force)
+    timer.daemon = True
+    _stuck_timer.append(timer)
+    timer.start()
 
 
 class _ClosedStream:

@@ -132,3 +132,20 @@ def test_a_library_import_installs_no_handler():
         [sys.executable, "-c", code], capture_output=True, timeout=60, check=False
     )
     assert proc.stdout.strip() == b"True", proc
+
+
+def test_a_clean_up_stuck_after_a_signal_still_ends_the_process():
+    """A signal's exception whose clean-up blocks for good (a lock a library held when the
+    signal came) ends the process anyway, status 130, saying so: nothing hangs."""
+    code = (
+        "import threading, time\n"
+        "from spiel_edge import cli\n"
+        "cli.STUCK_EXIT_S = 0.3\n"
+        "cli._end_if_stuck()\n"
+        "threading.Lock().acquire(); threading.Lock().acquire()\n"  # harmless: two locks
+        "lock = threading.Lock(); lock.acquire(); lock.acquire()\n"  # stuck for good
+    )
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=60)
+    assert done.returncode == 130 and time.monotonic() - started < 30
+    assert b"aborted: the clean-up after the signal took over 0.3 s" in done.stderr
