@@ -85,7 +85,9 @@ class SlottedStream:
             if p.size
             else ""
         )
-        how = "started on the board's clock" if self.on_clock_of_board else "started by the host"
+        # a board found to ignore start times started when the host's request came: the host's
+        on_clock = self.on_clock_of_board and self.trust.usable
+        how = "started on the board's clock" if on_clock else "started by the host"
         return (
             f"slot: {self.keeper.restarts} restarts{phase} (margin {self.keeper.margin_s * 1e3:g} "
             f"ms; {how})"

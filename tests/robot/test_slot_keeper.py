@@ -144,6 +144,9 @@ def test_a_board_with_start_at_is_given_its_slot_in_its_own_clock():
     assert keeper.phase_error(session.start_at_unix) == pytest.approx(0.0, abs=1e-9)
     assert session.start_at_unix - session.sent_at >= 0.02  # asked ahead, not at the moment
     assert "started on the board's clock" in slotted.summary()
+    for _ in range(2):  # two first pulses far from their named time: the board ignores them
+        slotted.trust.landed(0.0, 1.0)
+    assert "started by the host" in slotted.summary()  # also before any restart came
 
 
 def test_a_start_on_the_boards_clock_that_is_refused_is_made_by_the_host(caplog):
