@@ -20,6 +20,7 @@ mute-config        CONFIG_READ is never answered
 start-channels     STREAM_START answers one channel more than HELLO
 hello-control      HELLO's serial and firmware version hold control characters / escapes
 start-at-ignored   it offers START_AT and starts every stream at once, whatever time it is given
+                   (never on the named grid: half a period later when at once would be)
 =================  ===========================================================================
 """
 
@@ -66,9 +67,27 @@ def install(board, lie: str) -> None:
     elif lie == "mute-stream":
         board.due = lambda now, room, limit=None: []
     elif lie == "start-at-ignored":
-        board.first_due = lambda start_at_us, period_s, now: now
+        board.first_due = _ignoring_start_times(board.first_due)
     else:
         _stream_lies(board, lie)
+
+
+IGNORED_START_OFF_S = 0.001  # "at once" this near the named grid would hide the lie
+
+
+def _ignoring_start_times(named_due):
+    """``first_due`` of a firmware that starts every stream at once, whatever time it is
+    given; never on the named grid by chance (half a period later then), so that a test of
+    the lie sees it every time."""
+
+    def first_due(start_at_us: int, period_s: float, now: float) -> float:
+        named = named_due(start_at_us, period_s, now)
+        if named is None or period_s <= 0:
+            return now
+        off = (now - named) % period_s
+        return now + period_s / 2 if min(off, period_s - off) < IGNORED_START_OFF_S else now
+
+    return first_due
 
 
 def _config_lies(board, lie: str) -> None:

@@ -185,3 +185,14 @@ def test_start_at_trust_ends_after_two_starts_in_a_row_that_miss():
     assert trust.landed(30.0, 30.0001) and trust.usable  # a hit clears it
     assert not trust.landed(40.0, 39.99) and trust.usable
     assert not trust.landed(50.0, 50.01) and not trust.usable  # two in a row: no more
+
+
+def test_the_start_at_ignored_lie_never_lands_on_the_named_grid_by_chance():
+    """The virtual board's `lie=start-at-ignored` starts at once, but half a period later when
+    "at once" falls within 1 ms of the named grid: the lie shows on every start."""
+    from spiel_edge.sim.lies import _ignoring_start_times
+
+    first_due = _ignoring_start_times(lambda start_at_us, period_s, now: 10.0)
+    assert first_due(1, 0.025, 3.0123) == 3.0123  # off the grid: at once
+    assert first_due(1, 0.025, 3.0) == pytest.approx(3.0125)  # on it: half a period later
+    assert first_due(1, 0.025, 3.0249) == pytest.approx(3.0374)
