@@ -36,3 +36,21 @@ def write_robot(tmp_path):
         return path
 
     return write
+
+
+@pytest.fixture
+def zenoh_output_settings(monkeypatch) -> list:
+    """The ZenohSettings each --zenoh output is opened with (no session is opened)."""
+    from spiel_edge.outputs import fanout
+
+    seen: list = []
+
+    class Sink:
+        def write(self, record):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(fanout, "_zenoh_sink", lambda *a: seen.append(a[3]) or Sink())
+    return seen

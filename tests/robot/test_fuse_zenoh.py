@@ -182,20 +182,12 @@ def test_fuse_in_odom_from_an_odometry_key(encoding):
     assert np.ptp(np.array(posts)[:, 0]) < 25.0
 
 
-def test_fuse_publishes_with_its_own_zenoh_settings(tmp_path, monkeypatch):
+def test_fuse_publishes_with_its_own_zenoh_settings(tmp_path, monkeypatch, zenoh_output_settings):
     """`fuse --connect/--mode/--zenoh-config` reach the session of its --zenoh output too."""
     from spiel_edge.cli import main
-    from spiel_edge.outputs import fanout
     from spiel_edge.robot import zenoh_fuse
 
-    seen = []
-
-    class Sink:
-        def write(self, record):
-            pass
-
-        def close(self):
-            pass
+    seen = zenoh_output_settings
 
     class NoBoards:  # no subscriptions: the run ends at once
         def __init__(self, *a, **kw):
@@ -210,7 +202,6 @@ def test_fuse_publishes_with_its_own_zenoh_settings(tmp_path, monkeypatch):
         def summary(self):
             return "0 fused records"
 
-    monkeypatch.setattr(fanout, "_zenoh_sink", lambda *a: seen.append(a[3]) or Sink())
     monkeypatch.setattr(zenoh_fuse, "ZenohFuse", NoBoards)
     config = tmp_path / "z.json5"
     config.write_text("{}\n")

@@ -82,20 +82,9 @@ def test_run_robot_refuses_one_boards_options(extra, words, capsys):
     assert words in err and "Traceback" not in err, err
 
 
-def test_run_robot_publishes_with_the_zenoh_options(tmp_path, monkeypatch):
+def test_run_robot_publishes_with_the_zenoh_options(tmp_path, zenoh_output_settings):
     """--zenoh-connect and --zenoh-mode reach the fused records' Zenoh session."""
-    from spiel_edge.outputs import fanout
-
-    seen = []
-
-    class Sink:
-        def write(self, record):
-            pass
-
-        def close(self):
-            pass
-
-    monkeypatch.setattr(fanout, "_zenoh_sink", lambda *a: seen.append(a[3]) or Sink())
+    seen = zenoh_output_settings
     args = ["run", "--robot", str(_robot(tmp_path)), "--frames", "2", "-o", str(tmp_path / "o")]
     assert main([*args, "--zenoh", "robot/fused", "--zenoh-connect", "tcp/10.0.0.9:7447"]) == 0
     assert seen and seen[0].connect == ("tcp/10.0.0.9:7447",)
