@@ -129,7 +129,7 @@ def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, set
     except Exception as exc:
         raise ConfigError(
             f"--zenoh: cannot open a Zenoh session ({zenoh_reason(exc)}): in client mode a "
-            "router must be reachable at --zenoh-connect"
+            "router must be reachable at the endpoints given"
             if getattr(settings, "mode", "") == "client"
             else f"--zenoh: cannot open a Zenoh session: {zenoh_reason(exc)}"
         ) from exc

@@ -85,7 +85,7 @@ class SlottedStream:
             if p.size
             else ""
         )
-        # a board found to ignore start times started when the host's request came: the host's
+        # a board found to ignore start times began when the host's request arrived
         on_clock = self.on_clock_of_board and self.trust.usable
         how = "started on the board's clock" if on_clock else "started by the host"
         return (
