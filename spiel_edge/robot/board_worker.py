@@ -13,7 +13,6 @@ import logging
 import queue
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,12 +23,10 @@ from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse,
 from spiel_edge.robot.description import BoardSpec
 from spiel_edge.robot.fusion import BoardReport, reports_targets
 from spiel_edge.robot.schedule import Schedule
-from spiel_edge.robot.slot_keeper import StartAtTrust
+from spiel_edge.robot.slot_keeper import SlotPhase, StartAtTrust
 
 log = logging.getLogger(__name__)
 
-PHASE_CHECK_EVERY = 8  # acquisitions between slot checks
-PHASE_SETTLE = 8  # acquisitions after a (re)start that fix the link's constant latency
 DISAGREE_LIMIT = 3  # acquisitions in a row seconds off the clock estimate: the board is dropped
 
 
@@ -62,7 +59,7 @@ class BoardWorker(threading.Thread):
         super().__init__(name=f"board-{board.name}", daemon=True)
         self.board = board
         self.schedule = schedule
-        self.t0 = t0
+        self.phase = SlotPhase(schedule, board.name, t0)  # its pulses against its slot
         self.out = out
         self.stop = stop
         self.association = association
@@ -75,15 +72,22 @@ class BoardWorker(threading.Thread):
         self.pipeline = None
         self.ready = threading.Event()  # set once the board is open (or dropped)
         self.go = threading.Event()  # set by the runner once every stream started in its slot
-        self._bias: list[float] = []
-        self._bias_s = 0.0
+        self._host_timed = False  # the host sent its last start (no START_AT)
         self._timed = None  # the stream this thread started in the slot (StreamStartResponse)
         self.synced = False  # its pulses come from TIME_SYNC (protocol 2), not the estimate
         self.on_its_clock = False  # its last start was named in its clock (START_AT)
         self.trust = StartAtTrust(schedule.margin_s)  # does it keep the time it is named?
         self._named: tuple[float, float] | None = None  # (when, period) of such a start
-        self._recent: deque[float] = deque(maxlen=PHASE_CHECK_EVERY)
         self._disagree = 0
+
+    @property
+    def t0(self) -> float:
+        """Slots count from here (host time; the runner sets it once every board is open)."""
+        return self.phase.t0
+
+    @t0.setter
+    def t0(self, value: float) -> None:
+        self.phase.t0 = value
 
     # --- thread ------------------------------------------------------------------------
 
@@ -146,14 +150,18 @@ class BoardWorker(threading.Thread):
             timed = self.session.start_stream_at(unix_at, rate_hz=1.0 / period, n_samples=n_samples)
         self.on_its_clock = timed is not None
         self._named = (at, period) if timed is not None else None
-        if timed is None:
-            at = self.schedule.next_fire(self.board.name, self.t0, max(at, time.perf_counter()))
-            if not wait_until(at, self.stop):
+        host_timed = timed is None
+        if host_timed:  # sent lead_s early: how late the earlier such starts landed
+            lead = self.phase.lead_s
+            at = self.schedule.next_fire(
+                self.board.name, self.t0, max(at, time.perf_counter() + lead)
+            )
+            if not wait_until(at - lead, self.stop):
                 return
             timed = self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
         self._timed = timed
-        self._bias = []
-        self._recent.clear()
+        self._host_timed = host_timed
+        self.phase.started(self.synced, host_timed)
 
     def _loop(self) -> None:
         window = self.schedule.window_s
@@ -173,8 +181,7 @@ class BoardWorker(threading.Thread):
             pulse = synced_pulse(acq)  # protocol 2: TIME_SYNC's mapping of the board's clock
             if (pulse is not None) != self.synced:  # another time axis: learn the bias afresh
                 self.synced = pulse is not None
-                self._bias = []
-                self._recent.clear()
+                self.phase.started(self.synced, self._host_timed)
             if pulse is None:  # protocol 1: the one-way estimate from the stamps' arrivals
                 pulse = self.clock.to_host(stamp) - window
             timed = self._timed
@@ -190,8 +197,8 @@ class BoardWorker(threading.Thread):
                     and self.synced
                     and self._missed_named_start(acq.index - timed.first_acquisition, pulse)
                 )
-                off_slot = self._off_slot(pulse) or missed
-                t = self._on_schedule(pulse - self._bias_s)
+                t, off_slot = self.phase.observe(pulse)
+                off_slot = off_slot or missed
             report = self._report(acq, t, arrival)
             self.stats.acquisitions += 1
             self.out.put(("report", self.board.name, report))
@@ -236,34 +243,14 @@ class BoardWorker(threading.Thread):
             error=error,
             truth_mm=truth,
             acquired_unix=acq.host_time,
+            time_uncertainty_s=self._stamp_uncertainty(acq),
         )
 
-    def _on_schedule(self, t: float) -> float:
-        """A board whose pulses sit within the sync margin of its slot (the median of the last
-        few: a periodic stream does not jump for one pulse, an estimate's outlier does) is
-        taken to fire at the slot's time; otherwise the pulse keeps its measured time."""
-        sched, offset = self.schedule, self.schedule.slots[self.board.name].offset_s
-        k = round((t - self.t0 - offset) / sched.period_s)
-        slot = self.t0 + k * sched.period_s + offset
-        err = float(np.median(self._recent)) - self._bias_s if self._recent else t - slot
-        return slot if abs(err) <= sched.margin_s else t
-
-    def _off_slot(self, pulse: float) -> bool:
-        """Whether the board's pulses left its slot. The first ``PHASE_SETTLE`` pulses after a
-        start the host timed fix the board's bias (the link's smallest latency, which one-way
-        stamps cannot see, plus how late the start landed): pulses are reported less it, and
-        only a change of phase (the median of the last few) beyond the sync margin counts."""
-        if not self.clock.ready:
-            return False
-        err = self.schedule.phase_error(self.board.name, self.t0, pulse)
-        if len(self._bias) < PHASE_SETTLE:
-            self._bias.append(err)
-            self._bias_s = float(np.median(self._bias))
-            return False
-        self._recent.append(err)
-        if self.stats.acquisitions % PHASE_CHECK_EVERY:
-            return False
-        return abs(float(np.median(self._recent)) - self._bias_s) > self.schedule.margin_s
+    def _stamp_uncertainty(self, acq) -> float | None:
+        """Seconds: how far the reported pulse may be from the true one, when TIME_SYNC
+        measured it (the reported time is then the measured one: SlotPhase)."""
+        us = getattr(acq, "stamp_uncertainty_us", None)
+        return us * 1e-6 if self.synced and us is not None else None
 
 
 def toa_of(port: str, requested: str | None) -> str | None:

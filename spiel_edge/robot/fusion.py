@@ -136,6 +136,7 @@ class BoardReport:
     truth_mm: np.ndarray | None = None  # (K, 3) in base_link, when the source knows it
     acquired_unix: float | None = None  # when the acquisition reached its host (Unix time)
     received_unix: float | None = None  # when its record reached the fuser (``fuse``: Unix time)
+    time_uncertainty_s: float | None = None  # of host_time, when measured (TIME_SYNC)
 
 
 class Fuser:

@@ -126,25 +126,43 @@ class Schedule:
 class CrosstalkMarker:
     """Marks acquisitions whose window another board's pulse reached, from the pulses' host
     times (the boards' stamps mapped through their clocks): past pulses as seen, and each
-    other board's next pulse predicted one period after its last."""
+    other board's next pulse predicted one period after its last.
+
+    Each pulse's time is uncertain by its own ``uncertainty_s`` when that was measured
+    (TIME_SYNC: tens of microseconds), else by half the sync margin (a time from the one-way
+    estimate, or a pulse reported at its slot's time); the window of a pair is widened by the
+    sum of the two. (Widening every pair by the whole margin marked acquisitions of boards that
+    sat well inside their slots: a board 0.3 ms late beside one 0.2 ms early.)"""
 
     def __init__(self, schedule: Schedule, boards: list[str]):
         self.schedule = schedule
-        self._pulses: dict[str, deque[float]] = {b: deque(maxlen=EMISSIONS_KEPT) for b in boards}
+        self._pulses: dict[str, deque[tuple[float, float]]] = {
+            b: deque(maxlen=EMISSIONS_KEPT) for b in boards
+        }
         self.marked: dict[str, int] = dict.fromkeys(boards, 0)
         self.seen: dict[str, int] = dict.fromkeys(boards, 0)
 
-    def observe(self, board: str, t_host: float, period_s: float | None = None) -> list[str]:
-        """Record ``board``'s pulse at ``t_host``; the boards whose pulse reached its window."""
+    def observe(
+        self,
+        board: str,
+        t_host: float,
+        period_s: float | None = None,
+        uncertainty_s: float | None = None,
+    ) -> list[str]:
+        """Record ``board``'s pulse at ``t_host`` (± ``uncertainty_s``, when measured); the
+        boards whose pulse reached its window."""
         period = self.schedule.period_s if period_s is None else period_s
+        unknown = self.schedule.margin_s / 2
+        mine = unknown if uncertainty_s is None else float(uncertainty_s)
         heard = []
         for other, pulses in self._pulses.items():
             if other == board or not pulses:
                 continue
-            candidates = list(pulses) + [pulses[-1] + period]
-            if any(self.schedule.hears(t_host, t) for t in candidates):
+            last_t, last_u = pulses[-1]
+            candidates = list(pulses) + [(last_t + period, last_u)]
+            if any(self.schedule.hears(t_host, t, margin_s=mine + u) for t, u in candidates):
                 heard.append(other)
-        self._pulses[board].append(t_host)
+        self._pulses[board].append((t_host, mine))
         self.seen[board] += 1
         if heard:
             self.marked[board] += 1

@@ -120,7 +120,9 @@ class RobotRunner:
                     self._odometry(*payload)
                     continue
                 report: BoardReport = payload
-                report.crosstalk = self.marker.observe(name, report.host_time)
+                report.crosstalk = self.marker.observe(
+                    name, report.host_time, uncertainty_s=report.time_uncertainty_s
+                )
                 for record in self.fuser.add(report):
                     self._write(record, report)
                 if frames is not None and self.records >= frames:

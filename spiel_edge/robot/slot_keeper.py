@@ -17,6 +17,9 @@ Unix clock (TIME_SYNC), so a process can see where its board fires against its s
   phase of the last ``CHECK_EVERY`` pulses strays past ``KEEP_WITHIN`` of it (the board's clock
   drifts against the host's: restarted before its pulses leave the slot); before such a restart the requested period is corrected by the drift fitted
   over the last pulses, so restarts become rare.
+
+:class:`SlotPhase` is the same kind of logic for ``run --robot`` (one host, its process
+clock), used by its board threads and by the offline virtual robot alike.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ SETTLE = 8  # pulses after a start that tell how late it landed
 CHECK_EVERY = 8  # pulses between checks of the phase
 DRIFT_WINDOW = 128  # pulses the drift is fitted over
 START_AHEAD_S = 0.03  # a start is planned at least this far ahead (the request's way out)
+MAX_LEAD_S = 0.01  # run --robot: a start's latency is never more (a bound on a bad landing)
 KEEP_WITHIN = 0.75  # a drifting stream is restarted once its phase is this share of the margin
 
 
@@ -117,6 +121,77 @@ class SlotKeeper:
     def _restart(self) -> bool:
         self.restarts += 1
         return True
+
+
+class SlotPhase:
+    """One board's pulses against its slot in ``run --robot``: when to restart its stream, and
+    the time each pulse is reported at (to the cross-talk marker and the fusion). Pure.
+
+    The first ``SETTLE`` pulses after a start say how it landed. A pulse mapped by TIME_SYNC
+    (``synced``: protocol 2) is the pulse's time within its stated uncertainty, so its phase is
+    measured: a start that landed outside the sync margin is redone, later pulses count against
+    the slot itself, and each is reported as measured, so the marker sees where the board
+    really fires. A pulse from the one-way estimate (protocol 1) carries the link's smallest
+    latency, which one-way stamps cannot show: the landing is taken as that bias, only a change
+    of phase beyond the margin counts, and a pulse whose recent phase (less the bias) is within
+    the margin is reported at the slot's time. A start the host times itself (no START_AT) goes
+    out ``lead_s`` early: how late the measured starts landed (the request's latency), learned
+    as :class:`SlotKeeper` learns it."""
+
+    def __init__(self, schedule, board: str, t0: float):
+        self.schedule = schedule
+        self.board = board
+        self.t0 = t0
+        self.synced = False
+        self.lead_s = 0.0
+        self._learn_lead = False
+        self._settle: list[float] = []
+        self._bias_s = 0.0
+        self._recent: deque[float] = deque(maxlen=CHECK_EVERY)
+        self._seen = 0
+
+    def started(self, synced: bool, host_timed: bool = False) -> None:
+        """A stream was (re)started, or the pulses' time axis changed (``synced``: TIME_SYNC's
+        mapping from now on; ``host_timed``: the host sent the start at the slot's moment, less
+        ``lead_s``)."""
+        self.synced = synced
+        self._learn_lead = synced and host_timed
+        self._settle = []
+        self._bias_s = 0.0
+        self._recent.clear()
+        self._seen = 0
+
+    def observe(self, pulse: float) -> tuple[float, bool]:
+        """One pulse of the current stream (host time): (the time to report it at, whether
+        to restart the stream in its slot)."""
+        margin = self.schedule.margin_s
+        err = self.schedule.phase_error(self.board, self.t0, pulse)
+        self._seen += 1
+        if len(self._settle) < SETTLE:
+            self._settle.append(err)
+            landed = float(np.median(self._settle))
+            if not self.synced:
+                self._bias_s = landed
+            settled = self.synced and len(self._settle) == SETTLE
+            if settled and self._learn_lead:
+                self.lead_s = min(max(self.lead_s + landed, -MAX_LEAD_S), MAX_LEAD_S)
+            return self._reported(pulse), settled and abs(landed) > margin
+        self._recent.append(err)
+        restart = (
+            self._seen % CHECK_EVERY == 0
+            and abs(float(np.median(self._recent)) - self._bias_s) > margin
+        )
+        return self._reported(pulse), restart
+
+    def _reported(self, pulse: float) -> float:
+        if self.synced:
+            return pulse
+        t = pulse - self._bias_s
+        sched, offset = self.schedule, self.schedule.slots[self.board].offset_s
+        k = round((t - self.t0 - offset) / sched.period_s)
+        slot = self.t0 + k * sched.period_s + offset
+        err = float(np.median(self._recent)) - self._bias_s if self._recent else t - slot
+        return slot if abs(err) <= sched.margin_s else t
 
 
 class StartAtTrust:

@@ -13,7 +13,6 @@ import numpy as np
 
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.robot import score
-from spiel_edge.robot.clock import StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser, reports_targets
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
@@ -108,7 +107,6 @@ def run_virtual_robot(
         world, cycles=cycles, scheduled=scheduled, seed=seed, want_clean=ghosts
     )
     sched = Schedule.from_robot(world.robot, window_s=world.n_samples / world.sample_rate_hz)
-    clocks = {n: StampClock() for n in world.names}
     marker = CrosstalkMarker(sched, world.names)
     fov = {b.name: b.field_of_view_deg for b in world.robot.boards}
     fuser = Fuser(
@@ -144,10 +142,7 @@ def run_virtual_robot(
             )
             ghost = _has_ghost(world, a, targets, reports_targets(clean))
         figs.ghost += ghost
-        stamp_s = a.board_us / 1e6
-        clock = clocks[a.board]
-        clock.observe(stamp_s, a.arrival)
-        mapped = clock.to_host(stamp_s)
+        mapped = a.host_pulse  # the board's clock mapped as run --robot does (robot_offline)
         heard = marker.observe(a.board, mapped)
         figs.marked += bool(heard)
         figs.ghost_unmarked += ghost and not heard

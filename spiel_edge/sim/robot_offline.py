@@ -7,7 +7,6 @@ boards kept in their trigger slots by the host logic of robot/schedule.py and ro
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +36,7 @@ class Acquisition:
     board_us: int  # the board's stamp
     arrival: float  # host time its last byte arrived
     frame: BoardFrame
+    host_pulse: float = 0.0  # the pulse as the host reports it (run --robot's protocol-1 path)
 
 
 def simulate(
@@ -54,13 +54,15 @@ def simulate(
 
     Unscheduled, each board streams at the period on its own clock from a random phase
     (boards free-running side by side). Scheduled, the host starts each board in its slot
-    (robot/schedule.py) and keeps it there: it maps the board's stamps to host time
-    (robot/clock.py, from the arrivals), corrects the board's rate by the estimated drift
-    and restarts it in its slot when its pulses (the median of the last 8) stray more than the
-    sync margin.
+    (robot/schedule.py) and keeps it there as ``run --robot`` keeps a protocol-1 board: it
+    maps the board's stamps to host time (robot/clock.py, from the arrivals), corrects the
+    board's rate by the estimated drift and restarts it in its slot when its pulses stray more
+    than the sync margin (robot/slot_keeper.py's ``SlotPhase``, which also gives each
+    acquisition's ``host_pulse``).
     Returns (acquisitions, restarts per board)."""
     from spiel_edge.robot.clock import StampClock
     from spiel_edge.robot.schedule import Schedule
+    from spiel_edge.robot.slot_keeper import SlotPhase
 
     rng = np.random.default_rng([seed, 0xC10C])
     sched = Schedule.from_robot(world.robot, window_s=world.n_samples / world.sample_rate_hz)
@@ -93,7 +95,7 @@ def simulate(
         return c.true_time(b0 + count[n] * p_board)
 
     out: list[Acquisition] = []
-    recent = {n: deque(maxlen=8) for n in names}
+    phase = {n: SlotPhase(sched, n, t0) for n in names}
     fired: dict[str, list[float]] = {n: [] for n in names}
     # generate pulses in true-time order
     nxt = {n: next_pulse(n) for n in names}
@@ -125,18 +127,16 @@ def simulate(
             out.append(acq)
             hc = host_clock[bp]
             hc.observe(stamp, arrival)
-            if scheduled and hc.ready:
-                mapped = hc.to_host(stamp) - window - latency_s[0]
-                recent[bp].append(sched.phase_error(bp, t0, mapped))
-            if scheduled and hc.ready and index[bp] % 8 == 0:
-                err = float(np.median(recent[bp]))
-                if abs(err) > sched.margin_s:
+            acq.host_pulse = hc.to_host(stamp) - window  # as run --robot maps a protocol-1 board
+            if scheduled:
+                acq.host_pulse, off_slot = phase[bp].observe(acq.host_pulse)
+                if off_slot:
                     # restart in the slot: the next slot start after now, rate corrected
                     restart_at = sched.next_fire(bp, t0, arrival + 2e-3)
                     stream[bp] = (restart_at + rng.uniform(0, 0.1e-3), period / (1 + hc.drift))
                     count[bp] = 0
                     restarts[bp] += 1
-                    recent[bp].clear()
+                    phase[bp].started(False)
                     nxt[bp] = next_pulse(bp)
                 elif abs(stream[bp][1] - period / (1 + hc.drift)) > 1e-9 and index[bp] % 64 == 0:
                     # rate correction alone: continue from the next pulse at the new rate

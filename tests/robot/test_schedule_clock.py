@@ -57,6 +57,93 @@ def test_marker_marks_what_another_pulse_reached():
     assert m.marked["left"] == 1 and m.marked["front"] == 0
 
 
+def test_marker_widens_a_pair_by_its_two_pulses_uncertainties():
+    """Two boards inside their slots, one 0.3 ms late and the next 0.25 ms early: 0.55 ms of
+    the 2 x 0.5 ms between them used, so neither hears the other. Unknown times (each ± half
+    the margin) leave that undecided and mark it; times TIME_SYNC measured to ± 20 us do not,
+    and a pair that really closes the gap is marked either way."""
+    s = Schedule.from_robot(load_robot("virtual-4"), window_s=0.003)
+    back, right = s.fire_time("back", 0.0, 3) + 0.3e-3, s.fire_time("right", 0.0, 3) - 0.25e-3
+    assert not s.hears(right, back, margin_s=0.0)  # the truth: not reached
+    unknown = CrosstalkMarker(s, ["back", "right"])
+    unknown.observe("back", back)
+    assert unknown.observe("right", right) == ["back"]
+    measured = CrosstalkMarker(s, ["back", "right"])
+    measured.observe("back", back, uncertainty_s=20e-6)
+    assert measured.observe("right", right, uncertainty_s=20e-6) == []
+    # right 1.05 ms early instead: back's pulse is inside its guard time, heard
+    measured.observe("back", back + s.period_s, uncertainty_s=20e-6)
+    late = right + s.period_s - 0.8e-3
+    assert s.hears(late, back + s.period_s, margin_s=0.0)
+    assert measured.observe("right", late, uncertainty_s=20e-6) == ["back"]
+    # a measured uncertainty wider than half the margin (a clock not yet converged) widens more
+    wide = CrosstalkMarker(s, ["back", "right"])
+    wide.observe("back", back, uncertainty_s=0.4e-3)
+    assert wide.observe("right", right + 0.3e-3, uncertainty_s=0.4e-3) == ["back"]
+    unknown.observe("back", back + 2 * s.period_s)
+    assert unknown.observe("right", right + 2 * s.period_s + 0.3e-3) == []
+
+
+def _phase(synced: bool, t0: float = 10.0):
+    from spiel_edge.robot.slot_keeper import SlotPhase
+
+    s = Schedule.from_robot(load_robot("virtual-4"), window_s=0.003)
+    p = SlotPhase(s, "left", t0)
+    p.started(synced)
+    return s, p
+
+
+def _pulses(s, t0, first_cycle, n, offset_s):
+    return [s.fire_time("left", t0, first_cycle + k) + offset_s for k in range(n)]
+
+
+def test_slot_phase_protocol_1_takes_the_landing_as_the_links_latency():
+    """A protocol-1 pulse carries the link's unseen latency: a stream that lands 0.8 ms off is
+    taken as on time (reported at the slot's times), and only a change of phase beyond the
+    margin from there restarts it."""
+    s, p = _phase(synced=False)
+    results = [p.observe(t) for t in _pulses(s, 10.0, 0, 24, 0.8e-3)]
+    assert not any(restart for _, restart in results)
+    slots = _pulses(s, 10.0, 0, 24, 0.0)
+    np.testing.assert_allclose([t for t, _ in results[8:]], slots[8:], atol=1e-12)
+    drifted = [p.observe(t) for t in _pulses(s, 10.0, 24, 16, 0.8e-3 + 0.6e-3)]
+    assert any(restart for _, restart in drifted)
+    assert drifted[-1][0] == pytest.approx(slots[-1] + 40 * s.period_s - 24 * s.period_s + 0.6e-3)
+
+
+def test_slot_phase_protocol_2_counts_the_measured_phase():
+    """A TIME_SYNC pulse is where the board fired: a start that landed 0.8 ms off (outside the
+    0.5 ms margin) is redone after the settling pulses, and pulses are reported as measured."""
+    s, p = _phase(synced=True)
+    pulses = _pulses(s, 10.0, 0, 8, 0.8e-3)
+    results = [p.observe(t) for t in pulses]
+    assert [r for _, r in results] == [False] * 7 + [True]
+    np.testing.assert_allclose([t for t, _ in results], pulses, atol=1e-12)
+    # landed within the margin: kept, until the phase itself passes the margin
+    p.started(True)
+    kept = [p.observe(t) for t in _pulses(s, 10.0, 8, 16, 0.3e-3)]
+    assert not any(r for _, r in kept)
+    gone = [p.observe(t) for t in _pulses(s, 10.0, 24, 8, 0.6e-3)]
+    assert gone[-1][1]
+
+
+def test_slot_phase_learns_how_late_a_host_timed_start_lands():
+    """A protocol-2 board started by the host (no START_AT) lands late by the request's
+    latency: the start is redone, sent that much earlier, and then lands in the slot."""
+    s, p = _phase(synced=True)
+    p.started(True, host_timed=True)
+    latency = 0.8e-3
+    results = [p.observe(t) for t in _pulses(s, 10.0, 0, 8, latency)]
+    assert results[-1][1] and p.lead_s == pytest.approx(latency)
+    p.started(True, host_timed=True)  # sent lead_s early: lands on the slot
+    again = [p.observe(t) for t in _pulses(s, 10.0, 8, 16, latency - p.lead_s)]
+    assert not any(r for _, r in again) and p.lead_s == pytest.approx(latency)
+    # a start named in the board's clock teaches nothing about the request's latency
+    p.started(True, host_timed=False)
+    [p.observe(t) for t in _pulses(s, 10.0, 24, 8, 0.2e-3)]
+    assert p.lead_s == pytest.approx(latency)
+
+
 @pytest.mark.parametrize("drift_ppm", [-200.0, 0.0, 150.0])
 def test_stamp_clock_maps_within_a_fraction_of_a_millisecond(drift_ppm):
     rng = np.random.default_rng(3)
