@@ -19,7 +19,13 @@ import numpy as np
 
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError, SpielError
-from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock, synced_pulse, wait_until
+from spiel_edge.robot.clock import (
+    MAX_DISAGREEMENT_S,
+    StampClock,
+    synced_pulse,
+    unix_minus_perf_s,
+    wait_until,
+)
 from spiel_edge.robot.description import BoardSpec
 from spiel_edge.robot.fusion import BoardReport, reports_targets
 from spiel_edge.robot.schedule import Schedule
@@ -144,7 +150,7 @@ class BoardWorker(threading.Thread):
         sched = self.schedule
         n_samples = self.pipeline.profile.acquisition.n_samples
         period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
-        unix_at = at - time.perf_counter() + time.time()
+        unix_at = at + unix_minus_perf_s()
         timed = None
         if self.trust.usable:
             timed = self.session.start_stream_at(unix_at, rate_hz=1.0 / period, n_samples=n_samples)

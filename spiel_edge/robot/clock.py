@@ -117,7 +117,22 @@ def synced_pulse(acq) -> float | None:
     stamp = getattr(acq, "stamp_host", None)
     if stamp is None:
         return None
-    return stamp + (acq.received_ns / 1e9 - acq.host_time)  # Unix -> perf_counter
+    return stamp - unix_minus_perf_s()
+
+
+def unix_minus_perf_s() -> float:
+    """``time.time() - time.perf_counter()`` from reads taken together: of three pairs, the one
+    whose two ``perf_counter`` reads around ``time.time()`` lie closest. (An acquisition's
+    ``host_time`` and ``received_ns`` are not such a pair: the acquisition is assembled after
+    its bytes were read, milliseconds later on a loaded computer, which moved its pulse.)"""
+    best, offset = float("inf"), 0.0
+    for _ in range(3):
+        before = time.perf_counter_ns()
+        wall = time.time_ns()
+        after = time.perf_counter_ns()
+        if after - before < best:
+            best, offset = after - before, (wall - (before + after) / 2) / 1e9
+    return offset
 
 
 def wait_until(at: float, stop: threading.Event) -> bool:

@@ -144,6 +144,25 @@ def test_slot_phase_learns_how_late_a_host_timed_start_lands():
     assert p.lead_s == pytest.approx(latency)
 
 
+def test_synced_pulse_does_not_take_the_acquisitions_late_wall_clock_read():
+    """An acquisition's ``host_time`` is read when it is assembled, after its bytes arrived
+    (``received_ns``): 4 ms later on a loaded computer. Converting its TIME_SYNC time with that
+    pair moved the pulse 4 ms (run --robot marked it as another board's cross-talk)."""
+    import time
+    from types import SimpleNamespace
+
+    from spiel_edge.robot.clock import synced_pulse
+
+    now_perf, now_unix = time.perf_counter(), time.time()
+    acq = SimpleNamespace(
+        stamp_host=now_unix - 0.010,  # fired 10 ms ago
+        received_ns=int(now_perf * 1e9),
+        host_time=now_unix + 0.004,
+    )
+    assert synced_pulse(acq) == pytest.approx(now_perf - 0.010, abs=5e-4)
+    assert synced_pulse(SimpleNamespace(stamp_host=None)) is None
+
+
 @pytest.mark.parametrize("drift_ppm", [-200.0, 0.0, 150.0])
 def test_stamp_clock_maps_within_a_fraction_of_a_millisecond(drift_ppm):
     rng = np.random.default_rng(3)
