@@ -340,7 +340,7 @@ static int fw_write(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
         *code = SP_ERR_INVALID, *text = "data shorter than its length";
         return 0;
     }
-    if (off + n > v2.expect_size) {
+    if ((uint64_t)off + n > v2.expect_size) { /* u64: an offset near 2^32 must not wrap */
         *code = SP_ERR_TOO_LARGE, *text = "past the announced size";
         return 0;
     }
