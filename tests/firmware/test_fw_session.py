@@ -171,3 +171,31 @@ def test_the_makefile_builds_the_posix_target(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "spiel_fw_posix").is_file()
+
+
+def _blob(header_size: int, toml_length: int, n_samples: int) -> bytes:
+    from firmware_protocol.config_blob import HEADER, MAGIC, VERSION
+
+    return HEADER.pack(
+        MAGIC, VERSION, header_size, n_samples, 8, 30, 9, 22000.0, 175000.0, 20.0, 30.0, toml_length
+    )
+
+
+def test_a_blob_whose_lengths_add_up_only_modulo_2_to_the_32_is_not_used(posix_board):
+    """PROTOCOL.md 13.1: header_size + toml_length must equal the stored length. A 36-byte
+    blob with header_size 100 and toml_length 2^32 - 64 adds up only in u32 (it once did and
+    its n_samples was used); the board runs with its factory defaults instead."""
+    from crc32c import crc32c
+
+    from firmware_protocol import ConfigCommit, ConfigWrite, StreamStart, StreamStop
+
+    def committed_n_samples(session, blob):
+        session.request(ConfigWrite(0, blob))
+        session.request(ConfigCommit(len(blob), crc32c(blob)))
+        answer = session.request(StreamStart(1, 10.0, 0))  # n_samples 0: the config's
+        session.request(StreamStop())
+        return answer.n_samples
+
+    with DeviceSession(posix_board().port, reconnect=False) as session:
+        assert committed_n_samples(session, _blob(36, 0, 32)) == 32  # a usable blob
+        assert committed_n_samples(session, _blob(100, 2**32 - 64, 32)) == 64  # the default
