@@ -199,3 +199,23 @@ def test_a_blob_whose_lengths_add_up_only_modulo_2_to_the_32_is_not_used(posix_b
     with DeviceSession(posix_board().port, reconnect=False) as session:
         assert committed_n_samples(session, _blob(36, 0, 32)) == 32  # a usable blob
         assert committed_n_samples(session, _blob(100, 2**32 - 64, 32)) == 64  # the default
+
+
+def test_a_board_of_32_channels_streams(posix_board, tmp_path):
+    """The posix HAL checked a trigger's mask with mask >> n_channels, a shift by 32 for a
+    32-channel scans file (undefined; on x86 a shift by 0), so it refused every acquisition."""
+    import time
+
+    from firmware_protocol import StreamStart, StreamStatusRequest
+    from tools.release.firmware_scans import write_scans
+
+    frames = np.arange(2 * 32 * 16).reshape(2, 32, 16)
+    board = posix_board(scans=write_scans(tmp_path / "wide.spas", frames, 22000))
+    with DeviceSession(board.port, reconnect=False) as session:
+        assert session.hello.n_channels == 32
+        assert session.request(StreamStart(2, 100.0, 0)).n_channels == 32
+        deadline = time.monotonic() + 10
+        while (status := session.request(StreamStatusRequest())).streaming:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    assert (status.acquisitions_sent, status.frames_sent, status.overruns) == (2, 64, 0)
