@@ -394,7 +394,10 @@ static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
     {
         uint8_t head[SP_IMAGE_HEADER_SIZE];
         sp_image_header_t h;
-        hal_image_read(slot, 0, head, sizeof head);
+        if (hal_image_read(slot, 0, head, sizeof head) != 0) { /* else head is unset */
+            *code = SP_ERR_FLASH_VERIFY_FAILED, *text = "slot read failed";
+            return 0;
+        }
         sp_image_header_unpack(head, &h);
         if (strncmp((const char *)h.target, SPIEL_FW_TARGET, 16) != 0) {
             *code = SP_ERR_UNSUPPORTED, *text = "image for another target";
