@@ -171,3 +171,51 @@ def test_the_makefile_builds_the_posix_target(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "spiel_fw_posix").is_file()
+
+
+def _blob(header_size: int, toml_length: int, n_samples: int) -> bytes:
+    from firmware_protocol.config_blob import HEADER, MAGIC, VERSION
+
+    return HEADER.pack(
+        MAGIC, VERSION, header_size, n_samples, 8, 30, 9, 22000.0, 175000.0, 20.0, 30.0, toml_length
+    )
+
+
+def test_a_blob_whose_lengths_add_up_only_modulo_2_to_the_32_is_not_used(posix_board):
+    """PROTOCOL.md 13.1: header_size + toml_length must equal the stored length. A 36-byte
+    blob with header_size 100 and toml_length 2^32 - 64 adds up only in u32 (it once did and
+    its n_samples was used); the board runs with its factory defaults instead."""
+    from crc32c import crc32c
+
+    from firmware_protocol import ConfigCommit, ConfigWrite, StreamStart, StreamStop
+
+    def committed_n_samples(session, blob):
+        session.request(ConfigWrite(0, blob))
+        session.request(ConfigCommit(len(blob), crc32c(blob)))
+        answer = session.request(StreamStart(1, 10.0, 0))  # n_samples 0: the config's
+        session.request(StreamStop())
+        return answer.n_samples
+
+    with DeviceSession(posix_board().port, reconnect=False) as session:
+        assert committed_n_samples(session, _blob(36, 0, 32)) == 32  # a usable blob
+        assert committed_n_samples(session, _blob(100, 2**32 - 64, 32)) == 64  # the default
+
+
+def test_a_board_of_32_channels_streams(posix_board, tmp_path):
+    """The posix HAL checked a trigger's mask with mask >> n_channels, a shift by 32 for a
+    32-channel scans file (undefined; on x86 a shift by 0), so it refused every acquisition."""
+    import time
+
+    from firmware_protocol import StreamStart, StreamStatusRequest
+    from tools.release.firmware_scans import write_scans
+
+    frames = np.arange(2 * 32 * 16).reshape(2, 32, 16)
+    board = posix_board(scans=write_scans(tmp_path / "wide.spas", frames, 22000))
+    with DeviceSession(board.port, reconnect=False) as session:
+        assert session.hello.n_channels == 32
+        assert session.request(StreamStart(2, 100.0, 0)).n_channels == 32
+        deadline = time.monotonic() + 10
+        while (status := session.request(StreamStatusRequest())).streaming:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    assert (status.acquisitions_sent, status.frames_sent, status.overruns) == (2, 64, 0)

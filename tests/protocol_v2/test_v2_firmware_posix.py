@@ -87,6 +87,21 @@ def script_image(posix, version: str, size: int = 6000) -> bytes:
     return pack_image(body, version=version, target="posix")
 
 
+def test_fw_write_at_an_offset_near_2_to_the_32_is_too_large(posix, tmp_path) -> None:
+    """offset + data_len past image_size is TOO_LARGE even where it wraps in u32 (it once
+    wrapped to a small number and was answered as an already-written repeat)."""
+    from firmware_protocol import ErrorCode
+    from firmware_protocol.v2_messages import FwBegin, FwWrite
+
+    with board(posix, tmp_path) as b, DeviceSession(b.port, reconnect=False) as dev:
+        dev.request(FwBegin(200, 0, bytes(32)))
+        assert dev.request(FwWrite(0, bytes(100))).written == 100
+        with pytest.raises(DeviceError) as err:
+            dev.request(FwWrite(0xFFFFFFF0, bytes(32)))  # 0xFFFFFFF0 + 32 = 16 in u32
+        assert err.value.code == ErrorCode.TOO_LARGE
+        assert dev.request(FwWrite(100, bytes(100))).written == 200
+
+
 def test_sigkill_at_every_image_operation_boots_a_complete_image(posix, tmp_path) -> None:
     image = script_image(posix, "posix-1.1.0")
     chunks = -(-len(image) // (1024 - 6))

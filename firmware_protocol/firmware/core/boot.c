@@ -84,7 +84,8 @@ int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17])
     if (memcmp(h.magic, SP_IMAGE_MAGIC, 4) != 0 ||
         sp_crc32c(0, head, SP_IMAGE_HEADER_SIZE - 4u) != h.header_crc ||
         h.header_version != SP_IMAGE_HEADER_VERSION || h.header_size != SP_IMAGE_HEADER_SIZE ||
-        h.body_size > hal_image_slot_size() - SP_IMAGE_HEADER_SIZE) {
+        /* in u64: a slot smaller than the header must not wrap the bound */
+        (uint64_t)h.body_size + SP_IMAGE_HEADER_SIZE > hal_image_slot_size()) {
         return -1;
     }
     all_crc = sp_crc32c(0, head, SP_IMAGE_HEADER_SIZE);

@@ -174,7 +174,8 @@ void cfg_settings(hal_settings_t *out)
     sp_config_header_unpack(raw, &h);
     if (memcmp(h.magic, SP_CONFIG_MAGIC, SP_CONFIG_MAGIC_SIZE) != 0 ||
         h.version != SP_CONFIG_VERSION || h.header_size < SP_CONFIG_HEADER_SIZE ||
-        (uint32_t)h.header_size + h.toml_length != length || h.n_samples == 0 ||
+        /* in u64: a toml_length near 2^32 must not wrap the sum round to the length */
+        (uint64_t)h.header_size + h.toml_length != length || h.n_samples == 0 ||
         !(h.sample_rate_hz >= 1.0f && h.sample_rate_hz <= 1.0e7f)) {
         return; /* not a blob this firmware can use: factory defaults */
     }

@@ -142,7 +142,9 @@ static void put_text(uint8_t *p, const char *s, size_t size)
 {
     size_t n = s ? strlen(s) : 0;
     memset(p, 0, size);
-    memcpy(p, s, n < size ? n : size);
+    if (n) { /* memcpy from a null pointer is undefined even for 0 bytes */
+        memcpy(p, s, n < size ? n : size);
+    }
 }
 
 /* ---- session ------------------------------------------------------------------------------ */

@@ -340,7 +340,7 @@ static int fw_write(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
         *code = SP_ERR_INVALID, *text = "data shorter than its length";
         return 0;
     }
-    if (off + n > v2.expect_size) {
+    if ((uint64_t)off + n > v2.expect_size) { /* u64: an offset near 2^32 must not wrap */
         *code = SP_ERR_TOO_LARGE, *text = "past the announced size";
         return 0;
     }
@@ -394,7 +394,10 @@ static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
     {
         uint8_t head[SP_IMAGE_HEADER_SIZE];
         sp_image_header_t h;
-        hal_image_read(slot, 0, head, sizeof head);
+        if (hal_image_read(slot, 0, head, sizeof head) != 0) { /* else head is unset */
+            *code = SP_ERR_FLASH_VERIFY_FAILED, *text = "slot read failed";
+            return 0;
+        }
         sp_image_header_unpack(head, &h);
         if (strncmp((const char *)h.target, SPIEL_FW_TARGET, 16) != 0) {
             *code = SP_ERR_UNSUPPORTED, *text = "image for another target";

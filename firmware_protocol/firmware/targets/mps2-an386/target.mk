@@ -21,7 +21,7 @@ MPS2_DEFINES ?= -DSPIEL_MAX_SAMPLES=64
 ifeq ($(TARGET),mps2)
 MPS2_FW := -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_FACTORY=1 -DSPIEL_FW_TARGET=\"mps2-an386\"
 endif
-MPS2_CFLAGS := $(MPS2_ARCH) $(WARN) -Os -g -ffunction-sections -fdata-sections -ffreestanding \
+MPS2_CFLAGS := $(MPS2_ARCH) $(WARN) -Wstack-usage=1024 -Os -g -ffunction-sections -fdata-sections -ffreestanding \
 	$(INC) -I$(MPS2_DIR) -I$(BUILD) $(MPS2_DEFINES) $(MPS2_FW) $(CFLAGS_EXTRA)
 MPS2_LDFLAGS := $(MPS2_ARCH) -nostartfiles --specs=nano.specs -L$(MPS2_DIR) -Wl,--gc-sections
 MPS2_SRCS := $(MPS2_DIR)/startup.c $(MPS2_DIR)/hal_mps2.c $(MPS2_DIR)/nor_mps2.c \

@@ -175,7 +175,9 @@ uint64_t hal_time_us(void)
 
 int hal_acq_trigger(uint32_t channel_mask, uint16_t samples)
 {
-    if (samples > n_samples || channel_mask == 0 || (channel_mask >> n_channels) != 0) {
+    /* no shift by 32 (undefined; x86 shifts by 0 and refused every trigger of 32 channels) */
+    if (samples > n_samples || channel_mask == 0 ||
+        (n_channels < 32 && (channel_mask >> n_channels) != 0)) {
         return -1;
     }
     trigger_mask = channel_mask;

@@ -61,14 +61,15 @@ static void operation(int slot, uint32_t offset, const uint8_t *data, uint32_t l
 int posix_image_open(const char *images, long cut)
 {
     struct stat sb;
+    const char *ops = getenv("SPIEL_FW_IMAGE_OPS");
     if (stat(images, &sb) != 0 || !S_ISDIR(sb.st_mode) || strlen(images) >= sizeof dir) {
         fprintf(stderr, "%s: not a folder\n", images);
         return -1;
     }
     snprintf(dir, sizeof dir, "%s", images);
     image_cut = cut;
-    if (getenv("SPIEL_FW_IMAGE_OPS") != NULL) { /* counted since power-on, across resets */
-        image_ops = strtol(getenv("SPIEL_FW_IMAGE_OPS"), NULL, 10);
+    if (ops != NULL) { /* counted since power-on, across resets */
+        image_ops = strtol(ops, NULL, 10);
     }
     return 0;
 }
@@ -167,7 +168,10 @@ void posix_image_boot(char **argv)
         fprintf(stderr, "spiel_fw_posix: no bootable image: recovery loader\n");
         return;
     }
-    hal_image_read(slot, 0, head, sizeof head);
+    if (hal_image_read(slot, 0, head, sizeof head) != 0) { /* else head is unset */
+        fprintf(stderr, "spiel_fw_posix: slot %d unreadable: recovery loader\n", slot);
+        return;
+    }
     sp_image_header_unpack(head, &h);
     snprintf(path, sizeof path, "%s/run%d", dir, slot);
     snprintf(tmp, sizeof tmp, "%s/run%d.tmp", dir, slot);
@@ -214,7 +218,10 @@ int posix_image_started(char version[17])
         snprintf(version, 17, "recovery");
         return -1;
     }
-    hal_image_read(running, 0, head, sizeof head);
+    if (hal_image_read(running, 0, head, sizeof head) != 0) { /* else head is unset */
+        snprintf(version, 17, "unknown");
+        return running;
+    }
     sp_image_header_unpack(head, &h);
     memcpy(version, h.version, 16);
     version[16] = 0;
