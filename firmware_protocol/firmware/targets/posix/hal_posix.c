@@ -142,9 +142,20 @@ void posix_hal_wait(uint32_t us)
     if (us == 0) {
         return;
     }
-    if (poll(pfd, (nfds_t)n, (int)((us + 999u) / 1000u)) > 0 &&
-        (pfd[0].revents & (POLLHUP | POLLERR))) {
-        usleep(1000); /* nobody has the pty open: do not spin */
+    /* poll counts whole milliseconds: rounded up, a pulse due in 0.3 ms fired up to 1 ms late
+     * (a stream started at a time of the board's clock missed its slot). Whole milliseconds
+     * wait in poll (input wakes it), the last one in nanosleep once nothing is pending. */
+    if (poll(pfd, (nfds_t)n, (int)(us / 1000u)) > 0) {
+        if (pfd[0].revents & (POLLHUP | POLLERR)) {
+            usleep(1000); /* nobody has the pty open: do not spin */
+        }
+        return;
+    }
+    if (us < 1000u) {
+        struct timespec rest;
+        rest.tv_sec = 0;
+        rest.tv_nsec = (long)us * 1000L;
+        nanosleep(&rest, NULL);
     }
 }
 
