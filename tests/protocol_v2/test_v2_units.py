@@ -275,3 +275,12 @@ def test_far_beyond_a_short_window_the_uncertainty_still_covers_the_truth(seed) 
     truth = 100e6
     host, u = est.map((truth - offset) / rate)
     assert abs(host - truth) <= u
+
+
+def test_every_error_flag_the_protocol_names_is_known() -> None:
+    """PROTOCOL.md § 14.2: FLASH 0x01 ... LOG_DROPPED 0x40; only other bits are unknown."""
+    tel = BoardTelemetry("board X")
+    tel.heartbeat(Heartbeat(1, 0, 0, 500, 0x7F, 1, 0), now=1.0)
+    assert tel.counters.unknown_flags == 0
+    tel.heartbeat(Heartbeat(2, 0, 0, 500, 0x80, 1, 0), now=1.5)
+    assert tel.counters.unknown_flags == 1
