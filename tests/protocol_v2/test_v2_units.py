@@ -284,3 +284,74 @@ def test_every_error_flag_the_protocol_names_is_known() -> None:
     assert tel.counters.unknown_flags == 0
     tel.heartbeat(Heartbeat(2, 0, 0, 500, 0x80, 1, 0), now=1.5)
     assert tel.counters.unknown_flags == 1
+
+
+# --- images: the header's checks and the protocol range (PROTOCOL.md § 14.3) -------------------
+
+
+def _reheadered(image: bytes, **changes) -> bytes:
+    """``image`` with header fields changed and its header CRC made right again (a well-formed
+    header that says something else)."""
+    from crc32c import crc32c
+
+    from firmware_protocol.image import IMAGE_HEADER, IMAGE_HEADER_FIELDS
+
+    names = [name for name, _, _ in IMAGE_HEADER_FIELDS]
+    values = dict(zip(names, IMAGE_HEADER.unpack_from(image), strict=True))
+    values.update(changes)
+    head = IMAGE_HEADER.pack(*(values[n] for n in names))[:-4]
+    return head + crc32c(head).to_bytes(4, "little") + image[IMAGE_HEADER_SIZE:]
+
+
+def test_a_well_formed_header_that_says_the_wrong_thing_is_refused() -> None:
+    image = pack_image(BODY, version="1.2.3", target="posix")
+    assert parse_image(_reheadered(image)).version == "1.2.3"  # the helper changes nothing
+    for changes, words in (
+        ({"header_version": 2}, "header version 2 size 96 is not supported"),
+        ({"header_size": 128}, "size 128 is not supported"),
+        ({"min_protocol": 0}, "empty protocol range 0-2"),
+        ({"min_protocol": 3}, "empty protocol range 3-2"),
+        ({"body_sha256": bytes(32)}, "SHA-256 mismatch"),  # the CRC-32C still matches
+    ):
+        with pytest.raises(ImageError, match=words):
+            parse_image(_reheadered(image, **changes))
+    flipped = bytearray(image)
+    flipped[IMAGE_HEADER_SIZE + 7] ^= 1
+    with pytest.raises(ImageError, match="CRC-32C mismatch"):  # caught by the cheaper check
+        parse_image(bytes(flipped))
+    with pytest.raises(ImageError, match="shorter than the 96-byte header"):
+        parse_image(image[:50])
+
+
+def test_pack_image_refuses_what_the_header_cannot_say() -> None:
+    assert parse_image(pack_image(BODY, version="v" * 16, target="mps2-an386")).version == "v" * 16
+    for kw in (
+        {"version": "1.0\x00rc"},
+        {"version": ""},
+        {"target": "t" * 17},
+        {"min_protocol": 0},
+        {"min_protocol": 3, "max_protocol": 2},
+        {"max_protocol": 256},
+    ):
+        args = {"version": "1.0", "target": "posix", **kw}
+        with pytest.raises(ImageError):
+            pack_image(BODY, **args)
+
+
+def test_an_image_speaks_a_range_that_shares_a_version() -> None:
+    header = parse_image(
+        pack_image(BODY, version="1", target="posix", min_protocol=2, max_protocol=3)
+    )
+    assert header.speaks(1, 2) and header.speaks(3, 4) and header.speaks(1, 5)
+    assert not header.speaks(1, 1) and not header.speaks(4, 5)
+
+
+def test_an_mps2_stack_may_start_at_the_top_of_ram_and_the_reset_handler_is_in_the_body() -> None:
+    import struct
+
+    body = bytes(0x200)
+    top = struct.pack("<II", 0x2020_0000, 0x0001_0101)  # SP = end of RAM, as linkers put it
+    check_body(top + body[8:], "mps2-an386")
+    beyond = struct.pack("<II", 0x2000_4000, 0x0001_0000 + 0x201)  # past the body's end
+    with pytest.raises(ImageError, match="not a mps2-an386 application"):
+        check_body(beyond + body[8:], "mps2-an386")
