@@ -41,7 +41,8 @@ print(json.dumps({"value": value, "counts": _kernel_cache.counts, "warnings": wa
 
 
 def _probe(tmp_path: Path, **env) -> dict:
-    (tmp_path / "tiny_kernels.py").write_text(TINY)
+    if not env.pop("KEEP_SOURCE", None):
+        (tmp_path / "tiny_kernels.py").write_text(TINY)
     full = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path]),
@@ -107,6 +108,32 @@ def test_a_flipped_bit_in_a_cached_kernel_is_found_before_it_runs(tmp_path):
         path.write_bytes(path.read_bytes()[: -(len(_kernel_cache.SEAL_TAG) + 32)])
     third = _probe(tmp_path)
     assert third["counts"]["compiled"] == 1 and not third["warnings"], third
+    assert _probe(tmp_path)["counts"]["hits"] == 1
+
+
+def test_a_kernel_whose_source_file_changed_compiles_again(tmp_path):
+    """A module constant the kernel reads is frozen into its machine code, and its bytecode
+    does not change with it: the cached kernel of the file as it was must not run."""
+    changed = TINY.replace("return 2 * x + 1", "return 2 * x + ONE") + "\nONE = 2\n"
+    source = tmp_path / "tiny_kernels.py"
+    source.write_text(changed.replace("ONE = 2", "ONE = 1"))
+    assert _probe(tmp_path, KEEP_SOURCE="1")["value"] == 41
+    assert _probe(tmp_path, KEEP_SOURCE="1")["counts"]["hits"] == 1  # kept, and found
+    source.write_text(changed)  # the same size, the same bytecode: only the constant differs
+    os.utime(source, (source.stat().st_atime, source.stat().st_mtime + 5))
+    result = _probe(tmp_path, KEEP_SOURCE="1")
+    assert result["value"] == 42 and result["counts"]["compiled"] == 1
+
+
+def test_a_damaged_sealed_index_is_started_afresh_when_saving(tmp_path):
+    """An index whose seal does not match (bit rot) is a miss, and the save that follows
+    writes a new index instead of failing on the old one."""
+    assert _probe(tmp_path)["counts"]["compiled"] == 1
+    (index,) = _cache_files(tmp_path, "*.nbi")
+    index.write_bytes(b"not what was sealed" + _kernel_cache.SEAL_TAG + bytes(32))
+    second = _probe(tmp_path)
+    assert second["value"] == 41 and second["counts"]["compiled"] == 1
+    assert not any("not saved" in w for w in second["warnings"]), second
     assert _probe(tmp_path)["counts"]["hits"] == 1
 
 
@@ -212,9 +239,20 @@ def test_prebuilt_kernels_load_from_a_read_only_folder_with_no_compile(tmp_path)
     # a damaged prebuilt file: refused against the manifest, so the kernel would compile
     (data, *_) = sorted(ship.rglob("*.nbc"))
     data.chmod(0o644)
-    data.write_bytes(data.read_bytes()[:-1] + b"\x00")
+    # its last byte flipped (the bytes vary per build: a last byte set to 0 was already 0, the
+    # file unchanged, about one build in 256)
+    raw = data.read_bytes()
+    data.write_bytes(raw[:-1] + bytes([raw[-1] ^ 0xFF]))
     damaged = _stream(env)
     assert damaged["error"] and any("manifest" in w for w in damaged["warnings"])
+    # an intact file the manifest does not list: refused too (checked, not trusted)
+    data.write_bytes(raw)
+    listed = json.loads((ship / "manifest.json").read_text())
+    del listed["files"][data.relative_to(ship).as_posix()]
+    (ship / "manifest.json").chmod(0o644)
+    (ship / "manifest.json").write_text(json.dumps(listed))
+    unlisted = _stream(env)
+    assert unlisted["error"] and any("manifest" in w for w in unlisted["warnings"])
 
 
 def test_prebuilt_kernels_for_another_numba_are_not_used(tmp_path):

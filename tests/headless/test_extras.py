@@ -205,3 +205,96 @@ def test_a_zenoh_configuration_file_in_the_settings_is_used_under_them(tmp_path)
         )
         == "peer"
     )
+
+
+# --- the Zenoh output's key and endpoint checks, its settings, a failing put -------------------
+
+
+@pytest.mark.parametrize(
+    ("key", "words"),
+    [
+        ("/robot/a", "empty chunk"),
+        ("robot/a/", "empty chunk"),
+        ("robot/a?x=1", "holds '?'"),
+        ("robot/#", "holds '#'"),
+        ("robot/a$b", "records go out on one concrete key"),  # '$' only starts a wildcard
+        ("robot/a\tb", "white space"),
+        ("robot/a\nb", "white space"),
+    ],
+)
+def test_publish_key_problems(key, words):
+    from spiel_edge.outputs.zenoh import publish_key_problem
+
+    problem = publish_key_problem(key)
+    assert problem is not None and words in problem
+    assert publish_key_problem("robots/r1/spiel-edge_2/position") is None
+
+
+@pytest.mark.parametrize(
+    "endpoint",
+    [
+        "tcp/127.0.0.1:7447",
+        "udp/10.0.0.1:7447",
+        "quic/router.local:7447?rel=1",
+        "tcp/[::1]:7447",
+        "tcp/[fe80::1%eth0]:65535",
+        "unixsock-stream//tmp/zenoh.sock",
+    ],
+)
+def test_zenoh_endpoints_taken(endpoint):
+    from spiel_edge.outputs.zenoh import check_endpoint
+
+    assert check_endpoint(endpoint) == endpoint
+
+
+@pytest.mark.parametrize(
+    "endpoint", ["tcp/127.0.0.1:0", "tcp/127.0.0.1:7447 tcp/127.0.0.2:7447", "127.0.0.1:7447", ""]
+)
+def test_zenoh_endpoints_refused(endpoint):
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.outputs.zenoh import check_endpoint
+
+    with pytest.raises(ConfigError, match="--zenoh-connect"):
+        check_endpoint(endpoint)
+
+
+def test_rmw_zenoh_sessions_scout_no_multicast_unless_a_file_says(tmp_path, monkeypatch):
+    pytest.importorskip("zenoh", reason="extra 'zenoh' not installed")
+    from spiel_edge.outputs.zenoh import session_config
+
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+
+    def multicast(cfg) -> bool | None:
+        return json.loads(cfg.get_json("scouting/multicast/enabled"))
+
+    assert multicast(session_config(None, None, rmw_zenoh=True)) is False
+    assert multicast(session_config(None, None)) is None  # not set: Zenoh's default
+    path = tmp_path / "z.json5"
+    path.write_text("{ scouting: { multicast: { enabled: true } } }\n")
+    assert multicast(session_config(str(path), None, rmw_zenoh=True)) is True
+    monkeypatch.setenv("ZENOH_CONFIG", str(path))
+    assert multicast(session_config(None, None, rmw_zenoh=True)) is True
+
+
+def test_a_failing_or_unencodable_put_is_counted_and_the_run_goes_on():
+    from spiel_edge.outputs.zenoh import ZenohSink
+
+    class Publisher:
+        def __init__(self, fail):
+            self.fail, self.sent = fail, []
+
+        def put(self, payload):
+            if self.fail:
+                raise RuntimeError("session closed")
+            self.sent.append(payload)
+
+    sink = object.__new__(ZenohSink)  # no session: only write()'s handling is under test
+    sink.key_expr, sink.failed = "test/key", 0
+    sink._publisher = Publisher(fail=True)
+    sink.write(RECORD)
+    sink.write(RECORD)
+    assert sink.failed == 2
+    sink._publisher = Publisher(fail=False)
+    sink.write({"seq": 1, "residual_mm": float("nan")})  # not JSON: not sent as NaN
+    sink.write(RECORD)
+    assert sink.failed == 3 and [json.loads(p) for p in sink._publisher.sent] == [RECORD]

@@ -168,3 +168,190 @@ def test_iq_kernel_matches_numpy() -> None:
         iq_envelope(pairs[:, :3])
     with pytest.raises(InputError):
         iq_envelope(pairs.astype(np.int32))
+
+
+# --- TIME_SYNC's drop rules, the bound, the fit and the schedule (PROTOCOL.md § 14.1) ----------
+
+
+def test_answers_with_an_impossible_or_too_long_round_trip_are_dropped() -> None:
+    est = TimeSyncEstimator()
+    assert not est.add(1000.0, 900.0, 50.0, 1)  # read before it was sent
+    assert not est.add(0.0, 250_000.0, 50.0, 1)  # 250 ms: longer than 200 ms tells nothing
+    assert not est.add(0.0, 200.0, float("nan"), 1)
+    assert est.counters.long_rtt == 3 and est.counters.used == 0 and est.map(50.0) is None
+    assert est.add(0.0, 200_000.0, 50.0, 1)  # 200 ms is still taken
+
+
+def test_backwards_only_beyond_what_the_round_trips_allow() -> None:
+    est = TimeSyncEstimator()
+    assert est.add(10e6 - 100, 10e6 + 100, 5_000_100.0, 1)
+    # 100 us before the previous answer's board time: both were read somewhere inside their
+    # 200 us round trips, so this is not backwards
+    assert est.add(10e6 + 100, 10e6 + 300, 5_000_000.0, 1)
+    assert est.counters.backwards == 0
+    assert not est.add(10e6 + 300, 10e6 + 500, 5_000_000.0 - 401.0, 1)  # beyond: backwards
+    assert est.counters.backwards == 1
+
+
+def test_an_answer_more_than_2_ms_off_the_line_is_an_outlier() -> None:
+    """Off by more than max(8 uncertainties, 2 ms) (plus half its round trip): dropped."""
+    for off_us, kept in ((1500.0, True), (5000.0, False)):
+        est = TimeSyncEstimator()
+        exchanges(est, 0.0, 1.0, np.arange(0, 10, 0.25))
+        _, u = est.map(10.25e6)
+        assert 8 * u < 2000  # the 2 ms floor is the threshold here
+        t = 10.25e6
+        assert est.add(t - 100, t + 100, t + off_us, 1) is kept
+        assert est.counters.outliers == (0 if kept else 1)
+
+
+def test_five_agreeing_outliers_are_a_step_and_the_fit_restarts_from_them() -> None:
+    est = TimeSyncEstimator()
+    exchanges(est, 0.0, 1.0, np.arange(0, 10, 0.25))
+    for k in range(4):
+        t = 12e6 + k * 0.25e6
+        assert not est.add(t - 100, t + 100, t + 3e9, 1)
+    assert est.counters.steps == 0 and est.counters.outliers == 4  # four are not enough
+    t = 13e6
+    assert est.add(t - 100, t + 100, t + 3e9, 1)  # the fifth: a step
+    assert est.counters.steps == 1
+    assert not est.estimate.fitted  # five exchanges: the best one's bound
+    for k in range(1, 4):  # three more: eight since the step, the five kept among them
+        t = 13e6 + k * 0.25e6
+        assert est.add(t - 100, t + 100, t + 3e9, 1)
+    assert est.estimate.fitted
+
+
+def test_the_bound_is_the_shortest_round_trips_until_eight_exchanges() -> None:
+    est = TimeSyncEstimator()
+    est.add(0.0, 2000.0, 1000.0, 1)  # 2 ms round trip
+    est.add(1e6, 1e6 + 200.0, 1e6 + 100.0, 1)  # 200 us: the best
+    host, u = est.map(1e6 + 100.0)
+    assert host == pytest.approx(1e6 + 100.0) and u == pytest.approx(100.0 + 2.0)
+    # one second of board time later: plus the 500 ppm drift bound over it
+    assert est.map(2e6 + 100.0)[1] == pytest.approx(102.0 + 500.0)
+    for k in range(2, 7):
+        est.add(k * 1e6, k * 1e6 + 200.0, k * 1e6 + 100.0, 1)
+    assert est.counters.used == 7 and not est.estimate.fitted
+    est.add(7e6, 7e6 + 200.0, 7e6 + 100.0, 1)
+    assert est.estimate.fitted  # 8 exchanges: the line
+
+
+def test_unmap_inverts_map_on_a_drifting_clock() -> None:
+    est = TimeSyncEstimator()
+    rate = 1 - 200e-6
+    exchanges(est, 5e6, rate, np.arange(0, 60, 0.25))
+    board = (70e6 - 5e6) / rate
+    host, _ = est.map(board)
+    assert est.unmap(host) == pytest.approx(board, abs=1.0)
+    assert est.unmap(70e6) == pytest.approx(board, abs=10.0)  # the board time of host 70 s
+    assert TimeSyncEstimator().unmap(1.0) is None
+
+
+def test_sync_is_fast_until_64_exchanges_and_messages_are_taken_once() -> None:
+    est = TimeSyncEstimator()
+    assert est.interval(0.25) == pytest.approx(0.1) and est.interval(0.05) == 0.05
+    exchanges(est, 0.0, 1.0, np.arange(0, 63 * 0.25, 0.25))
+    assert est.counters.used == 63 and est.interval(0.25) == pytest.approx(0.1)
+    exchanges(est, 0.0, 1.0, [63 * 0.25])
+    assert est.interval(0.25) == 0.25  # 64 in hand: the normal period
+    assert not est.add(0.0, 250_000.0, 1.0, 1)
+    est.add(20e6, 20e6 + 200.0, 20e6 + 100.0, 2)  # a new boot id
+    assert len(est.take_messages()) == 1 and est.take_messages() == []
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_far_beyond_a_short_window_the_uncertainty_still_covers_the_truth(seed) -> None:
+    """10 s of exchanges with 1 ms of jitter on each leg, mapped 90 s past them: the rate is
+    known only to the corridor's range of rates, and the stated uncertainty grows with the
+    larger side of that range (the rate may be off either way)."""
+    rng = np.random.default_rng(seed)
+    est = TimeSyncEstimator()
+    rate, offset = 1 + 200e-6, 7e6
+    for t in np.arange(0, 10, 0.25):
+        up, down = rng.uniform(0, 1000, 2)
+        stamp = t * 1e6 + up
+        est.add(t * 1e6, stamp + down, (stamp - offset) / rate, 1)
+    truth = 100e6
+    host, u = est.map((truth - offset) / rate)
+    assert abs(host - truth) <= u
+
+
+def test_every_error_flag_the_protocol_names_is_known() -> None:
+    """PROTOCOL.md § 14.2: FLASH 0x01 ... LOG_DROPPED 0x40; only other bits are unknown."""
+    tel = BoardTelemetry("board X")
+    tel.heartbeat(Heartbeat(1, 0, 0, 500, 0x7F, 1, 0), now=1.0)
+    assert tel.counters.unknown_flags == 0
+    tel.heartbeat(Heartbeat(2, 0, 0, 500, 0x80, 1, 0), now=1.5)
+    assert tel.counters.unknown_flags == 1
+
+
+# --- images: the header's checks and the protocol range (PROTOCOL.md § 14.3) -------------------
+
+
+def _reheadered(image: bytes, **changes) -> bytes:
+    """``image`` with header fields changed and its header CRC made right again (a well-formed
+    header that says something else)."""
+    from crc32c import crc32c
+
+    from firmware_protocol.image import IMAGE_HEADER, IMAGE_HEADER_FIELDS
+
+    names = [name for name, _, _ in IMAGE_HEADER_FIELDS]
+    values = dict(zip(names, IMAGE_HEADER.unpack_from(image), strict=True))
+    values.update(changes)
+    head = IMAGE_HEADER.pack(*(values[n] for n in names))[:-4]
+    return head + crc32c(head).to_bytes(4, "little") + image[IMAGE_HEADER_SIZE:]
+
+
+def test_a_well_formed_header_that_says_the_wrong_thing_is_refused() -> None:
+    image = pack_image(BODY, version="1.2.3", target="posix")
+    assert parse_image(_reheadered(image)).version == "1.2.3"  # the helper changes nothing
+    for changes, words in (
+        ({"header_version": 2}, "header version 2 size 96 is not supported"),
+        ({"header_size": 128}, "size 128 is not supported"),
+        ({"min_protocol": 0}, "empty protocol range 0-2"),
+        ({"min_protocol": 3}, "empty protocol range 3-2"),
+        ({"body_sha256": bytes(32)}, "SHA-256 mismatch"),  # the CRC-32C still matches
+    ):
+        with pytest.raises(ImageError, match=words):
+            parse_image(_reheadered(image, **changes))
+    flipped = bytearray(image)
+    flipped[IMAGE_HEADER_SIZE + 7] ^= 1
+    with pytest.raises(ImageError, match="CRC-32C mismatch"):  # caught by the cheaper check
+        parse_image(bytes(flipped))
+    with pytest.raises(ImageError, match="shorter than the 96-byte header"):
+        parse_image(image[:50])
+
+
+def test_pack_image_refuses_what_the_header_cannot_say() -> None:
+    assert parse_image(pack_image(BODY, version="v" * 16, target="mps2-an386")).version == "v" * 16
+    for kw in (
+        {"version": "1.0\x00rc"},
+        {"version": ""},
+        {"target": "t" * 17},
+        {"min_protocol": 0},
+        {"min_protocol": 3, "max_protocol": 2},
+        {"max_protocol": 256},
+    ):
+        args = {"version": "1.0", "target": "posix", **kw}
+        with pytest.raises(ImageError):
+            pack_image(BODY, **args)
+
+
+def test_an_image_speaks_a_range_that_shares_a_version() -> None:
+    header = parse_image(
+        pack_image(BODY, version="1", target="posix", min_protocol=2, max_protocol=3)
+    )
+    assert header.speaks(1, 2) and header.speaks(3, 4) and header.speaks(1, 5)
+    assert not header.speaks(1, 1) and not header.speaks(4, 5)
+
+
+def test_an_mps2_stack_may_start_at_the_top_of_ram_and_the_reset_handler_is_in_the_body() -> None:
+    import struct
+
+    body = bytes(0x200)
+    top = struct.pack("<II", 0x2020_0000, 0x0001_0101)  # SP = end of RAM, as linkers put it
+    check_body(top + body[8:], "mps2-an386")
+    beyond = struct.pack("<II", 0x2000_4000, 0x0001_0000 + 0x201)  # past the body's end
+    with pytest.raises(ImageError, match="not a mps2-an386 application"):
+        check_body(beyond + body[8:], "mps2-an386")

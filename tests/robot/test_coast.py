@@ -133,3 +133,77 @@ def test_a_target_crossing_the_gap_between_two_fields_of_view_keeps_its_id(robot
     assert set().union(*kept[20:]) == {0}  # one id throughout, coasting across the gap
     dropped = _circling(robot, None)  # the old rule: every cycle without a target is a miss
     assert len(set().union(*dropped[20:])) == 2
+
+
+# --- the cones, the prediction and the bounds at their edges (mutation-testing round) ---------
+
+BEHIND = [(np.array([10.0, 0, 0]), np.array([1.0, 0, 0]), 45.0)]  # the track at 0 is behind
+
+
+def test_visible_in_any_boards_cone_whatever_the_facings_length():
+    policy = CoastPolicy(
+        [
+            (np.zeros(3), np.array([1.0, 0, 0]), 45.0),
+            (np.zeros(3), np.array([0.0, 5.0, 0]), 30.0),  # a facing need not be a unit vector
+        ],
+        range_mm=800.0,
+    )
+    pts = np.array([[500.0, 0, 0], [0, 500, 0], [-300, 300, 0], [400, 300, 0], [100, 900, 0]])
+    # in the first cone only, in the second only, 45 degrees off the second's facing (and 135
+    # off the first's), 37 off the first's, in the second's direction but beyond the range
+    np.testing.assert_array_equal(policy.visible(pts), [True, True, False, True, False])
+
+
+def test_the_robots_cones_reach_its_max_range():
+    robot = load_robot("virtual-4")
+    policy = CoastPolicy.from_robot(robot)
+    assert policy.range_mm == pytest.approx(800.0)  # [trigger] max_range_m = 0.8
+    front = robot.board("front").mount
+    ahead = front.translation_mm + front.facing * np.array([[700.0], [900.0]])
+    np.testing.assert_array_equal(policy.visible(ahead), [True, False])
+
+
+def test_a_track_is_judged_where_it_will_be_at_the_cycle():
+    """The track moves at about 1 m/s along x from behind a board (at x = 150 mm, facing +x)
+    into its cone: 0.2 s later it is predicted in front of it, so it is charged, not held."""
+    cone = [(np.array([150.0, 0, 0]), np.array([1.0, 0, 0]), 45.0)]
+    moving = _tracker_with_a_track(velocity=(1000.0, 0.0, 0.0))  # last seen at x = 75 mm
+    t = moving.last_time + 0.2
+    assert len(CoastPolicy(cone, range_mm=800.0).hold(moving, t)) == 0
+    still = _tracker_with_a_track()  # at x = 0: behind the board then too
+    assert len(CoastPolicy(cone, range_mm=800.0).hold(still, still.last_time + 0.2)) == 1
+
+
+def test_the_sigma_bound_is_on_the_largest_axis():
+    """A track known to a few mm across but to about 100 mm in z is past a 50 mm bound."""
+    tracker = Tracker(TrackSpec(max_misses=3, **CV))
+    for k in range(4):
+        cov = np.diag([4.0, 4.0, 40000.0])  # 2 mm, 2 mm and 200 mm
+        tracker.update([BaseTarget(np.zeros(3), cov, ["a"])], k * PERIOD)
+    t = 4 * PERIOD
+    assert len(CoastPolicy(BEHIND, range_mm=800.0, max_sigma_mm=50.0).hold(tracker, t)) == 0
+    assert len(CoastPolicy(BEHIND, range_mm=800.0, max_sigma_mm=150.0).hold(tracker, t)) == 1
+
+
+def test_the_coast_time_counts_from_the_last_hit():
+    """0.11 s of coast (4.4 cycles): held for 4 cycles, charged the 5th, seen again, then
+    held for 4 cycles more."""
+    policy = CoastPolicy(BEHIND, range_mm=800.0, max_coast_s=0.11, max_sigma_mm=1e4)
+    tracker = _tracker_with_a_track()
+    held = []
+    for k in range(4, 14):
+        t = k * PERIOD
+        held.append(len(policy.hold(tracker, t)))
+        hit = [BaseTarget(np.zeros(3), np.eye(3) * 4.0, ["a"])] if k == 8 else []
+        tracker.update(hit, t)
+    # cycles 4-7 coast (within 0.11 s of the hit at cycle 3), 8 is past it (then the hit),
+    # 9-12 coast within 0.11 s of that hit, 13 is past it
+    assert held == [1] * 4 + [0] + [1] * 4 + [0]
+    assert policy.held == 8
+
+
+def test_a_cycle_older_than_the_tracker_holds_nothing():
+    policy = CoastPolicy(BEHIND, range_mm=800.0)
+    tracker = _tracker_with_a_track()  # last updated at 3 periods
+    assert len(policy.hold(tracker, 2 * PERIOD)) == 0  # a late cycle: no prediction backwards
+    assert len(policy.hold(tracker, 4 * PERIOD)) == 1

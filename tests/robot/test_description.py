@@ -139,3 +139,75 @@ def test_cli_refuses_a_bad_robot_file_in_one_line(write_robot, capsys):
     assert main(["run", "--robot", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "both on port" in err and "Traceback" not in err
+
+
+# --- more of the file's checks and defaults (mutation-testing round) ---------------------------
+
+_A = '[[board]]\nname = "a"\n'
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("[robot]\n[wheels]\n" + _A, "unknown section(s) ['wheels']"),
+        (_A + "[trigger]\nperiod = 25.0\n", "[trigger]: unknown key(s) ['period']"),
+        (_A + "[trigger]\nperiod_ms = true\n", "trigger.period_ms must be a number"),
+        ('[robot]\nframe_id = "base link"\n' + _A, "robot.frame_id must be letters"),
+        (_A + "rotation_rpy_deg = [0, 90, 0]\nrotation_xyzw = [0, 0, 0, 1]\n", "give one of"),
+        (_A + "slot = 0\nslot_ms = 0.0\n", "give slot or slot_ms, not both"),
+        (_A + "slot = true\n", "slot must be an integer in [0, 15]"),
+        (_A + "slot = 16\n", "slot must be an integer in [0, 15]"),
+        (_A + "field_of_view_deg = 120\n", "field_of_view_deg must be in [5, 90]"),
+        (_A + "translation_m = [150.0, 0, 0]\n", "translation_m must be in [-100, 100]"),
+        (_A + "[track]\nmax_misses = 2.5\n", "track.max_misses must be an integer"),
+        (_A + 'key = "k"\n[[board]]\nname = "b"\nkey = "k"\n', "both publish on key 'k'"),
+        (_A + 'port = "sim://x"\n[[board]]\nname = "b"\nkey = "robot/a"\n', "both publish on key"),
+        (
+            "".join(f'[[board]]\nname = "b{i}"\nport = "sim://b{i}"\n' for i in range(17)),
+            "at most 16",
+        ),
+    ],
+)
+def test_more_bad_files(tmp_path, text, words):
+    path = tmp_path / "r.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_robot(path)
+    assert words in _one_line(exc)
+
+
+def test_rotations_within_the_tolerance_are_made_exact(write_robot):
+    # rounded digits (1e-4): taken, and made an exact rotation
+    rounded = "rotation_matrix = [[0.0001, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]"
+    quat = "rotation_xyzw = [0.0, 0.0, 0.7075, 0.7071]"  # norm 1.0003
+    for rotation in (rounded, quat):
+        r = load_robot(write_robot([{"name": "a", "rotation": rotation}])).boards[0].mount.rotation
+        np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
+        assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_allclose(r @ [1, 0, 0], [0, 1, 0], atol=1e-3)
+    # 1 % off is not rounding: refused (the tolerance is 1e-3)
+    skew = "rotation_matrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.01], [0.0, 0.0, 1.0]]"
+    long = "rotation_xyzw = [0.0, 0.0, 0.0, 1.01]"
+    for rotation, words in ((skew, "not a rotation"), (long, "norm 1.01")):
+        with pytest.raises(ConfigError) as exc:
+            load_robot(write_robot([{"name": "a", "rotation": rotation}]))
+        assert words in _one_line(exc)
+
+
+def test_board_defaults(write_robot):
+    """Without slot the boards take slots 0, 1, ... in file order; the key is robot/<name>;
+    detection_deg 55 and field_of_view_deg 90 (docs/robot.md)."""
+    robot = load_robot(write_robot([{"name": "a"}, {"name": "b"}]))
+    assert [(b.slot, b.slot_ms) for b in robot.boards] == [(0, None), (1, None)]
+    assert [b.key for b in robot.boards] == ["robot/a", "robot/b"]
+    assert {(b.detection_deg, b.field_of_view_deg) for b in robot.boards} == {(55.0, 90.0)}
+    with pytest.raises(ConfigError, match="no board named 'c'"):
+        robot.board("c")
+
+
+def test_a_robot_file_too_large_is_refused_before_it_is_read(tmp_path):
+    path = tmp_path / "r.toml"
+    path.write_text('[[board]]\nname = "a"\n' + "#" * (256 * 1024))
+    with pytest.raises(ConfigError) as exc:
+        load_robot(path)
+    assert "at most 262144 bytes" in _one_line(exc)

@@ -190,3 +190,217 @@ def test_stamp_clock_restarts_when_the_board_resets_and_flags_a_jump():
         clock.observe(k * 0.025, 101.1 + k * 0.025)
     late = clock.observe(20 * 0.025 + 3.0, 101.1 + 20 * 0.025)  # stamps jump 3 s ahead
     assert late == pytest.approx(-3.0, abs=1e-6)
+
+
+# --- the schedule's checks, edges and marking (mutation-testing round) ------------------------
+
+# window 3 ms, guard 4 ms, margin 0.5 ms: a slot is max(3, 4) + 2 x 0.5 = 5 ms
+_SLOT = dict(window_s=0.003, guard_s=0.004, margin_s=0.0005)
+
+
+def test_a_slot_starts_inside_the_period():
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.robot.schedule import Slot
+
+    for offset in (-0.001, 0.025):  # before the period, and the next period's start
+        with pytest.raises(ConfigError, match="outside the 25 ms period"):
+            Schedule([Slot("a", offset)], period_s=0.025, **_SLOT)
+    last = Schedule([Slot("a", 0.020)], period_s=0.025, **_SLOT)  # its slot ends at the period's
+    assert last.slot_s == pytest.approx(0.005)
+
+
+def test_slots_overlap_across_the_wrap_around():
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.robot.schedule import Slot
+
+    # b's slot (22-27 ms) runs 2 ms into the next period, where a's slot starts
+    with pytest.raises(ConfigError, match="'a' .* and 'b' .* overlap"):
+        Schedule([Slot("a", 0.0), Slot("b", 0.022)], period_s=0.025, **_SLOT)
+    with pytest.raises(ConfigError, match="overlap"):  # the same, listed the other way round
+        Schedule([Slot("b", 0.022), Slot("a", 0.0)], period_s=0.025, **_SLOT)
+    # 20-25 ms touches a's next start exactly: allowed
+    s = Schedule([Slot("a", 0.0), Slot("b", 0.020)], period_s=0.025, **_SLOT)
+    assert s.span_s == pytest.approx(0.025)  # first start to the last slot's end
+    assert Schedule([Slot("a", 0.005), Slot("b", 0.015)], period_s=0.025, **_SLOT).span_s == (
+        pytest.approx(0.015)
+    )
+
+
+def test_a_period_shorter_than_the_slots_is_refused():
+    from spiel_edge.errors import ConfigError
+    from spiel_edge.robot.schedule import Slot
+
+    # one board whose slot (5 ms) is longer than the period: no pair to overlap, still refused
+    with pytest.raises(ConfigError, match="too short for 1 boards"):
+        Schedule([Slot("a", 0.0)], period_s=0.0045, **_SLOT)
+    slots = [Slot(n, i * 0.005) for i, n in enumerate("abcd")]
+    assert len(Schedule(slots, period_s=0.020, **_SLOT).slots) == 4  # exactly full
+    with pytest.raises(ConfigError, match="too short for 4 boards"):
+        Schedule(slots[:3] + [Slot("d", 0.0149)], period_s=0.0199, **_SLOT)
+
+
+def test_hears_includes_the_clock_margin_on_both_sides():
+    s = Schedule.from_robot(load_robot("virtual-4"), window_s=0.003)
+    u = s.margin_s
+    assert u == pytest.approx(0.5e-3)
+    early = 1.0 - s.guard_s - u / 2  # within the margin before the guard
+    late = 1.0 + 0.003 + u / 2  # within the margin after the window
+    assert s.hears(1.0, early) and s.hears(1.0, late)
+    # the margin is the caller's to set: without it, both are outside
+    assert not s.hears(1.0, early, margin_s=0.0) and not s.hears(1.0, late, margin_s=0.0)
+    assert s.hears(1.0, 1.0 - s.guard_s, margin_s=0.0) and s.hears(1.0, 1.003, margin_s=0.0)
+
+
+def test_next_fire_before_the_schedule_starts_is_its_first_pulse():
+    s = Schedule.from_robot(load_robot("virtual-4"), window_s=0.003)
+    first = s.fire_time("back", 10.0, 0)
+    assert s.next_fire("back", 10.0, 9.0) == pytest.approx(first)
+    assert s.next_fire("back", 10.0, 10.0 - 3 * s.period_s) == pytest.approx(first)
+    assert s.next_fire("back", 10.0, first) == pytest.approx(first)  # at: that pulse
+
+
+def test_marker_checks_the_earlier_pulses_too():
+    """A board's acquisition that reaches the marker after the other board's next pulse
+    (a late report) is still checked against the pulse that reached its window."""
+    s = Schedule.from_robot(load_robot("virtual-4"), window_s=0.003)
+    m = CrosstalkMarker(s, ["front", "left"])
+    t = 5.0
+    assert m.observe("left", t) == []
+    assert m.observe("left", t + s.period_s) == []
+    assert m.observe("left", t + 2 * s.period_s) == []
+    # front's pulse 1 ms after left's first: left's first pulse reached its window
+    assert m.observe("front", t + 0.001) == ["left"]
+    assert m.seen == {"front": 1, "left": 3} and m.marked == {"front": 1, "left": 0}
+
+
+def test_trigger_window_ms_sets_the_window(write_robot):
+    path = write_robot(
+        [{"name": "a", "slot": "slot = 0"}, {"name": "b", "slot": "slot = 1"}],
+        trigger="period_ms = 25.0\nmax_range_m = 0.8\nwindow_ms = 8.0",
+    )
+    s = Schedule.from_robot(load_robot(path))
+    assert s.window_s == pytest.approx(0.008)
+    assert s.slot_s == pytest.approx(0.008 + 2 * 0.5e-3)  # the window is longer than the guard
+    assert s.slots["b"].offset_s == pytest.approx(s.slot_s)
+
+
+def test_the_window_from_the_profiles_is_the_longest_boards(tmp_path):
+    from importlib import resources
+
+    text = (resources.files("spiel_edge") / "profile" / "builtin" / "spiel-icra23.toml").read_text()
+    assert "n_samples = 64 " in text
+    long = tmp_path / "long.toml"
+    long.write_text(text.replace("n_samples = 64 ", "n_samples = 256 "))
+    path = tmp_path / "robot.toml"
+    path.write_text(
+        '[robot]\nname = "t"\n[trigger]\nperiod_ms = 30.0\nmax_range_m = 0.8\n'
+        f'[[board]]\nname = "a"\nport = "sim://a"\nprofile = "{long}"\nslot = 0\n'
+        '[[board]]\nname = "b"\nport = "sim://b"\nslot = 1\n'
+    )
+    s = Schedule.from_robot(load_robot(path))
+    assert s.window_s == pytest.approx(256 / 22000.0)  # board a's, not the last board's
+
+
+# --- StampClock: the lower envelope, the drift's span and bound (mutation-testing round) -------
+
+
+def test_stamp_clock_refuses_to_map_before_any_acquisition():
+    clock = StampClock()
+    assert not clock.ready
+    with pytest.raises(ValueError, match="no acquisition"):
+        clock.to_host(1.0)
+
+
+def test_stamp_clock_level_is_the_smallest_delay_before_the_first_block():
+    clock = StampClock()
+    for k, latency in enumerate((0.005, 0.001, 0.003)):  # fewer than one block of 8
+        clock.observe(2.0 + k * 0.025, 102.0 + k * 0.025 + latency)
+    # transport only delays: the least delayed acquisition sets the mapping
+    assert clock.to_host(2.1) == pytest.approx(102.1 + 0.001, abs=1e-9)
+    clock.observe(2.075, 102.075)  # a repeated stamp is no reset
+    clock.observe(2.075, 102.076)
+    assert clock.resets == 0 and clock.to_host(2.1) == pytest.approx(102.1, abs=1e-9)
+
+
+def test_stamp_clock_is_not_moved_by_a_congested_stretch():
+    """Two blocks in which every acquisition is 5 ms late do not lift the level: the lower
+    envelope's lowest point sets it (a delayed acquisition does not move it); they show in
+    the uncertainty."""
+    clock = StampClock()
+    assert clock.uncertainty_s == float("inf")  # nothing fitted yet
+    for k in range(200):  # 5 s at 40 Hz, no drift, 0.3 ms latency; the last 16 congested
+        t = k * 0.025
+        clock.observe(t - 7.0, t + 0.0003 + (0.005 if k >= 184 else 0.0))
+    assert clock.drift == 0.0
+    assert clock.to_host(4.0 - 7.0) == pytest.approx(4.0003, abs=1e-9)
+    # the last four minima (the level's points): two on time, two 5 ms late
+    assert clock.uncertainty_s == pytest.approx(0.005, abs=1e-9)
+
+
+def test_stamp_clock_fits_no_drift_before_ten_seconds():
+    rng = np.random.default_rng(5)
+    clock = StampClock()
+    board = 0.0
+    for k in range(320):  # 8 s of a board 200 ppm slow, latency 0.3 ms + exp(0.5 ms)
+        t = k * 0.025
+        board = t * (1 - 200e-6)
+        clock.observe(board, t + 0.0003 + rng.exponential(0.0005))
+    assert clock.drift == 0.0  # the minima span under 10 s: no drift yet
+    # the level comes from the recent minima: within 0.3 ms now (the oldest are 1.6 ms off)
+    assert abs(clock.to_host(board) - (t + 0.0003)) < 3e-4
+    for k in range(320, 800):  # 20 s in all: now it is fitted
+        t = k * 0.025
+        clock.observe(t * (1 - 200e-6), t + 0.0003 + rng.exponential(0.0005))
+    assert clock.drift == pytest.approx(200e-6, rel=0.1)
+
+
+def test_stamp_clock_drift_is_bounded():
+    clock = StampClock()
+    for k in range(800):  # 20 s of a board whose clock runs 1 % slow: not a crystal's drift
+        t = k * 0.025
+        clock.observe(t * 0.99, t + 0.0003)
+    assert clock.drift == pytest.approx(1e-3, abs=1e-12)  # MAX_DRIFT: 0.1 %
+
+
+def test_stamp_clock_lateness_counts_the_drift_far_from_the_board_epoch():
+    """A board up for a day, 200 ppm slow: the lateness of a timely acquisition is its latency,
+    not the drift times the board's time (here 17 s, which would read as a clock gone wrong)."""
+    clock = StampClock()
+    late = None
+    for k in range(1200):  # 30 s
+        t = 1000.0 + k * 0.025
+        late = clock.observe((t + 86400.0) * (1 - 200e-6), t + 0.0003)
+    assert clock.drift == pytest.approx(200e-6, rel=1e-3)
+    assert abs(late) < 1e-4
+
+
+def test_synced_pulse_moves_the_stamp_onto_the_perf_counter_axis():
+    from types import SimpleNamespace
+
+    from spiel_edge.robot.clock import synced_pulse
+
+    # received (device/stream.py) at perf_counter 20.5 s (received_ns) = Unix 1000.5 s
+    # (host_time): the pulse at Unix 1000.0 s was at perf_counter 20.0 s
+    acq = SimpleNamespace(stamp_host=1000.0, received_ns=20_500_000_000, host_time=1000.5)
+    assert synced_pulse(acq) == pytest.approx(20.0, abs=1e-6)
+    assert synced_pulse(SimpleNamespace(stamp_host=None)) is None
+    assert synced_pulse(SimpleNamespace()) is None  # a version-1 acquisition has no stamp_host
+
+
+def test_wait_until_returns_at_the_time_and_not_when_stopped(monkeypatch):
+    import threading
+
+    from spiel_edge.robot import clock as clock_mod
+
+    now = [0.0]
+
+    def sleep(s):
+        now[0] += max(s, 0.0) + 1e-4  # each sleep (a spin too) takes a tick more than asked
+
+    monkeypatch.setattr(clock_mod.time, "perf_counter", lambda: now[0])
+    monkeypatch.setattr(clock_mod.time, "sleep", sleep)
+    stop = threading.Event()
+    assert clock_mod.wait_until(1.0, stop)
+    assert 1.0 <= now[0] < 1.0 + 2e-4  # at the time, not a spin later
+    stop.set()
+    assert not clock_mod.wait_until(5.0, stop) and now[0] < 1.0 + 2e-4
