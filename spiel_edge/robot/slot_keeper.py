@@ -80,9 +80,11 @@ class SlotKeeper:
         return n * self.period_s + self.offset_s - self.lead_s
 
     def started(self) -> None:
-        """A stream was just started (at ``start_time``): the pulses from now on are its."""
+        """A stream was just started (at ``start_time``): the pulses from now on are its (the
+        drift is fitted over them alone: across a restart the phase jumps)."""
         self._settle = []
         self._recent.clear()
+        self._history.clear()
         self._seen = 0
 
     def observe(self, t_pulse: float) -> bool:

@@ -161,6 +161,7 @@ def test_synced_pulse_does_not_take_the_acquisitions_late_wall_clock_read():
     )
     assert synced_pulse(acq) == pytest.approx(now_perf - 0.010, abs=5e-4)
     assert synced_pulse(SimpleNamespace(stamp_host=None)) is None
+    assert synced_pulse(SimpleNamespace()) is None  # a version-1 acquisition has no stamp_host
 
 
 @pytest.mark.parametrize("drift_ppm", [-200.0, 0.0, 150.0])
@@ -372,19 +373,6 @@ def test_stamp_clock_lateness_counts_the_drift_far_from_the_board_epoch():
         late = clock.observe((t + 86400.0) * (1 - 200e-6), t + 0.0003)
     assert clock.drift == pytest.approx(200e-6, rel=1e-3)
     assert abs(late) < 1e-4
-
-
-def test_synced_pulse_moves_the_stamp_onto_the_perf_counter_axis():
-    from types import SimpleNamespace
-
-    from spiel_edge.robot.clock import synced_pulse
-
-    # received (device/stream.py) at perf_counter 20.5 s (received_ns) = Unix 1000.5 s
-    # (host_time): the pulse at Unix 1000.0 s was at perf_counter 20.0 s
-    acq = SimpleNamespace(stamp_host=1000.0, received_ns=20_500_000_000, host_time=1000.5)
-    assert synced_pulse(acq) == pytest.approx(20.0, abs=1e-6)
-    assert synced_pulse(SimpleNamespace(stamp_host=None)) is None
-    assert synced_pulse(SimpleNamespace()) is None  # a version-1 acquisition has no stamp_host
 
 
 def test_wait_until_returns_at_the_time_and_not_when_stopped(monkeypatch):

@@ -268,12 +268,6 @@ def test_a_jump_in_the_phase_is_no_drift():
     assert keeper.requested_period_s == 0.025 and keeper.rate_hz == pytest.approx(40.0)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="product bug: SlotKeeper.started() does not clear _history, so the first drift fit "
-    "spans the phases of the stream before the restart (a late first start: 12 ms -> a fitted "
-    "drift of ~3000 ppm for 200 ppm) and pulses 96-127 leave the 0.5 ms margin (up to 1 ms)",
-)
 def test_a_late_first_start_does_not_skew_the_drift_correction():
     """docs/robot.md: ±200 ppm boards keep every pulse after the first 100 within the margin.
     A first start 12 ms late (redone once its 8 pulses show it) must not change that: the
