@@ -80,16 +80,23 @@ def test_estimator_recovers_offset_and_drift_from_clean_exchanges() -> None:
     assert abs(host - 70e6) < 5 and 100 < u < 250
 
 
+def _jittered(rng, *, seconds: float):
+    """Exchanges every 0.25 s with up to 1 ms of delay on each leg, a board 200 ppm fast and
+    7 s behind: (the estimator, rate, offset)."""
+    est = TimeSyncEstimator()
+    rate, offset = 1 + 200e-6, 7e6
+    for t in np.arange(0, seconds, 0.25):
+        up, down = rng.uniform(0, 1000, 2)
+        stamp = t * 1e6 + up
+        est.add(t * 1e6, stamp + down, (stamp - offset) / rate, 1)
+    return est, rate, offset
+
+
 def test_jittered_exchanges_give_the_corridor_centre_far_inside_the_jitter() -> None:
     """1 ms of jitter on each leg: the lines above every send and below every read pin the
     clock to a few us, where a line through the midpoints keeps their spread (~100 us)."""
     rng = np.random.default_rng(3)
-    est = TimeSyncEstimator()
-    rate, offset = 1 + 200e-6, 7e6
-    for t in np.arange(0, 120, 0.25):
-        up, down = rng.uniform(0, 1000, 2)
-        stamp = t * 1e6 + up
-        est.add(t * 1e6, stamp + down, (stamp - offset) / rate, 1)
+    est, rate, offset = _jittered(rng, seconds=120)
     truth = 125e6
     host, u = est.map((truth - offset) / rate)
     assert abs(host - truth) < 15 and abs(host - truth) <= u < 200
@@ -266,12 +273,7 @@ def test_far_beyond_a_short_window_the_uncertainty_still_covers_the_truth(seed) 
     known only to the corridor's range of rates, and the stated uncertainty grows with the
     larger side of that range (the rate may be off either way)."""
     rng = np.random.default_rng(seed)
-    est = TimeSyncEstimator()
-    rate, offset = 1 + 200e-6, 7e6
-    for t in np.arange(0, 10, 0.25):
-        up, down = rng.uniform(0, 1000, 2)
-        stamp = t * 1e6 + up
-        est.add(t * 1e6, stamp + down, (stamp - offset) / rate, 1)
+    est, rate, offset = _jittered(rng, seconds=10)
     truth = 100e6
     host, u = est.map((truth - offset) / rate)
     assert abs(host - truth) <= u

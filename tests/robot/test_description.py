@@ -95,6 +95,9 @@ def test_a_period_too_short_for_the_boards(write_robot):
     assert "too short for 5 boards" in _one_line(exc)
 
 
+_A = '[[board]]\nname = "a"\n'
+
+
 @pytest.mark.parametrize(
     ("text", "words"),
     [
@@ -113,6 +116,23 @@ def test_a_period_too_short_for_the_boards(write_robot):
         ('[[board]]\nname = "a"\nkey = "a b"\n', "white space"),
         ('[[board]]\nname = "a"\nprofile = ""\n', "profile is empty"),
         ('[robot]\nname = {a = 1}\n[[board]]\nname = "a"\n', "name must be a non-empty string"),
+        ("[robot]\n[wheels]\n" + _A, "unknown section(s) ['wheels']"),
+        (_A + "[trigger]\nperiod = 25.0\n", "[trigger]: unknown key(s) ['period']"),
+        (_A + "[trigger]\nperiod_ms = true\n", "trigger.period_ms must be a number"),
+        ('[robot]\nframe_id = "base link"\n' + _A, "robot.frame_id must be letters"),
+        (_A + "rotation_rpy_deg = [0, 90, 0]\nrotation_xyzw = [0, 0, 0, 1]\n", "give one of"),
+        (_A + "slot = 0\nslot_ms = 0.0\n", "give slot or slot_ms, not both"),
+        (_A + "slot = true\n", "slot must be an integer in [0, 15]"),
+        (_A + "slot = 16\n", "slot must be an integer in [0, 15]"),
+        (_A + "field_of_view_deg = 120\n", "field_of_view_deg must be in [5, 90]"),
+        (_A + "translation_m = [150.0, 0, 0]\n", "translation_m must be in [-100, 100]"),
+        (_A + "[track]\nmax_misses = 2.5\n", "track.max_misses must be an integer"),
+        (_A + 'key = "k"\n[[board]]\nname = "b"\nkey = "k"\n', "both publish on key 'k'"),
+        (_A + 'port = "sim://x"\n[[board]]\nname = "b"\nkey = "robot/a"\n', "both publish on key"),
+        (
+            "".join(f'[[board]]\nname = "b{i}"\nport = "sim://b{i}"\n' for i in range(17)),
+            "at most 16",
+        ),
     ],
 )
 def test_other_bad_files(tmp_path, text, words):
@@ -142,38 +162,6 @@ def test_cli_refuses_a_bad_robot_file_in_one_line(write_robot, capsys):
 
 
 # --- more of the file's checks and defaults (mutation-testing round) ---------------------------
-
-_A = '[[board]]\nname = "a"\n'
-
-
-@pytest.mark.parametrize(
-    ("text", "words"),
-    [
-        ("[robot]\n[wheels]\n" + _A, "unknown section(s) ['wheels']"),
-        (_A + "[trigger]\nperiod = 25.0\n", "[trigger]: unknown key(s) ['period']"),
-        (_A + "[trigger]\nperiod_ms = true\n", "trigger.period_ms must be a number"),
-        ('[robot]\nframe_id = "base link"\n' + _A, "robot.frame_id must be letters"),
-        (_A + "rotation_rpy_deg = [0, 90, 0]\nrotation_xyzw = [0, 0, 0, 1]\n", "give one of"),
-        (_A + "slot = 0\nslot_ms = 0.0\n", "give slot or slot_ms, not both"),
-        (_A + "slot = true\n", "slot must be an integer in [0, 15]"),
-        (_A + "slot = 16\n", "slot must be an integer in [0, 15]"),
-        (_A + "field_of_view_deg = 120\n", "field_of_view_deg must be in [5, 90]"),
-        (_A + "translation_m = [150.0, 0, 0]\n", "translation_m must be in [-100, 100]"),
-        (_A + "[track]\nmax_misses = 2.5\n", "track.max_misses must be an integer"),
-        (_A + 'key = "k"\n[[board]]\nname = "b"\nkey = "k"\n', "both publish on key 'k'"),
-        (_A + 'port = "sim://x"\n[[board]]\nname = "b"\nkey = "robot/a"\n', "both publish on key"),
-        (
-            "".join(f'[[board]]\nname = "b{i}"\nport = "sim://b{i}"\n' for i in range(17)),
-            "at most 16",
-        ),
-    ],
-)
-def test_more_bad_files(tmp_path, text, words):
-    path = tmp_path / "r.toml"
-    path.write_text(text)
-    with pytest.raises(ConfigError) as exc:
-        load_robot(path)
-    assert words in _one_line(exc)
 
 
 def test_rotations_within_the_tolerance_are_made_exact(write_robot):
