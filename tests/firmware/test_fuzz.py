@@ -55,7 +55,7 @@ def test_the_seed_records_use_the_harness_type_table():
 
 def test_the_update_seeds_are_whole_updates():
     seeds = firmware_fuzz.update_seeds()
-    assert len(seeds) == 4
+    assert len(seeds) == 6
     for name, data in seeds.items():
         assert data[0] & firmware_fuzz.FRAMED
         body, kinds = data[4:], []
