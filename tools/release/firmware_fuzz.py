@@ -4,8 +4,10 @@
     python -m tools.release.firmware_fuzz --seconds 30 --json
 
 Builds ``make TARGET=fuzz`` (firmware_protocol/firmware/fuzz/fuzz_request.c: the portable core
-on an in-memory HAL, clang -fsanitize=fuzzer,address,undefined), seeds a corpus with the
-protocol's request vectors (test_vectors.json), runs it and prints the harness's own input
+with firmware update and I/Q on an in-memory HAL, clang -fsanitize=fuzzer,address,undefined),
+seeds a corpus with the protocol's request vectors (test_vectors.json) and with whole firmware
+updates as framed records (begin, write, verify, test, the reset into the trial image, then
+confirm or a rollback), runs it and prints the harness's own input
 count (it counts every call and prints it at exit), libFuzzer's, the time and the load. Exit
 status 0 when the run ended without a crash or a sanitizer report, 1 when it found one (the
 input is kept in the output folder, the report's summary line printed), 2 when clang or its
@@ -61,6 +63,105 @@ def build(out: Path, cc: str = "clang", fast: bool = False) -> Path:
     return out / "spiel_fuzz"
 
 
+# The harness's record type index (fuzz_request.c, types[]): record byte 0 picks
+# FRAMED_TYPES[byte % len]. tests/firmware/test_fuzz.py checks that the two tables agree.
+# fmt: off
+FRAMED_TYPES: tuple[int, ...] = (
+    0x0001, 0x0002, 0x0004, 0x0005, 0x0010, 0x0011, 0x0012, 0x0020, 0x0021, 0x0022, 0x0023,
+    0x0003, 0x0013, 0x0006, 0x0007, 0x0008, 0x0009, 0x000A, 0x0014, 0x0024, 0x0025, 0x0030,
+    0x0031, 0x0032, 0x0033, 0x0034, 0x0040, 0x8A01, 0xFFFF, 0x0041, 0x0042, 0x0043, 0x0044,
+    0x0045,
+)
+# fmt: on
+HELLO, REBOOT, FW_INFO = 0x0001, 0x0005, 0x0040
+FW_BEGIN, FW_WRITE, FW_VERIFY, FW_TEST, FW_CONFIRM = 0x0041, 0x0042, 0x0043, 0x0044, 0x0045
+# mode byte bits (fuzz_request.c): 1 framed records, 8 slot 0 holds a running confirmed image
+FRAMED, IMAGE0 = 1, 8
+
+
+def record(msg_type: int, payload: bytes = b"", seq_step: int = 1, flags: int = 0) -> bytes:
+    """One framed-mode record: type index, flags, seq step, u16 length, payload."""
+    return (
+        bytes([FRAMED_TYPES.index(msg_type), flags, seq_step])
+        + len(payload).to_bytes(2, "little")
+        + payload
+    )
+
+
+def update_records(image: bytes, chunk: int = 200, retry: bool = False) -> bytes:
+    """HELLO (version 2) and a whole upload: FW_INFO, FW_BEGIN, FW_WRITE chunks (with
+    ``retry``, the first chunk sent again after the second under a new seq: answered without
+    writing), FW_VERIFY, FW_TEST with no delay (the board resets into the trial image after
+    it)."""
+    import hashlib
+
+    from crc32c import crc32c
+
+    out = record(HELLO, bytes([1, 2, 0, 0, 0, 0, 0, 0])) + record(FW_INFO)
+    out += record(
+        FW_BEGIN,
+        len(image).to_bytes(4, "little")
+        + crc32c(image).to_bytes(4, "little")
+        + (32).to_bytes(2, "little")
+        + hashlib.sha256(image).digest(),
+    )
+    writes = [
+        record(
+            FW_WRITE,
+            off.to_bytes(4, "little")
+            + len(image[off : off + chunk]).to_bytes(2, "little")
+            + image[off : off + chunk],
+        )
+        for off in range(0, len(image), chunk)
+    ]
+    if retry and len(writes) > 1:  # the first chunk again (a retry, PROTOCOL.md 14.3)
+        writes.insert(2, writes[0])
+    return out + b"".join(writes) + record(FW_VERIFY) + record(FW_TEST, (0).to_bytes(2, "little"))
+
+
+def update_seeds() -> dict[str, bytes]:
+    """Framed inputs that drive a whole firmware update, so the fuzzer starts deep: from the
+    recovery loader (erased slots) and from a running image in slot 0, then after the reset
+    into the trial image FW_CONFIRM, or a REBOOT before it (the rollback); one upload repeats
+    a chunk already written (the device's retry path)."""
+    from firmware_protocol.image import pack_image
+
+    image = pack_image(bytes(range(256)) + bytes(44), version="2.0.0+fuzz", target="posix")
+    after = record(HELLO, bytes([1, 2, 0, 0, 0, 0, 0, 0])) + record(FW_INFO)
+    confirm = after + record(FW_CONFIRM) + record(FW_INFO)
+    rollback = after + record(REBOOT, bytes(3)) + after
+    seeds = {}
+    for mode in (FRAMED, FRAMED | IMAGE0):
+        header = bytes([mode, 0, 0xFF, 0])
+        seeds[f"seed-fw-update-confirm-{mode}"] = header + update_records(image) + confirm
+        seeds[f"seed-fw-update-rollback-{mode}"] = header + update_records(image) + rollback
+        seeds[f"seed-fw-update-retry-{mode}"] = header + update_records(image, retry=True) + confirm
+    return seeds
+
+
+# Little-endian boundary values for the u32/u16 offsets and lengths of requests (FW_WRITE,
+# CONFIG_READ/WRITE): libFuzzer's own integer mutations add small deltas, so an offset near
+# 2^32 (where offset + length wraps) is otherwise three exact bytes away. Plus the image magic.
+DICTIONARY: tuple[bytes, ...] = (
+    b"\xff\xff\xff\xff",
+    b"\xff\xff\xff",
+    b"\xff\xff",
+    b"\x00\x00\x00\x80",
+    b"\xff\xff\xff\x7f",
+    b"\x00\x00\x01\x00",
+    b"\x00\x08\x00\x00",
+    b"SPFW",
+    b"posix",
+)
+
+
+def write_dictionary(path: Path) -> Path:
+    """DICTIONARY as a libFuzzer -dict file (one quoted token a line, bytes as \\xNN)."""
+    lines = [f'kw{i}="' + "".join(f"\\x{b:02x}" for b in t) + '"' for i, t in enumerate(DICTIONARY)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def seed_corpus(corpus: Path) -> int:
     """The request vectors as raw-transport inputs (mode 0) and as framed records (mode 1)."""
     from firmware_protocol import load_test_vectors
@@ -82,6 +183,9 @@ def seed_corpus(corpus: Path) -> int:
                 bytes([0, 7, 0xFF, 3]) + bytes.fromhex(v["wire_hex"])
             )
             n += 1
+    for name, data in update_seeds().items():
+        (corpus / name).write_bytes(data)
+        n += 1
     return n
 
 
@@ -98,6 +202,7 @@ def run(
         str(exe),
         f"-seed={seed}",
         f"-max_len={max_len}",
+        f"-dict={write_dictionary(out / 'spiel.dict')}",
         "-print_final_stats=1",
         f"-artifact_prefix={out}/",
     ]

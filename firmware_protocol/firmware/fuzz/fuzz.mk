@@ -1,12 +1,13 @@
 # fuzz/fuzz.mk - the libFuzzer harness of the device's request decoder (fuzz_request.c),
-# included by ../Makefile for TARGET=fuzz. Needs clang with its fuzzer runtime (Debian:
+# included by ../Makefile for TARGET=fuzz, with firmware update and I/Q (the harness implements
+# the image slots and hal_acq_read_iq). Needs clang with its fuzzer runtime (Debian:
 # clang and libclang-rt-<version>-dev). Output: $(BUILD)/spiel_fuzz. Run it with
 # `python -m tools.release.firmware_fuzz`.
 FUZZ_CC ?= clang
 # FUZZ_COVERAGE=-fno-sanitize-coverage=trace-cmp: about 3x the inputs per second, without
 # libFuzzer's comparison-guided mutations (for long runs over a corpus grown with them)
 FUZZ_COVERAGE ?=
-FUZZ_CFLAGS := $(WARN) -O1 -g -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
+FUZZ_CFLAGS := $(WARN) -O1 -g -DSPIEL_FW_UPDATE=1 -DSPIEL_IQ_SAMPLES=1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
 	-fno-omit-frame-pointer $(FUZZ_COVERAGE) $(INC) $(CFLAGS_EXTRA)
 FUZZ_OUT := $(BUILD)/spiel_fuzz
 

@@ -1,21 +1,40 @@
 /*
  * fuzz_request.c - libFuzzer harness of the device's request decoder: the whole portable core
- * (core/ over ../c/spiel_proto.c) on an in-memory HAL, fed one input per boot.
+ * (core/ over ../c/spiel_proto.c, built with -DSPIEL_FW_UPDATE=1 -DSPIEL_IQ_SAMPLES=1) on an
+ * in-memory HAL with config flash, two firmware image slots and a boot record area, fed one
+ * input per power-on. A reset (REBOOT, FW_TEST) runs the core's boot stage (boot_choose) and
+ * boots the core again on the same flash and slots; the input goes on (at most 8 resets).
  *
  *   make TARGET=fuzz            clang -fsanitize=fuzzer,address,undefined
  *   python -m tools.release.firmware_fuzz --runs 10000000
  *
  * Input: byte 0 chooses how the rest is read, bytes 1..3 shape the HAL:
  *   bit 0 of byte 0   0: raw transport bytes;  1: records framed here with a valid CRC, so
- *                     the fuzzer reaches every request's payload parser:
- *                     u8 type index, u8 flags, u8 seq step, u16 length, length bytes
+ *                     the fuzzer reaches every request's payload parser, fed one at a time:
+ *                     u8 type index (types[] below), u8 flags, u8 seq step, u16 length,
+ *                     length bytes
  *   bit 1             boot with a committed config in flash (else an erased flash)
  *   bit 2             the transport takes at most byte 3 + 1 bytes per write (backpressure)
+ *   bit 3             image slot 0 holds a valid image (the confirmed one, running); else
+ *                     both slots are erased and the recovery loader runs (running slot -1)
  *   byte 1            bytes per transport read (0: all available)
- *   byte 2            the flash operation that fails (0xFF: none)
+ *   byte 2            0xFF: nothing fails; 0x00..0x7F: that erase or write (config flash and
+ *                     image slots counted together, 0-based) fails (a failing slot write
+ *                     programs half its bytes first, a failing boot record write leaves
+ *                     that copy erased); 0x80..0xFE: image read (byte 2 & 0x7F) fails
  * Between reads the core is polled and the clock moves on, so streams are scheduled, sent,
- * overrun and stopped. Oracle beyond the sanitizers: everything the device writes must decode
- * as valid frames (no CRC, COBS, length or flag error in the host's decoder).
+ * overrun and stopped. Oracles beyond the sanitizers:
+ *   - everything the device writes decodes as valid frames (no CRC, COBS, length or flag error
+ *     in the host's decoder);
+ *   - the core never erases or writes the running slot, never reads or writes outside a slot,
+ *     and never programs a slot byte back from 0 to 1 without an erase (NOR flash);
+ *   - framed records: the answers to FW_* requests agree with the requests (a model of the
+ *     upload): FW_BEGIN's size in [96, slot_size], never the running slot; FW_WRITE answered
+ *     OK only within the size FW_BEGIN announced; FW_VERIFY's size, CRC-32C and SHA-256 are
+ *     FW_BEGIN's and those of the slot's bytes; FW_TEST's slot is the verified one; FW_INFO
+ *     names the running slot. Retries answered from the device's cache are not checked;
+ *   - the boot stage (when no failure was injected): after FW_TEST it boots the tested slot,
+ *     and a reset of an unconfirmed trial rolls back to the other slot when that one checks.
  * The harness counts its own inputs: "spiel_fuzz: inputs N" at exit, and every million.
  */
 #include <setjmp.h>
@@ -23,9 +42,14 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "core.h"
 #include "spiel_device.h"
 #include "spiel_hal.h"
 #include "spiel_proto.h"
+
+#if !SPIEL_FW_UPDATE || !SPIEL_IQ_SAMPLES
+#error "the harness implements the image slots and I/Q: build with -DSPIEL_FW_UPDATE=1 -DSPIEL_IQ_SAMPLES=1"
+#endif
 
 #define FLASH_SIZE 0x4000u /* two 8 KiB slots: 4 KiB sectors, SPIEL_CONFIG_MAX 4080 */
 #define FLASH_SECTOR 0x1000u
@@ -34,13 +58,30 @@ static uint8_t flash[FLASH_SIZE], flash_erased[FLASH_SIZE], flash_seeded[FLASH_S
 static const uint8_t *in_data;
 static size_t in_len, in_pos, read_step;
 static size_t tx_budget; /* 0: unlimited */
-static uint32_t flash_ops, flash_fail_at;
+static uint32_t store_ops, store_fail_at; /* erases and writes: config flash and images */
+static uint32_t image_reads, read_fail_at;
+static int failed;                          /* an injected failure happened in this input */
 static uint64_t now_us;
 static uint32_t rng_state;
 static jmp_buf reset_jump;
 static int in_input;
 static sp_decoder_t out_decoder;
 static unsigned long long inputs;
+
+#define IMAGE_SLOT 2048u  /* bytes per image slot: small, so that inputs fill one */
+#define RECORD_AREA 32u   /* slot 2: the boot record's two copies */
+#define MAX_RESETS 8u     /* resets per input */
+
+static uint8_t slots[2][IMAGE_SLOT], record_area[RECORD_AREA];
+static uint8_t image0[IMAGE_SLOT]; /* a valid image for slot 0 (mode bit 3) */
+static int image_running;          /* the slot the boot stage chose: 0, 1, -1 none */
+static unsigned resets;
+
+static void fail_check(const char *what)
+{
+    fprintf(stderr, "spiel_fuzz: %s\n", what);
+    abort();
+}
 
 /* ---- the in-memory HAL ----------------------------------------------------------------- */
 
@@ -58,12 +99,16 @@ size_t hal_transport_read(uint8_t *buf, size_t cap)
     return n;
 }
 
+static void check_output(const sp_frame_t *f);
+
 size_t hal_transport_write(const uint8_t *buf, size_t len)
 {
     size_t i, n = tx_budget && len > tx_budget ? tx_budget : len;
     for (i = 0; i < n; i++) {
         sp_frame_t f;
-        (void)sp_decoder_feed(&out_decoder, buf[i], &f);
+        if (sp_decoder_feed(&out_decoder, buf[i], &f)) {
+            check_output(&f);
+        }
     }
     return n;
 }
@@ -83,6 +128,20 @@ int hal_acq_trigger(uint32_t channel_mask, uint16_t n_samples)
     }
     trig_mask = channel_mask;
     trig_samples = n_samples;
+    return 0;
+}
+
+int hal_acq_read_iq(uint8_t channel, uint16_t *qi, uint16_t n_samples)
+{
+    uint16_t i;
+    if (channel >= 4 || !(trig_mask & (1u << channel)) || n_samples > trig_samples ||
+        2u * (uint32_t)n_samples > SPIEL_MAX_SAMPLES) {
+        return -1;
+    }
+    for (i = 0; i < n_samples; i++) {
+        qi[2u * i] = (uint16_t)(0x8000u + i);      /* q: negative values too */
+        qi[2u * i + 1u] = (uint16_t)(i * 131u + channel); /* i */
+    }
     return 0;
 }
 
@@ -113,9 +172,13 @@ uint32_t hal_flash_sector_size(void)
     return FLASH_SECTOR;
 }
 
-static int flash_fails(void)
+static int storage_fails(void)
 {
-    return flash_ops++ == flash_fail_at;
+    if (store_ops++ == store_fail_at) {
+        failed = 1;
+        return 1;
+    }
+    return 0;
 }
 
 int hal_flash_erase(uint32_t addr, uint32_t len)
@@ -123,7 +186,7 @@ int hal_flash_erase(uint32_t addr, uint32_t len)
     if (addr > FLASH_SIZE || len > FLASH_SIZE - addr || addr % FLASH_SECTOR || len % FLASH_SECTOR) {
         return -1;
     }
-    if (flash_fails()) {
+    if (storage_fails()) {
         return -1;
     }
     memset(flash + addr, 0xFF, len);
@@ -136,7 +199,7 @@ int hal_flash_write(uint32_t addr, const uint8_t *data, uint32_t len)
     if (addr > FLASH_SIZE || len > FLASH_SIZE - addr) {
         return -1;
     }
-    if (flash_fails()) {
+    if (storage_fails()) {
         return -1;
     }
     for (i = 0; i < len; i++) {
@@ -158,7 +221,7 @@ void hal_reset(int to_bootloader)
 {
     (void)to_bootloader;
     if (in_input) {
-        longjmp(reset_jump, 1); /* the board restarts: this input ends */
+        longjmp(reset_jump, 1); /* the board restarts: power_on(), then the input goes on */
     }
     abort();
 }
@@ -189,6 +252,321 @@ void hal_apply_settings(const hal_settings_t *settings)
     (void)settings;
 }
 
+/* ---- firmware image slots (SPIEL_FW_UPDATE): slots 0 and 1 behave as NOR flash (a write
+ * only clears bits; erase sets 0xFF), slot 2 (the boot record) as the mps2 target's: a write
+ * replaces one copy (its own sector, erased first). ---------------------------------------- */
+
+static uint8_t *image_area(int slot, uint32_t offset, uint32_t len)
+{
+    uint32_t cap = slot == 2 ? RECORD_AREA : IMAGE_SLOT;
+    if (slot < 0 || slot > 2 || offset > cap || len > cap - offset) {
+        fprintf(stderr, "spiel_fuzz: image slot %d accessed outside it: offset %lu, %lu bytes\n",
+                slot, (unsigned long)offset, (unsigned long)len);
+        abort();
+    }
+    return slot == 2 ? record_area + offset : slots[slot] + offset;
+}
+
+uint32_t hal_image_slot_size(void)
+{
+    return IMAGE_SLOT;
+}
+
+int hal_image_running(void)
+{
+    return image_running;
+}
+
+int hal_image_erase(int slot)
+{
+    uint8_t *area = image_area(slot, 0, 0);
+    if (slot == image_running) {
+        fail_check("the core erased the running slot");
+    }
+    if (storage_fails()) {
+        return -1;
+    }
+    memset(area, 0xFF, slot == 2 ? RECORD_AREA : IMAGE_SLOT);
+    return 0;
+}
+
+int hal_image_write(int slot, uint32_t offset, const uint8_t *data, uint32_t len)
+{
+    uint8_t *area = image_area(slot, offset, len);
+    uint32_t i, n = len;
+    int fails;
+    if (slot == image_running) {
+        fail_check("the core wrote the running slot");
+    }
+    fails = storage_fails();
+    if (slot == 2) { /* a cut leaves this copy erased; the other one holds */
+        memset(area, 0xFF, len);
+        if (!fails) {
+            memcpy(area, data, len);
+        }
+        return fails ? -1 : 0;
+    }
+    if (fails) {
+        n = len / 2; /* half of it reaches the flash */
+    }
+    for (i = 0; i < n; i++) {
+        if ((area[i] & data[i]) != data[i] && !failed) {
+            fail_check("the core programmed a slot byte twice without an erase");
+        }
+        area[i] &= data[i];
+    }
+    return fails ? -1 : 0;
+}
+
+int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len)
+{
+    const uint8_t *area = image_area(slot, offset, len);
+    if (image_reads++ == read_fail_at) {
+        failed = 1;
+        return -1;
+    }
+    memcpy(data, area, len);
+    return 0;
+}
+
+/* A valid image for slot 0 (target SPIEL_FW_TARGET, protocols 1-2, a 160-byte body). */
+static void make_image0(void)
+{
+    uint8_t body[160];
+    sp_image_header_t h;
+    sha256_t s;
+    uint32_t i;
+    for (i = 0; i < sizeof body; i++) {
+        body[i] = (uint8_t)(i * 7u + 1u);
+    }
+    memset(&h, 0, sizeof h);
+    memcpy(h.magic, SP_IMAGE_MAGIC, 4);
+    h.header_version = SP_IMAGE_HEADER_VERSION;
+    h.header_size = SP_IMAGE_HEADER_SIZE;
+    memcpy(h.version, "1.0.0+fuzz", 10);
+    memcpy(h.target, SPIEL_FW_TARGET, strlen(SPIEL_FW_TARGET));
+    h.min_protocol = 1;
+    h.max_protocol = 2;
+    h.body_size = sizeof body;
+    h.body_crc = sp_crc32c(0, body, sizeof body);
+    sha256_init(&s);
+    sha256_update(&s, body, sizeof body);
+    sha256_final(&s, h.body_sha256);
+    memset(image0, 0xFF, sizeof image0);
+    sp_image_header_pack(&h, image0);
+    h.header_crc = sp_crc32c(0, image0, SP_IMAGE_HEADER_SIZE - 4u);
+    sp_image_header_pack(&h, image0);
+    memcpy(image0 + SP_IMAGE_HEADER_SIZE, body, sizeof body);
+}
+
+/* ---- the oracle's model of the host side: the request being fed, the device's retry cache,
+ * the upload and the boot record ---------------------------------------------------------- */
+
+/* make TARGET=fuzz CFLAGS_EXTRA=-DSPIEL_FUZZ_TRACE=1: the harness prints every answer it
+ * matched to a framed request, and every boot, on stderr (to see how deep a seed goes). */
+#ifndef SPIEL_FUZZ_TRACE
+#define SPIEL_FUZZ_TRACE 0
+#endif
+
+#define UNKNOWN (-2) /* a failure made the device's state uncertain: not checked */
+
+static struct {
+    int valid;            /* a framed request is being fed, its answer not seen yet */
+    uint16_t type, seq;
+    const uint8_t *p;     /* its payload */
+    uint16_t len;
+} fed;
+
+static struct {
+    int valid;            /* the device answers (seq, type) from its cache */
+    uint16_t seq, type;
+} cache_model;
+
+static struct {
+    int begun;            /* FW_BEGIN answered OK, the upload not ended since */
+    uint32_t size, crc, written;
+    uint8_t sha[32];
+    int slot;             /* the slot FW_BEGIN answered */
+    int verified;         /* the slot FW_VERIFY passed since, -1 none, or UNKNOWN */
+    int pending;          /* FW_TEST answered OK: the slot the next boot runs; -1, UNKNOWN */
+    int trial;            /* running that unconfirmed trial slot; -1, UNKNOWN */
+} up;
+
+static void model_reset(void)
+{
+    memset(&up, 0, sizeof up);
+    up.verified = up.pending = up.trial = -1;
+    cache_model.valid = 0;
+    fed.valid = 0;
+}
+
+static void fw_refused(void)
+{
+    switch (fed.type) {
+    case SP_MSG_FW_BEGIN: /* a failed boot record write or erase: the test may be cancelled */
+        if (up.pending >= 0) {
+            up.pending = UNKNOWN;
+        }
+        break;
+    case SP_MSG_FW_WRITE: /* a failed slot write clears the verification */
+        if (up.verified >= 0) {
+            up.verified = UNKNOWN;
+        }
+        break;
+    default:
+        break;
+    }
+}
+
+static void fw_answered(const uint8_t *out, uint16_t n)
+{
+    switch (fed.type) {
+    case SP_MSG_FW_INFO:
+        if (n < 8u || out[0] != (image_running < 0 ? 0xFFu : (unsigned)image_running) ||
+            sp_le_get_u32(out + 4) != IMAGE_SLOT) {
+            fail_check("FW_INFO names another running slot or slot size");
+        }
+        break;
+    case SP_MSG_FW_BEGIN: {
+        uint32_t size = sp_le_get_u32(fed.p);
+        if (fed.len < 42u || n < 5u) {
+            fail_check("FW_BEGIN answered OK to a short request");
+        }
+        if (size < SP_IMAGE_HEADER_SIZE || size > IMAGE_SLOT || out[0] > 1u ||
+            (int)out[0] == image_running || sp_le_get_u32(out + 1) != IMAGE_SLOT) {
+            fail_check("FW_BEGIN answered OK: size outside [96, slot_size] or the running slot");
+        }
+        if (up.trial >= 0) {
+            fail_check("FW_BEGIN answered OK while an unconfirmed trial image runs");
+        }
+        up.begun = 1;
+        up.size = size;
+        up.crc = sp_le_get_u32(fed.p + 4);
+        memcpy(up.sha, fed.p + 10, 32);
+        up.slot = out[0];
+        up.written = 0;
+        up.verified = -1;
+        up.pending = -1; /* a pending test is cancelled */
+        break;
+    }
+    case SP_MSG_FW_WRITE: {
+        uint64_t end;
+        if (fed.len < 6u || n < 4u || !up.begun) {
+            fail_check("FW_WRITE answered OK without an upload or to a short request");
+        }
+        end = (uint64_t)sp_le_get_u32(fed.p) + sp_le_get_u16(fed.p + 4);
+        if (end > up.size) {
+            fail_check("FW_WRITE answered OK past the image size FW_BEGIN announced");
+        }
+        if (end > up.written) { /* new bytes (a repeat is answered without writing) */
+            up.written = (uint32_t)end;
+            up.verified = -1;
+        }
+        if (sp_le_get_u32(out) != up.written) {
+            fail_check("FW_WRITE's written differs from the bytes sent");
+        }
+        break;
+    }
+    case SP_MSG_FW_VERIFY: {
+        uint8_t sha[32];
+        sha256_t s;
+        if (!up.begun || n < 43u || out[0] != up.slot || sp_le_get_u32(out + 1) != up.size ||
+            up.written != up.size || sp_le_get_u32(out + 5) != up.crc ||
+            sp_le_get_u16(out + 9) != 32u || memcmp(out + 11, up.sha, 32) != 0) {
+            fail_check("FW_VERIFY answered OK with another slot, size or digest than FW_BEGIN's");
+        }
+        sha256_init(&s);
+        sha256_update(&s, slots[up.slot], up.size);
+        sha256_final(&s, sha);
+        if (!failed && (memcmp(sha, up.sha, 32) != 0 ||
+                        sp_crc32c(0, slots[up.slot], up.size) != up.crc)) {
+            fail_check("FW_VERIFY answered OK but the slot's bytes have another digest");
+        }
+        up.verified = up.slot;
+        break;
+    }
+    case SP_MSG_FW_TEST:
+        if (!up.begun || n < 1u || out[0] != up.slot || up.verified == -1 ||
+            (up.verified >= 0 && up.verified != up.slot)) {
+            fail_check("FW_TEST answered OK without a verified upload of that slot");
+        }
+        up.pending = up.slot;
+        up.begun = 0;
+        break;
+    case SP_MSG_FW_CONFIRM:
+        if (n < 2u || image_running < 0 || out[0] != (unsigned)image_running ||
+            out[1] != SP_BOOT_CONFIRMED) {
+            fail_check("FW_CONFIRM answered OK but not the running slot, confirmed");
+        }
+        up.trial = -1;
+        break;
+    default:
+        break;
+    }
+}
+
+/* Every frame the device writes: the answer to the framed request being fed is checked. */
+static void check_output(const sp_frame_t *f)
+{
+    const sp_header_t *h = &f->header;
+    if (!fed.valid || !(h->flags & SP_FLAG_RESPONSE) || h->seq != fed.seq) {
+        return;
+    }
+    fed.valid = 0;
+    if (SPIEL_FUZZ_TRACE) {
+        fprintf(stderr, "spiel_fuzz: 0x%04x seq %u: %s %u\n", (unsigned)fed.type,
+                (unsigned)fed.seq, (h->flags & SP_FLAG_NACK) ? "error" : "ok, bytes",
+                (h->flags & SP_FLAG_NACK) ? (unsigned)sp_le_get_u16(f->payload)
+                                          : (unsigned)h->payload_len);
+    }
+    if (cache_model.valid && cache_model.seq == fed.seq && cache_model.type == fed.type &&
+        fed.type != SP_MSG_HELLO) {
+        return; /* a retry, answered from the cache (the earlier request's answer) */
+    }
+    cache_model.valid = h->payload_len <= 64u && fed.type != SP_MSG_HELLO;
+    cache_model.seq = fed.seq;
+    cache_model.type = fed.type;
+    if (h->flags & SP_FLAG_NACK) {
+        fw_refused();
+    } else {
+        fw_answered(f->payload, h->payload_len);
+    }
+}
+
+/* Power-on or reset: the boot stage (the core's boot_choose) picks the slot, then the core
+ * boots; RAM (the upload, the retry cache, the receive buffer) is lost. */
+static void power_on(void)
+{
+    int choice;
+    image_running = -1;
+    choice = boot_choose();
+    if (choice >= 0 && image_check(choice, NULL, NULL, NULL) != 0 && !failed) {
+        fail_check("the boot stage chose a slot whose image does not check");
+    }
+    if (!failed && up.pending >= 0 && choice != up.pending) {
+        fail_check("the boot stage did not run the slot FW_TEST named");
+    }
+    if (!failed && up.pending == -1 && up.trial >= 0 && choice == up.trial &&
+        image_check(1 - up.trial, NULL, NULL, NULL) == 0 && !failed) {
+        fail_check("a reset of an unconfirmed trial image did not roll back");
+    }
+    if (failed || up.pending == UNKNOWN) {
+        up.trial = UNKNOWN;
+    } else {
+        up.trial = up.pending >= 0 ? choice : -1;
+    }
+    up.pending = -1;
+    up.begun = 0;
+    up.verified = -1;
+    cache_model.valid = 0;
+    fed.valid = 0;
+    image_running = choice;
+    if (SPIEL_FUZZ_TRACE) {
+        fprintf(stderr, "spiel_fuzz: boot (reset %u): slot %d\n", resets, choice);
+    }
+    spiel_device_init();
+}
+
 /* ---- driving the core ------------------------------------------------------------------- */
 
 static void poll_for(unsigned rounds, uint32_t step_us)
@@ -200,66 +578,94 @@ static void poll_for(unsigned rounds, uint32_t step_us)
     }
 }
 
+/* Hand out the rest of in_data (a reset may interrupt it: pump again to go on), then poll. */
+static void pump(uint32_t step_us, unsigned tail)
+{
+    while (in_pos < in_len) {
+        spiel_device_poll();
+        now_us += step_us;
+    }
+    poll_for(tail, step_us);
+}
+
 static void feed(const uint8_t *data, size_t len, uint32_t step_us)
 {
     in_data = data;
     in_len = len;
     in_pos = 0;
-    while (in_pos < in_len) {
-        spiel_device_poll();
-        now_us += step_us;
-    }
-    poll_for(8, step_us);
+    pump(step_us, 8);
 }
 
 static uint8_t wire[SP_MAX_WIRE];
 static uint8_t framed[1u << 16];
 
+/* The record's type index: tools/release/firmware_fuzz.py (FRAMED_TYPES) mirrors this table. */
 static const uint16_t types[] = {
     SP_MSG_HELLO, SP_MSG_DEVICE_INFO, SP_MSG_PING, SP_MSG_REBOOT, SP_MSG_STREAM_START,
     SP_MSG_STREAM_STOP, SP_MSG_STREAM_STATUS, SP_MSG_CONFIG_READ, SP_MSG_CONFIG_WRITE,
     SP_MSG_CONFIG_COMMIT, SP_MSG_CONFIG_STATUS, SP_MSG_ERROR, SP_MSG_STREAM_DATA, 0x0006u,
     0x0007u, 0x0008u, 0x0009u, 0x000Au, 0x0014u, 0x0024u, 0x0025u, 0x0030u, 0x0031u, 0x0032u,
-    0x0033u, 0x0034u, 0x0040u, 0x8A01u, 0xFFFFu,
+    0x0033u, 0x0034u, 0x0040u, 0x8A01u, 0xFFFFu, SP_MSG_FW_BEGIN, SP_MSG_FW_WRITE,
+    SP_MSG_FW_VERIFY, SP_MSG_FW_TEST, SP_MSG_FW_CONFIRM,
 };
 
-/* Frame the records of a structured input; returns the framed length. */
-static size_t frame_records(const uint8_t *p, size_t n)
+/* The records of a structured input, framed and fed one at a time (the cursor survives a
+ * reset: the record being fed then is lost, like bytes in flight). */
+static const uint8_t *rec_p;
+static size_t rec_n;
+static uint16_t rec_seq;
+
+static void feed_records(uint32_t step_us)
 {
-    size_t out = 0;
-    uint16_t seq = 1;
-    while (n >= 5) {
+    while (rec_n >= 5) {
+        const uint8_t *p = rec_p;
         uint16_t type = types[p[0] % (sizeof types / sizeof types[0])];
         uint8_t flags = (uint8_t)(p[1] & SP_KNOWN_FLAGS);
-        uint16_t len = (uint16_t)(p[3] | (p[4] << 8)), w;
-        seq = (uint16_t)(seq + p[2]);
-        p += 5;
-        n -= 5;
-        if (len > n) {
-            len = (uint16_t)n;
+        uint16_t len = (uint16_t)(p[3] | (p[4] << 8));
+        size_t w;
+        rec_seq = (uint16_t)(rec_seq + p[2]);
+        if (len > rec_n - 5) {
+            len = (uint16_t)(rec_n - 5);
         }
-        w = (uint16_t)sp_frame_encode(type, seq, flags, 0, p, len, wire, sizeof wire);
-        if (w == 0 || out + w > sizeof framed) {
+        rec_p += 5u + len;
+        rec_n -= 5u + len;
+        w = sp_frame_encode(type, rec_seq, flags, 0, p + 5, len, wire, sizeof wire);
+        if (w == 0) {
+            rec_n = 0;
             break;
         }
-        memcpy(framed + out, wire, w);
-        out += w;
-        p += len;
-        n -= len;
+        fed.valid = (flags & (SP_FLAG_RESPONSE | SP_FLAG_STREAM)) == 0;
+        fed.type = type;
+        fed.seq = rec_seq;
+        fed.p = p + 5;
+        fed.len = len;
+        in_data = wire;
+        in_len = w;
+        in_pos = 0;
+        pump(step_us, 2);
+        fed.valid = 0;
     }
-    return out;
+    poll_for(8, step_us);
 }
 
-static void boot(const uint8_t *image)
+static void boot(const uint8_t *image, int with_image0)
 {
     memcpy(flash, image, FLASH_SIZE);
+    memset(slots, 0xFF, sizeof slots);
+    memset(record_area, 0xFF, sizeof record_area);
+    if (with_image0) {
+        memcpy(slots[0], image0, IMAGE_SLOT);
+    }
     sp_decoder_init(&out_decoder);
     now_us = 1000;
     rng_state = 12345u;
-    flash_ops = 0;
-    spiel_device_init();
+    store_ops = 0;
+    image_reads = 0;
+    failed = 0;
+    resets = 0;
+    model_reset();
+    power_on();
 }
-
 /* A committed config in flash, made through the protocol itself (CONFIG_WRITE + COMMIT). */
 static void seed_config(void)
 {
@@ -284,8 +690,8 @@ static void seed_config(void)
     memcpy(blob + SP_CONFIG_HEADER_SIZE, toml, sizeof toml - 1);
     crc = sp_crc32c(0, blob, sizeof blob);
     memset(flash_erased, 0xFF, sizeof flash_erased);
-    boot(flash_erased);
-    flash_fail_at = 0xFFFFFFFFu;
+    store_fail_at = read_fail_at = 0xFFFFFFFFu;
+    boot(flash_erased, 0);
     sp_le_put_u32(req, 0);
     sp_le_put_u16(req + 4, (uint16_t)sizeof blob);
     memcpy(req + 6, blob, sizeof blob);
@@ -314,6 +720,13 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
     (void)argc;
     (void)argv;
+    store_fail_at = read_fail_at = 0xFFFFFFFFu;
+    make_image0();
+    memcpy(slots[0], image0, IMAGE_SLOT);
+    image_running = -1;
+    if (image_check(0, NULL, NULL, NULL) != 0) {
+        fail_check("the harness's own slot 0 image does not check");
+    }
     seed_config();
     atexit(report);
     return 0;
@@ -323,8 +736,6 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     uint8_t mode;
     uint32_t step_us;
-    const uint8_t *body;
-    size_t body_len;
     if (++inputs % 1000000u == 0) { /* a count that survives an interrupted run */
         fprintf(stderr, "spiel_fuzz: inputs %llu so far\n", inputs);
     }
@@ -334,18 +745,26 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     mode = data[0];
     read_step = data[1];
     tx_budget = (mode & 4u) ? (size_t)data[3] + 1u : 0u;
-    flash_fail_at = data[2] == 0xFF ? 0xFFFFFFFFu : data[2];
+    store_fail_at = data[2] < 0x80u ? data[2] : 0xFFFFFFFFu;
+    read_fail_at = data[2] >= 0x80u && data[2] != 0xFFu ? data[2] & 0x7Fu : 0xFFFFFFFFu;
     step_us = 50u + 997u * (data[3] & 0x3Fu); /* 50 us .. 63 ms per poll */
-    body = data + 4;
-    body_len = size - 4;
-    boot((mode & 2u) ? flash_seeded : flash_erased);
-    if (mode & 1u) {
-        body_len = frame_records(body, body_len);
-        body = framed;
-    }
+    in_data = data + 4;
+    in_len = size - 4;
+    in_pos = 0;
+    rec_p = data + 4;
+    rec_n = size - 4;
+    rec_seq = 1;
+    boot((mode & 2u) ? flash_seeded : flash_erased, (mode & 8u) != 0);
     in_input = 1;
-    if (setjmp(reset_jump) == 0) {
-        feed(body, body_len, step_us);
+    if (setjmp(reset_jump) != 0 && ++resets <= MAX_RESETS) { /* the board restarted */
+        power_on();
+    }
+    if (resets <= MAX_RESETS) {
+        if (mode & 1u) {
+            feed_records(step_us);
+        } else {
+            pump(step_us, 8);
+        }
     }
     in_input = 0;
     /* the oracle: the device never sends a damaged frame */
