@@ -68,13 +68,14 @@ def quaternion_from_matrix(r: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(v) / n for v in q)  # type: ignore[return-value]
 
 
-def _prepare_kernels(robot: RobotSpec, association, max_targets, track: bool) -> None:
-    """Every board profile's kernels loaded (or compiled, with progress) in this thread."""
+def _prepare_kernels(robot: RobotSpec, association, max_targets) -> None:
+    """Every board profile's kernels loaded (or compiled, with progress) in this thread, the
+    tracker's included (the fusion always tracks)."""
     from spiel_edge.profile.schema import load_profile
     from spiel_edge.runtime.first_start import prepare_for_run
 
     for name in dict.fromkeys(b.profile for b in robot.boards):
-        prepare_for_run(load_profile(name), association, max_targets, track, None)
+        prepare_for_run(load_profile(name), association, max_targets, True, None)
 
 
 def robot_inputs(plan: FilePlan, robot_file: str, robot: RobotSpec, option: str) -> None:
@@ -136,8 +137,10 @@ def run_robot(
     plan = FilePlan(force)
     robot_inputs(plan, robot_file, robot, "--robot")
     outputs = check_fused_outputs(plan, outputs)
-    if realtime is not None:  # the kernels first (they would compile in the boards' threads)
-        _prepare_kernels(robot, association, max_targets, track)
+    # every kernel before any board opens: compiled in a board's thread, it holds the GIL for
+    # seconds while the other boards' links fill, and their backlog reads as a clock jump
+    _prepare_kernels(robot, association, max_targets)
+    if realtime is not None:
         apply_realtime(realtime)
     sink = open_fused_outputs(
         robot,
