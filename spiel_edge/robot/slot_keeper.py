@@ -33,7 +33,7 @@ SETTLE = 8  # pulses after a start that tell how late it landed
 CHECK_EVERY = 8  # pulses between checks of the phase
 DRIFT_WINDOW = 128  # pulses the drift is fitted over
 START_AHEAD_S = 0.03  # a start is planned at least this far ahead (the request's way out)
-MAX_LEAD_S = 0.01  # run --robot: a start's latency is never more (a bound on a bad landing)
+LATENCIES_KEPT = 5  # run --robot: host-timed starts whose latency sets the next one's lead
 KEEP_WITHIN = 0.75  # a drifting stream is restarted once its phase is this share of the margin
 
 
@@ -137,8 +137,8 @@ class SlotPhase:
     latency, which one-way stamps cannot show: the landing is taken as that bias, only a change
     of phase beyond the margin counts, and a pulse whose recent phase (less the bias) is within
     the margin is reported at the slot's time. A start the host times itself (no START_AT) goes
-    out ``lead_s`` early: how late the measured starts landed (the request's latency), learned
-    as :class:`SlotKeeper` learns it."""
+    out ``lead_s`` early: the request's latency, the median of the last few such starts' (each
+    measured by how late it landed, a delay taken modulo the period)."""
 
     def __init__(self, schedule, board: str, t0: float):
         self.schedule = schedule
@@ -146,6 +146,7 @@ class SlotPhase:
         self.t0 = t0
         self.synced = False
         self.lead_s = 0.0
+        self._latencies: deque[float] = deque(maxlen=LATENCIES_KEPT)
         self._learn_lead = False
         self._settle: list[float] = []
         self._bias_s = 0.0
@@ -176,7 +177,11 @@ class SlotPhase:
                 self._bias_s = landed
             settled = self.synced and len(self._settle) == SETTLE
             if settled and self._learn_lead:
-                self.lead_s = min(max(self.lead_s + landed, -MAX_LEAD_S), MAX_LEAD_S)
+                # the whole latency, lead_s + landed, is a delay: in [0, P) (a latency beyond
+                # a period lands on a later grid point, which is the slot's all the same); the
+                # median of the last few, as one start's latency may be a scheduling hiccup
+                self._latencies.append((self.lead_s + landed) % self.schedule.period_s)
+                self.lead_s = float(np.median(self._latencies))
             return self._reported(pulse), settled and abs(landed) > margin
         self._recent.append(err)
         restart = (

@@ -82,8 +82,8 @@ def _ignoring_start_times(named_due):
 
     def first_due(start_at_us: int, period_s: float, now: float) -> float:
         named = named_due(start_at_us, period_s, now)
-        if named is None or period_s <= 0:
-            return now
+        if named is None or period_s <= 0 or start_at_us == 0:
+            return now  # a plain start (no time named): at once, as any board
         off = (now - named) % period_s
         return now + period_s / 2 if min(off, period_s - off) < IGNORED_START_OFF_S else now
 

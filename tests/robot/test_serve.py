@@ -279,6 +279,15 @@ def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_pat
     on_clock = {w.board.name: w.on_its_clock for w in runner.workers}
     assert trusted == {"front": True, "left": False}
     assert on_clock == {"front": True, "left": False}
+    # started by the host from then on, it keeps its slot: a few restarts while the request's
+    # latency is learned (lead_s), then none, and nobody's window reached
+    restarts = {w.board.name: w.stats.restarts for w in runner.workers}
+    assert restarts["front"] == 0 and restarts["left"] <= 8, restarts
+    late = Keep.records[60:]
+    assert {r["boards"]["left"]["restarts"] for r in late if "left" in r["boards"]} == {
+        restarts["left"]
+    }
+    assert not any(b["crosstalk"] for r in late for b in r["boards"].values())
 
 
 @pytest.mark.parametrize(
@@ -304,3 +313,47 @@ def test_run_slot_needs_protocol_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--slot needs protocol version 2" in err and "Traceback" not in err, err
     assert len(err.strip().splitlines()) == 1, err  # no summary of a stream never started
+
+
+def test_a_tight_time_sync_pulse_counts_as_measured_and_reaches_the_marker(tmp_path):
+    """A pulse TIME_SYNC maps is taken as measured once its uncertainty is a quarter of the
+    margin or less, until it passes half (early exchanges bound it to milliseconds), and its
+    uncertainty goes with the report to the cross-talk marker."""
+    import queue
+    import threading
+    from types import SimpleNamespace
+
+    from spiel_edge.robot.board_worker import BoardWorker
+    from spiel_edge.robot.description import load_robot
+    from spiel_edge.robot.schedule import Schedule
+    from spiel_edge.robot.serve import RobotRunner
+
+    robot = load_robot(_robot(tmp_path))
+    schedule = Schedule.from_robot(robot)
+    worker = BoardWorker(robot.boards[0], schedule, 0.0, queue.Queue(), threading.Event())
+    quarter = schedule.margin_s / 4 * 1e6  # us
+
+    def acq(us):
+        return SimpleNamespace(stamp_host=1000.0, stamp_uncertainty_us=us)
+
+    assert worker._measured_pulse(acq(quarter)) is not None
+    assert worker._measured_pulse(acq(1.5 * quarter)) is None  # not yet
+    worker.synced = True
+    assert worker._measured_pulse(acq(1.5 * quarter)) is not None  # kept
+    assert worker._measured_pulse(acq(2.5 * quarter)) is None
+    assert worker._measured_pulse(acq(float("nan"))) is None
+    assert worker._stamp_uncertainty(acq(20.0)) == pytest.approx(20e-6)
+    worker.synced = False
+    assert worker._stamp_uncertainty(acq(20.0)) is None
+
+    class Keep:
+        def write(self, record):
+            pass
+
+        def close(self):
+            pass
+
+    runner = RobotRunner(robot, Keep())
+    runner.run(frames=40)
+    for pulses in runner.marker._pulses.values():  # the virtual boards speak protocol 2
+        assert 0 < pulses[-1][1] < schedule.margin_s / 2
