@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import queue
 import threading
 import time
@@ -184,7 +185,7 @@ class BoardWorker(threading.Thread):
                     )
             else:
                 self._disagree = 0
-            pulse = synced_pulse(acq)  # protocol 2: TIME_SYNC's mapping of the board's clock
+            pulse = self._measured_pulse(acq)  # protocol 2: TIME_SYNC's, when it is tight
             if (pulse is not None) != self.synced:  # another time axis: learn the bias afresh
                 self.synced = pulse is not None
                 self.phase.started(self.synced, self._host_timed)
@@ -251,6 +252,17 @@ class BoardWorker(threading.Thread):
             acquired_unix=acq.host_time,
             time_uncertainty_s=self._stamp_uncertainty(acq),
         )
+
+    def _measured_pulse(self, acq) -> float | None:
+        """TIME_SYNC's pulse time (protocol 2), taken as measured once its uncertainty is a
+        quarter of the sync margin or less and until it passes half the margin (early
+        exchanges bound it only to milliseconds); None: the one-way estimate's rules."""
+        pulse = synced_pulse(acq)
+        us = getattr(acq, "stamp_uncertainty_us", None)
+        if pulse is None or us is None or not math.isfinite(us):
+            return None
+        limit = self.schedule.margin_s * (0.5 if self.synced else 0.25)
+        return pulse if us * 1e-6 <= limit else None
 
     def _stamp_uncertainty(self, acq) -> float | None:
         """Seconds: how far the reported pulse may be from the true one, when TIME_SYNC

@@ -12,6 +12,7 @@ drift, a board that ignores the schedule) is *marked*.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -128,15 +129,17 @@ class CrosstalkMarker:
     times (the boards' stamps mapped through their clocks): past pulses as seen, and each
     other board's next pulse predicted one period after its last.
 
-    Each pulse's time is uncertain by its own ``uncertainty_s`` when that was measured
-    (TIME_SYNC: tens of microseconds), else by half the sync margin (a time from the one-way
-    estimate, or a pulse reported at its slot's time); the window of a pair is widened by the
-    sum of the two. (Widening every pair by the whole margin marked acquisitions of boards that
-    sat well inside their slots: a board 0.3 ms late beside one 0.2 ms early.)"""
+    A pair's window is widened by what is unknown of its two times. A pulse TIME_SYNC measured
+    brings its stated uncertainty (tens of microseconds); a pulse from the one-way estimate, or
+    reported at its slot's time, may be anywhere its slot keeping allows, up to the margin
+    either way. Two such pulses widen by one margin together (each is kept within the margin of
+    its slot, so the slots' two margins still part them); one of them beside a measured pulse
+    widens by the margin plus the measured uncertainty; two measured pulses by the sum of
+    theirs, so boards that TIME_SYNC shows well inside their slots are not marked."""
 
     def __init__(self, schedule: Schedule, boards: list[str]):
         self.schedule = schedule
-        self._pulses: dict[str, deque[tuple[float, float]]] = {
+        self._pulses: dict[str, deque[tuple[float, float | None]]] = {
             b: deque(maxlen=EMISSIONS_KEPT) for b in boards
         }
         self.marked: dict[str, int] = dict.fromkeys(boards, 0)
@@ -149,24 +152,31 @@ class CrosstalkMarker:
         period_s: float | None = None,
         uncertainty_s: float | None = None,
     ) -> list[str]:
-        """Record ``board``'s pulse at ``t_host`` (± ``uncertainty_s``, when measured); the
-        boards whose pulse reached its window."""
+        """Record ``board``'s pulse at ``t_host`` (± ``uncertainty_s`` when measured: finite
+        and not negative, else unknown); the boards whose pulse reached its window."""
         period = self.schedule.period_s if period_s is None else period_s
-        unknown = self.schedule.margin_s / 2
-        mine = unknown if uncertainty_s is None else float(uncertainty_s)
+        mine = uncertainty_s
+        if mine is not None and not (math.isfinite(mine) and mine >= 0):
+            mine = None
         heard = []
         for other, pulses in self._pulses.items():
             if other == board or not pulses:
                 continue
             last_t, last_u = pulses[-1]
             candidates = list(pulses) + [(last_t + period, last_u)]
-            if any(self.schedule.hears(t_host, t, margin_s=mine + u) for t, u in candidates):
+            if any(self.schedule.hears(t_host, t, self._widening(mine, u)) for t, u in candidates):
                 heard.append(other)
         self._pulses[board].append((t_host, mine))
         self.seen[board] += 1
         if heard:
             self.marked[board] += 1
         return heard
+
+    def _widening(self, a: float | None, b: float | None) -> float:
+        margin = self.schedule.margin_s
+        if a is None and b is None:
+            return margin
+        return (margin if a is None else a) + (margin if b is None else b)
 
 
 def _profile_window(robot) -> float:

@@ -59,9 +59,9 @@ def test_marker_marks_what_another_pulse_reached():
 
 def test_marker_widens_a_pair_by_its_two_pulses_uncertainties():
     """Two boards inside their slots, one 0.3 ms late and the next 0.25 ms early: 0.55 ms of
-    the 2 x 0.5 ms between them used, so neither hears the other. Unknown times (each ± half
-    the margin) leave that undecided and mark it; times TIME_SYNC measured to ± 20 us do not,
-    and a pair that really closes the gap is marked either way."""
+    the 2 x 0.5 ms between them used, so neither hears the other. Two unknown times (widened
+    by one margin together) leave that undecided and mark it; times TIME_SYNC measured to
+    ± 20 us do not, and a pair that really closes the gap is marked either way."""
     s = Schedule.from_robot(load_robot("virtual-4"), window_s=0.003)
     back, right = s.fire_time("back", 0.0, 3) + 0.3e-3, s.fire_time("right", 0.0, 3) - 0.25e-3
     assert not s.hears(right, back, margin_s=0.0)  # the truth: not reached
@@ -82,6 +82,28 @@ def test_marker_widens_a_pair_by_its_two_pulses_uncertainties():
     assert wide.observe("right", right + 0.3e-3, uncertainty_s=0.4e-3) == ["back"]
     unknown.observe("back", back + 2 * s.period_s)
     assert unknown.observe("right", right + 2 * s.period_s + 0.3e-3) == []
+
+
+def test_marker_widening_of_mixed_and_malformed_uncertainties():
+    """One unknown time beside a measured one widens by the margin plus the measured
+    uncertainty (the unknown pulse may be a margin off its reported time); a NaN or negative
+    uncertainty is unknown, never a narrower window."""
+    s = Schedule.from_robot(load_robot("virtual-4"), window_s=0.003)
+    back = s.fire_time("back", 0.0, 3)
+    right = s.fire_time("right", 0.0, 3) - 0.49e-3  # 0.49 ms early: within its margin
+    for u_back, u_right, heard in (
+        (None, 20e-6, ["back"]),  # 0.5 + 0.02 ms of the 1 ms between them: undecided, marked
+        (20e-6, 20e-6, []),
+        (float("nan"), 20e-6, ["back"]),
+        (-1.0, 20e-6, ["back"]),
+        (20e-6, float("inf"), ["back"]),
+    ):
+        m = CrosstalkMarker(s, ["back", "right"])
+        m.observe("back", back, uncertainty_s=u_back)
+        assert m.observe("right", right, uncertainty_s=u_right) == heard, (u_back, u_right)
+    m = CrosstalkMarker(s, ["back", "right"])  # two unknowns: one margin, 0.49 ms not marked
+    m.observe("back", back)
+    assert s.margin_s == pytest.approx(0.5e-3) and m.observe("right", right) == []
 
 
 def _phase(synced: bool, t0: float = 10.0):
@@ -142,6 +164,23 @@ def test_slot_phase_learns_how_late_a_host_timed_start_lands():
     p.started(True, host_timed=False)
     [p.observe(t) for t in _pulses(s, 10.0, 24, 8, 0.2e-3)]
     assert p.lead_s == pytest.approx(latency)
+
+
+@pytest.mark.parametrize("latency_s", [0.0109, 0.0134, 0.030])
+def test_slot_phase_learns_a_start_latency_beyond_half_a_period(latency_s):
+    """A start latency past half the 25 ms period shows as an early landing (the phase wraps):
+    the latency is a delay, so the lead is taken modulo the period and the next start lands in
+    the slot (a latency past a whole period on a later grid point). A lead clamped to +-10 ms
+    restarted such a board every 8 pulses for ever."""
+    s, p = _phase(synced=True)
+    p.started(True, host_timed=True)
+    [p.observe(t) for t in _pulses(s, 10.0, 0, 8, latency_s)]
+    assert p.lead_s == pytest.approx(latency_s % s.period_s, abs=1e-9)
+    for start in range(3):  # sent lead_s early: lands on the slot, kept
+        p.started(True, host_timed=True)
+        landed = (latency_s - p.lead_s) % s.period_s
+        results = [p.observe(t) for t in _pulses(s, 10.0, 8 + 8 * start, 8, landed)]
+        assert not any(r for _, r in results)
 
 
 def test_synced_pulse_does_not_take_the_acquisitions_late_wall_clock_read():

@@ -69,3 +69,26 @@ def test_the_host_marks_the_acquisitions_another_pulse_reached(world):
     flagged, audible = np.array(flagged[80:]), np.array(audible[80:])
     assert audible.any()
     assert np.mean(flagged[audible]) > 0.9  # what reached a window is marked
+
+
+def test_robot_eval_pools_seeds_with_a_wilson_interval(capsys):
+    """`robot_eval --seeds` prints each seed's figures, then the pooled ones (the figures
+    docs/robot.md cites): kept over tracked summed over the seeds, with Wilson's interval."""
+    import json
+
+    from tools.bench.robot_eval import main, wilson
+
+    assert wilson(0, 0) == (0.0, 1.0)
+    lo, hi = wilson(574, 669)  # a share of 0.858: the interval's ends, by the formula
+    assert lo == pytest.approx(0.8295, abs=1e-4) and hi == pytest.approx(0.8824, abs=1e-4)
+    main(["--cycles", "60", "--seeds", "0,2-3", "--mode", "scheduled", "--no-ghosts"])
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    per_seed, (pooled,) = lines[:-1], lines[-1:]
+    assert [r["seed"] for r in per_seed] == [0, 2, 3]
+    crossings = pooled["pooled"]["crossings"]
+    assert crossings["kept"] == sum(r["crossings"]["kept"] for r in per_seed)
+    assert crossings["tracked"] == sum(
+        r["crossings"]["crossings"] - r["crossings"]["untracked"] for r in per_seed
+    )
+    marked = [r["marked_share"] for r in per_seed]
+    assert pooled["pooled"]["marked_share"] == [min(marked), max(marked)]
