@@ -38,7 +38,7 @@ class LiveAcquisition:
     sample_rate_hz: int
     samples: np.ndarray  # (channels, samples), the wire dtype (uint16 envelope)
     received_ns: int  # time.perf_counter_ns() when its last byte was read
-    host_time: float  # time.time() at that moment
+    host_time: float  # time.time() when it was assembled: after received_ns, not a pair with it
     truth_mm: np.ndarray | None = None  # ground truth, when a virtual board sends it
     background: np.ndarray | None = None  # latest target-free scene the link sent, if any
     truth_targets_mm: np.ndarray | None = None  # (K, 3) every target's truth, when sent
