@@ -180,8 +180,11 @@ class SlotPhase:
                 # the whole latency, lead_s + landed, is a delay: in [0, P) (a latency beyond
                 # a period lands on a later grid point, which is the slot's all the same); the
                 # median of the last few, as one start's latency may be a scheduling hiccup
-                self._latencies.append((self.lead_s + landed) % self.schedule.period_s)
-                self.lead_s = float(np.median(self._latencies))
+                period = self.schedule.period_s
+                self._latencies.append((self.lead_s + landed) % period)
+                ref = self._latencies[-1]  # a median on the circle: 0.1 and 24.9 ms are close
+                near = [(x - ref + period / 2) % period - period / 2 for x in self._latencies]
+                self.lead_s = float(ref + np.median(near)) % period
             return self._reported(pulse), settled and abs(landed) > margin
         self._recent.append(err)
         restart = (

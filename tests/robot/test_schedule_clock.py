@@ -183,6 +183,17 @@ def test_slot_phase_learns_a_start_latency_beyond_half_a_period(latency_s):
         assert not any(r for _, r in results)
 
 
+def test_slot_phase_lead_is_a_median_on_the_circle():
+    """Latencies a hair either side of a whole period (0.1 ms, then 24.95 ms: 0.05 ms early)
+    are close: the lead stays near 0 (mod P), not halfway round at 12.5 ms."""
+    s, p = _phase(synced=True)
+    for first, landing in enumerate((0.1e-3, -0.05e-3)):
+        p.started(True, host_timed=True)
+        [p.observe(t) for t in _pulses(s, 10.0, 8 * first, 8, landing - p.lead_s)]
+    gap = min(p.lead_s, s.period_s - p.lead_s)
+    assert gap < 0.2e-3, p.lead_s
+
+
 def test_synced_pulse_does_not_take_the_acquisitions_late_wall_clock_read():
     """An acquisition's ``host_time`` is read when it is assembled, after its bytes arrived
     (``received_ns``): 4 ms later on a loaded computer. Converting its TIME_SYNC time with that
