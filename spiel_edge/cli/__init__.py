@@ -200,6 +200,7 @@ class _SignalPhase:
     def start(cls) -> None:
         for sig in _CATCH:
             signal.signal(sig, cls.handler)
+        sys.unraisablehook = _quiet_signal_unraisable
         early = sys.modules["spiel_edge._early"].received
         if early:  # a signal arrived while the program was still loading
             cls.handler(early[0], None)
@@ -214,6 +215,17 @@ class _SignalPhase:
         from spiel_edge.cli._signals import Terminated
 
         raise Terminated(f"signal {signum}")
+
+
+def _quiet_signal_unraisable(unraisable) -> None:
+    """A signal's exception raised where Python cannot raise it (a second Ctrl-C while the
+    first unwinds, landing in a weakref or finaliser callback inside the import system) is
+    printed as "Exception ignored in ..." with a traceback: the process is ending on the
+    signal already, so it is dropped (Terminated is a KeyboardInterrupt); anything else goes
+    to Python's default hook."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        return
+    sys.__unraisablehook__(unraisable)
 
 
 STUCK_EXIT_S = 10.0  # after a signal, a clean-up still running this long is stuck
