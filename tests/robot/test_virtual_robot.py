@@ -92,3 +92,18 @@ def test_robot_eval_pools_seeds_with_a_wilson_interval(capsys):
     )
     marked = [r["marked_share"] for r in per_seed]
     assert pooled["pooled"]["marked_share"] == [min(marked), max(marked)]
+
+
+def test_boards_inside_their_slots_are_not_marked():
+    """Offline, each acquisition's ``host_pulse`` is what ``run --robot`` reports (SlotPhase:
+    a protocol-1 pulse within the margin of its slot at the slot's time). Reported as mapped,
+    seed 9's boards `right` (0.21 ms early) and `back` (0.31 ms late), both inside their
+    slots, were marked from its 95th acquisition on: 18.6 % of all, none reached."""
+    world = RobotWorld(load_robot("virtual-4"), movers=5, seed=9)
+    acqs, _, _ = simulate(world, cycles=400, scheduled=True, seed=9)
+    sched = Schedule.from_robot(world.robot, window_s=world.n_samples / world.sample_rate_hz)
+    marker = CrosstalkMarker(sched, world.names)
+    marked = [bool(marker.observe(a.board, a.host_pulse)) for a in acqs]
+    assert not any(a.frame.foreign_peak >= AUDIBLE_COUNTS for a in acqs)  # none reached
+    # after the clocks' first 2.5 s: 0.9 % (around restarts); reported as mapped, 4.9 %
+    assert np.mean(marked[400:]) < 0.02, np.mean(marked[400:])
