@@ -197,11 +197,9 @@ class SlotPhase:
         if self.synced:
             return pulse
         t = pulse - self._bias_s
-        sched, offset = self.schedule, self.schedule.slots[self.board].offset_s
-        k = round((t - self.t0 - offset) / sched.period_s)
-        slot = self.t0 + k * sched.period_s + offset
-        err = float(np.median(self._recent)) - self._bias_s if self._recent else t - slot
-        return slot if abs(err) <= sched.margin_s else t
+        off = self.schedule.phase_error(self.board, self.t0, t)  # from the nearest slot start
+        err = float(np.median(self._recent)) - self._bias_s if self._recent else off
+        return t - off if abs(err) <= self.schedule.margin_s else t
 
 
 class StartAtTrust:
