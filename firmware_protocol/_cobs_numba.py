@@ -13,7 +13,10 @@ try:  # spiel_edge's kernel cache: prebuilt kernels, and a bad cache file never 
 except ImportError:  # pragma: no cover - firmware_protocol copied without spiel_edge
     from numba import njit
 
-    jit = njit(cache=True, nogil=True)
+    def jit(fn=None, **extra):
+        """``@jit`` or ``@jit(inline=...)``, as spiel_edge._jit.jit takes them."""
+        options = {"cache": True, "nogil": True, **extra}
+        return njit(**options) if fn is None else njit(**options)(fn)
 
 
 @jit(inline="always")

@@ -102,3 +102,33 @@ def test_accepts_bytearray_and_memoryview() -> None:
     wire = cobs.encode(b"ab\x00cd")
     assert cobs.decode(bytearray(wire)) == cobs.decode(memoryview(wire)) == b"ab\x00cd"
     assert cobs.encode(memoryview(b"ab\x00cd")) == wire
+
+
+def test_cobs_kernels_load_without_spiel_edge(tmp_path):
+    """firmware_protocol copied without spiel_edge: the plain-numba fallback decorates every
+    kernel (it once raised TypeError at import) and decodes like the reference."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent(
+        """
+        import sys
+        sys.modules["spiel_edge._jit"] = None  # import of it raises ImportError
+        from firmware_protocol import _cobs_numba as k
+        from firmware_protocol import cobs
+        import numpy as np
+        data = bytes(range(1, 40)) + b"\\0" + bytes(300)
+        enc = cobs.encode(data)
+        out = np.zeros(len(data) + 8, np.uint8)
+        n = k.decode(np.frombuffer(enc, np.uint8), out)
+        assert bytes(out[:n]) == data, (n, len(data))
+        print("ok")
+        """
+    )
+    env = {"NUMBA_CACHE_DIR": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "ok"
