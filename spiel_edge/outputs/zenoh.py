@@ -1,7 +1,9 @@
 """Fleet publishing over Zenoh (extra ``zenoh``): each record as JSON on one key expression.
 
 The session uses Zenoh's own configuration: a JSON5 file given here, or ``$ZENOH_CONFIG``,
-else the defaults (peer mode, multicast scouting on the local network).
+else the defaults (peer mode). Nothing is reachable beyond this computer unless asked
+(docs/security.md): what neither the options nor the file set is confined by
+:func:`confine_to_loopback` (listen on loopback only, no multicast scouting).
 Congestion control drops records rather than blocking the run loop.
 """
 
@@ -51,6 +53,20 @@ def load_config(config: Any = None):
         raise ConfigError(f"Zenoh config {path}: {zenoh_reason(exc)}") from exc
 
 
+LOOPBACK_LISTEN = ("tcp/127.0.0.1:0",)  # a peer's default listener: this computer only
+
+
+def confine_to_loopback(cfg) -> None:
+    """What the configuration leaves at Zenoh's defaults, confined to this computer: a peer
+    listens on loopback (Zenoh's default: ``tcp/[::]:0``, every interface) and does not scout by
+    multicast (Zenoh's default: on, 224.0.0.224:7446 on every interface). A listen endpoint or a
+    scouting setting given (option or file) is kept as given."""
+    if isinstance(json.loads(cfg.get_json("listen/endpoints")), dict):  # per-mode: the default
+        cfg.insert_json5("listen/endpoints", json.dumps(list(LOOPBACK_LISTEN)))
+    if json.loads(cfg.get_json("scouting/multicast/enabled")) is None:
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+
+
 # proto/HOST:PORT (HOST a name, IPv4 or [IPv6]), optional ?metadata or #config; or a socket path
 _ENDPOINT = re.compile(
     r"(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+(?:%\w+)?\]|[A-Za-z0-9_.-]+)"
@@ -71,21 +87,20 @@ def check_endpoint(endpoint: str) -> str:
 
 def session_config(config: Any = None, settings: Any = None, *, rmw_zenoh: bool = False):
     """The session's configuration: ``config`` (or $ZENOH_CONFIG, or the defaults) with the
-    mode and endpoints of ``settings`` (outputs.ros2.ZenohSettings) over it. rmw_zenoh's own
-    sessions use no multicast scouting (they meet through a router), so neither does ours in
-    that encoding unless a configuration file says otherwise."""
+    mode and endpoints of ``settings`` (outputs.ros2.ZenohSettings) over it, confined to
+    loopback where neither sets otherwise (:func:`confine_to_loopback`; rmw_zenoh's own
+    sessions listen on ``tcp/localhost:0`` and do not scout by multicast either)."""
     zenoh = _import_zenoh()
+    del rmw_zenoh  # every encoding is confined alike
     if config is None:
         config = getattr(settings, "config_file", None)
     cfg = load_config(config)
-    given_file = config is not None or bool(os.environ.get("ZENOH_CONFIG"))
     try:
         if settings is not None and settings.mode:
             cfg.insert_json5("mode", json.dumps(settings.mode))
         if settings is not None and settings.connect:
             cfg.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
-        if rmw_zenoh and not given_file:
-            cfg.insert_json5("scouting/multicast/enabled", "false")
+        confine_to_loopback(cfg)
     except Exception as exc:  # zenoh.ZError
         raise ConfigError(f"--zenoh: bad Zenoh setting: {zenoh_reason(exc)}") from exc
     del zenoh

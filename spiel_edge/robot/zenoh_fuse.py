@@ -31,8 +31,9 @@ ODOM = "\x00odom"  # the odometry subscriber's name in the queue (no board is na
 
 
 def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | None = None):
-    """A zenoh.Config: a JSON5 file (or ``$ZENOH_CONFIG``), then the endpoints and mode."""
-    from spiel_edge.outputs.zenoh import _import_zenoh, load_config
+    """A zenoh.Config: a JSON5 file (or ``$ZENOH_CONFIG``), then the endpoints and mode;
+    confined to loopback where none of them says otherwise (docs/security.md)."""
+    from spiel_edge.outputs.zenoh import _import_zenoh, confine_to_loopback, load_config
 
     _import_zenoh()
     cfg = load_config(config)
@@ -43,6 +44,7 @@ def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | N
             cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
         if listen:
             cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        confine_to_loopback(cfg)
     except Exception as exc:  # zenoh.ZError
         raise ConfigError(f"Zenoh configuration: {zenoh_reason(exc)}") from exc
     return cfg
