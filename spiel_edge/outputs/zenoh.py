@@ -168,12 +168,20 @@ class ZenohSink(Sink):
         )
         self._publisher = publishers["record"]
         self.key_expr = key_expr
+        self._auth_key = getattr(settings, "auth_key", None)  # tag each record (fuse checks)
         self.failed = 0
         log.info("publishing records on Zenoh key %s", self.key_expr)
 
     def write(self, record: dict) -> None:
         try:
-            self._publisher.put(json.dumps(record, separators=(",", ":"), allow_nan=False))
+            payload = json.dumps(record, separators=(",", ":"), allow_nan=False).encode()
+            if self._auth_key is None:
+                self._publisher.put(payload)
+            else:
+                from spiel_edge.robot.record_auth import attachment
+
+                tag = attachment(self._auth_key, self.key_expr, payload)
+                self._publisher.put(payload, attachment=tag)
         except Exception as exc:  # zenoh.ZError: keep the run going, like UDP
             self.failed += 1
             if self.failed == 1 or self.failed % 1000 == 0:
