@@ -27,8 +27,38 @@ _RUST_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
 
 def zenoh_reason(exc: BaseException) -> str:
     """A Zenoh error's text without the Rust source location it carries (``timeout at
-    /root/.cargo/.../orchestrator.rs:1253.`` -> ``timeout``)."""
-    return _RUST_SOURCE.sub("", str(exc)).strip() or type(exc).__name__
+    /root/.cargo/.../orchestrator.rs:1253.`` -> ``timeout``), on one line."""
+    text = _RUST_SOURCE.sub("", str(exc)).replace("\\n", " ")
+    return " ".join(text.split()) or type(exc).__name__
+
+
+_WHERE = re.compile(r"line:\s*(\d+),\s*column:\s*(\d+)|-->\s*(\d+):(\d+)")
+_UNKNOWN_KEY = re.compile(r"unknown field `([A-Za-z0-9_]{1,64})`")
+_EXPECTED = re.compile(
+    r"expected ((?:one of )?`[A-Za-z0-9_-]{1,32}`(?:, `[A-Za-z0-9_-]{1,32}`)*|[a-z0-9 ]{1,40}?)(?=[\",]|$)"
+)
+
+
+def config_reason(exc: BaseException) -> str:
+    """Why Zenoh refused a configuration file, in words that never quote the file: Zenoh's
+    own message may show the offending line or value (a password, a key), so only the
+    location, an unknown key's name and what the schema expected are kept."""
+    text = str(exc)
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    where = _WHERE.search(text)
+    at = f" at line {where[1] or where[3]}, column {where[2] or where[4]}" if where else ""
+    if m := _UNKNOWN_KEY.search(text):
+        return f"unknown key {m[1]!r}{at}"
+    expected = _EXPECTED.search(text)
+    hint = f" (expected {expected[1].strip()})" if expected else ""
+    if "invalid type" in text or "invalid value" in text or "unknown variant" in text:
+        return f"a value Zenoh does not take{at}{hint}; values are not shown"
+    if "-->" in text or "expected" in text:
+        return f"not valid JSON5{at}; values are not shown"
+    if "No such file" in text or "not found" in text.lower():
+        return "no such file"
+    return f"not a Zenoh configuration{at}; its text is not shown"
 
 
 def _import_zenoh():
@@ -49,8 +79,8 @@ def load_config(config: Any = None):
         return zenoh.Config()
     try:
         return zenoh.Config.from_file(str(Path(path)))
-    except Exception as exc:  # zenoh.ZError and I/O errors alike
-        raise ConfigError(f"Zenoh config {path}: {zenoh_reason(exc)}") from exc
+    except Exception as exc:  # zenoh.ZError and I/O errors alike: never echo the file
+        raise ConfigError(f"Zenoh config {path}: {config_reason(exc)}") from None
 
 
 LOOPBACK_LISTEN = ("tcp/127.0.0.1:0",)  # a peer's default listener: this computer only
