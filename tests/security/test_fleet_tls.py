@@ -124,6 +124,7 @@ def test_the_documented_fleet_set_up_fuses_only_each_boards_own_records(tmp_path
     stranger = zenoh.open(zenoh.Config.from_json5(json.dumps(no_cert)))
     try:
         time.sleep(1.5)  # TLS handshakes
+        assert list(back.info.peers_zid()) and not list(stranger.info.peers_zid())
         forger, outsider = back.declare_publisher("robot/front"), stranger.declare_publisher(
             "robot/front"
         )
