@@ -41,12 +41,22 @@ class Refused(ValueError):
         self.reason = reason
 
 
-def json_depth(payload: bytes) -> int:
-    """How deep ``[``/``{`` nest in ``payload`` (outside strings), without parsing it."""
-    bare = _STRING.sub(b'""', payload)
-    a = np.frombuffer(bare, np.uint8)
-    step = np.isin(a, (0x5B, 0x7B)).astype(np.int32) - np.isin(a, (0x5D, 0x7D))
-    return int(np.cumsum(step).max(initial=0))
+_NOT_BRACKETS = bytes(b for b in range(256) if b not in b"[]{}")
+
+
+def json_depth(payload: bytes, limit: int = MAX_DEPTH) -> int:
+    """How deep ``[``/``{`` nest in ``payload`` (outside strings), without parsing it; the
+    count stops once past ``limit``."""
+    if payload.count(b"[") + payload.count(b"{") <= limit:
+        return 0  # cannot nest deeper than it opens: the common case, in microseconds
+    depth = deepest = 0
+    for c in _STRING.sub(b"", payload).translate(None, _NOT_BRACKETS):
+        depth += 1 if c in (0x5B, 0x7B) else -1
+        if depth > deepest:
+            deepest = depth
+            if deepest > limit:
+                break
+    return deepest
 
 
 def parse(payload: bytes) -> dict:
@@ -126,31 +136,37 @@ def targets(items) -> list[tuple[np.ndarray, np.ndarray, float]]:
     for k, t in enumerate(items):
         if not isinstance(t, dict):
             raise Refused("not a record", f"target {k} is not an object")
-        p = _array(t.get("position_mm"), 3, f"target {k} position_mm")
-        if np.any(np.abs(p) > MAX_POSITION_MM):
-            raise Refused("out of range", f"target {k} position_mm")
+        p = np.array(_array(t.get("position_mm"), 3, f"target {k} position_mm", MAX_POSITION_MM))
         c = t.get("covariance_mm2")
         c = np.eye(3) * DEFAULT_COVARIANCE_MM2 if c is None else _covariance(c, k)
         out.append((p, c, _finite(t.get("score", 0.0), f"target {k} score", -MAX_SCORE, MAX_SCORE)))
     return out
 
 
-def _array(value, n: int, what: str) -> np.ndarray:
+def _array(value, n: int, what: str, bound: float = 1e300) -> list[float]:
     if not isinstance(value, list) or len(value) != n:
         raise Refused("not a record", f"{what} is not {n} numbers")
-    return np.array([_finite(v, what, -1e300, 1e300) for v in value])
+    return [_finite(v, what, -bound, bound) for v in value]
 
 
 def _covariance(value, k: int) -> np.ndarray:
+    """Symmetric, and positive definite: every pivot of its Cholesky factorisation above
+    MIN_EIGENVALUE_MM2 (plain floats: a few microseconds, where numpy costs tens)."""
     what = f"target {k} covariance_mm2"
     if not isinstance(value, list) or len(value) != 3:
         raise Refused("not a record", f"{what} is not 3 x 3")
-    c = np.array([_array(row, 3, what) for row in value])
-    if np.any(np.abs(c) > MAX_VARIANCE_MM2):
-        raise Refused("out of range", what)
-    if np.max(np.abs(c - c.T)) > 1e-6 * max(1.0, float(np.max(np.abs(c)))):
+    try:
+        c = [_array(row, 3, what, MAX_VARIANCE_MM2) for row in value]
+    except Refused as exc:
+        raise Refused("out of range" if exc.reason == "out of range" else exc.reason, what) from None
+    scale = max(1.0, max(abs(v) for row in c for v in row))
+    if any(abs(c[i][j] - c[j][i]) > 1e-6 * scale for i, j in ((0, 1), (0, 2), (1, 2))):
         raise Refused("bad covariance", f"{what} is not symmetric")
-    c = 0.5 * (c + c.T)
-    if float(np.linalg.eigvalsh(c)[0]) < MIN_EIGENVALUE_MM2:
+    a, b, d = c[0][0], c[0][1], c[0][2]
+    e, f, g = c[1][1], c[1][2], c[2][2]
+    p1 = a
+    p2 = e - b * b / a if p1 > MIN_EIGENVALUE_MM2 else 0.0
+    p3 = (g - d * d / a - (f - b * d / a) ** 2 / p2) if p2 > MIN_EIGENVALUE_MM2 else 0.0
+    if not (p1 > MIN_EIGENVALUE_MM2 and p2 > MIN_EIGENVALUE_MM2 and p3 > MIN_EIGENVALUE_MM2):
         raise Refused("bad covariance", f"{what} is not positive definite")
-    return c
+    return np.array(c)  # symmetric within 1e-6: to_base symmetrises it exactly

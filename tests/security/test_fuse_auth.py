@@ -181,3 +181,30 @@ def test_forged_records_are_counted_and_never_fused(tmp_path, monkeypatch):
     front = sum(1 for r in sink.records if "front" in r["boards"])
     assert front >= 30
     assert "messages refused (forged 40, replayed 1)" in fuse.summary()
+
+
+def test_run_zenoh_auth_key_records_are_fused_as_their_board(tmp_path, monkeypatch):
+    """The CLI path end to end: `run --zenoh KEY --zenoh-auth-key FILE` on the virtual board,
+    `fuse`'s session with the robot file's auth_key_file: every record accepted."""
+    from spiel_edge.cli import main
+    from spiel_edge.robot.zenoh_fuse import ZenohFuse, zenoh_config
+
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    robot = load_robot(_robot(tmp_path, signed=("front",)))
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    sink = Collect()
+    fuse = ZenohFuse(robot, sink, config=zenoh_config(listen=[endpoint]))
+    stop = threading.Event()
+    worker = threading.Thread(target=fuse.run, args=(stop,), kwargs={"idle_s": 2.0})
+    worker.start()
+    try:
+        key = tmp_path / "keys" / "front.key"
+        args = ["run", "--port", "sim://", "--frames", "60", "--rate", "40", "-o", os.devnull]
+        zargs = ["--zenoh", "sec/front", "--zenoh-connect", endpoint, "--zenoh-auth-key", str(key)]
+        assert main([*args, *zargs]) == 0
+    finally:
+        worker.join(timeout=30)
+        stop.set()
+        fuse.close()
+    assert fuse.fuser.stats["front"]["reports"] >= 30, fuse.summary()
+    assert "front" not in fuse.refused, fuse.refused
