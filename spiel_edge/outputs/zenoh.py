@@ -190,7 +190,10 @@ def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, set
 
 
 class ZenohSink(Sink):
-    """Publish each record on ``key_expr`` (e.g. ``robots/r1/spiel/position``)."""
+    """Publish each record on ``key_expr`` (e.g. ``robots/r1/spiel/position``), tagged when
+    the settings carry a board's key (robot/record_auth.py)."""
+
+    _auth_key: bytes | None = None
 
     def __init__(self, key_expr: str, config: Any = None, settings: Any = None):
         self._session, publishers = open_publishers(
@@ -198,7 +201,7 @@ class ZenohSink(Sink):
         )
         self._publisher = publishers["record"]
         self.key_expr = key_expr
-        self._auth_key = getattr(settings, "auth_key", None)  # tag each record (fuse checks)
+        self._auth_key = getattr(settings, "auth_key", None)
         self.failed = 0
         log.info("publishing records on Zenoh key %s", self.key_expr)
 
