@@ -230,5 +230,7 @@ def _close_and_summarise(sink, fuse) -> None:
 
 def _status(sink, fuse) -> int:
     """Partial when an output failed, a board was dropped or a forged record came."""
-    failed = bool(sink.failed) or (fuse is not None and bool(fuse.dropped or fuse.forged))
+    failed = bool(sink.failed) or (
+        fuse is not None and bool(fuse.dropped or getattr(fuse, "forged", 0))
+    )
     return EXIT_PARTIAL if failed else EXIT_OK
