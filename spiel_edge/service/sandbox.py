@@ -35,7 +35,7 @@ def needed_paths(exec_path: str) -> list[str]:
         head = with_links.read_bytes()[:512].split(b"\n", 1)[0]
         if head.startswith(b"#!"):
             out.append(head[2:].decode(errors="replace").split()[0])
-    except (OSError, IndexError):
+    except (OSError, IndexError, ValueError):  # missing, unreadable, a NUL in the path
         pass
     beside = Path(sys.executable).parent / "spiel-edge"
     if Path(exec_path) == beside:
