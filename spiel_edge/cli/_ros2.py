@@ -174,7 +174,9 @@ def zenoh_settings(values: dict) -> ZenohSettings:
         from spiel_edge.robot.record_auth import load_key
 
         if values.get("zenoh_encoding", "json") != "json":
-            raise ConfigError("--zenoh-auth-key tags JSON records (what `fuse` reads): "
-                              "not with --zenoh-encoding " + str(values.get("zenoh_encoding")))
+            raise ConfigError(
+                "--zenoh-auth-key tags JSON records (what `fuse` reads): "
+                "not with --zenoh-encoding " + str(values.get("zenoh_encoding"))
+            )
         auth_key = load_key(values["zenoh_auth_key"], "--zenoh-auth-key")
     return ZenohSettings(values.get("zenoh_mode") or "", connect, domain, auth_key=auth_key)

@@ -154,10 +154,8 @@ def command(
         outputs["zenoh_settings"] = ZenohSettings(
             mode=mode or "", connect=tuple(connect), config_file=zenoh_config
         )
-    from spiel_edge.robot.zenoh_fuse import ZenohFuse
+    from spiel_edge.robot.zenoh_fuse import ZenohFuse, verifiers
     from spiel_edge.robot.zenoh_fuse import zenoh_config as make_config
-
-    from spiel_edge.robot.zenoh_fuse import verifiers
 
     verifiers(robot)  # a bad auth_key_file: one line, before any output is opened
     config = make_config(connect, listen, mode, zenoh_config)

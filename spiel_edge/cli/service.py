@@ -42,7 +42,11 @@ def command() -> None:
     help="Compile the kernels into the service's numba cache [default: on when PREFIX is /].",
 )
 def install(
-    prefix: str, exec_path: str | None, allow_ip: tuple[str, ...], dry_run: bool, warmup: bool | None
+    prefix: str,
+    exec_path: str | None,
+    allow_ip: tuple[str, ...],
+    dry_run: bool,
+    warmup: bool | None,
 ) -> int:
     """Write the kit under PREFIX; an existing spiel-edge.env is kept. Prints what to run next."""
     from spiel_edge.service.sandbox import protect_home_for

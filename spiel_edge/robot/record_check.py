@@ -158,7 +158,9 @@ def _covariance(value, k: int) -> np.ndarray:
     try:
         c = [_array(row, 3, what, MAX_VARIANCE_MM2) for row in value]
     except Refused as exc:
-        raise Refused("out of range" if exc.reason == "out of range" else exc.reason, what) from None
+        raise Refused(
+            "out of range" if exc.reason == "out of range" else exc.reason, what
+        ) from None
     scale = max(1.0, max(abs(v) for row in c for v in row))
     if any(abs(c[i][j] - c[j][i]) > 1e-6 * scale for i, j in ((0, 1), (0, 2), (1, 2))):
         raise Refused("bad covariance", f"{what} is not symmetric")

@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import ConfigError, InputError
+from spiel_edge.robot import record_check
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
-from spiel_edge.robot import record_check
 from spiel_edge.robot.fusion import BoardReport, Fuser, stamp_latency
-from spiel_edge.robot.record_check import Refused
 from spiel_edge.robot.odometry import OdometryBuffer
+from spiel_edge.robot.record_check import Refused
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +114,9 @@ class RecordFuse:
         fields = record_check.fields(record_check.parse(payload))
         stamp, remote = fields["stamp"], fields["remote"]
         if abs(arrived - remote) > MAX_DISAGREEMENT_S:
-            raise Refused("clock", f"its computer's clock is {remote - arrived:+.2f} s off this one's")
+            raise Refused(
+                "clock", f"its computer's clock is {remote - arrived:+.2f} s off this one's"
+            )
         synced = fields["synced"]  # protocol 2: the board's time on its host's clock
         if synced:
             if abs(synced - remote) > MAX_DISAGREEMENT_S:
@@ -215,7 +217,6 @@ class RecordFuse:
             for n, s in self.fuser.stats.items()
         )
         return f"{self.records} fused records{latency}; {boards}"
-
 
     def _refused_text(self, name: str) -> str:
         counts = self.refused.get(name)

@@ -39,7 +39,9 @@ class ClientLogLimiter(logging.Filter):
         if window[1] < BURST:
             window[1] += 1
             if window[1] == BURST:
-                record.msg = f"{record.getMessage()} (more such lines held back for {WINDOW_S:.0f} s)"
+                record.msg = (
+                    f"{record.getMessage()} (more such lines held back for {WINDOW_S:.0f} s)"
+                )
                 record.args = None
             return True
         window[2] += 1

@@ -27,7 +27,6 @@ from spiel_edge.service.host_checks import (
     modemmanager_running,
     user_groups,
 )
-
 from spiel_edge.service.sandbox import check_unit
 
 log = logging.getLogger(__name__)

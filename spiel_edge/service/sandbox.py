@@ -96,23 +96,30 @@ def check_unit(unit_file: str | Path = UNIT_FILE, analyze: str | None = "auto") 
     exec_path = settings.get("ExecStart", "")
     paths = needed_paths(exec_path) if exec_path else []
     private_tmp = settings.get("PrivateTmp", "no") in ("yes", "true", "1", "on")
-    found = hidden([p for p in paths if private_tmp or not _under(p, TMP_DIRS)],
-                   settings.get("ProtectHome", "no"))
-    fix = "run `sudo spiel-edge service install` again from an install outside /tmp (it sets " \
-          "ProtectHome=read-only for one under /home)"
+    found = hidden(
+        [p for p in paths if private_tmp or not _under(p, TMP_DIRS)],
+        settings.get("ProtectHome", "no"),
+    )
+    fix = (
+        "run `sudo spiel-edge service install` again from an install outside /tmp (it sets "
+        "ProtectHome=read-only for one under /home)"
+    )
     if found:
         return Check("unit", False, f"{unit_file}: {found[0]} is hidden by {found[1]}", fix)
     tool = shutil.which("systemd-analyze") if analyze == "auto" else analyze
     if not tool:
-        return Check("unit", True, f"{unit_file}: its program is visible to it "
-                     "(systemd-analyze not here to verify more)")
+        return Check(
+            "unit",
+            True,
+            f"{unit_file}: its program is visible to it (systemd-analyze not here to verify more)",
+        )
     try:
-        proc = subprocess.run([tool, "verify", str(unit_file)], capture_output=True, text=True,
-                              timeout=60)
+        proc = subprocess.run(
+            [tool, "verify", str(unit_file)], capture_output=True, text=True, timeout=60
+        )
     except (OSError, subprocess.SubprocessError) as exc:
         return Check("unit", True, f"{unit_file}: systemd-analyze verify did not run ({exc})")
-    findings = [line for line in (proc.stdout + proc.stderr).splitlines()
-                if unit_file.name in line]
+    findings = [line for line in (proc.stdout + proc.stderr).splitlines() if unit_file.name in line]
     if proc.returncode != 0 or findings:
         first = findings[0] if findings else f"exit status {proc.returncode}"
         return Check("unit", False, f"systemd-analyze verify: {first}", fix)

@@ -37,17 +37,59 @@ def _certs(d: Path) -> None:
     def run(*args):
         subprocess.run([OPENSSL, *args], check=True, capture_output=True, cwd=d, timeout=60)
 
-    run("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
-        "-days", "2", "-keyout", "ca.key", "-out", "ca.pem", "-subj", "/CN=test-ca")
+    run(
+        "req",
+        "-x509",
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:P-256",
+        "-nodes",
+        "-days",
+        "2",
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+        "-subj",
+        "/CN=test-ca",
+    )
     for name in ("fuse", "front", "back"):
-        run("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
-            "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN={name}")
+        run(
+            "req",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:P-256",
+            "-nodes",
+            "-keyout",
+            f"{name}.key",
+            "-out",
+            f"{name}.csr",
+            "-subj",
+            f"/CN={name}",
+        )
         (d / f"{name}.ext").write_text(
             f"subjectAltName=DNS:{name}.local,DNS:localhost,IP:127.0.0.1\n"
             "extendedKeyUsage=serverAuth,clientAuth\n"
         )
-        run("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
-            "-CAcreateserial", "-days", "2", "-out", f"{name}.pem", "-extfile", f"{name}.ext")
+        run(
+            "x509",
+            "-req",
+            "-in",
+            f"{name}.csr",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-days",
+            "2",
+            "-out",
+            f"{name}.pem",
+            "-extfile",
+            f"{name}.ext",
+        )
 
 
 def _free_port() -> int:
@@ -73,8 +115,11 @@ def _record(k: int, x_mm: float) -> dict:
         "device_time_us": int((10.0 + 0.025 * k) * 1e6),
         "host_time": time.time(),
         "targets": [
-            {"position_mm": [x_mm, 0.0, 200.0], "covariance_mm2": (np.eye(3) * 16).tolist(),
-             "score": 1.0}
+            {
+                "position_mm": [x_mm, 0.0, 200.0],
+                "covariance_mm2": (np.eye(3) * 16).tolist(),
+                "score": 1.0,
+            }
         ],
     }
 
@@ -112,21 +157,30 @@ def test_the_documented_fleet_set_up_fuses_only_each_boards_own_records(tmp_path
     stop = threading.Event()
     worker = threading.Thread(target=fuse.run, args=(stop,), kwargs={"idle_s": 1.5})
     worker.start()
-    front = ZenohSink("robot/front", settings=ZenohSettings(config_file=str(_config(
-        tmp_path, "front.json5", port))))
+    front = ZenohSink(
+        "robot/front",
+        settings=ZenohSettings(config_file=str(_config(tmp_path, "front.json5", port))),
+    )
     back_cfg = _config(tmp_path, "front.json5", port, as_board="back")
     back = zenoh.open(session_config(str(back_cfg)))  # a valid certificate, CN=back
-    no_cert = json.loads(json.dumps({
-        "mode": "peer", "connect": {"endpoints": [f"tls/127.0.0.1:{port}"]},
-        "listen": {"endpoints": []}, "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"tls": {"root_ca_certificate": str(tmp_path / "ca.pem")}}},
-    }))
+    no_cert = json.loads(
+        json.dumps(
+            {
+                "mode": "peer",
+                "connect": {"endpoints": [f"tls/127.0.0.1:{port}"]},
+                "listen": {"endpoints": []},
+                "scouting": {"multicast": {"enabled": False}},
+                "transport": {"link": {"tls": {"root_ca_certificate": str(tmp_path / "ca.pem")}}},
+            }
+        )
+    )
     stranger = zenoh.open(zenoh.Config.from_json5(json.dumps(no_cert)))
     try:
         time.sleep(1.5)  # TLS handshakes
         assert list(back.info.peers_zid()) and not list(stranger.info.peers_zid())
-        forger, outsider = back.declare_publisher("robot/front"), stranger.declare_publisher(
-            "robot/front"
+        forger, outsider = (
+            back.declare_publisher("robot/front"),
+            stranger.declare_publisher("robot/front"),
         )
         for k in range(40):
             front.write(_record(k, 0.0))

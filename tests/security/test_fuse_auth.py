@@ -113,7 +113,11 @@ def _record(k: int, target_mm, n: int = 1) -> dict:
         "device_time_us": int((10.0 + 0.025 * k) * 1e6),
         "host_time": time.time(),
         "targets": [
-            {"position_mm": list(target_mm), "covariance_mm2": (np.eye(3) * 16).tolist(), "score": 1.0}
+            {
+                "position_mm": list(target_mm),
+                "covariance_mm2": (np.eye(3) * 16).tolist(),
+                "score": 1.0,
+            }
         ]
         * n,
     }
@@ -160,7 +164,9 @@ def test_forged_records_are_counted_and_never_fused(tmp_path, monkeypatch):
             if 10 <= k < 30:
                 forged = json.dumps(_record(k, forged_at, n=1)).encode()
                 forger.put(forged)  # unauthenticated: 20 forged targets
-                forger.put(forged, attachment=record_auth.attachment(b"\x07" * 32, "sec/front", forged))
+                forger.put(
+                    forged, attachment=record_auth.attachment(b"\x07" * 32, "sec/front", forged)
+                )
             if k == 35 and captured:
                 forger.put(captured[5][0], attachment=captured[5][1])  # a replay
             time.sleep(0.025)

@@ -60,7 +60,6 @@ def drive(bad: dict[int, bytes], cycles: int = 40, board: str = "front"):
     return fuse, sink.records
 
 
-
 def _deep(n: int) -> bytes:
     return b"[" * n + b"]" * n
 
@@ -76,23 +75,29 @@ def _targets(items) -> bytes:
 
 
 HOSTILE = {
-    "nan score": (b'{"acquisition": 20, "device_time_us": 1, "host_time": 1, '
-                  b'"targets": [{"position_mm": [0, 0, 200], "score": NaN}]}', "not finite"),
+    "nan score": (
+        b'{"acquisition": 20, "device_time_us": 1, "host_time": 1, '
+        b'"targets": [{"position_mm": [0, 0, 200], "score": NaN}]}',
+        "not finite",
+    ),
     "inf score": (_targets([{"position_mm": [0, 0, 200], "score": 1e400}]), "not finite"),
-    "nan position": (_targets([{"position_mm": [0, float("nan"), 200]}]),
-                     "not finite"),
+    "nan position": (_targets([{"position_mm": [0, float("nan"), 200]}]), "not finite"),
     "json 100,000 deep": (_deep(100_000), "too deep"),
     "24,000 targets": (_targets([{"position_mm": [0, 0, 1]}] * 24_000), "too many targets"),
     "not JSON": (b"\x00\xffnot json at all", "not JSON"),
     "a list": (b"[1, 2, 3]", "not a record"),
-    "zero covariance": (_targets([{"position_mm": [0, 0, 200], "covariance_mm2": [[0] * 3] * 3}]),
-                        "bad covariance"),
+    "zero covariance": (
+        _targets([{"position_mm": [0, 0, 200], "covariance_mm2": [[0] * 3] * 3}]),
+        "bad covariance",
+    ),
     "negative covariance": (
         _targets([{"position_mm": [0, 0, 200], "covariance_mm2": (-np.eye(3)).tolist()}]),
         "bad covariance",
     ),
     "asymmetric covariance": (
-        _targets([{"position_mm": [0, 0, 200], "covariance_mm2": [[1, 5, 0], [0, 1, 0], [0, 0, 1]]}]),
+        _targets(
+            [{"position_mm": [0, 0, 200], "covariance_mm2": [[1, 5, 0], [0, 1, 0], [0, 0, 1]]}]
+        ),
         "bad covariance",
     ),
     "position 1e9 mm": (_targets([{"position_mm": [0, 0, 1e9]}]), "out of range"),
@@ -171,6 +176,8 @@ def test_a_restarted_board_is_followed_after_a_few_records():
     for k in range(80):
         now = t0 + k * PERIOD
         dev = (10.0 + k * PERIOD) if k < 40 else (0.5 + (k - 40) * PERIOD)
-        fuse.handle("front", json.dumps(record(k, now, device_time_us=int(dev * 1e6))).encode(), now)
+        fuse.handle(
+            "front", json.dumps(record(k, now, device_time_us=int(dev * 1e6))).encode(), now
+        )
     assert 0 < fuse.refused["front"]["stamp"] < 5
     assert fuse.fuser.stats["front"]["reports"] >= 75

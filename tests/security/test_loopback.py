@@ -133,7 +133,12 @@ def test_the_commands_with_default_options_listen_on_loopback_only(
     no_zenoh_config, tmp_path, args, listeners
 ):
     pytest.importorskip("foxglove", reason="extra 'foxglove' not installed")
-    cmd = [str(Path(sys.executable).with_name("spiel-edge")), *args, "-o", str(tmp_path / "out.ndjson")]
+    cmd = [
+        str(Path(sys.executable).with_name("spiel-edge")),
+        *args,
+        "-o",
+        str(tmp_path / "out.ndjson"),
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
     try:
         socks = _wait_for_listeners(proc, listeners)

@@ -51,7 +51,9 @@ def test_the_unit_scores_ok(tmp_path, kw):
         "\n".join(
             line
             for line in unit.read_text().splitlines()
-            if not line.startswith(("SystemCallFilter", "IPAddress", "CapabilityBounding", "Device"))
+            if not line.startswith(
+                ("SystemCallFilter", "IPAddress", "CapabilityBounding", "Device")
+            )
         )
     )
     assert exposure(loose) > exposure(unit) + 1.0
@@ -95,7 +97,9 @@ def test_install_refuses_a_program_under_tmp(tmp_path, capsys):
 
 def test_install_under_home_sets_protect_home_read_only(tmp_path, capsys):
     args = ["service", "install", "--prefix", str(tmp_path), "--no-warmup"]
-    assert main([*args, "--exec", "/home/robot/venv/bin/spiel-edge", "--allow-ip", "10.1.0.0/16"]) == 0
+    assert (
+        main([*args, "--exec", "/home/robot/venv/bin/spiel-edge", "--allow-ip", "10.1.0.0/16"]) == 0
+    )
     assert "ProtectHome=read-only" in capsys.readouterr().out
     unit = (tmp_path / service_kit.UNIT_PATH).read_text().splitlines()
     assert "ProtectHome=read-only" in unit and "IPAddressAllow=localhost 10.1.0.0/16" in unit
