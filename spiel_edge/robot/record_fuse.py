@@ -18,6 +18,7 @@ import heapq
 import json
 import logging
 import os
+import threading
 import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -38,7 +39,8 @@ log = logging.getLogger(__name__)
 MAX_RECORD_BYTES = record_check.MAX_RECORD_BYTES
 BAD_RECORDS_LIMIT = 20  # this many of its own bad records in a row: the board is reported dropped
 RESET_AGREE = 4  # stamps off a board's clock, agreeing with each other: it restarted
-NOT_THE_BOARDS = ("forged", "replayed")  # refused, but not held against the board
+NOT_THE_BOARDS = ("forged", "replayed")  # refused: not the board's own messages
+NOT_HELD = (*NOT_THE_BOARDS, "flood")  # refused, but not held against the board
 
 
 class RecordFuse:
@@ -77,6 +79,7 @@ class RecordFuse:
         self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
         self.bad = dict.fromkeys(self.clocks, 0)  # its own bad records in a row
         self.refused: dict[str, dict[str, int]] = {}  # per board: reason -> messages refused
+        self._count_lock = threading.Lock()
         self.off_clock: dict[str, list[float]] = {}
         self.dropped: dict[str, str] = {}
         self.absent: set[str] = set()  # boards of the robot not in a replay
@@ -157,13 +160,21 @@ class RecordFuse:
         del offsets[:-RESET_AGREE]
         raise Refused("stamp", "off the board's clock")
 
-    def _refuse(self, name: str, exc: Refused) -> None:
-        counts = self.refused.setdefault(name, {})
-        counts[exc.reason] = n = counts.get(exc.reason, 0) + 1
+    def count_refused(self, name: str, reason: str, detail: str = "") -> int:
+        """Count one refused message (thread-safe: Zenoh's threads count the forged and
+        the flood); warn on the first of each reason and every 1000th. Its count so far."""
+        with self._count_lock:
+            counts = self.refused.setdefault(name, {})
+            counts[reason] = n = counts.get(reason, 0) + 1
         if n == 1 or n % 1000 == 0:
-            log.warning("board %s: message refused (%s; %d so far)", name, exc, n)
-        if exc.reason in NOT_THE_BOARDS:
-            return  # someone else's message: it says nothing about the board
+            what = f"{reason}: {detail}" if detail else reason
+            log.warning("board %s: message refused (%s; %d so far)", name, what, n)
+        return n
+
+    def _refuse(self, name: str, exc: Refused) -> None:
+        self.count_refused(name, exc.reason, str(exc).partition(": ")[2])
+        if exc.reason in NOT_HELD:
+            return  # someone else's message, or too many: it says nothing about the board
         self.bad[name] = self.bad.get(name, 0) + 1
         if self.bad[name] >= BAD_RECORDS_LIMIT and name not in self.dropped:
             why = (
@@ -219,7 +230,8 @@ class RecordFuse:
         return f"{self.records} fused records{latency}; {boards}"
 
     def _refused_text(self, name: str) -> str:
-        counts = self.refused.get(name)
+        with self._count_lock:
+            counts = dict(self.refused.get(name) or {})
         if not counts:
             return ""
         parts = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
@@ -228,7 +240,8 @@ class RecordFuse:
     @property
     def forged(self) -> int:
         """Messages refused as not their board's (forged or replayed), over every board."""
-        return sum(c.get(r, 0) for c in self.refused.values() for r in NOT_THE_BOARDS)
+        with self._count_lock:
+            return sum(c.get(r, 0) for c in self.refused.values() for r in NOT_THE_BOARDS)
 
 
 def read_replay(

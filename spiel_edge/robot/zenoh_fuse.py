@@ -84,6 +84,11 @@ class ZenohFuse(RecordFuse):
         super().__init__(robot, sink, track=track, spec=spec, odom_messages=odom_key is not None)
         self.queue: queue.Queue = queue.Queue(maxsize=QUEUE)
         self.overflow = 0
+        # per board (and odometry): at most its share of the queue, so one flooding peer
+        # costs its own records, not the others'
+        self.share = QUEUE // (len(robot.boards) + 1)
+        self.queued = dict.fromkeys([*(b.name for b in robot.boards), ODOM], 0)
+        self._queued_lock = threading.Lock()
         self.verifiers = verifiers(robot)  # before the session: a bad key file opens nothing
         try:
             self.session = self.zenoh.open(config if config is not None else zenoh_config())
@@ -118,13 +123,25 @@ class ZenohFuse(RecordFuse):
                 refused, payload = "too large", b""
             elif verifier is not None:  # a forged flood never reaches the queue
                 attached = sample.attachment
-                refused = verifier.check(payload, None if attached is None else attached.to_bytes())
-                if refused:
-                    payload = b""
+                why = verifier.check(payload, None if attached is None else attached.to_bytes())
+                if why:
+                    self.count_refused(name, why)
+                    return
+            with self._queued_lock:
+                if self.queued[name] >= self.share:
+                    full = True
+                else:
+                    full = False
+                    self.queued[name] += 1
+            if full:
+                self.count_refused(name, "flood")
+                return
             try:
                 self.queue.put_nowait((name, payload, arrived, refused))
             except queue.Full:
                 self.overflow += 1
+                with self._queued_lock:
+                    self.queued[name] -= 1
 
         return on_sample
 
@@ -142,6 +159,8 @@ class ZenohFuse(RecordFuse):
                     break
                 continue
             last = time.monotonic()
+            with self._queued_lock:
+                self.queued[name] -= 1
             if name == ODOM:
                 if refused is None:
                     self.handle_odometry(payload, arrived)

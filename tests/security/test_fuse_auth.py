@@ -214,3 +214,43 @@ def test_run_zenoh_auth_key_records_are_fused_as_their_board(tmp_path, monkeypat
         fuse.close()
     assert fuse.fuser.stats["front"]["reports"] >= 30, fuse.summary()
     assert "front" not in fuse.refused, fuse.refused
+
+
+class _Bytes:
+    def __init__(self, data):
+        self.data = data
+
+    def to_bytes(self):
+        return self.data
+
+
+class _Sample:
+    def __init__(self, payload, attachment=None):
+        self.payload = _Bytes(payload)
+        self.attachment = None if attachment is None else _Bytes(attachment)
+
+
+def test_a_flooding_board_costs_only_its_own_records(tmp_path, monkeypatch):
+    """One board's peer puts 10,000 messages before fuse reads any: it gets its share of the
+    queue, the rest of its messages are counted `flood`; the other board's still go in; a
+    forged flood takes no place in the queue at all."""
+    from spiel_edge.robot.zenoh_fuse import ZenohFuse
+
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    robot = load_robot(_robot(tmp_path, signed=("back",)))
+    fuse = ZenohFuse(robot, Collect())
+    try:
+        front, back = fuse._callback("front"), fuse._callback("back")
+        record = json.dumps(_record(0, [0.0, 0.0, 200.0])).encode()
+        for _ in range(10_000):
+            front(_Sample(record))
+            back(_Sample(record))  # unsigned: forged
+        assert fuse.queue.qsize() == fuse.share  # front's share, nothing of the forgeries
+        assert fuse.refused["front"]["flood"] == 10_000 - fuse.share
+        assert fuse.refused["back"]["forged"] == 10_000
+        key = record_auth.load_key(robot.auth_key_path(robot.boards[1]), "key")
+        back(_Sample(record, record_auth.attachment(key, "sec/back", record)))
+        assert fuse.queue.qsize() == fuse.share + 1  # back's own record still goes in
+        assert fuse.overflow == 0
+    finally:
+        fuse.close()
