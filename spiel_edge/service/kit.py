@@ -172,6 +172,9 @@ SPIEL_PORT=/dev/spiel-0
 #   --calibration {CONFIG_DIR}/calibration.toml
 #   --record /var/lib/spiel-edge/spiel-%Y%m%d-%H%M%S.mcap   (strftime: one file per start)
 #   --udp HOST:PORT   --foxglove 127.0.0.1:8765   --zenoh robots/r1/spiel
+#   the unit reaches localhost only: other computers (Zenoh --zenoh-connect, --udp) need
+#   `service install --allow-ip NETWORK`; --zenoh-auth-key FILE tags records for `fuse`
+#   (docs/security.md; ZENOH_CONFIG=FILE on a line of its own for mTLS)
 #   ROS 2 (docs/ros2.md): --record-profile ros2   --zenoh-encoding cdr   --frame-id spiel
 #   the sensor's pose on the robot: [frame] in the profile, or --parent-frame base_link
 #   --translation-m 0.10,0,0.25 --rotation-rpy-deg 0,0,90   (metres, degrees)
