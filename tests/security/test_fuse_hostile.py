@@ -181,3 +181,49 @@ def test_a_restarted_board_is_followed_after_a_few_records():
         )
     assert 0 < fuse.refused["front"]["stamp"] < 5
     assert fuse.fuser.stats["front"]["reports"] >= 75
+
+
+def test_every_hostile_message_over_zenoh_leaves_fuse_running(monkeypatch):
+    """The same messages from a peer over Zenoh (loopback) while the boards publish: `fuse`
+    counts each, keeps fusing every board, and ends normally."""
+    zenoh = pytest.importorskip("zenoh", reason="the 'zenoh' extra is not installed")
+    import socket
+    import threading
+
+    from spiel_edge.robot.zenoh_fuse import ZenohFuse, zenoh_config
+
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    sink = Collect()
+    fuse = ZenohFuse(ROBOT, sink, config=zenoh_config(listen=[endpoint]))
+    stop = threading.Event()
+    ended = []
+    worker = threading.Thread(
+        target=lambda: ended.append(fuse.run(stop, idle_s=1.5)), name="fuse-under-test"
+    )
+    worker.start()
+    peer = zenoh.open(zenoh_config(connect=[endpoint]))
+    bad = [p for p, _ in HOSTILE.values()] + list(_bad_messages().values())
+    try:
+        pubs = {b.name: peer.declare_publisher(b.key) for b in ROBOT.boards}
+        time.sleep(1.0)
+        for k in range(40):
+            for pub in pubs.values():
+                pub.put(
+                    json.dumps(record(k, time.time(), device_time_us=int((10 + k * PERIOD) * 1e6)))
+                )
+            if k >= 5 and k - 5 < len(bad):
+                pubs["front"].put(bad[k - 5])
+            time.sleep(PERIOD)
+    finally:
+        worker.join(timeout=30)
+        stop.set()
+        peer.close()
+        fuse.close()
+    assert ended and not worker.is_alive()
+    assert sum(fuse.refused["front"].values()) == len(bad), fuse.refused
+    assert not fuse.dropped
+    assert fuse.fuser.stats["front"]["reports"] >= 35
+    assert all(fuse.fuser.stats[b]["reports"] >= 35 for b in BOARDS)
