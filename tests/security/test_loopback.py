@@ -127,6 +127,7 @@ def _wait_for_listeners(proc, count: int, timeout_s: float = 120.0):
     [
         (["run", "--port", "sim://", "--zenoh", "sec/front", "--foxglove", "0"], 2),
         (["fuse", "--robot", "virtual-4", "--zenoh", "sec/fused"], 1),
+        (["run", "--robot", "virtual-4", "--zenoh", "sec/robot", "--odom", "sec/odom"], 2),
     ],
 )
 def test_the_commands_with_default_options_listen_on_loopback_only(
