@@ -25,11 +25,28 @@ log = logging.getLogger(__name__)
 _RUST_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
 
 
+_SECRETS: set[str] = set()  # the user-password values of configurations loaded here
+_SECRET_PATHS = ("transport/auth/usrpwd/user", "transport/auth/usrpwd/password")
+
+
 def zenoh_reason(exc: BaseException) -> str:
     """A Zenoh error's text without the Rust source location it carries (``timeout at
-    /root/.cargo/.../orchestrator.rs:1253.`` -> ``timeout``), on one line."""
+    /root/.cargo/.../orchestrator.rs:1253.`` -> ``timeout``), on one line, with any user or
+    password of a loaded configuration replaced by ``***``."""
     text = _RUST_SOURCE.sub("", str(exc)).replace("\\n", " ")
+    for secret in _SECRETS:
+        text = text.replace(secret, "***")
     return " ".join(text.split()) or type(exc).__name__
+
+
+def _remember_secrets(cfg) -> None:
+    for path in _SECRET_PATHS:
+        try:
+            value = json.loads(cfg.get_json(path))
+        except Exception:  # zenoh.ZError: not set in this Zenoh's schema
+            continue
+        if isinstance(value, str) and len(value) >= 3:
+            _SECRETS.add(value)
 
 
 _WHERE = re.compile(r"line:\s*(\d+),\s*column:\s*(\d+)|-->\s*(\d+):(\d+)")
@@ -78,9 +95,11 @@ def load_config(config: Any = None):
     if not path:
         return zenoh.Config()
     try:
-        return zenoh.Config.from_file(str(Path(path)))
+        cfg = zenoh.Config.from_file(str(Path(path)))
     except Exception as exc:  # zenoh.ZError and I/O errors alike: never echo the file
         raise ConfigError(f"Zenoh config {path}: {config_reason(exc)}") from None
+    _remember_secrets(cfg)
+    return cfg
 
 
 LOOPBACK_LISTEN = ("tcp/127.0.0.1:0",)  # a peer's default listener: this computer only

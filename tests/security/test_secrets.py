@@ -96,3 +96,15 @@ def test_the_limiter_lets_a_burst_through_then_counts_what_it_held():
     now[0] += WINDOW_S
     ok, text = line()
     assert ok and f"{300 - BURST} more such lines held back" in text
+
+
+def test_zenoh_errors_never_carry_a_loaded_user_or_password(tmp_path):
+    from spiel_edge.outputs.zenoh import load_config, zenoh_reason
+
+    path = tmp_path / "z.json5"
+    path.write_text(
+        f'{{ transport: {{ auth: {{ usrpwd: {{ user: "rover-7", password: "{PASSWORD}" }} }} }} }}'
+    )
+    load_config(str(path))
+    text = zenoh_reason(RuntimeError(f"auth of rover-7 with {PASSWORD} refused\nat x.rs:3"))
+    assert PASSWORD not in text and "rover-7" not in text and "\n" not in text
