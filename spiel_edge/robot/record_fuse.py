@@ -4,10 +4,12 @@ depend on where the records come from (Zenoh live, robot/zenoh_fuse.py, or the f
 
 A record is ``run``'s JSON (``targets``, ``device_time_us``, ``host_time``, ``stamp_host``
 with protocol 2). Time: each board's stamps are mapped to this computer's clock from the
-records' arrival (robot/clock.py's lower envelope, which absorbs the network's delay). A
-board whose computer's clock (its records' ``host_time``) is more than a second off this
-one's is dropped with a warning (synchronise them: chrony or PTP), as is a board whose
-records are not records. Per-board diagnostics ride in every fused record (``boards``).
+records' arrival (robot/clock.py's lower envelope, which absorbs the network's delay). Each
+message is checked whole first (robot/record_check.py): one that is not a usable record, or
+whose ``host_time`` is more than a second off this computer's clock, is counted by reason and
+dropped, never the board for it; a board whose own messages were all bad BAD_RECORDS_LIMIT
+times in a row is reported dropped (a clock to synchronise: chrony or PTP) until its next good
+record. Per-board diagnostics ride in every fused record (``boards``).
 Odometry (``odom`` tracking) comes as messages (robot/odometry.py: JSON or a ROS 2
 nav_msgs/msg/Odometry in CDR) or as a buffer read from a recording.
 """
