@@ -50,6 +50,9 @@ def setup_logging(verbosity: int) -> None:
     if stderr_is_journal():
         handler.setFormatter(JournalFormatter())
     handler.addFilter(_shorten_record)
+    from spiel_edge.runtime.log_limit import ClientLogLimiter  # libraries' client-driven lines
+
+    handler.addFilter(ClientLogLimiter())
 
 
 def _shorten_record(record: logging.LogRecord) -> bool:

@@ -95,6 +95,14 @@ _ZENOH = [
         "default peer, or the ZENOH_CONFIG file's.",
     ),
     click.option(
+        "--zenoh-auth-key",
+        default=None,
+        metavar="FILE",
+        help="Tag each JSON record with this board's secret (hex; `openssl rand -hex 32`), "
+        "so `fuse` knows it is this board's (its robot file's auth_key_file; "
+        "docs/security.md).",
+    ),
+    click.option(
         "--ros-domain-id",
         default=None,
         metavar="N",
@@ -160,4 +168,15 @@ def zenoh_settings(values: dict) -> ZenohSettings:
     else:
         domain = 0
     connect = tuple(check_endpoint(e) for e in values.get("zenoh_connect") or ())
-    return ZenohSettings(values.get("zenoh_mode") or "", connect, domain)
+    auth_key = None
+    if values.get("zenoh_auth_key"):
+        from spiel_edge.errors import ConfigError
+        from spiel_edge.robot.record_auth import load_key
+
+        if values.get("zenoh_encoding", "json") != "json":
+            raise ConfigError(
+                "--zenoh-auth-key tags JSON records (what `fuse` reads): "
+                "not with --zenoh-encoding " + str(values.get("zenoh_encoding"))
+            )
+        auth_key = load_key(values["zenoh_auth_key"], "--zenoh-auth-key")
+    return ZenohSettings(values.get("zenoh_mode") or "", connect, domain, auth_key=auth_key)

@@ -154,9 +154,10 @@ def command(
         outputs["zenoh_settings"] = ZenohSettings(
             mode=mode or "", connect=tuple(connect), config_file=zenoh_config
         )
-    from spiel_edge.robot.zenoh_fuse import ZenohFuse
+    from spiel_edge.robot.zenoh_fuse import ZenohFuse, verifiers
     from spiel_edge.robot.zenoh_fuse import zenoh_config as make_config
 
+    verifiers(robot)  # a bad auth_key_file: one line, before any output is opened
     config = make_config(connect, listen, mode, zenoh_config)
     if realtime is not None:  # the tracker's kernels first, then Zenoh's threads inherit it
         from spiel_edge.runtime.realtime import apply_realtime
@@ -226,6 +227,8 @@ def _close_and_summarise(sink, fuse) -> None:
 
 
 def _status(sink, fuse) -> int:
-    """Partial when an output failed or a board was dropped."""
-    failed = bool(sink.failed) or (fuse is not None and bool(fuse.dropped))
+    """Partial when an output failed, a board was dropped or a forged record came."""
+    failed = bool(sink.failed) or (
+        fuse is not None and bool(fuse.dropped or getattr(fuse, "forged", 0))
+    )
     return EXIT_PARTIAL if failed else EXIT_OK

@@ -28,16 +28,35 @@ def command() -> None:
     default=None,
     help="spiel-edge executable for ExecStart (default: the one beside this Python).",
 )
+@click.option(
+    "--allow-ip",
+    multiple=True,
+    metavar="NETWORK",
+    help="Besides localhost, a network the service may reach (IPAddressAllow=, e.g. "
+    "192.168.1.0/24 for Zenoh to the robot's other computers); repeatable.",
+)
 @click.option("--dry-run", is_flag=True, help="Print the files and commands; write nothing.")
 @click.option(
     "--warmup/--no-warmup",
     default=None,
     help="Compile the kernels into the service's numba cache [default: on when PREFIX is /].",
 )
-def install(prefix: str, exec_path: str | None, dry_run: bool, warmup: bool | None) -> int:
+def install(
+    prefix: str,
+    exec_path: str | None,
+    allow_ip: tuple[str, ...],
+    dry_run: bool,
+    warmup: bool | None,
+) -> int:
     """Write the kit under PREFIX; an existing spiel-edge.env is kept. Prints what to run next."""
+    from spiel_edge.service.sandbox import protect_home_for
+
     exec_path = exec_path or service_kit.default_exec()
-    files = service_kit.plan(exec_path)
+    protect_home = protect_home_for(exec_path)  # an install under /tmp: refused in one line
+    if protect_home != "yes":
+        click.echo(f"note: {exec_path} lies under a home folder: ProtectHome={protect_home}")
+    allow = tuple(service_kit.check_allow_ip(a) for a in allow_ip)
+    files = service_kit.plan(exec_path, protect_home=protect_home, allow_ip=allow)
     if dry_run:
         for kit_file in files:
             note = " (kept if it exists)" if kit_file.config else ""

@@ -16,6 +16,7 @@ Binds 127.0.0.1 unless told otherwise: the server has no authentication.
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import time
 from collections.abc import Sequence
@@ -39,6 +40,16 @@ TARGET_SIZE_M = 0.03
 RECEIVER_SIZE_M = 0.01
 TRACK_SIZE_M = 0.015
 TRACK_COLORS = ((0.2, 0.8, 0.3), (0.9, 0.8, 0.1), (0.7, 0.3, 0.9), (0.1, 0.8, 0.9), (1.0, 0.4, 0.7))
+
+
+def is_loopback(host: str) -> bool:
+    """``host`` is this computer only: a loopback address or ``localhost``."""
+    if host.lower() in ("localhost", "localhost.localdomain"):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a name: it may well resolve beyond this computer
 
 
 def _import_foxglove():
@@ -74,6 +85,12 @@ class FoxgloveSink(Sink):
         self.messages = rm.Ros2Messages(ros2)
         self.frame_id = self.messages.frame_id
         host, port = parse_host_port(bind, default_host=DEFAULT_HOST, what="--foxglove")
+        if not is_loopback(host):
+            log.warning(
+                "--foxglove %s: the live view (no authentication) is reachable from other "
+                "computers; the default binds 127.0.0.1 only (docs/security.md)",
+                host,
+            )
         self._context = foxglove.Context()  # our own: no clash with other SDK users in-process
         try:
             self._server = foxglove.start_server(

@@ -55,6 +55,7 @@ class ZenohSettings:
     connect: tuple[str, ...] = ()
     domain_id: int = 0
     config_file: str | None = None
+    auth_key: bytes | None = field(default=None, repr=False)  # tag JSON records (record_auth)
 
 
 def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform:

@@ -18,6 +18,7 @@ calibration = ""                # optional calibration .toml over the profile
 translation_m = [0.10, 0.0, 0.20]
 rotation_rpy_deg = [0.0, 90.0, 0.0]   # or rotation_xyzw = [...], or rotation_matrix = [[...]x3]
 slot = 0                        # trigger slot index (or slot_ms = start within the period)
+auth_key_file = "keys/front.key"  # optional, `fuse`: records must carry this key's tag
 ```
 
 The mount maps the board's frame (the profile's geometry: z along the board's facing) into
@@ -57,6 +58,7 @@ _BOARD_KEYS = {
     "slot_ms",
     "field_of_view_deg",
     "detection_deg",
+    "auth_key_file",
 }
 
 
@@ -97,6 +99,9 @@ class BoardSpec:
     # half-angle within which it reliably sees a target: a fused track predicted outside every
     # board's is charged no miss (it coasts; robot/coast.py)
     detection_deg: float = DETECTION_DEG
+    # `fuse` accepts only records tagged with this secret (robot/record_auth.py); a path
+    # relative to the robot file's folder; "" accepts any record on the key
+    auth_key_file: str = ""
 
 
 @dataclass(frozen=True)
@@ -116,6 +121,14 @@ class RobotSpec:
     boards: tuple[BoardSpec, ...]
     origin: str = "robot"
     track: dict = field(default_factory=dict)  # [track] keys over the first board's profile's
+
+    def auth_key_path(self, board: BoardSpec) -> Path | None:
+        """The board's key file (relative paths from the robot file's folder), or None."""
+        if not board.auth_key_file:
+            return None
+        path = Path(board.auth_key_file).expanduser()
+        origin = Path(self.origin)
+        return path if path.is_absolute() or not origin.is_file() else origin.parent / path
 
     def track_spec(self):
         """The fused tracker's settings: the first board's profile's [track], this file's
@@ -348,7 +361,12 @@ def _board(i: int, b: dict, fail) -> BoardSpec:
     fov = _number(b.get("field_of_view_deg", 90.0), f"{where}.field_of_view_deg", fail, 5, 90)
     seen = _number(b.get("detection_deg", DETECTION_DEG), f"{where}.detection_deg", fail, 5, 90)
     mount = Mount(rotation, np.array(translation) * 1000.0)
-    return BoardSpec(name, port, profile, calibration, mount, slot, slot_ms, key, fov, seen)
+    auth = b.get("auth_key_file", "")
+    if not isinstance(auth, str):
+        fail(f"{where}: auth_key_file must be a string (a file's path)")
+    return BoardSpec(
+        name, port, profile, calibration, mount, slot, slot_ms, key, fov, seen, auth_key_file=auth
+    )
 
 
 def _check_unique(boards: tuple[BoardSpec, ...], fail) -> None:

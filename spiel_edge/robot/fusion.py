@@ -211,6 +211,10 @@ class Fuser:
         self._gone.add(board)
         self.expected.discard(board)
 
+    def restore(self, board: str) -> None:
+        """A dropped board reports again: it is waited for once it has reported."""
+        self._gone.discard(board)
+
     def _cycle(self, board: str, t: float) -> int:
         """The cycle of a report: each board keeps its place (phase) within the period,
         learned from its first report and followed slowly (clocks drift), so reports that

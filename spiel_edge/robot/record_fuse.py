@@ -4,10 +4,12 @@ depend on where the records come from (Zenoh live, robot/zenoh_fuse.py, or the f
 
 A record is ``run``'s JSON (``targets``, ``device_time_us``, ``host_time``, ``stamp_host``
 with protocol 2). Time: each board's stamps are mapped to this computer's clock from the
-records' arrival (robot/clock.py's lower envelope, which absorbs the network's delay). A
-board whose computer's clock (its records' ``host_time``) is more than a second off this
-one's is dropped with a warning (synchronise them: chrony or PTP), as is a board whose
-records are not records. Per-board diagnostics ride in every fused record (``boards``).
+records' arrival (robot/clock.py's lower envelope, which absorbs the network's delay). Each
+message is checked whole first (robot/record_check.py): one that is not a usable record, or
+whose ``host_time`` is more than a second off this computer's clock, is counted by reason and
+dropped, never the board for it; a board whose own messages were all bad BAD_RECORDS_LIMIT
+times in a row is reported dropped (a clock to synchronise: chrony or PTP) until its next good
+record. Per-board diagnostics ride in every fused record (``boards``).
 Odometry (``odom`` tracking) comes as messages (robot/odometry.py: JSON or a ROS 2
 nav_msgs/msg/Odometry in CDR) or as a buffer read from a recording.
 """
@@ -17,8 +19,8 @@ from __future__ import annotations
 import heapq
 import json
 import logging
-import math
 import os
+import threading
 import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -26,16 +28,21 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import ConfigError, InputError
+from spiel_edge.robot import record_check
 from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
-from spiel_edge.robot.fusion import BoardReport, Fuser, record_targets, stamp_latency
+from spiel_edge.robot.fusion import BoardReport, Fuser, stamp_latency
 from spiel_edge.robot.odometry import OdometryBuffer
+from spiel_edge.robot.record_check import Refused
 
 log = logging.getLogger(__name__)
 
-MAX_RECORD_BYTES = 1 << 20  # a board record is a few kB; anything larger is refused
-BAD_RECORDS_LIMIT = 20  # this many unreadable records in a row: the board is dropped
+MAX_RECORD_BYTES = record_check.MAX_RECORD_BYTES
+BAD_RECORDS_LIMIT = 20  # this many of its own bad records in a row: the board is reported dropped
+RESET_AGREE = 4  # stamps off a board's clock, agreeing with each other: it restarted
+NOT_THE_BOARDS = ("forged", "replayed")  # refused: not the board's own messages
+NOT_HELD = (*NOT_THE_BOARDS, "flood")  # refused, but not held against the board
 
 
 class RecordFuse:
@@ -72,51 +79,58 @@ class RecordFuse:
         )
         self.clocks = {b.name: StampClock() for b in robot.boards}
         self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
-        self.bad = dict.fromkeys(self.clocks, 0)
+        self.bad = dict.fromkeys(self.clocks, 0)  # its own bad records in a row
+        self.refused: dict[str, dict[str, int]] = {}  # per board: reason -> messages refused
+        self._count_lock = threading.Lock()
+        self.off_clock: dict[str, list[float]] = {}
         self.dropped: dict[str, str] = {}
         self.absent: set[str] = set()  # boards of the robot not in a replay
         self.records = 0
         self.latencies_ms: list[float] = []
 
-    def handle(self, name: str, payload: bytes, arrived: float) -> None:
-        """One board record (its bytes) that reached this process at ``arrived`` (Unix s)."""
-        if name in self.dropped:
+    def handle(self, name: str, payload: bytes, arrived: float, refused: str | None = None) -> None:
+        """One board record (its bytes) that reached this process at ``arrived`` (Unix s);
+        ``refused``: the transport already refused it (``forged``, ``replayed``, ``too
+        large``). A bad message costs that message only: it is counted and dropped
+        (record_check.py), and only a board whose every message for BAD_RECORDS_LIMIT in a
+        row was its own bad one is reported dropped, until a good record comes again."""
+        try:
+            if refused is not None:
+                raise Refused(refused)
+            report = self._report(name, payload, arrived)
+            records = self.fuser.add(report)
+        except Refused as exc:
+            self._refuse(name, exc)
             return
-        report = self._report(name, payload, arrived)
-        if report is not None:
-            for record in self.fuser.add(report):
-                self._write(record)
+        except Exception as exc:  # a bug: still, no peer's message ends the fusion
+            log.error("board %s: a record raised %s (a bug in spiel-edge; dropped)", name, exc)
+            self._refuse(name, Refused("internal error"))
+            return
+        self._accept(name)
+        for record in records:
+            self._write(record)
 
     def finish(self) -> None:
         """The stream ended: fuse every open cycle."""
         for record in self.fuser.flush():
             self._write(record)
 
-    def _report(self, name: str, payload: bytes, arrived: float) -> BoardReport | None:
-        try:
-            if len(payload) > MAX_RECORD_BYTES:
-                raise ValueError(f"{len(payload)} bytes")
-            fields = _record_fields(json.loads(payload))
-        except (ValueError, KeyError, TypeError) as exc:
-            self.bad[name] += 1
-            if self.bad[name] >= BAD_RECORDS_LIMIT:
-                self._drop(name, f"its messages are not spiel-edge records ({exc})")
-            return None
-        self.bad[name] = 0
+    def _report(self, name: str, payload: bytes, arrived: float) -> BoardReport:
+        fields = record_check.fields(record_check.parse(payload))
         stamp, remote = fields["stamp"], fields["remote"]
         if abs(arrived - remote) > MAX_DISAGREEMENT_S:
-            self._drop(
-                name,
-                f"its computer's clock is {remote - arrived:+.2f} s off this one's "
-                "(synchronise them: chrony or PTP)",
+            raise Refused(
+                "clock", f"its computer's clock is {remote - arrived:+.2f} s off this one's"
             )
-            return None
         synced = fields["synced"]  # protocol 2: the board's time on its host's clock
         if synced:
+            if abs(synced - remote) > MAX_DISAGREEMENT_S:
+                raise Refused("stamp", "stamp_host is not the acquisition's time")
             stamp = synced  # its host's clock, mapped to this one's below
         if bool(synced) != self.synced.get(name, False):  # another time axis: learn it afresh
             self.synced[name] = bool(synced)
             self.clocks[name] = StampClock()
+        self._check_stamp(name, stamp, arrived)
         clock = self.clocks[name]
         clock.observe(stamp, arrived)
         return BoardReport(
@@ -130,6 +144,54 @@ class RecordFuse:
             acquired_unix=remote,  # the acquisition's end on its own computer
             received_unix=arrived if self.live else None,  # its record's arrival here
         )
+
+    def _check_stamp(self, name: str, stamp: float, arrived: float) -> None:
+        """A stamp far off the board's learned clock is one absurd message, refused, or the
+        board restarted: RESET_AGREE such stamps in a row that agree with each other start
+        its clock afresh."""
+        clock = self.clocks[name]
+        if not clock.ready or abs(clock.to_host(stamp) - arrived) <= MAX_DISAGREEMENT_S:
+            self.off_clock[name] = []
+            return
+        offsets = self.off_clock.setdefault(name, [])
+        offsets.append(arrived - stamp)
+        if len(offsets) >= RESET_AGREE and max(offsets) - min(offsets) <= MAX_DISAGREEMENT_S:
+            self.clocks[name] = StampClock()  # a restart: its new time axis
+            self.off_clock[name] = []
+            return
+        del offsets[:-RESET_AGREE]
+        raise Refused("stamp", "off the board's clock")
+
+    def count_refused(self, name: str, reason: str, detail: str = "") -> int:
+        """Count one refused message (thread-safe: Zenoh's threads count the forged and
+        the flood); warn on the first of each reason and every 1000th. Its count so far."""
+        with self._count_lock:
+            counts = self.refused.setdefault(name, {})
+            counts[reason] = n = counts.get(reason, 0) + 1
+        if n == 1 or n % 1000 == 0:
+            what = f"{reason}: {detail}" if detail else reason
+            log.warning("board %s: message refused (%s; %d so far)", name, what, n)
+        return n
+
+    def _refuse(self, name: str, exc: Refused) -> None:
+        self.count_refused(name, exc.reason, str(exc).partition(": ")[2])
+        if exc.reason in NOT_HELD:
+            return  # someone else's message, or too many: it says nothing about the board
+        self.bad[name] = self.bad.get(name, 0) + 1
+        if self.bad[name] >= BAD_RECORDS_LIMIT and name not in self.dropped:
+            why = (
+                f"{exc} (synchronise them: chrony or PTP)"
+                if exc.reason == "clock"
+                else f"its messages are not spiel-edge records ({exc})"
+            )
+            self._drop(name, why)
+
+    def _accept(self, name: str) -> None:
+        self.bad[name] = 0
+        if name in self.dropped:
+            del self.dropped[name]
+            self.fuser.restore(name)
+            log.warning("board %s is back: its records are fused again", name)
 
     def handle_odometry(self, payload: bytes, arrived: float) -> None:
         """An odometry message (JSON or a ROS 2 nav_msgs/msg/Odometry in CDR: the robot's
@@ -164,9 +226,24 @@ class RecordFuse:
             if n in self.absent
             else f"{n}: {s['reports']} records, {s['targets']} targets"
             + (f", {s['no_pose']} without a pose" if s["no_pose"] else "")
+            + self._refused_text(n)
             for n, s in self.fuser.stats.items()
         )
         return f"{self.records} fused records{latency}; {boards}"
+
+    def _refused_text(self, name: str) -> str:
+        with self._count_lock:
+            counts = dict(self.refused.get(name) or {})
+        if not counts:
+            return ""
+        parts = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+        return f", {sum(counts.values())} messages refused ({parts})"
+
+    @property
+    def forged(self) -> int:
+        """Messages refused as not their board's (forged or replayed), over every board."""
+        with self._count_lock:
+            return sum(c.get(r, 0) for c in self.refused.values() for r in NOT_THE_BOARDS)
 
 
 def read_replay(
@@ -262,41 +339,3 @@ def _host_time(line: bytes) -> float | None:
     except (ValueError, KeyError, TypeError):
         return None
     return t if np.isfinite(t) else None
-
-
-def _record_fields(record) -> dict:
-    """What the fuser takes from a board's record (``run``'s JSON); ValueError, KeyError or
-    TypeError when it is not one (a wrong type anywhere is the whole record's fault)."""
-    device_us = record["device_time_us"]
-    remote = float(record["host_time"])
-    if isinstance(device_us, bool) or not isinstance(device_us, (int, float)):
-        raise TypeError("device_time_us is not a number")
-    if not (math.isfinite(device_us) and math.isfinite(remote)):
-        raise ValueError("non-finite time")
-    acquisition = record.get("acquisition", -1)
-    if isinstance(acquisition, bool) or not isinstance(acquisition, int):
-        raise TypeError("acquisition is not an integer")
-    targets = record.get("targets") or []
-    crosstalk = record.get("crosstalk") or []
-    if not isinstance(targets, list):
-        raise TypeError("targets is not a list")
-    if not (isinstance(crosstalk, list) and all(isinstance(b, str) for b in crosstalk)):
-        raise TypeError("crosstalk is not a list of board names")
-    synced = record.get("stamp_host")
-    synced = (
-        float(synced)
-        if isinstance(synced, (int, float))
-        and not isinstance(synced, bool)
-        and math.isfinite(synced)
-        else 0.0
-    )
-    return {
-        "stamp": float(device_us) / 1e6,
-        "remote": remote,
-        "synced": synced,
-        "acquisition": acquisition,
-        "device_time_us": int(device_us),
-        "targets": record_targets(record),
-        "crosstalk": crosstalk,
-        "error": str(record.get("reason")) if record.get("error") else None,
-    }

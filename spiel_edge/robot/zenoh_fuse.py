@@ -22,7 +22,7 @@ import time
 from spiel_edge.errors import ConfigError
 from spiel_edge.outputs.zenoh import zenoh_reason
 from spiel_edge.robot.description import RobotSpec
-from spiel_edge.robot.record_fuse import RecordFuse
+from spiel_edge.robot.record_fuse import MAX_RECORD_BYTES, RecordFuse
 
 log = logging.getLogger(__name__)
 
@@ -31,8 +31,9 @@ ODOM = "\x00odom"  # the odometry subscriber's name in the queue (no board is na
 
 
 def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | None = None):
-    """A zenoh.Config: a JSON5 file (or ``$ZENOH_CONFIG``), then the endpoints and mode."""
-    from spiel_edge.outputs.zenoh import _import_zenoh, load_config
+    """A zenoh.Config: a JSON5 file (or ``$ZENOH_CONFIG``), then the endpoints and mode;
+    confined to loopback where none of them says otherwise (docs/security.md)."""
+    from spiel_edge.outputs.zenoh import _import_zenoh, confine_to_loopback, load_config
 
     _import_zenoh()
     cfg = load_config(config)
@@ -43,9 +44,23 @@ def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | N
             cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
         if listen:
             cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        confine_to_loopback(cfg)
     except Exception as exc:  # zenoh.ZError
         raise ConfigError(f"Zenoh configuration: {zenoh_reason(exc)}") from exc
     return cfg
+
+
+def verifiers(robot: RobotSpec) -> dict:
+    """Per board with an ``auth_key_file``: its record_auth.Verifier (ConfigError in one line
+    when a key file is missing, unreadable, readable by every user, or not a key)."""
+    from spiel_edge.robot.record_auth import Verifier, load_key
+
+    out = {}
+    for b in robot.boards:
+        path = robot.auth_key_path(b)
+        if path is not None:
+            out[b.name] = Verifier(load_key(path, f"board {b.name!r} auth_key_file"), b.key)
+    return out
 
 
 class ZenohFuse(RecordFuse):
@@ -69,6 +84,12 @@ class ZenohFuse(RecordFuse):
         super().__init__(robot, sink, track=track, spec=spec, odom_messages=odom_key is not None)
         self.queue: queue.Queue = queue.Queue(maxsize=QUEUE)
         self.overflow = 0
+        # per board (and odometry): at most its share of the queue, so one flooding peer
+        # costs its own records, not the others'
+        self.share = QUEUE // (len(robot.boards) + 1)
+        self.queued = dict.fromkeys([*(b.name for b in robot.boards), ODOM], 0)
+        self._queued_lock = threading.Lock()
+        self.verifiers = verifiers(robot)  # before the session: a bad key file opens nothing
         try:
             self.session = self.zenoh.open(config if config is not None else zenoh_config())
         except Exception as exc:
@@ -87,14 +108,40 @@ class ZenohFuse(RecordFuse):
             self.close()
             raise ConfigError(f"fuse: cannot subscribe: {zenoh_reason(exc)}") from exc
         log.info("fusing %s", ", ".join(f"{b.name} on {b.key}" for b in robot.boards))
+        unsigned = [b.name for b in robot.boards if b.name not in self.verifiers]
+        if self.verifiers and unsigned:
+            log.warning("boards %s have no auth_key_file: any peer can publish as them", unsigned)
 
     def _callback(self, name: str):
-        def on_sample(sample) -> None:  # Zenoh's thread: hand over, nothing more
+        verifier = self.verifiers.get(name)
+
+        def on_sample(sample) -> None:  # Zenoh's thread: check the origin, hand over
             arrived = time.time()
+            payload = sample.payload.to_bytes()
+            refused = None
+            if len(payload) > MAX_RECORD_BYTES:
+                refused, payload = "too large", b""
+            elif verifier is not None:  # a forged flood never reaches the queue
+                attached = sample.attachment
+                why = verifier.check(payload, None if attached is None else attached.to_bytes())
+                if why:
+                    self.count_refused(name, why)
+                    return
+            with self._queued_lock:
+                if self.queued[name] >= self.share:
+                    full = True
+                else:
+                    full = False
+                    self.queued[name] += 1
+            if full:
+                self.count_refused(name, "flood")
+                return
             try:
-                self.queue.put_nowait((name, sample.payload.to_bytes(), arrived))
+                self.queue.put_nowait((name, payload, arrived, refused))
             except queue.Full:
                 self.overflow += 1
+                with self._queued_lock:
+                    self.queued[name] -= 1
 
         return on_sample
 
@@ -106,16 +153,19 @@ class ZenohFuse(RecordFuse):
         last = None
         while not stop.is_set():
             try:
-                name, payload, arrived = self.queue.get(timeout=0.05)
+                name, payload, arrived, refused = self.queue.get(timeout=0.05)
             except queue.Empty:
                 if idle_s is not None and last is not None and time.monotonic() - last > idle_s:
                     break
                 continue
             last = time.monotonic()
+            with self._queued_lock:
+                self.queued[name] -= 1
             if name == ODOM:
-                self.handle_odometry(payload, arrived)
+                if refused is None:
+                    self.handle_odometry(payload, arrived)
                 continue
-            self.handle(name, payload, arrived)
+            self.handle(name, payload, arrived, refused)
             if frames is not None and self.records >= frames:
                 break
         if frames is None or self.records < frames:

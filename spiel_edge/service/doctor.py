@@ -27,6 +27,7 @@ from spiel_edge.service.host_checks import (
     modemmanager_running,
     user_groups,
 )
+from spiel_edge.service.sandbox import check_unit
 
 log = logging.getLogger(__name__)
 
@@ -318,6 +319,7 @@ def run_checks(
         check_modemmanager(modemmanager_running(), installed_udev_rule(ids)),
         check_config(profile, calibration, config_dir),
         check_model(),
+        check_unit(),  # the installed unit would start (sandbox.py)
     ]
     if port:
         checks.insert(1, check_link(port))

@@ -40,9 +40,14 @@ def usb_ids() -> tuple[tuple[int, int], ...]:
     return board_usb_ids()
 
 
-def render_unit(exec_path: str = DEFAULT_EXEC) -> str:
-    """The unit; ``exec_path`` quoted per systemd's rules (ConfigError when it cannot be)."""
+def render_unit(
+    exec_path: str = DEFAULT_EXEC, *, protect_home: str = "yes", allow_ip: tuple[str, ...] = ()
+) -> str:
+    """The unit; ``exec_path`` quoted per systemd's rules (ConfigError when it cannot be).
+    ``protect_home``: ``read-only`` when the install lives under /home (sandbox.py);
+    ``allow_ip``: networks beyond localhost the service may reach (IPAddressAllow=)."""
     exec_word = quote_exec_path(exec_path)
+    allowed = " ".join(("localhost", *allow_ip))
     return f"""\
 # spiel-edge: 3-D ultrasonic echolocation, published headless.
 # Installed by `spiel-edge service install`; settings live in {CONFIG_DIR}/spiel-edge.env.
@@ -78,13 +83,45 @@ SuccessExitStatus=130 143
 # `--realtime 10` in SPIEL_RUN_OPTIONS (docs/robot.md: latency on a loaded computer) may take
 # Linux's SCHED_FIFO up to this priority; without the option nothing changes.
 LimitRTPRIO=10
+# Confinement (docs/security.md; `systemd-analyze security spiel-edge` scores it 1.6, "OK").
+# Only what the service needs: the board's serial and USB device nodes, its cache and state
+# folders, the journal, and the network on this computer. Widen the network with
+# `spiel-edge service install --allow-ip 192.168.1.0/24` or a drop-in (systemctl edit):
+# IPAddressAllow=192.168.1.0/24 (Zenoh to other computers, --udp, Foxglove clients).
 NoNewPrivileges=yes
+CapabilityBoundingSet=
+AmbientCapabilities=
+UMask=0027
 ProtectSystem=strict
-ProtectHome=yes
+ProtectHome={protect_home}
 PrivateTmp=yes
+PrivateMounts=yes
+PrivateIPC=yes
 ProtectKernelTunables=yes
+ProtectKernelModules=yes
+ProtectKernelLogs=yes
 ProtectControlGroups=yes
+ProtectClock=yes
+ProtectHostname=yes
+ProtectProc=invisible
+DevicePolicy=closed
+DeviceAllow=char-ttyACM rw
+DeviceAllow=char-ttyUSB rw
+DeviceAllow=char-usb_device rw
+LockPersonality=yes
+RestrictSUIDSGID=yes
+RestrictNamespaces=yes
+RemoveIPC=yes
+KeyringMode=private
+# numba compiles to executable memory, so MemoryDenyWriteExecute stays off; realtime stays
+# allowed for --realtime (LimitRTPRIO above bounds it).
+SystemCallArchitectures=native
+SystemCallFilter=@system-service
+SystemCallFilter=~@privileged
+SystemCallErrorNumber=EPERM
 RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK
+IPAddressDeny=any
+IPAddressAllow={allowed}
 
 [Install]
 WantedBy=multi-user.target
@@ -135,6 +172,9 @@ SPIEL_PORT=/dev/spiel-0
 #   --calibration {CONFIG_DIR}/calibration.toml
 #   --record /var/lib/spiel-edge/spiel-%Y%m%d-%H%M%S.mcap   (strftime: one file per start)
 #   --udp HOST:PORT   --foxglove 127.0.0.1:8765   --zenoh robots/r1/spiel
+#   the unit reaches localhost only: other computers (Zenoh --zenoh-connect, --udp) need
+#   `service install --allow-ip NETWORK`; --zenoh-auth-key FILE tags records for `fuse`
+#   (docs/security.md; ZENOH_CONFIG=FILE on a line of its own for mTLS)
 #   ROS 2 (docs/ros2.md): --record-profile ros2   --zenoh-encoding cdr   --frame-id spiel
 #   the sensor's pose on the robot: [frame] in the profile, or --parent-frame base_link
 #   --translation-m 0.10,0,0.25 --rotation-rpy-deg 0,0,90   (metres, degrees)
@@ -148,6 +188,26 @@ SPIEL_VERBOSITY=-v
 """
 
 
+IP_KEYWORDS = ("any", "localhost", "link-local", "multicast")  # systemd.resource-control(5)
+
+
+def check_allow_ip(text: str) -> str:
+    """An IPAddressAllow= entry: an address, a network (CIDR) or one of systemd's keywords."""
+    import ipaddress
+
+    from spiel_edge.errors import ConfigError
+
+    if text in IP_KEYWORDS:
+        return text
+    try:
+        return str(ipaddress.ip_network(text, strict=False))
+    except ValueError:
+        raise ConfigError(
+            f"--allow-ip {text!r}: an address or network (192.168.1.0/24) or one of "
+            f"{', '.join(IP_KEYWORDS)}"
+        ) from None
+
+
 @dataclass(frozen=True)
 class KitFile:
     path: str  # relative to the prefix
@@ -155,9 +215,11 @@ class KitFile:
     config: bool = False  # the user's to edit: never overwritten
 
 
-def plan(exec_path: str = DEFAULT_EXEC) -> list[KitFile]:
+def plan(
+    exec_path: str = DEFAULT_EXEC, *, protect_home: str = "yes", allow_ip: tuple[str, ...] = ()
+) -> list[KitFile]:
     return [
-        KitFile(UNIT_PATH, render_unit(exec_path)),
+        KitFile(UNIT_PATH, render_unit(exec_path, protect_home=protect_home, allow_ip=allow_ip)),
         KitFile(SYSUSERS_PATH, render_sysusers()),
         KitFile(UDEV_PATH, render_udev()),
         KitFile(ENV_PATH, render_env(), config=True),

@@ -162,5 +162,6 @@ def test_run_checks_on_this_machine_returns_every_check(tmp_path):
         "ModemManager",
         "config",
         "model",
+        "unit",
     ]
     assert Path("/proc").is_dir()

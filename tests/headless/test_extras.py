@@ -258,7 +258,9 @@ def test_zenoh_endpoints_refused(endpoint):
         check_endpoint(endpoint)
 
 
-def test_rmw_zenoh_sessions_scout_no_multicast_unless_a_file_says(tmp_path, monkeypatch):
+def test_zenoh_sessions_scout_no_multicast_and_listen_on_loopback_unless_asked(
+    tmp_path, monkeypatch
+):
     pytest.importorskip("zenoh", reason="extra 'zenoh' not installed")
     from spiel_edge.outputs.zenoh import session_config
 
@@ -267,11 +269,20 @@ def test_rmw_zenoh_sessions_scout_no_multicast_unless_a_file_says(tmp_path, monk
     def multicast(cfg) -> bool | None:
         return json.loads(cfg.get_json("scouting/multicast/enabled"))
 
+    def listen(cfg):
+        return json.loads(cfg.get_json("listen/endpoints"))
+
     assert multicast(session_config(None, None, rmw_zenoh=True)) is False
-    assert multicast(session_config(None, None)) is None  # not set: Zenoh's default
+    assert multicast(session_config(None, None)) is False  # every encoding (docs/security.md)
+    assert listen(session_config(None, None)) == ["tcp/127.0.0.1:0"]
     path = tmp_path / "z.json5"
     path.write_text("{ scouting: { multicast: { enabled: true } } }\n")
     assert multicast(session_config(str(path), None, rmw_zenoh=True)) is True
+    assert listen(session_config(str(path), None)) == ["tcp/127.0.0.1:0"]  # the file left it
+    path.write_text('{ listen: { endpoints: ["tcp/0.0.0.0:7447"] } }\n')
+    assert listen(session_config(str(path), None)) == ["tcp/0.0.0.0:7447"]
+    assert multicast(session_config(str(path), None)) is False
+    path.write_text("{ scouting: { multicast: { enabled: true } } }\n")
     monkeypatch.setenv("ZENOH_CONFIG", str(path))
     assert multicast(session_config(None, None, rmw_zenoh=True)) is True
 
