@@ -21,7 +21,7 @@ from spiel_edge.pipeline.stages.echo_quality import echo_quality
 from spiel_edge.pipeline.stages.echo_timing import EchoTiming, timing_delays
 from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.stages.locate import locate
-from spiel_edge.pipeline.stages.memg import fit_memg
+from spiel_edge.pipeline.stages.memg import WINDOW_AFTER, WINDOW_BEFORE, fit_memg
 from spiel_edge.pipeline.stages.preprocess import preprocess
 from spiel_edge.pipeline.stages.scene import SceneAssociator, is_double_reflection, shared_echoes
 from spiel_edge.pipeline.stages.scene_geometry import distance3
@@ -200,7 +200,15 @@ class Pipeline:
         )
         t2 = clock()
         m = p.memg
-        params = fit_memg(y, peaks, counts, mu_window=m.mu_window, max_iterations=m.max_iterations)
+        params = fit_memg(
+            y,
+            peaks,
+            counts,
+            mu_window=m.mu_window,
+            max_iterations=m.max_iterations,
+            window_before=m.window_before,
+            window_after=m.window_after,
+        )
         if m.split_merged:
             peaks, counts, params = split_merged(
                 y,
@@ -351,6 +359,9 @@ class Pipeline:
         the pipeline's geometry and settings. None when a collaborator has no compiled form;
         then the staged path runs. A subclass that changes what a stage computes returns
         None here (or from the collaborator's ``kernel_constants``)."""
+        m = self.profile.memg
+        if (m.window_before, m.window_after) != (WINDOW_BEFORE, WINDOW_AFTER):
+            return None  # the compiled front fits the default window only
         parts = [self.associator, self.echo_timing, self.scene]
         found = [p.kernel_constants() if isinstance(p, CompiledForm) else None for p in parts]
         if any(f is None for f in found):
