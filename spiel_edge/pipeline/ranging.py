@@ -270,7 +270,7 @@ class RangePipeline:
                 q,
                 acq.carrier_hz / acq.sample_rate_hz,
                 r.iq_phase_offset_rad,
-                r.iq_phase_slope_rad_per_sample,
+                r.iq_drift_samples,
                 r.iq_wrap_margin,
             )
             if t_iq is not None:
@@ -318,27 +318,29 @@ def iq_refine(
     q: np.ndarray,
     cycles_per_sample: float,
     offset_rad: float,
-    slope_rad_per_sample: float,
+    drift: tuple,
     margin: float,
 ) -> float | None:
     """The envelope ToA ``t_env`` refined by the carrier phase, or None (wrap not trusted).
 
     A delay of t samples turns the baseband phase by -2 pi f t (f = carrier / sample rate),
-    so the phase gives t modulo one wrap w = 1 / f (half a sample at fs = carrier / 2),
-    while the envelope says which wrap. The phase expected for an echo at t_env is
-    offset + slope x t_env - 2 pi f t_env (offset and slope fitted on training frames: the
-    slope takes the phase-to-envelope drift over range); the measured phase's difference
-    from it, wrapped to (-pi, pi], moves t_env by at most half a wrap. When that difference
-    is within ``margin`` of half a wrap, the two neighbouring wraps are nearly as likely and
-    None is returned (the caller keeps the envelope timing)."""
+    so the phase gives the ToA modulo one wrap w = 1 / f (half a sample at fs = carrier / 2):
+    t_phase = (offset - phase) / (2 pi f) + k w, offset fitted so that t_phase is on the
+    envelope's scale (the same delay). The envelope says which wrap k: the one nearest
+    ref = t_env - (a + b t_env), where drift = (a, b) is the envelope-to-phase offset fitted
+    over range (it drifts by ~0.2 sample over 137-227 mm on the DK-CH101). When t_phase's
+    nearest wrap is within ``margin`` x w of the boundary between two wraps, both are nearly
+    as likely: None (the caller keeps the envelope timing)."""
     phase = echo_phase(t_env, i, q)
     if phase is None:
         return None
-    expected = offset_rad + slope_rad_per_sample * t_env - 2.0 * math.pi * cycles_per_sample * t_env
-    delta = math.remainder(phase - expected, 2.0 * math.pi)  # in [-pi, pi]
-    if abs(delta) > math.pi * (1.0 - 2.0 * margin):
+    wrap = 1.0 / cycles_per_sample
+    ref = t_env - (drift[0] + drift[1] * t_env)
+    t_phase = (offset_rad - phase) / (2.0 * math.pi * cycles_per_sample)
+    step = math.remainder(t_phase - ref, wrap)  # in [-w/2, w/2]
+    if abs(step) > wrap * (0.5 - margin):
         return None
-    return t_env - delta / (2.0 * math.pi * cycles_per_sample)
+    return ref + step
 
 
 def pair_plane(points: np.ndarray, facing: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -19,9 +19,10 @@ class RangingSpec:
 
     timing: str = "envelope"  # "iq": the carrier phase refines the envelope's ToA (signal = "iq")
     echo: str = "first"  # which echo of a channel is the target: the first or the strongest
-    # I/Q: the phase of the echo peak is phase_offset + phase_slope x ToA (radians; fitted)
+    # I/Q: the phase time (offset - phase) / (2 pi f) is the ToA modulo one wrap (1/f
+    # samples); the wrap nearest t_env - (a + b t_env) is taken, drift = [a, b] (all fitted)
     iq_phase_offset_rad: float = 0.0
-    iq_phase_slope_rad_per_sample: float = 0.0
+    iq_drift_samples: tuple = (0.0, 0.0)
     # I/Q: the wrap is taken from the envelope ToA; when that ToA sits within this share of a
     # wrap of the boundary between two wraps, the envelope timing is kept (wrap not trusted)
     iq_wrap_margin: float = 0.0
@@ -47,6 +48,10 @@ def validate_ranging(spec: RangingSpec, signal: str, origin: str) -> None:
     )
     need(spec.echo in ECHO_CHOICES, f"ranging.echo must be one of {ECHO_CHOICES}, got {spec.echo!r}")
     need(0.0 <= spec.iq_wrap_margin < 0.5, "ranging.iq_wrap_margin must be in [0, 0.5)")
+    need(
+        len(spec.iq_drift_samples) == 2 and all(abs(v) <= 100 for v in spec.iq_drift_samples),
+        f"ranging.iq_drift_samples must be 2 numbers in [-100, 100], got {list(spec.iq_drift_samples)}",
+    )
     for key in ("envelope_sigma", "iq_sigma"):
         values = getattr(spec, key)
         need(
