@@ -163,6 +163,7 @@ def test_iq_refine_takes_the_wrap_from_the_envelope():
 
 def test_dk_ch101_profile_times_iq_frames_by_the_carrier_phase():
     profile = load_profile("dk-ch101-gpr-sr-narrow")
+    profile = profile.replace(ranging=dataclasses.replace(profile.ranging, timing="iq"))
     assert profile.acquisition.sample_rate_hz * 2 == pytest.approx(profile.acquisition.carrier_hz)
     f = profile.acquisition.carrier_hz / profile.acquisition.sample_rate_hz
     offset = profile.ranging.iq_phase_offset_rad
