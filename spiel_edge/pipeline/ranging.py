@@ -186,7 +186,7 @@ class RangePipeline:
         sigmas = np.array([s for _, s, _ in timed])
         timing = "iq" if all(kind == "iq" for _, _, kind in timed) else "envelope"
         chans = np.array([c for c, _ in picks])
-        mmps = self.profile.mm_per_sample
+        mmps = self.profile.mm_per_sample * self.profile.ranging.range_scale
         paths = (toas - self.delays[chans]) * mmps
         path_sigmas = sigmas * mmps
         matched: list[int | None] = [None] * n_ch
@@ -228,7 +228,7 @@ class RangePipeline:
         if len(self.listening) == 1:
             return [(first, k0)]
         second = int(self.listening[1])
-        mmps = self.profile.mm_per_sample
+        mmps = self.profile.mm_per_sample * self.profile.ranging.range_scale
         baseline = float(np.linalg.norm(self.channels_mm[second] - self.channels_mm[first]))
         slack = baseline + self.profile.ranging.pair_tolerance_mm
         p0 = (feats[first, k0, TOA_COLUMN] - self.delays[first]) * mmps
@@ -260,7 +260,8 @@ class RangePipeline:
         t_env = float(feats[c, k, TOA_COLUMN])
         alpha = float(feats[c, k, 0])
         confidence = float(feats[c, k, CONFIDENCE_COLUMN])
-        range_mm = (t_env - self.delays[c]) * self.profile.mm_per_sample / 2.0
+        scale = self.profile.mm_per_sample * r.range_scale
+        range_mm = (t_env - self.delays[c]) * scale / 2.0
         if r.timing == "iq":
             acq = self.profile.acquisition
             q, i = raw[c, 0::2], raw[c, 1::2]

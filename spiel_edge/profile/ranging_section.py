@@ -30,6 +30,9 @@ class RangingSpec:
     # 100)^2 + (d x (1 - echo confidence))^2), as [a, b, c, d]; alpha: the echo's amplitude
     envelope_sigma: tuple = (0.3, 0.0, 0.0, 0.0)
     iq_sigma: tuple = (0.1, 0.0, 0.0, 0.0)
+    # echo path = (ToA - delay) x mm per sample x range_scale: the clock and speed-of-sound
+    # mismatch, fitted with the delay as one line over the training distances
+    range_scale: float = 1.0
     # the 95 % interval a record's variance implies is calibrated on held-out positions
     # (tools/train/fit_ranging.py); two transducers: the std across their plane
     out_of_plane_std_deg: float = 30.0
@@ -59,4 +62,5 @@ def validate_ranging(spec: RangingSpec, signal: str, origin: str) -> None:
             f"ranging.{key} must be 4 numbers in [0, 100] (the first > 0), got {list(values)}",
         )
     need(0.0 < spec.out_of_plane_std_deg <= 180.0, "ranging.out_of_plane_std_deg must be in (0, 180]")
+    need(0.5 <= spec.range_scale <= 2.0, f"ranging.range_scale must be in [0.5, 2], got {spec.range_scale}")
     need(0.0 <= spec.pair_tolerance_mm <= 1000.0, "ranging.pair_tolerance_mm must be in [0, 1000]")

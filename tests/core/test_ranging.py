@@ -39,6 +39,14 @@ def emg_mode(mu, sigma, eta):
     return float(grid[np.argmax(emg(grid, 1.0, mu, sigma, eta))])
 
 
+def half_max_time(mu, sigma, eta):
+    """Where the rising edge of the echo reaches half its maximum (the "half" ToA)."""
+    grid = np.linspace(mu - 6, mu + 6, 120001)
+    values = emg(grid, 1.0, mu, sigma, eta)
+    peak = np.argmax(values)
+    return float(grid[:peak][np.argmin(np.abs(values[:peak] - values[peak] / 2))])
+
+
 def echo_frame(n, mu, alpha=1500.0, sigma=1.6, eta=1.2, noise=0.0, seed=0):
     t = np.arange(n, dtype=np.float64)
     rng = np.random.default_rng(seed)
@@ -163,7 +171,10 @@ def test_iq_refine_takes_the_wrap_from_the_envelope():
 
 def test_dk_ch101_profile_times_iq_frames_by_the_carrier_phase():
     profile = load_profile("dk-ch101-gpr-sr-narrow")
-    profile = profile.replace(ranging=dataclasses.replace(profile.ranging, timing="iq"))
+    # the envelope's mode (the synthetic echo's phase is a pure delay of its mode)
+    memg = dataclasses.replace(profile.memg, toa="mode", window_before=5, window_after=6)
+    ranging = dataclasses.replace(profile.ranging, timing="iq", iq_drift_samples=(0.0, 0.0))
+    profile = profile.replace(memg=memg, ranging=ranging)
     assert profile.acquisition.sample_rate_hz * 2 == pytest.approx(profile.acquisition.carrier_hz)
     f = profile.acquisition.carrier_hz / profile.acquisition.sample_rate_hz
     offset = profile.ranging.iq_phase_offset_rad
@@ -171,9 +182,10 @@ def test_dk_ch101_profile_times_iq_frames_by_the_carrier_phase():
     pipe = build_pipeline(profile)
     record = pipe.process(pairs[None, :]).record()
     assert record["timing"] == "iq"
-    expected = (mode - profile.geometry.delays()[0]) * profile.mm_per_sample / 2.0
+    mmps = profile.mm_per_sample * profile.ranging.range_scale
+    expected = (mode - profile.geometry.delays()[0]) * mmps / 2.0
     assert record["range_mm"] == pytest.approx(expected, abs=0.005)
-    iq_std = toa_sigma(profile.ranging.iq_sigma, 2000.0, expected, 1.0) * profile.mm_per_sample / 2
+    iq_std = toa_sigma(profile.ranging.iq_sigma, 2000.0, expected, 1.0) * mmps / 2
     assert record["range_var_mm2"] == pytest.approx(iq_std**2, rel=0.02)
     with pytest.raises(Exception, match="expects"):
         pipe.process(np.zeros((1, 128)))  # an envelope where I/Q pairs are due

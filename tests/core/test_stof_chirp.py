@@ -21,9 +21,10 @@ from spiel_edge.recordings.stof_chirp import (
     read_stof_frame,
     truth_mm,
 )
-from tests.core.test_ranging import emg_mode, iq_pairs
+from tests.core.test_ranging import emg_mode, half_max_time, iq_pairs
 
 SHIFT = emg_mode(0.0, 1.6, 1.2)  # mode - mu of the synthetic echoes
+HALF = half_max_time(0.0, 1.6, 1.2)  # its leading edge's half maximum - mu
 
 SPECS = """# sensor header information
 manufacturer: tdk
@@ -54,7 +55,8 @@ def write_dataset(root, distances_mm=(150.0, 190.0), frames=5, seed=0):
         seq = root / "train" / str(d)
         seq.mkdir()
         for k in range(frames):
-            mode = 2 * mm / mmps + profile.geometry.delays()[0]
+            mode = 2 * mm / (mmps * profile.ranging.range_scale) + profile.geometry.delays()[0]
+            mode += SHIFT - HALF  # the profile times by the half maximum, before the mode
             pairs, got = iq_pairs(128, mode - SHIFT + 0.02 * rng.standard_normal(), f,
                                   profile.ranging.iq_phase_offset_rad)
             q, i = pairs[0::2], pairs[1::2]
