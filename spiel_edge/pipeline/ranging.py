@@ -103,6 +103,11 @@ class RangePipeline:
         return self.profile.geometry.n_channels, 2 * n if self.iq else n
 
     def check_shape(self, frames: np.ndarray, what: str = "frames") -> None:
+        """An I/Q profile also takes amplitudes (channels, n): a board that sends its
+        envelope (device/iq.py keeps the phase apart), timed by the envelope."""
+        n_ch, n = self.profile.geometry.n_channels, self.profile.acquisition.n_samples
+        if self.iq and np.shape(frames) == (n_ch, n):
+            return
         if np.shape(frames) != self.expected_shape():
             kind = " (q, i interleaved)" if self.iq else ""
             raise InputError(
@@ -110,8 +115,11 @@ class RangePipeline:
                 f"{self.expected_shape()}{kind}"
             )
 
+    def has_phase(self, frames: np.ndarray) -> bool:
+        return self.iq and np.shape(frames)[1] == 2 * self.profile.acquisition.n_samples
+
     def envelope(self, frames: np.ndarray) -> np.ndarray:
-        if not self.iq:
+        if not self.has_phase(frames):
             return np.asarray(frames, dtype=np.float64)
         f = np.asarray(frames, dtype=np.float64)
         return np.hypot(f[:, 0::2], f[:, 1::2])
@@ -123,6 +131,10 @@ class RangePipeline:
         self.check_shape(frames)
         if background is not None:
             self.check_shape(background, "background")
+            if np.shape(background) != np.shape(frames):
+                raise InputError(
+                    f"background has shape {np.shape(background)}, frames {np.shape(frames)}"
+                )
         clock = time.perf_counter_ns if timed else _no_clock
         t0 = clock()
         raw = np.asarray(frames, dtype=np.float64)
@@ -262,7 +274,7 @@ class RangePipeline:
         confidence = float(feats[c, k, CONFIDENCE_COLUMN])
         scale = self.profile.mm_per_sample * r.range_scale
         range_mm = (t_env - self.delays[c]) * scale / 2.0
-        if r.timing == "iq":
+        if r.timing == "iq" and self.has_phase(raw):
             acq = self.profile.acquisition
             q, i = raw[c, 0::2], raw[c, 1::2]
             t_iq = iq_refine(

@@ -187,8 +187,11 @@ def test_dk_ch101_profile_times_iq_frames_by_the_carrier_phase():
     assert record["range_mm"] == pytest.approx(expected, abs=0.005)
     iq_std = toa_sigma(profile.ranging.iq_sigma, 2000.0, expected, 1.0) * mmps / 2
     assert record["range_var_mm2"] == pytest.approx(iq_std**2, rel=0.02)
+    # amplitudes from a board that keeps the phase apart: the envelope times them
+    amplitude = np.hypot(pairs[0::2], pairs[1::2])[None, :]
+    assert pipe.process(amplitude).record()["timing"] == "envelope"
     with pytest.raises(Exception, match="expects"):
-        pipe.process(np.zeros((1, 128)))  # an envelope where I/Q pairs are due
+        pipe.process(np.zeros((1, 100)))
 
 
 def test_memg_window_from_the_profile():
