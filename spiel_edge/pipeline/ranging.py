@@ -21,11 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.staged import Result, Target, _no_clock
-from spiel_edge.pipeline.stages.detect import detect
-from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
-from spiel_edge.pipeline.stages.memg import fit_memg
-from spiel_edge.pipeline.stages.preprocess import preprocess
+from spiel_edge.pipeline.staged import Result, Target, _no_clock, front_stages
+from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.pipeline.stages.static_scene import load_static_model
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT, Profile
 
@@ -143,39 +140,8 @@ class RangePipeline:
         elif background is None:
             background = self.static_model
         bg = None if background is None else self.envelope(background)
-        acq = p.acquisition
-        y = preprocess(
-            self.envelope(raw),
-            bg,
-            blind_zone=p.preprocess.blind_zone_samples,
-            rf=acq.signal == "rf",
-            carrier_cycles_per_sample=acq.carrier_hz / acq.sample_rate_hz,
-        )
-        t1 = clock()
-        d = p.detect
-        peaks, counts = detect(
-            y,
-            threshold=d.threshold,
-            hysteresis=d.hysteresis,
-            min_amplitude=d.min_amplitude,
-            max_echoes=d.max_echoes,
-            first_sample=p.preprocess.blind_zone_samples,
-        )
-        t2 = clock()
-        m = p.memg
-        params = fit_memg(
-            y,
-            peaks,
-            counts,
-            mu_window=m.mu_window,
-            max_iterations=m.max_iterations,
-            window_before=m.window_before,
-            window_after=m.window_after,
-        )
-        t3 = clock()
-        feats = echo_features(y, params, peaks, m.toa)
-        t4 = clock()
-        result = self._range(raw, y, feats, counts)
+        feats, counts, (t1, t2, t3, t4) = front_stages(p, self.envelope(raw), bg, clock)
+        result = self._range(raw, feats, counts)
         t5 = clock()
         if timed:
             stamps = (t0, t1, t2, t3, t4, t5)
@@ -183,7 +149,7 @@ class RangePipeline:
             result.timings_us["end_to_end"] = (t5 - t0) / 1e3
         return result
 
-    def _range(self, raw, y, feats, counts) -> RangeResult:
+    def _range(self, raw, feats, counts) -> RangeResult:
         toa = feats[:, :, TOA_COLUMN]
         echoes = [[float(v) for v in toa[c, : counts[c]]] for c in range(len(counts))]
         n_ch = len(counts)
@@ -395,7 +361,11 @@ def solve_pair(paths, sigmas, receivers, emitter, plane, out_of_plane_rad):
         if abs(step).max() < 1e-7:
             break
     pos = origin + x * u + z * w
-    if z <= 0 or not np.all(np.isfinite(pos)) or abs(np.linalg.norm(pos - emitter) + np.linalg.norm(pos - receivers[0]) - paths[0]) > 1e-3:
+    if (
+        z <= 0
+        or not np.all(np.isfinite(pos))
+        or abs(np.linalg.norm(pos - emitter) + np.linalg.norm(pos - receivers[0]) - paths[0]) > 1e-3
+    ):
         return None
     try:
         inv = np.linalg.inv(jac)

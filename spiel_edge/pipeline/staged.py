@@ -114,6 +114,55 @@ class Result:
         }
 
 
+def front_stages(p: Profile, frames, background, clock) -> tuple:
+    """preprocess -> detect -> memg (-> split) -> features of one acquisition (envelope or RF
+    frames, the background already chosen): (features, counts, the clock after each stage).
+    Shared by the 3-D pipeline and the ranging one (pipeline/ranging.py)."""
+    acq = p.acquisition
+    y = preprocess(
+        frames,
+        background,
+        blind_zone=p.preprocess.blind_zone_samples,
+        rf=acq.signal == "rf",
+        carrier_cycles_per_sample=acq.carrier_hz / acq.sample_rate_hz,
+    )
+    t1 = clock()
+    d = p.detect
+    peaks, counts = detect(
+        y,
+        threshold=d.threshold,
+        hysteresis=d.hysteresis,
+        min_amplitude=d.min_amplitude,
+        max_echoes=d.max_echoes,
+        first_sample=p.preprocess.blind_zone_samples,
+    )
+    t2 = clock()
+    m = p.memg
+    params = fit_memg(
+        y,
+        peaks,
+        counts,
+        mu_window=m.mu_window,
+        max_iterations=m.max_iterations,
+        window_before=m.window_before,
+        window_after=m.window_after,
+    )
+    if m.split_merged:
+        peaks, counts, params = split_merged(
+            y,
+            peaks,
+            counts,
+            params,
+            min_sigma=m.split_min_sigma,
+            max_cost_ratio=m.split_max_cost_ratio,
+            mu_window=m.mu_window,
+            max_iterations=m.max_iterations,
+        )
+    t3 = clock()
+    feats = echo_features(y, params, peaks, m.toa)
+    return feats, counts, (t1, t2, t3, clock())
+
+
 class Pipeline:
     """preprocess -> detect -> memg -> features -> associate -> locate for one profile."""
 
@@ -176,53 +225,11 @@ class Pipeline:
             self.check_shape(background, "background")
         clock = time.perf_counter_ns if timed else _no_clock
         t0 = clock()
-        acq = p.acquisition
         if not p.preprocess.background_subtraction:
             background = None
         elif background is None:
             background = self.static_model
-        y = preprocess(
-            frames,
-            background,
-            blind_zone=p.preprocess.blind_zone_samples,
-            rf=acq.signal == "rf",
-            carrier_cycles_per_sample=acq.carrier_hz / acq.sample_rate_hz,
-        )
-        t1 = clock()
-        d = p.detect
-        peaks, counts = detect(
-            y,
-            threshold=d.threshold,
-            hysteresis=d.hysteresis,
-            min_amplitude=d.min_amplitude,
-            max_echoes=d.max_echoes,
-            first_sample=p.preprocess.blind_zone_samples,
-        )
-        t2 = clock()
-        m = p.memg
-        params = fit_memg(
-            y,
-            peaks,
-            counts,
-            mu_window=m.mu_window,
-            max_iterations=m.max_iterations,
-            window_before=m.window_before,
-            window_after=m.window_after,
-        )
-        if m.split_merged:
-            peaks, counts, params = split_merged(
-                y,
-                peaks,
-                counts,
-                params,
-                min_sigma=m.split_min_sigma,
-                max_cost_ratio=m.split_max_cost_ratio,
-                mu_window=m.mu_window,
-                max_iterations=m.max_iterations,
-            )
-        t3 = clock()
-        feats = echo_features(y, params, peaks, p.memg.toa)
-        t4 = clock()
+        feats, counts, (t1, t2, t3, t4) = front_stages(p, frames, background, clock)
         hypotheses = self.scene(feats, counts)
         t5 = clock()
         self._clock, self._echo_timing_ns = clock, 0

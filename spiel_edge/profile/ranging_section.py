@@ -49,7 +49,9 @@ def validate_ranging(spec: RangingSpec, signal: str, origin: str) -> None:
         spec.timing != "iq" or signal == "iq",
         "ranging.timing = 'iq' needs acquisition.signal = 'iq' (the carrier phase)",
     )
-    need(spec.echo in ECHO_CHOICES, f"ranging.echo must be one of {ECHO_CHOICES}, got {spec.echo!r}")
+    need(
+        spec.echo in ECHO_CHOICES, f"ranging.echo must be one of {ECHO_CHOICES}, got {spec.echo!r}"
+    )
     need(0.0 <= spec.iq_wrap_margin < 0.5, "ranging.iq_wrap_margin must be in [0, 0.5)")
     need(
         len(spec.iq_drift_samples) == 2 and all(abs(v) <= 100 for v in spec.iq_drift_samples),
@@ -61,6 +63,11 @@ def validate_ranging(spec: RangingSpec, signal: str, origin: str) -> None:
             len(values) == 4 and all(0.0 <= v <= 100.0 for v in values) and values[0] > 0,
             f"ranging.{key} must be 4 numbers in [0, 100] (the first > 0), got {list(values)}",
         )
-    need(0.0 < spec.out_of_plane_std_deg <= 180.0, "ranging.out_of_plane_std_deg must be in (0, 180]")
-    need(0.5 <= spec.range_scale <= 2.0, f"ranging.range_scale must be in [0.5, 2], got {spec.range_scale}")
+    need(
+        0.0 < spec.out_of_plane_std_deg <= 180.0, "ranging.out_of_plane_std_deg must be in (0, 180]"
+    )
+    need(
+        0.5 <= spec.range_scale <= 2.0,
+        f"ranging.range_scale must be in [0.5, 2], got {spec.range_scale}",
+    )
     need(0.0 <= spec.pair_tolerance_mm <= 1000.0, "ranging.pair_tolerance_mm must be in [0, 1000]")

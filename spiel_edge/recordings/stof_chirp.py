@@ -83,7 +83,11 @@ def profile_for_specs(specs: dict[str, str], origin: str = SPECS_NAME):
     except ValueError:
         samples = 0
     name = next(
-        (n for (m, f, s), n in BUILTIN.items() if m == model and firmware.startswith(f) and s == samples),
+        (
+            n
+            for (m, f, s), n in BUILTIN.items()
+            if m == model and firmware.startswith(f) and s == samples
+        ),
         None,
     )
     if name is None:
@@ -95,7 +99,9 @@ def profile_for_specs(specs: dict[str, str], origin: str = SPECS_NAME):
     acq = profile.acquisition
     for key, have in (("fhz_sample", acq.sample_rate_hz), ("fhz_carrier", acq.carrier_hz)):
         if key in specs and abs(_number(specs[key], key, origin) - have) > 0.5:
-            raise ConfigError(f"{origin}: {key} {specs[key]} differs from profile {name}'s {have:g}")
+            raise ConfigError(
+                f"{origin}: {key} {specs[key]} differs from profile {name}'s {have:g}"
+            )
     if "temperature" in specs:
         celsius = _number(specs["temperature"].split()[0], "temperature", origin)
         geometry = dataclasses.replace(profile.geometry, speed_of_sound_m_s=331.4 + 0.6 * celsius)
@@ -118,7 +124,9 @@ def read_stof_frame(
     name = f"{number}_{'iq' if iq else 'envelope'}_frame.txt"
     path = folder / name
     data = read_bytes_bounded(path, limits.max_text_bytes, InputError, name, "a frame")
-    rows = [line.split() for line in decode_text(data, InputError, name).splitlines() if line.strip()]
+    rows = [
+        line.split() for line in decode_text(data, InputError, name).splitlines() if line.strip()
+    ]
     width = 2 if iq else 1
     if not rows or any(len(r) != width for r in rows):
         raise InputError(f"{name}: expected {width} column(s) per line")

@@ -20,8 +20,8 @@ from spiel_edge.pipeline.ranging import (
     REASON_RANGE_ONLY,
     RangePipeline,
     iq_refine,
-    solve_pair,
     pair_plane,
+    solve_pair,
     toa_sigma,
 )
 from spiel_edge.pipeline.stages.detect import detect
@@ -74,9 +74,13 @@ def test_the_first_or_the_strongest_echo():
     profile = load_profile("ch101-one")
     frame = (echo_frame(64, 22.0, alpha=400.0) + echo_frame(64, 40.0, alpha=1500.0))[None, :]
     first = build_pipeline(profile).process(frame).record()
-    strongest = build_pipeline(
-        profile.replace(ranging=dataclasses.replace(profile.ranging, echo="strongest"))
-    ).process(frame).record()
+    strongest = (
+        build_pipeline(
+            profile.replace(ranging=dataclasses.replace(profile.ranging, echo="strongest"))
+        )
+        .process(frame)
+        .record()
+    )
     assert first["range_mm"] < strongest["range_mm"] - 20
 
 
@@ -102,7 +106,10 @@ def test_two_transducers_give_range_and_bearing_in_their_plane():
     shapes = (1.6, 1.2)
     modes = paths / mmps + profile.geometry.delays()
     frames = np.stack(
-        [echo_frame(64, m - (emg_mode(0.0, *shapes)), sigma=shapes[0], eta=shapes[1]) for m in modes]
+        [
+            echo_frame(64, m - (emg_mode(0.0, *shapes)), sigma=shapes[0], eta=shapes[1])
+            for m in modes
+        ]
     )
     record = pipe.process(frames).record()
     assert record["reason"] is None

@@ -57,8 +57,12 @@ def write_dataset(root, distances_mm=(150.0, 190.0), frames=5, seed=0):
         for k in range(frames):
             mode = 2 * mm / (mmps * profile.ranging.range_scale) + profile.geometry.delays()[0]
             mode += SHIFT - HALF  # the profile times by the half maximum, before the mode
-            pairs, got = iq_pairs(128, mode - SHIFT + 0.02 * rng.standard_normal(), f,
-                                  profile.ranging.iq_phase_offset_rad)
+            pairs, got = iq_pairs(
+                128,
+                mode - SHIFT + 0.02 * rng.standard_normal(),
+                f,
+                profile.ranging.iq_phase_offset_rad,
+            )
             q, i = pairs[0::2], pairs[1::2]
             iq = np.vstack([np.column_stack([i, q]), [[0.0, 0.0]]])  # one row more
             np.savetxt(seq / f"{k:02d}_iq_frame.txt", iq)
@@ -127,12 +131,24 @@ def test_envelope_profile_reads_the_envelope_files(tmp_path):
     write_dataset(tmp_path, frames=3)
     profile = load_profile("dk-ch101-gpr-sr-narrow")
     env_profile = tmp_path / "env.toml"
-    text = (load_profile.__globals__["resources"].files("spiel_edge") / "profile" / "builtin"
-            / "dk-ch101-gpr-sr-narrow.toml").read_text()
-    env_profile.write_text(text.replace('signal = "iq"', 'signal = "envelope"').replace(
-        'timing = "iq"', 'timing = "envelope"'))
+    text = (
+        load_profile.__globals__["resources"].files("spiel_edge")
+        / "profile"
+        / "builtin"
+        / "dk-ch101-gpr-sr-narrow.toml"
+    ).read_text()
+    env_profile.write_text(
+        text.replace('signal = "iq"', 'signal = "envelope"').replace(
+            'timing = "iq"', 'timing = "envelope"'
+        )
+    )
     out = tmp_path / "o.ndjson"
-    assert main(["replay", str(tmp_path / "train" / "0"), "--profile", str(env_profile), "-o", str(out)]) == 0
+    assert (
+        main(
+            ["replay", str(tmp_path / "train" / "0"), "--profile", str(env_profile), "-o", str(out)]
+        )
+        == 0
+    )
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(records) == 3 and all(r["timing"] == "envelope" for r in records)
     assert profile.name == "dk-ch101-gpr-sr-narrow"

@@ -28,7 +28,9 @@ def test_one_transducer_board_ranges_and_records_sensor_msgs_range(tmp_path):
     from rosbags.highlevel import AnyReader
 
     path = tmp_path / "one.mcap"
-    records = _run(tmp_path, "ch101-one", "0,0,180", "--record", str(path), "--record-profile", "ros2")
+    records = _run(
+        tmp_path, "ch101-one", "0,0,180", "--record", str(path), "--record-profile", "ros2"
+    )
     ranges = [r["range_mm"] for r in records]
     assert len(records) == 12 and all(v is not None for v in ranges)
     assert abs(np.median(ranges) - 180.0) < 3.0  # the model's echo, the profile's delays
@@ -80,7 +82,9 @@ def test_one_transducer_range_on_zenoh(tmp_path):
     client = zenoh.open(config("client", connect=port))
     got = []
     try:
-        sub = client.declare_subscriber("ranger/range", lambda s: got.append(bytes(s.payload.to_bytes())))
+        sub = client.declare_subscriber(
+            "ranger/range", lambda s: got.append(bytes(s.payload.to_bytes()))
+        )
         time.sleep(0.3)
         records = _run(
             tmp_path, "ch101-one", "0,0,200", "--zenoh", "ranger", "--zenoh-encoding", "cdr",

@@ -42,7 +42,9 @@ def load_frames(folder):
         truth = truth_mm(seq)
         if truth is None:
             continue
-        out.extend((truth, rec.frames) for rec in iter_stof_recordings(seq, True) if rec.frames is not None)
+        out.extend(
+            (truth, rec.frames) for rec in iter_stof_recordings(seq, True) if rec.frames is not None
+        )
     return out
 
 
@@ -138,11 +140,15 @@ def lodo(table, f, timing, margin, mmps):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("folder")
     ap.add_argument("--profile", default="dk-ch101-gpr-sr-narrow")
     ap.add_argument("--margin", type=float, default=0.0, help="iq_wrap_margin")
-    ap.add_argument("--sweep", action="store_true", help="envelope timing per MEMG window and ToA estimator")
+    ap.add_argument(
+        "--sweep", action="store_true", help="envelope timing per MEMG window and ToA estimator"
+    )
     args = ap.parse_args(argv)
     profile = recording_profile(args.folder, "stof-chirp", args.profile, None, param="")
     f = profile.acquisition.carrier_hz / profile.acquisition.sample_rate_hz
@@ -151,7 +157,9 @@ def main(argv=None) -> int:
     if args.sweep:
         for before, after in SWEEP_WINDOWS:
             for toa in SWEEP_TOA:
-                memg = dataclasses.replace(profile.memg, window_before=before, window_after=after, toa=toa)
+                memg = dataclasses.replace(
+                    profile.memg, window_before=before, window_after=after, toa=toa
+                )
                 table = frames_table(profile.replace(memg=memg), frames)
                 m = lodo(table, f, "envelope", 0.5, mmps)
                 print(json.dumps({"window": [before, after], "toa": toa, **m}), flush=True)

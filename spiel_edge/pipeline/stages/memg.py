@@ -85,7 +85,9 @@ def _fit_windowed(y, peaks, counts, mu_window, max_iter, window, params) -> None
             lo = max(0, int(peaks[c, first]) - before)
             hi = min(n_t, int(peaks[c, last]) + after + 1)
             n_par = 4 * n_comp
-            work = np.empty(2 * n_comp + 4 * n_par + 2 * n_par * n_par + (3 * n_comp + 1) * (hi - lo))
+            work = np.empty(
+                2 * n_comp + 4 * n_par + 2 * n_par * n_par + (3 * n_comp + 1) * (hi - lo)
+            )
             _fit_cluster(
                 y[c], lo, hi, peaks[c, first : last + 1], n_comp, mu_window, max_iter, p, work
             )
