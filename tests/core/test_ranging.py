@@ -269,3 +269,16 @@ def test_ros2_range_message_carries_a_ranging_record():
     assert math.isinf(_decode_range(far["range"])[0])
     none = dict(messages.of_record({"position_mm": None, "targets": []}))
     assert math.isinf(_decode_range(none["range"])[0])
+
+
+def test_error_model_per_echo_grows_as_the_echo_weakens():
+    model = (0.05, 60.0, 0.3, 2.0)
+    assert toa_sigma(model, 600.0, 0.0, 1.0) == pytest.approx(math.hypot(0.05, 0.1))
+    assert toa_sigma(model, 600.0, 100.0, 1.0) == pytest.approx(math.sqrt(0.05**2 + 0.01 + 0.09))
+    assert toa_sigma(model, 600.0, 0.0, 0.5) == pytest.approx(math.sqrt(0.05**2 + 0.01 + 1.0))
+    profile = load_profile("ch101-one")
+    ranging = dataclasses.replace(profile.ranging, envelope_sigma=(0.05, 60.0, 0.0, 0.0))
+    pipe = build_pipeline(profile.replace(ranging=ranging))
+    strong = pipe.process(echo_frame(64, 30.0, alpha=3000.0)[None, :]).record()
+    weak = pipe.process(echo_frame(64, 30.0, alpha=300.0)[None, :]).record()
+    assert weak["range_var_mm2"] > 4 * strong["range_var_mm2"]

@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.pipeline.ranging import echo_phase, iq_refine
+from spiel_edge.pipeline.ranging import CONFIDENCE_COLUMN, echo_phase, iq_refine, toa_sigma
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.profile.recording_profile import recording_profile
 from spiel_edge.recordings.stof_chirp import iter_stof_recordings, sequence_folders, truth_mm
@@ -49,7 +49,8 @@ def load_frames(folder):
 
 
 def frames_table(profile, frames):
-    """Rows (truth mm, time of flight in samples, envelope ToA, phase at it, nan)."""
+    """Rows (truth mm, time of flight in samples, envelope ToA, phase at it, the echo's
+    amplitude alpha, its echo confidence)."""
     env = profile.replace(ranging=dataclasses.replace(profile.ranging, timing="envelope"))
     pipe = build_pipeline(env)
     fs, c = profile.acquisition.sample_rate_hz, profile.geometry.speed_of_sound_m_s
@@ -59,11 +60,12 @@ def frames_table(profile, frames):
         res = pipe.process(frame)
         k = res.matched[0]
         if k is None:
-            rows.append((truth, tof, np.nan, np.nan))
+            rows.append((truth, tof, np.nan, np.nan, np.nan, np.nan))
             continue
         t = float(res.features[0, k, TOA_COLUMN])
         phase = echo_phase(t, frame[0, 1::2], frame[0, 0::2])
-        rows.append((truth, tof, t, np.nan if phase is None else phase))
+        alpha, confidence = res.features[0, k, 0], res.features[0, k, CONFIDENCE_COLUMN]
+        rows.append((truth, tof, t, np.nan if phase is None else phase, alpha, confidence))
     return np.array(rows, dtype=np.float64)
 
 
@@ -84,7 +86,7 @@ def apply(table, f, constants, timing, margin, mmps):
     """Range errors (mm) and the timing each row used."""
     delay, slope, offset, shift = constants
     errors, kinds = [], []
-    for truth, _tof, t, phase in table:
+    for truth, _tof, t, phase, _alpha, _confidence in table:
         if not math.isfinite(t):
             errors.append(np.nan)
             kinds.append("none")
@@ -118,25 +120,68 @@ def metrics(table, errors, kinds, sigma_mm):
     }
 
 
-def lodo(table, f, timing, margin, mmps):
-    """Leave one distance out; the std of each fold's intervals from an inner
-    leave-one-distance-out on its training distances."""
+# the error model's grid: sqrt(a^2 + (b / alpha)^2 + (d (1 - confidence))^2) samples
+GRID_A = np.linspace(0.01, 0.3, 59)
+GRID_B = np.linspace(0.0, 200.0, 41)
+GRID_D = np.linspace(0.0, 4.0, 21)
+
+
+def fit_error_model(errors_samples, alpha, confidence, per_target: bool) -> tuple:
+    """[a, b, 0, d] of the profile's error model by maximum (Gaussian) likelihood of
+    held-out errors (samples); per_target False: [a, 0, 0, 0], a their rms."""
+    ok = np.isfinite(errors_samples)
+    e2, alpha, miss = errors_samples[ok] ** 2, alpha[ok], np.clip(1.0 - confidence[ok], 0, 1)
+    if not per_target:
+        return (float(np.sqrt(e2.mean())), 0.0, 0.0, 0.0)
+    best, best_ll = None, -np.inf
+    inv_alpha2, miss2 = 1.0 / alpha**2, miss**2
+    for a in GRID_A:
+        for b in GRID_B:
+            base = a * a + b * b * inv_alpha2
+            var = base[None, :] + (GRID_D**2)[:, None] * miss2[None, :]
+            ll = -(0.5 * np.log(var) + 0.5 * e2[None, :] / var).sum(axis=1)
+            j = int(np.argmax(ll))
+            if ll[j] > best_ll:
+                best, best_ll = (float(a), float(b), 0.0, float(GRID_D[j])), ll[j]
+    return best
+
+
+def held_out_errors(table, f, timing, margin, mmps, slope_of):
+    """Each distance's errors (samples) with constants fitted on the others."""
+    out = np.full(len(table), np.nan)
+    for d in np.unique(table[:, 0]):
+        test = table[:, 0] == d
+        constants = fit(table[~test], f)
+        e, _ = apply(table[test], f, constants, timing, margin, mmps)
+        out[test] = e * 2 / mmps * slope_of(constants)
+    return out
+
+
+def lodo(table, f, timing, margin, mmps, per_target=False):
+    """Leave one distance out; each fold's interval std from the error model fitted on an
+    inner leave-one-distance-out over its training distances alone."""
     rows, errs, kinds, sigmas = [], [], [], []
     for d in np.unique(table[:, 0]):
         train, test = table[table[:, 0] != d], table[table[:, 0] == d]
-        inner = []
-        for d2 in np.unique(train[:, 0]):
-            tr2, te2 = train[train[:, 0] != d2], train[train[:, 0] == d2]
-            inner.append(apply(te2, f, fit(tr2, f), timing, margin, mmps)[0])
-        inner = np.concatenate(inner)
-        sigma = float(np.sqrt(np.nanmean(inner**2)))
-        e, k = apply(test, f, fit(train, f), timing, margin, mmps)
+        inner = held_out_errors(train, f, timing, margin, mmps, lambda c: c[1])
+        model = fit_error_model(inner, train[:, 4], train[:, 5], per_target)
+        constants = fit(train, f)
+        e, k = apply(test, f, constants, timing, margin, mmps)
+        to_mm = mmps / constants[1] / 2
+        sig = [toa_sigma(model, a, 0.0, c) * to_mm for a, c in zip(test[:, 4], test[:, 5])]
         rows.append(test)
         errs.append(e)
         kinds.append(k)
-        sigmas.append(np.full(len(e), sigma))
+        sigmas.append(np.array(sig))
     table = np.vstack(rows)
-    return metrics(table, np.concatenate(errs), np.concatenate(kinds), np.concatenate(sigmas))
+    errors, sigma = np.concatenate(errs), np.concatenate(sigmas)
+    out = metrics(table, errors, kinds=np.concatenate(kinds), sigma_mm=sigma)
+    per = [
+        np.mean(np.abs(errors[table[:, 0] == d]) <= Z95 * sigma[table[:, 0] == d])
+        for d in np.unique(table[:, 0])
+    ]
+    out["coverage95_worst_distance"] = round(float(min(per)), 4)
+    return out
 
 
 def main(argv=None) -> int:
@@ -166,23 +211,21 @@ def main(argv=None) -> int:
         return 0
     table = frames_table(profile, frames)
     out = {t: lodo(table, f, t, args.margin, mmps) for t in ("envelope", "iq")}
+    out["envelope, per-target error model"] = lodo(table, f, "envelope", 0.5, mmps, True)
     delay, slope, offset, shift = fit(table, f)
-    sig = {}
-    for timing in ("envelope", "iq"):
-        e, k = apply(table, f, (delay, slope, offset, shift), timing, args.margin, mmps)
-        inner = []
-        for d in np.unique(table[:, 0]):
-            tr, te = table[table[:, 0] != d], table[table[:, 0] == d]
-            inner.append(apply(te, f, fit(tr, f), timing, args.margin, mmps)[0])
-        rms_mm = float(np.sqrt(np.nanmean(np.concatenate(inner) ** 2)))
-        sig[timing] = round(rms_mm * 2 / (mmps / slope), 4)  # samples
+    models = {}
+    for timing, margin in (("envelope", 0.5), ("iq", args.margin)):
+        held = held_out_errors(table, f, timing, margin, mmps, lambda c: c[1])
+        per_target = timing == "envelope"
+        model = fit_error_model(held, table[:, 4], table[:, 5], per_target)
+        models[timing] = [round(v, 4) for v in model]
     out["profile_constants"] = {
         "geometry.delay_samples": round(delay, 4),
         "ranging.range_scale": round(1.0 / slope, 6),
         "ranging.iq_phase_offset_rad": round(offset, 4),
         "ranging.iq_drift_samples": [round(-shift, 4), 0.0],
-        "ranging.envelope_sigma[0]": sig["envelope"],
-        "ranging.iq_sigma[0]": sig["iq"],
+        "ranging.envelope_sigma": models["envelope"],
+        "ranging.iq_sigma": models["iq"],
     }
     print(json.dumps(out, indent=2))
     return 0
