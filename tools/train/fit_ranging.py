@@ -1,7 +1,7 @@
 """Fit the DK-CH101 ranging constants on the developers' part of SToF-Chirp and validate them
 leaving whole distances out.
 
-    python -m tools.train.fit_ranging DEV_FOLDER/train [--profile dk-ch101-gpr-sr-narrow]
+    python -m tools.train.fit_ranging DEV_FOLDER/train [--profile PROFILE]
     python -m tools.train.fit_ranging DEV_FOLDER/train --sweep   # MEMG window x ToA estimator
 
 DEV_FOLDER: the output of /work/shared/datasets/stof-chirp101/extract_dev.py (train/<d>/,
@@ -28,7 +28,14 @@ from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.ranging import CONFIDENCE_COLUMN, echo_phase, iq_refine, toa_sigma
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.profile.recording_profile import recording_profile
-from spiel_edge.recordings.stof_chirp import iter_stof_recordings, sequence_folders, truth_mm
+from spiel_edge.recordings.stof_chirp import (
+    find_specs,
+    iter_stof_recordings,
+    profile_for_specs,
+    read_specs,
+    sequence_folders,
+    truth_mm,
+)
 
 Z95 = 1.959964
 SWEEP_WINDOWS = ((5, 6), (3, 4), (4, 8), (6, 10))
@@ -168,7 +175,9 @@ def lodo(table, f, timing, margin, mmps, per_target=False):
         constants = fit(train, f)
         e, k = apply(test, f, constants, timing, margin, mmps)
         to_mm = mmps / constants[1] / 2
-        sig = [toa_sigma(model, a, 0.0, c) * to_mm for a, c in zip(test[:, 4], test[:, 5])]
+        sig = [
+            toa_sigma(model, a, 0.0, c) * to_mm for a, c in zip(test[:, 4], test[:, 5], strict=True)
+        ]
         rows.append(test)
         errs.append(e)
         kinds.append(k)
@@ -189,13 +198,16 @@ def main(argv=None) -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("folder")
-    ap.add_argument("--profile", default="dk-ch101-gpr-sr-narrow")
+    ap.add_argument("--profile", default=None, help="default: the one sensor_specs.yaml names")
     ap.add_argument("--margin", type=float, default=0.0, help="iq_wrap_margin")
     ap.add_argument(
         "--sweep", action="store_true", help="envelope timing per MEMG window and ToA estimator"
     )
     args = ap.parse_args(argv)
-    profile = recording_profile(args.folder, "stof-chirp", args.profile, None, param="")
+    if args.profile is None:  # the board of the specs, at their temperature
+        profile = profile_for_specs(read_specs(find_specs(args.folder)))
+    else:
+        profile = recording_profile(args.folder, "stof-chirp", args.profile, None, param="")
     f = profile.acquisition.carrier_hz / profile.acquisition.sample_rate_hz
     mmps = profile.mm_per_sample
     frames = load_frames(args.folder)
