@@ -44,6 +44,7 @@ class RangeResult(Result):
     bearing_var_deg2: float | None = None
     timing: str | None = None  # "envelope" or "iq": what timed the echo(es)
     n_listening: int = 1
+    envelope_toa: list | None = None  # per chosen echo, the envelope ToA (samples; not recorded)
 
     def record(self) -> dict:
         out = super().record()
@@ -140,8 +141,8 @@ class RangePipeline:
         elif background is None:
             background = self.static_model
         bg = None if background is None else self.envelope(background)
-        feats, counts, (t1, t2, t3, t4) = front_stages(p, self.envelope(raw), bg, clock)
-        result = self._range(raw, feats, counts)
+        feats, counts, (t1, t2, t3, t4), y = front_stages(p, self.envelope(raw), bg, clock)
+        result = self._range(raw, y, feats, counts)
         t5 = clock()
         if timed:
             stamps = (t0, t1, t2, t3, t4, t5)
@@ -149,7 +150,7 @@ class RangePipeline:
             result.timings_us["end_to_end"] = (t5 - t0) / 1e3
         return result
 
-    def _range(self, raw, feats, counts) -> RangeResult:
+    def _range(self, raw, y, feats, counts) -> RangeResult:
         toa = feats[:, :, TOA_COLUMN]
         echoes = [[float(v) for v in toa[c, : counts[c]]] for c in range(len(counts))]
         n_ch = len(counts)
@@ -159,7 +160,8 @@ class RangePipeline:
         if picks is None:
             reason = REASON_NO_PAIR if len(self.listening) == 2 and (counts > 0).all() else None
             return RangeResult(None, reason or self._why_empty(raw, counts), None, **base, **empty)
-        timed = [self._time(raw, feats, c, k) for c, k in picks]
+        coarse = [self.envelope_toa(y, feats, c, k) for c, k in picks]
+        timed = [self._time(raw, t, feats, c, k) for t, (c, k) in zip(coarse, picks, strict=True)]
         toas = np.array([t for t, _, _ in timed])
         sigmas = np.array([s for _, s, _ in timed])
         timing = "iq" if all(kind == "iq" for _, _, kind in timed) else "envelope"
@@ -170,7 +172,12 @@ class RangePipeline:
         matched: list[int | None] = [None] * n_ch
         for c, k in picks:
             matched[c] = int(k)
-        extra = {"matched": matched, "timing": timing, "n_listening": len(self.listening)}
+        extra = {
+            "matched": matched,
+            "timing": timing,
+            "n_listening": len(self.listening),
+            "envelope_toa": coarse,
+        }
         if len(picks) == 1:
             r, r_sigma = paths[0] / 2.0, path_sigmas[0] / 2.0
             return RangeResult(
@@ -232,10 +239,21 @@ class RangePipeline:
                 best = k
         return best
 
-    def _time(self, raw, feats, c, k) -> tuple[float, float, str]:
-        """The echo's ToA (samples), its expected error (samples) and which timing gave it."""
+    def envelope_toa(self, y, feats, c, k) -> float:
+        """The envelope's ToA of echo k of channel c: the MEMG estimator's, averaged with the
+        data's peak by ``[ranging] peak_weight``."""
         r = self.profile.ranging
-        t_env = float(feats[c, k, TOA_COLUMN])
+        t = float(feats[c, k, TOA_COLUMN])
+        if r.peak_weight > 0:
+            m = self.profile.memg
+            t_peak = data_peak(y[c], t, m.window_before + m.window_after)
+            t = (1.0 - r.peak_weight) * t + r.peak_weight * t_peak
+        return t
+
+    def _time(self, raw, t_env, feats, c, k) -> tuple[float, float, str]:
+        """The echo's ToA (samples) from its envelope ToA, its expected error (samples) and
+        which timing gave it."""
+        r = self.profile.ranging
         alpha = float(feats[c, k, 0])
         confidence = float(feats[c, k, CONFIDENCE_COLUMN])
         scale = self.profile.mm_per_sample * r.range_scale
@@ -272,6 +290,21 @@ def toa_sigma(model, alpha: float, range_mm: float, confidence: float) -> float:
     confidence = confidence if math.isfinite(confidence) else 0.0
     miss = min(max(1.0 - confidence, 0.0), 1.0)
     return math.sqrt(a * a + (b / alpha) ** 2 + (c * range_mm / 100.0) ** 2 + (d * miss) ** 2)
+
+
+def data_peak(y: np.ndarray, t: float, span: int) -> float:
+    """The sub-sample maximum of the envelope y (parabola through the largest sample and its
+    neighbours) within ``span`` samples after floor(t): the echo's peak, found from its
+    fitted ToA (which may sit on its rising edge)."""
+    lo = max(int(math.floor(t)), 0)
+    hi = min(lo + span + 1, len(y))
+    if hi - lo < 1:
+        return t
+    k = lo + int(np.argmax(y[lo:hi]))
+    if k <= 0 or k >= len(y) - 1:
+        return float(k)
+    den = y[k - 1] - 2.0 * y[k] + y[k + 1]
+    return float(k) if den >= 0.0 else k + 0.5 * (y[k - 1] - y[k + 1]) / den
 
 
 def echo_phase(t: float, i: np.ndarray, q: np.ndarray) -> float | None:

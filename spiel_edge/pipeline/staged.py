@@ -116,7 +116,8 @@ class Result:
 
 def front_stages(p: Profile, frames, background, clock) -> tuple:
     """preprocess -> detect -> memg (-> split) -> features of one acquisition (envelope or RF
-    frames, the background already chosen): (features, counts, the clock after each stage).
+    frames, the background already chosen): (features, counts, the clock after each stage,
+    the cleaned envelope).
     Shared by the 3-D pipeline and the ranging one (pipeline/ranging.py)."""
     acq = p.acquisition
     y = preprocess(
@@ -160,7 +161,7 @@ def front_stages(p: Profile, frames, background, clock) -> tuple:
         )
     t3 = clock()
     feats = echo_features(y, params, peaks, m.toa)
-    return feats, counts, (t1, t2, t3, clock())
+    return feats, counts, (t1, t2, t3, clock()), y
 
 
 class Pipeline:
@@ -229,7 +230,7 @@ class Pipeline:
             background = None
         elif background is None:
             background = self.static_model
-        feats, counts, (t1, t2, t3, t4) = front_stages(p, frames, background, clock)
+        feats, counts, (t1, t2, t3, t4), _ = front_stages(p, frames, background, clock)
         hypotheses = self.scene(feats, counts)
         t5 = clock()
         self._clock, self._echo_timing_ns = clock, 0

@@ -19,6 +19,9 @@ class RangingSpec:
 
     timing: str = "envelope"  # "iq": the carrier phase refines the envelope's ToA (signal = "iq")
     echo: str = "first"  # which echo of a channel is the target: the first or the strongest
+    # the envelope ToA is (1 - w) x the MEMG ToA + w x the data's interpolated peak: two
+    # estimators whose biases differ from distance to distance average out (w fitted)
+    peak_weight: float = 0.0
     # I/Q: the phase time (offset - phase) / (2 pi f) is the ToA modulo one wrap (1/f
     # samples); the wrap nearest t_env - (a + b t_env) is taken, drift = [a, b] (all fitted)
     iq_phase_offset_rad: float = 0.0

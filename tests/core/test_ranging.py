@@ -282,3 +282,16 @@ def test_error_model_per_echo_grows_as_the_echo_weakens():
     strong = pipe.process(echo_frame(64, 30.0, alpha=3000.0)[None, :]).record()
     weak = pipe.process(echo_frame(64, 30.0, alpha=300.0)[None, :]).record()
     assert weak["range_var_mm2"] > 4 * strong["range_var_mm2"]
+
+
+def test_data_peak_finds_the_echo_maximum_after_its_leading_edge():
+    from spiel_edge.pipeline.ranging import data_peak
+    from spiel_edge.pipeline.stages.features import _interpolated_peak
+
+    y = echo_frame(128, 60.3, sigma=2.0, eta=1.5)
+    mode = emg_mode(60.3, 2.0, 1.5)
+    edge = half_max_time(60.3, 2.0, 1.5)
+    got = data_peak(y, edge, 7)
+    assert got == pytest.approx(mode, abs=0.1)  # a parabola through sampled points
+    assert got == _interpolated_peak(y, int(np.argmax(y)))  # the features' "peak" ToA
+    assert 126.0 <= data_peak(y, 126.5, 7) <= 127.0  # at the frame's end: inside it

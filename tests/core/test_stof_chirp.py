@@ -41,7 +41,7 @@ temperature: 21"""
 
 def write_dataset(root, distances_mm=(150.0, 190.0), frames=5, seed=0):
     """root/sensor_specs.yaml, root/train/<d>/NN_{envelope,iq}_frame.txt and the truth table:
-    echoes whose mode is where the built-in profile's delay puts each distance."""
+    echoes whose envelope ToA and phase are where the built-in profile puts each distance."""
     rng = np.random.default_rng(seed)
     (root / "train").mkdir(parents=True)
     (root / "sensor_specs.yaml").write_text(SPECS)
@@ -55,14 +55,13 @@ def write_dataset(root, distances_mm=(150.0, 190.0), frames=5, seed=0):
         seq = root / "train" / str(d)
         seq.mkdir()
         for k in range(frames):
-            mode = 2 * mm / (mmps * profile.ranging.range_scale) + profile.geometry.delays()[0]
-            mode += SHIFT - HALF  # the profile times by the half maximum, before the mode
-            pairs, got = iq_pairs(
-                128,
-                mode - SHIFT + 0.02 * rng.standard_normal(),
-                f,
-                profile.ranging.iq_phase_offset_rad,
-            )
+            # the profile's envelope ToA mixes the half maximum and the peak (the mode)
+            w = profile.ranging.peak_weight
+            toa = 2 * mm / (mmps * profile.ranging.range_scale) + profile.geometry.delays()[0]
+            mu = toa - ((1 - w) * HALF + w * SHIFT) + 0.02 * rng.standard_normal()
+            # the phase of a delay whose phase time is the ToA (as the fitted offset makes it)
+            phase0 = profile.ranging.iq_phase_offset_rad + 2 * math.pi * f * (mu + SHIFT - toa)
+            pairs, _ = iq_pairs(128, mu, f, phase0)
             q, i = pairs[0::2], pairs[1::2]
             iq = np.vstack([np.column_stack([i, q]), [[0.0, 0.0]]])  # one row more
             np.savetxt(seq / f"{k:02d}_iq_frame.txt", iq)
@@ -104,7 +103,7 @@ def test_replay_writes_one_record_with_a_range_per_frame(tmp_path):
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert [r["source"] for r in records] == [f"{k:02d}" for k in range(7)]
     good = [r for r in records if r["source"] != "03"]
-    assert all(r["range_mm"] is not None and r["timing"] == "envelope" for r in good)
+    assert all(r["range_mm"] is not None and r["timing"] == "iq" for r in good)
     assert all(abs(r["range_mm"] - 190.0) < 0.5 for r in good)
     assert "03" in records[3]["error"]
     # the format is recognised without --format
@@ -122,7 +121,7 @@ def test_evaluate_reports_range_metrics(tmp_path, capsys):
     assert summary["frames"] == 12 and summary["with_range"] == 1.0
     assert summary["mae_mm"] < 0.1 and summary["over_1mm"] == 0.0
     assert set(summary["by_distance"]) == {"150", "190"}
-    assert summary["timing"] == {"envelope": 12}  # the profile's timing (docs: I/Q not yet better)
+    assert summary["timing"] == {"iq": 12}
     assert 0.0 <= summary["coverage95"] <= 1.0
     assert not math.isnan(summary["rms_std_mm"])
 

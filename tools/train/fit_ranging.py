@@ -26,7 +26,6 @@ import numpy as np
 
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.ranging import CONFIDENCE_COLUMN, echo_phase, iq_refine, toa_sigma
-from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.profile.recording_profile import recording_profile
 from spiel_edge.recordings.stof_chirp import (
     find_specs,
@@ -40,6 +39,7 @@ from spiel_edge.recordings.stof_chirp import (
 Z95 = 1.959964
 SWEEP_WINDOWS = ((5, 6), (3, 4), (4, 8), (6, 10))
 SWEEP_TOA = ("mode", "mu", "half", "peak")
+SWEEP_PEAK_WEIGHTS = (0.0, 0.25, 0.5, 0.75)  # with the profile's window and estimator
 
 
 def load_frames(folder):
@@ -69,7 +69,7 @@ def frames_table(profile, frames):
         if k is None:
             rows.append((truth, tof, np.nan, np.nan, np.nan, np.nan))
             continue
-        t = float(res.features[0, k, TOA_COLUMN])
+        t = float(res.envelope_toa[0])
         phase = echo_phase(t, frame[0, 1::2], frame[0, 0::2])
         alpha, confidence = res.features[0, k, 0], res.features[0, k, CONFIDENCE_COLUMN]
         rows.append((truth, tof, t, np.nan if phase is None else phase, alpha, confidence))
@@ -220,16 +220,22 @@ def main(argv=None) -> int:
                 table = frames_table(profile.replace(memg=memg), frames)
                 m = lodo(table, f, "envelope", 0.5, mmps)
                 print(json.dumps({"window": [before, after], "toa": toa, **m}), flush=True)
+        for weight in SWEEP_PEAK_WEIGHTS:
+            ranging = dataclasses.replace(profile.ranging, peak_weight=weight)
+            table = frames_table(profile.replace(ranging=ranging), frames)
+            for timing in ("envelope", "iq"):
+                m = lodo(table, f, timing, args.margin if timing == "iq" else 0.5, mmps)
+                print(json.dumps({"peak_weight": weight, "timing": timing, **m}), flush=True)
         return 0
     table = frames_table(profile, frames)
     out = {t: lodo(table, f, t, args.margin, mmps) for t in ("envelope", "iq")}
     out["envelope, per-target error model"] = lodo(table, f, "envelope", 0.5, mmps, True)
+    out["iq, per-target error model"] = lodo(table, f, "iq", args.margin, mmps, True)
     delay, slope, offset, shift = fit(table, f)
     models = {}
     for timing, margin in (("envelope", 0.5), ("iq", args.margin)):
         held = held_out_errors(table, f, timing, margin, mmps, lambda c: c[1])
-        per_target = timing == "envelope"
-        model = fit_error_model(held, table[:, 4], table[:, 5], per_target)
+        model = fit_error_model(held, table[:, 4], table[:, 5], True)
         models[timing] = [round(v, 4) for v in model]
     out["profile_constants"] = {
         "geometry.delay_samples": round(delay, 4),
