@@ -19,6 +19,7 @@ from spiel_edge.pipeline.stages.associate import GeometricAssociator
 from spiel_edge.pipeline.stages.detect import detect
 from spiel_edge.pipeline.stages.echo_quality import echo_quality
 from spiel_edge.pipeline.stages.echo_timing import EchoTiming, timing_delays
+from spiel_edge.pipeline.stages.error_model import apply_error_model
 from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.stages.locate import locate
 from spiel_edge.pipeline.stages.memg import WINDOW_AFTER, WINDOW_BEFORE, fit_memg
@@ -235,6 +236,9 @@ class Pipeline:
         t5 = clock()
         self._clock, self._echo_timing_ns = clock, 0
         result = self.locate_hypotheses(feats, counts, hypotheses, np.asarray(frames), background)
+        if p.scene.error_model:
+            captured = background is not None and background is not self.static_model
+            apply_error_model(result, p.scene.error_model, self.facing, captured)
         t6 = clock()
         if timed:
             stamps = (t0, t1, t2, t3, t4, t5, t5 + self._echo_timing_ns, t6)

@@ -341,8 +341,14 @@ def _validate_scene(sc: SceneSpec, origin: str) -> None:
             f"{origin}: scene.selection must be one of {SCENE_SELECTIONS}, got {sc.selection!r}"
         )
     for f in dataclasses.fields(SceneSpec):
-        if f.name not in ("static_model", "selection", "keep_best"):
+        if f.name not in ("static_model", "selection", "keep_best", "error_model"):
             check_range(f"scene.{f.name}", getattr(sc, f.name), origin)
+    m = sc.error_model
+    if m and not (len(m) == 8 and all(abs(v) <= 100 for v in m) and m[6] > 0 and m[7] > 0):
+        raise ConfigError(
+            f"{origin}: scene.error_model must be empty or 8 numbers in [-100, 100] "
+            f"(the last two > 0), got {list(m)}"
+        )
 
 
 def _validate_echo_timing(e: EchoTimingSpec, n_channels: int, need, origin: str) -> None:

@@ -126,6 +126,9 @@ class SceneSpec:
     covariance_scale_no_background: float = 1.0  # covariance_scale when no background is given
     static_model: str = ""  # file in spiel_edge/models (or a path): used without a background
     static_mad_factor: float = 0.0  # stand-in background = median + this x MAD of the model
+    # per-target error model of the covariance (pipeline/stages/error_model.py): empty = off,
+    # else [w0, w_range, w_angle, w_log_alpha, w_residual, w_miss, factor_bg, factor_none]
+    error_model: tuple = ()
 
 
 MAX_TARGETS_LIMIT = 16  # also in profile/ranges.py (scene.max_targets)
