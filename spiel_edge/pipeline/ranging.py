@@ -82,6 +82,7 @@ class RangePipeline:
         self.saturation = saturation
         self.static_model = load_static_model(profile)
         self.iq = profile.acquisition.signal == "iq"
+        self.takes_iq = self.iq  # a live I/Q stream hands this pipeline its (q, i) pairs
         self.delays = np.asarray(g.delays(), dtype=np.float64)
         self.channels_mm = np.asarray(g.channels_mm, dtype=np.float64)
         self.emitter_mm = np.asarray(g.emitter_mm, dtype=np.float64)
@@ -127,12 +128,8 @@ class RangePipeline:
     ) -> RangeResult:
         p = self.profile
         self.check_shape(frames)
-        if background is not None:
+        if background is not None:  # amplitudes or pairs, either (its envelope is used)
             self.check_shape(background, "background")
-            if np.shape(background) != np.shape(frames):
-                raise InputError(
-                    f"background has shape {np.shape(background)}, frames {np.shape(frames)}"
-                )
         clock = time.perf_counter_ns if timed else _no_clock
         t0 = clock()
         raw = np.asarray(frames, dtype=np.float64)
