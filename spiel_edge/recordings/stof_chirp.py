@@ -159,18 +159,25 @@ def iter_stof_recordings(
 
 
 def sequence_folders(root: str | Path) -> list[Path]:
-    """A sequence folder itself, or the sequence folders under a dataset folder (train/<d>/,
-    ...), in name order."""
+    """A sequence folder itself, or the sequence folders one or two levels under a dataset
+    folder (``train/<d>/``, ``<d>/``; ``truth/`` left out), in name order (numbers as numbers).
+    No deeper: a wrong path is refused quickly, not walked."""
     root = Path(root)
     if is_sequence(root):
         return [root]
-    found = sorted(
-        {p.parent for p in root.rglob("*_frame.txt") if _FRAME_RE.match(p.name)},
-        key=lambda p: [int(s) if s.isdigit() else s for s in p.relative_to(root).parts],
-    )
-    found = [p for p in found if p.parent.name != "truth" and p.name != "truth"]
+    if not root.is_dir():
+        raise InputError(f"{root}: not a folder")
+    found = []
+    for child in sorted(p for p in root.iterdir() if p.is_dir() and p.name != "truth"):
+        if is_sequence(child):
+            found.append(child)
+            continue
+        found.extend(
+            p for p in child.iterdir() if p.is_dir() and p.name != "truth" and is_sequence(p)
+        )
+    found.sort(key=lambda p: [int(s) if s.isdigit() else s for s in p.relative_to(root).parts])
     if not found:
-        raise InputError(f"{root}: no SToF-Chirp sequence folders")
+        raise InputError(f"{root}: no SToF-Chirp sequence folders (NN_envelope_frame.txt files)")
     return found
 
 

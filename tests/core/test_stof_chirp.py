@@ -151,3 +151,23 @@ def test_envelope_profile_reads_the_envelope_files(tmp_path):
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(records) == 3 and all(r["timing"] == "envelope" for r in records)
     assert profile.name == "dk-ch101-gpr-sr-narrow"
+
+
+def test_sequence_folders_of_a_dataset(tmp_path):
+    from spiel_edge.errors import InputError
+    from spiel_edge.recordings.stof_chirp import sequence_folders
+
+    write_dataset(
+        tmp_path,
+        distances_mm=(150.0, 160.0, 170.0, 180.0, 190.0, 200.0, 210.0, 220.0, 230.0, 240.0, 250.0),
+        frames=1,
+    )
+    np.savetxt(tmp_path / "truth" / "00_envelope_frame.txt", np.zeros(4))  # truth/ is left out
+    found = sequence_folders(tmp_path)
+    assert [p.name for p in found] == [str(d) for d in range(11)]  # 10 after 9
+    assert sequence_folders(tmp_path / "train" / "3") == [tmp_path / "train" / "3"]
+    deep = tmp_path / "a" / "b" / "c"
+    deep.mkdir(parents=True)
+    np.savetxt(deep / "00_envelope_frame.txt", np.zeros(4))
+    with pytest.raises(InputError, match="no SToF-Chirp sequence"):
+        sequence_folders(tmp_path / "a")  # three levels down: not walked
