@@ -166,7 +166,7 @@ def test_sequence_folders_of_a_dataset(tmp_path):
     found = sequence_folders(tmp_path)
     assert [p.name for p in found] == [str(d) for d in range(11)]  # 10 after 9
     assert sequence_folders(tmp_path / "train" / "3") == [tmp_path / "train" / "3"]
-    deep = tmp_path / "a" / "b" / "c"
+    deep = tmp_path / "a" / "b" / "c" / "d"
     deep.mkdir(parents=True)
     np.savetxt(deep / "00_envelope_frame.txt", np.zeros(4))
     with pytest.raises(InputError, match="no SToF-Chirp sequence"):
