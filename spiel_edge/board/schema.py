@@ -183,7 +183,7 @@ def _cross_rules(a: dict, origin: str) -> None:
 
 
 def _geometry(table: dict, acq: dict, origin: str) -> dict:
-    """Validated by the profile's own rules (shapes, >= 3 listening channels, speed range)."""
+    """Validated by the profile's own rules (shapes, >= 1 listening channel, speed range)."""
     profile = profile_from_dict(
         {
             "name": "board",

@@ -67,6 +67,14 @@ from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
     show_default=True,
     help="Headline metrics over heights <= this.",
 )
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["spiel-csv", "stof-chirp"]),
+    default=None,
+    help="Recording format (default: stof-chirp for a folder of SToF-Chirp sequences, else "
+    "spiel-csv). stof-chirp: range metrics of a one-transducer board (docs/hardware-ranging.md).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as one JSON object.")
 @click.option(
     "--track",
@@ -87,6 +95,7 @@ def command(
     val_fraction,
     exclude_z,
     max_z,
+    fmt,
     as_json,
     track,
     jobs,
@@ -96,6 +105,8 @@ def command(
     FOLDER is a labelled spiel-csv folder, or a scene file (.npz from tools/train/build_scenes.py:
     several targets, or frames without background) for the per-number-of-targets metrics.
     """
+    if fmt == "stof-chirp" or (fmt is None and _is_stof(folder)):
+        return _evaluate_ranging(folder, profile_name, calibration, as_json)
     pipeline = build_pipeline(
         resolve_profile(profile_name, calibration), association, toa_correction
     )
@@ -138,6 +149,43 @@ def command(
     if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result
         raise InputError(f"{folder}: no usable labelled acquisitions ({len(ev.failed)} failed)")
     return EXIT_PARTIAL if ev.failed else EXIT_OK
+
+
+def _is_stof(folder) -> bool:
+    from spiel_edge.recordings.stof_chirp import sequence_folders
+
+    if not Path(folder).is_dir() or any(Path(folder).glob("*_frames.csv")):
+        return False
+    try:
+        return bool(sequence_folders(folder))
+    except InputError:
+        return False
+
+
+def _evaluate_ranging(folder, profile_name, calibration, as_json) -> int:
+    """Range metrics over the labelled SToF-Chirp sequences in ``folder``."""
+    from spiel_edge.measure.ranging_eval import range_errors, summarize
+    from spiel_edge.profile.recording_profile import recording_profile
+
+    profile = recording_profile(folder, "stof-chirp", profile_name, calibration)
+    summary = {"profile": profile.name, **summarize(range_errors(build_pipeline(profile), folder))}
+    if not summary["frames"]:
+        raise InputError(f"{folder}: no labelled SToF-Chirp frames (truth table beside the specs)")
+    if as_json:
+        click.echo(json.dumps(summary))
+        return EXIT_OK
+    click.echo(f"{'distance':>9} {'frames':>7} {'mean':>8} {'std':>7} {'MAE':>7}")
+    for d, s in summary.get("by_distance", {}).items():
+        click.echo(
+            f"{d:>9} {s['frames']:>7} {s['mean_mm']:>8.3f} {s['std_mm']:>7.3f} {s['mae_mm']:>7.3f}"
+        )
+    click.echo(
+        f"frames {summary['frames']}, with a range {summary['with_range']:.1%}, MAE "
+        f"{fmt(summary.get('mae_mm'), '.3f')} mm, rms of per-distance std "
+        f"{fmt(summary.get('rms_std_mm'), '.3f')} mm, > 1 mm off "
+        f"{fmt(summary.get('over_1mm'), '.2%')}, 95 % coverage {fmt(summary.get('coverage95'), '.1%')}"
+    )
+    return EXIT_OK
 
 
 def fmt(v, spec=".1f"):

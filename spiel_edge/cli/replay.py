@@ -24,7 +24,7 @@ from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.profile.recording_profile import recording_profile
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
@@ -45,7 +45,8 @@ from spiel_edge.runtime.tracking import replay_tracked
     "fmt",
     type=click.Choice(FORMATS),
     default=None,
-    help="Recording format (default: mcap for *.mcap, else spiel-csv).",
+    help="Recording format (default: mcap for *.mcap, stof-chirp for a folder of "
+    "NN_envelope_frame.txt, else spiel-csv).",
 )
 @click.option(
     "--background",
@@ -103,7 +104,7 @@ def command(
         plan.input_file(calibration, "--calibration")
     plan.input_if_file(profile_name, "--profile")
     plan.output(output, "--output")
-    profile = resolve_profile(profile_name, calibration)
+    profile = recording_profile(path, fmt, profile_name, calibration)
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work
     if toa_correction is None:  # as run chose when it recorded the file
         toa_correction = recorded_toa_correction(path, fmt)
@@ -148,7 +149,8 @@ def command(
                     on_workers=finalizers.add,  # a watchdog's exit stops them too
                 )
             else:
-                sources = iter_sources(path, fmt, background, limits)
+                iq = profile.acquisition.signal == "iq"
+                sources = iter_sources(path, fmt, background, limits, iq=iq)
                 items = replay_tracked(pipeline, sources) if track else replay(pipeline, sources)
             with closing(items):
                 for item in items:

@@ -11,7 +11,8 @@ Per record (topics relative to the prefix, ``spiel`` by default):
   position, velocity, upper-triangle position and velocity covariances; acceleration and size
   unknown: NaN covariance, zero vectors);
 * ``range``: sensor_msgs/Range (ULTRASOUND) of the nearest published target with the board's
-  field of view and range limits (+inf: nothing in range, REP 117);
+  field of view and range limits (+inf: nothing in range, REP 117); a one- or two-transducer
+  board's record gives its own ``range_mm`` and ``range_var_mm2`` (pipeline/ranging.py);
 * ``/diagnostics``: diagnostic_msgs/DiagnosticArray, once per second of record time: the
   session's counters and the board's state (``status_provider``), else the record counts;
 * ``/tf_static``: tf2_msgs/TFMessage, the mount and the optical frame (below).
@@ -274,14 +275,17 @@ class Ros2Messages:
         if tracks is not None:
             out.append(("tracks", enc.tracks(tracks, stamp)))
         if self.optical:  # sensor_msgs/Range: one sensor's cone, not a robot's scene
-            out.append(("range", self._range(targets, stamp)))
+            out.append(("range", self._range(targets, stamp, record)))
         diagnostics = self.diagnostics_due(stamp)
         if diagnostics is not None:
             out.append(("/diagnostics", diagnostics))
         return out
 
-    def _range(self, targets: list[dict], stamp) -> bytes:
+    def _range(self, targets: list[dict], stamp, record: dict | None = None) -> bytes:
         limits = self.filter.limits
+        measured = (record or {}).get("range_mm")  # one or two transducers: their own range
+        if measured is not None:
+            return self._measured_range(measured, record.get("range_var_mm2"), stamp)
         nearest, best = None, math.inf
         for t in targets:
             x, y, z = t["position_mm"]
@@ -301,6 +305,15 @@ class Ros2Messages:
                 + 2.0 * (x * y * a[1] + x * z * a[2] + y * z * b[2])
             ) / (best * 1e6)  # fmt: skip
         return self.encoder.range(r / 1e3, variance, limits, stamp)
+
+    def _measured_range(self, range_mm, var_mm2, stamp) -> bytes:
+        """A ranging board's range and variance; +inf outside the limits (REP 117)."""
+        limits = self.filter.limits
+        r = float(range_mm) / 1e3
+        if not limits.min_range_m - RANGE_MARGIN_M <= r <= limits.max_range_m + RANGE_MARGIN_M:
+            return self.encoder.range(math.inf, math.nan, limits, stamp)
+        variance = math.nan if var_mm2 is None else float(var_mm2) / 1e6
+        return self.encoder.range(r, variance, limits, stamp)
 
     def diagnostics_due(self, stamp) -> bytes | None:
         now = stamp if isinstance(stamp, (int, float)) and stamp > 0 else time.monotonic()

@@ -7,6 +7,7 @@ import logging
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline.compiled.fused import FusedPipeline
 from spiel_edge.pipeline.learned.toa_correction import build_echo_timing
+from spiel_edge.pipeline.ranging import RangePipeline
 from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.pipeline.stages.associate import GeometricAssociator
 from spiel_edge.profile.schema import Profile
@@ -38,9 +39,12 @@ def build_pipeline(
     toa_correction: str | None = None,
     *,
     fused: bool = True,
-) -> Pipeline | FusedPipeline:
+) -> Pipeline | FusedPipeline | RangePipeline:
     """``toa_correction`` (auto|onnx|none) overrides the profile's ``echo_timing.toa_correction``;
-    the fused path (same results as the staged one, less overhead) unless fused=False."""
+    the fused path (same results as the staged one, less overhead) unless fused=False.
+    One or two listening transducers: the ranging pipeline (pipeline/ranging.py)."""
+    if int(profile.geometry.listening_mask().sum()) < 3:
+        return RangePipeline(profile)
     staged = Pipeline(
         profile,
         build_associator(profile, association),

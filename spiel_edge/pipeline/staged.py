@@ -19,9 +19,10 @@ from spiel_edge.pipeline.stages.associate import GeometricAssociator
 from spiel_edge.pipeline.stages.detect import detect
 from spiel_edge.pipeline.stages.echo_quality import echo_quality
 from spiel_edge.pipeline.stages.echo_timing import EchoTiming, timing_delays
+from spiel_edge.pipeline.stages.error_model import apply_error_model
 from spiel_edge.pipeline.stages.features import TOA_COLUMN, echo_features
 from spiel_edge.pipeline.stages.locate import locate
-from spiel_edge.pipeline.stages.memg import fit_memg
+from spiel_edge.pipeline.stages.memg import WINDOW_AFTER, WINDOW_BEFORE, fit_memg
 from spiel_edge.pipeline.stages.preprocess import preprocess
 from spiel_edge.pipeline.stages.scene import SceneAssociator, is_double_reflection, shared_echoes
 from spiel_edge.pipeline.stages.scene_geometry import distance3
@@ -114,6 +115,56 @@ class Result:
         }
 
 
+def front_stages(p: Profile, frames, background, clock) -> tuple:
+    """preprocess -> detect -> memg (-> split) -> features of one acquisition (envelope or RF
+    frames, the background already chosen): (features, counts, the clock after each stage,
+    the cleaned envelope).
+    Shared by the 3-D pipeline and the ranging one (pipeline/ranging.py)."""
+    acq = p.acquisition
+    y = preprocess(
+        frames,
+        background,
+        blind_zone=p.preprocess.blind_zone_samples,
+        rf=acq.signal == "rf",
+        carrier_cycles_per_sample=acq.carrier_hz / acq.sample_rate_hz,
+    )
+    t1 = clock()
+    d = p.detect
+    peaks, counts = detect(
+        y,
+        threshold=d.threshold,
+        hysteresis=d.hysteresis,
+        min_amplitude=d.min_amplitude,
+        max_echoes=d.max_echoes,
+        first_sample=p.preprocess.blind_zone_samples,
+    )
+    t2 = clock()
+    m = p.memg
+    params = fit_memg(
+        y,
+        peaks,
+        counts,
+        mu_window=m.mu_window,
+        max_iterations=m.max_iterations,
+        window_before=m.window_before,
+        window_after=m.window_after,
+    )
+    if m.split_merged:
+        peaks, counts, params = split_merged(
+            y,
+            peaks,
+            counts,
+            params,
+            min_sigma=m.split_min_sigma,
+            max_cost_ratio=m.split_max_cost_ratio,
+            mu_window=m.mu_window,
+            max_iterations=m.max_iterations,
+        )
+    t3 = clock()
+    feats = echo_features(y, params, peaks, m.toa)
+    return feats, counts, (t1, t2, t3, clock()), y
+
+
 class Pipeline:
     """preprocess -> detect -> memg -> features -> associate -> locate for one profile."""
 
@@ -176,49 +227,18 @@ class Pipeline:
             self.check_shape(background, "background")
         clock = time.perf_counter_ns if timed else _no_clock
         t0 = clock()
-        acq = p.acquisition
         if not p.preprocess.background_subtraction:
             background = None
         elif background is None:
             background = self.static_model
-        y = preprocess(
-            frames,
-            background,
-            blind_zone=p.preprocess.blind_zone_samples,
-            rf=acq.signal == "rf",
-            carrier_cycles_per_sample=acq.carrier_hz / acq.sample_rate_hz,
-        )
-        t1 = clock()
-        d = p.detect
-        peaks, counts = detect(
-            y,
-            threshold=d.threshold,
-            hysteresis=d.hysteresis,
-            min_amplitude=d.min_amplitude,
-            max_echoes=d.max_echoes,
-            first_sample=p.preprocess.blind_zone_samples,
-        )
-        t2 = clock()
-        m = p.memg
-        params = fit_memg(y, peaks, counts, mu_window=m.mu_window, max_iterations=m.max_iterations)
-        if m.split_merged:
-            peaks, counts, params = split_merged(
-                y,
-                peaks,
-                counts,
-                params,
-                min_sigma=m.split_min_sigma,
-                max_cost_ratio=m.split_max_cost_ratio,
-                mu_window=m.mu_window,
-                max_iterations=m.max_iterations,
-            )
-        t3 = clock()
-        feats = echo_features(y, params, peaks, p.memg.toa)
-        t4 = clock()
+        feats, counts, (t1, t2, t3, t4), _ = front_stages(p, frames, background, clock)
         hypotheses = self.scene(feats, counts)
         t5 = clock()
         self._clock, self._echo_timing_ns = clock, 0
         result = self.locate_hypotheses(feats, counts, hypotheses, np.asarray(frames), background)
+        if p.scene.error_model:
+            captured = background is not None and background is not self.static_model
+            apply_error_model(result, p.scene.error_model, self.facing, captured)
         t6 = clock()
         if timed:
             stamps = (t0, t1, t2, t3, t4, t5, t5 + self._echo_timing_ns, t6)
@@ -351,6 +371,9 @@ class Pipeline:
         the pipeline's geometry and settings. None when a collaborator has no compiled form;
         then the staged path runs. A subclass that changes what a stage computes returns
         None here (or from the collaborator's ``kernel_constants``)."""
+        m = self.profile.memg
+        if (m.window_before, m.window_after) != (WINDOW_BEFORE, WINDOW_AFTER):
+            return None  # the compiled front fits the default window only
         parts = [self.associator, self.echo_timing, self.scene]
         found = [p.kernel_constants() if isinstance(p, CompiledForm) else None for p in parts]
         if any(f is None for f in found):

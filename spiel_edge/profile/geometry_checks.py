@@ -57,8 +57,16 @@ def _check_spread(points: np.ndarray, emitter: np.ndarray, facing: np.ndarray, n
     """At least 3 independent baselines: the receivers and the emitter must span a plane
     (collinear ones leave the target free to turn about their line), and a planar array must
     face out of its plane (else front and back cannot be told apart)."""
+    if len(points) == 2:  # a pair: bearing in the plane of its baseline and the facing
+        base = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
+        cosine = abs(float(base @ facing)) / float(np.linalg.norm(facing))
+        need(
+            cosine <= 1.0 - MIN_FACING_OUT_OF_PLANE,
+            "geometry.facing lies along the two listening transducers' baseline; it must "
+            "point away from it",
+        )
     if len(points) < 3:
-        return  # "at least 3 listening channels" is checked, and named, by the profile
+        return  # one or two transducers: range (and bearing), no 3-D spread needed
     cloud = np.vstack([points, emitter])
     singular = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
     need(

@@ -22,10 +22,12 @@ from spiel_edge.io.limits import load_npz_bounded, loads_toml
 from spiel_edge.profile.frame_section import FrameSpec, validate_frame
 from spiel_edge.profile.geometry_checks import check_geometry
 from spiel_edge.profile.ranges import RANGES, check_number, check_range
+from spiel_edge.profile.ranging_section import RangingSpec, validate_ranging
 from spiel_edge.profile.specs import (
     ASSOCIATION_METHODS,
     ECHO_TIMING_ESTIMATORS,
     SCENE_SELECTIONS,
+    SIGNALS,
     TOA_CORRECTIONS,
     TOA_METHODS,
     AcquisitionSpec,
@@ -54,6 +56,7 @@ _SECTIONS = {
     "echo_timing": EchoTimingSpec,
     "track": TrackSpec,
     "frame": FrameSpec,
+    "ranging": RangingSpec,
 }
 _GEOMETRY_KEYS = {f.name for f in dataclasses.fields(Geometry)}
 
@@ -258,18 +261,25 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     a, g = p.acquisition, p.geometry
     check_range("acquisition.sample_rate_hz", a.sample_rate_hz, origin)
     check_range("acquisition.n_samples", a.n_samples, origin)
-    need(
-        a.signal in ("envelope", "rf"),
-        f"acquisition.signal must be 'envelope' or 'rf', got {a.signal!r}",
-    )
+    need(a.signal in SIGNALS, f"acquisition.signal must be one of {SIGNALS}, got {a.signal!r}")
     if a.signal == "rf":
         need(
             0 < a.carrier_hz < a.sample_rate_hz / 2,
             "acquisition.carrier_hz must be below half the sample rate for signal = 'rf'",
         )
+    if a.signal == "iq":  # baseband pairs: any sample rate (the CH101 samples at carrier / 2)
+        need(a.carrier_hz > 0, "acquisition.carrier_hz must be > 0 for signal = 'iq'")
     n_listen = int(g.listening_mask().sum())
-    need(n_listen >= 3, f"geometry needs at least 3 listening channels, has {n_listen}")
+    need(n_listen >= 1, "geometry needs at least 1 listening channel, has 0")
+    # 1 or 2 listening transducers: range (and bearing), pipeline/ranging.py
+    need(
+        n_listen < 3 or a.signal != "iq",
+        "acquisition.signal = 'iq' is supported for 1 or 2 listening channels "
+        f"(not yet for {n_listen}: give the envelope)",
+    )
     check_geometry(g, a.n_samples, origin)
+    _validate_window(p.memg, need)
+    validate_ranging(p.ranging, a.signal, origin)
     need(
         0 <= p.preprocess.blind_zone_samples < a.n_samples,
         f"preprocess.blind_zone_samples must be in [0, {a.n_samples})",
@@ -291,7 +301,7 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
         f"associate.method must be one of {ASSOCIATION_METHODS}, got {s.method!r}",
     )
     need(
-        3 <= s.min_channels <= n_listen,
+        n_listen < 3 or 3 <= s.min_channels <= n_listen,
         f"associate.min_channels must be in [3, {n_listen}], got {s.min_channels}",
     )
     need(
@@ -317,14 +327,28 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
     validate_frame(p.frame, origin)
 
 
+def _validate_window(m, need) -> None:
+    need(
+        1 <= m.window_before <= 64 and 1 <= m.window_after <= 64,
+        f"memg.window_before and memg.window_after must be in [1, 64], got "
+        f"{m.window_before} and {m.window_after}",
+    )
+
+
 def _validate_scene(sc: SceneSpec, origin: str) -> None:
     if sc.selection not in SCENE_SELECTIONS:
         raise ConfigError(
             f"{origin}: scene.selection must be one of {SCENE_SELECTIONS}, got {sc.selection!r}"
         )
     for f in dataclasses.fields(SceneSpec):
-        if f.name not in ("static_model", "selection", "keep_best"):
+        if f.name not in ("static_model", "selection", "keep_best", "error_model"):
             check_range(f"scene.{f.name}", getattr(sc, f.name), origin)
+    m = sc.error_model
+    if m and not (len(m) == 8 and all(abs(v) <= 100 for v in m) and m[6] > 0 and m[7] > 0):
+        raise ConfigError(
+            f"{origin}: scene.error_model must be empty or 8 numbers in [-100, 100] "
+            f"(the last two > 0), got {list(m)}"
+        )
 
 
 def _validate_echo_timing(e: EchoTimingSpec, n_channels: int, need, origin: str) -> None:

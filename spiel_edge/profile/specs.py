@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from spiel_edge.profile.frame_section import FrameSpec
+from spiel_edge.profile.ranging_section import RangingSpec
 from spiel_edge.profile.track_section import TrackSpec
 
 TOA_METHODS = ("mode", "mu", "half", "peak")
@@ -17,14 +18,15 @@ ASSOCIATION_METHODS = ("auto", "onnx", "geometric")
 ECHO_TIMING_ESTIMATORS = ("none", "parabola", "log_parabola")
 TOA_CORRECTIONS = ("auto", "onnx", "none")
 SCENE_SELECTIONS = ("joint", "greedy")  # [scene] selection (pipeline/stages/scene.py)
+SIGNALS = ("envelope", "rf", "iq")  # [acquisition] signal
 
 
 @dataclass(frozen=True)
 class AcquisitionSpec:
     sample_rate_hz: float = 22000.0
     n_samples: int = 64
-    signal: str = "envelope"
-    carrier_hz: float = 175000.0
+    signal: str = "envelope"  # "envelope", "rf" (envelope computed here) or "iq" (pairs)
+    carrier_hz: float = 175000.0  # rf: demodulated at; iq: the phase's rate (any sample rate)
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,8 @@ class MemgSpec:
     split_merged: bool = False  # split merged two-echo humps (pipeline/stages/split.py)
     split_min_sigma: float = 2.0  # only components at least this wide (samples) are tried
     split_max_cost_ratio: float = 1.0  # keep two when they leave at most this share of one's
+    window_before: int = 5  # samples fitted before an echo's detection (its leading edge) ...
+    window_after: int = 6  # ... and after it; 5/6 run compiled, others in memg._fit_windowed
 
 
 @dataclass(frozen=True)
@@ -122,6 +126,9 @@ class SceneSpec:
     covariance_scale_no_background: float = 1.0  # covariance_scale when no background is given
     static_model: str = ""  # file in spiel_edge/models (or a path): used without a background
     static_mad_factor: float = 0.0  # stand-in background = median + this x MAD of the model
+    # per-target error model of the covariance (pipeline/stages/error_model.py): empty = off,
+    # else [w0, w_range, w_angle, w_log_alpha, w_residual, w_miss, factor_bg, factor_none]
+    error_model: tuple = ()
 
 
 MAX_TARGETS_LIMIT = 16  # also in profile/ranges.py (scene.max_targets)
@@ -153,6 +160,7 @@ class Profile:
     echo_timing: EchoTimingSpec = EchoTimingSpec()
     track: TrackSpec = TrackSpec()
     frame: FrameSpec = FrameSpec()
+    ranging: RangingSpec = RangingSpec()
     description: str = ""
 
     @property

@@ -254,9 +254,11 @@ class LiveRunner:
         }
         stats.records += 1
         try:
-            result = self.pipeline.process(
-                acq.samples.astype(np.float64), self._background_for(acq)
-            )
+            # an I/Q profile's ranging pipeline takes the pairs themselves (their phase times
+            # the echo: pipeline/ranging.py); every other pipeline the envelope
+            takes_iq = acq.iq is not None and getattr(self.pipeline, "takes_iq", False)
+            frames = acq.iq if takes_iq else acq.samples
+            result = self.pipeline.process(frames.astype(np.float64), self._background_for(acq))
         except SpielError as exc:
             stats.errors += 1
             self.problems.log(str(exc), f"first at acquisition {acq.index}")

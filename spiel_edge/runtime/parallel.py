@@ -26,7 +26,7 @@ from pathlib import Path
 
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.recordings.spiel_csv import read_recording
-from spiel_edge.runtime.replay import Replayed, replay
+from spiel_edge.runtime.replay import Replayed, format_of, replay
 from spiel_edge.runtime.tracking import ResultTracker, _run_and_index, replay_tracked
 
 log = logging.getLogger(__name__)
@@ -245,7 +245,7 @@ def usable_jobs(jobs: int, path: str | Path, fmt: str | None, track: bool, profi
     """The jobs a replay of ``path`` can use: one for an MCAP file (one recording), and one
     when tracking with a running background (its estimate carries over between recordings)."""
     jobs = resolve_jobs(jobs)
-    is_folder = Path(path).is_dir() and (fmt or "spiel-csv") == "spiel-csv"
+    is_folder = Path(path).is_dir() and format_of(Path(path), fmt) == "spiel-csv"
     if not is_folder or (track and profile.track.running_background_window > 0):
         return 1
     return jobs

@@ -16,7 +16,7 @@ from spiel_edge.runtime.records import error_record
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("spiel-csv", "mcap")
+FORMATS = ("spiel-csv", "mcap", "stof-chirp")
 
 
 @dataclass
@@ -40,8 +40,15 @@ class Replayed:
 
 
 def format_of(path: Path, fmt: str | None = None) -> str:
-    """``fmt``, else guessed from the path: MCAP for ``*.mcap``, a spiel-csv folder otherwise."""
-    return fmt or ("mcap" if path.suffix == ".mcap" else "spiel-csv")
+    """``fmt``, else guessed from the path: MCAP for ``*.mcap``, SToF-Chirp for a folder of
+    ``NN_envelope_frame.txt`` files, a spiel-csv folder otherwise."""
+    if fmt:
+        return fmt
+    if path.suffix == ".mcap":
+        return "mcap"
+    from spiel_edge.recordings.stof_chirp import is_sequence
+
+    return "stof-chirp" if is_sequence(path) else "spiel-csv"
 
 
 def iter_sources(
@@ -49,13 +56,18 @@ def iter_sources(
     fmt: str | None = None,
     background: str | Path | None = None,
     limits: InputLimits | None = None,
+    *,
+    iq: bool = False,
 ) -> Iterator[Recording]:
-    """Recordings from a spiel-csv folder or an MCAP file (format guessed from the path),
-    each bounded by ``limits`` (the profile's frame shape) before it is parsed."""
+    """Recordings from a spiel-csv folder, an MCAP file or a SToF-Chirp folder (format
+    guessed from the path), each bounded by ``limits`` (the profile's frame shape) before it
+    is parsed. ``iq``: SToF-Chirp frames from the I/Q files (the profile's signal is "iq")."""
     path = Path(path)
     fmt = format_of(path, fmt)
     if fmt == "spiel-csv":
         yield from iter_recordings(path, background, limits)
+    elif fmt == "stof-chirp":
+        yield from _stof_sources(path, background, limits, iq)
     elif fmt == "mcap":
         try:
             from spiel_edge.recordings.mcap_reader import iter_mcap_recordings
@@ -66,6 +78,21 @@ def iter_sources(
         yield from iter_mcap_recordings(path, limits)
     else:
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+
+
+def _stof_sources(path, background, limits, iq) -> Iterator[Recording]:
+    """Every frame of a SToF-Chirp sequence folder (source "NN"), or of each sequence under a
+    dataset folder (source "<sequence>/NN"), in order."""
+    from spiel_edge.recordings.stof_chirp import iter_stof_recordings, sequence_folders
+
+    if background is not None:
+        raise InputError("--background: SToF-Chirp recordings have no background captures")
+    sequences = sequence_folders(path)
+    for seq in sequences:
+        for rec in iter_stof_recordings(seq, iq, limits):
+            if len(sequences) > 1:
+                rec.source = f"{seq.relative_to(path).as_posix()}/{rec.source}"
+            yield rec
 
 
 def chosen_toa_correction(toa_correction: str | None) -> dict[str, str]:

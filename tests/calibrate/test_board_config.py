@@ -60,7 +60,7 @@ def test_blob_round_trip_and_header(config):
             {"geometry": {"speed_of_sound_m_s": 5000.0}},
             r"speed_of_sound_m_s must be a number in \[200, 2000\]",
         ),
-        ({"geometry": {"listening": [True, False, False, True]}}, "at least 3 listening"),
+        ({"geometry": {"listening": [False, False, False, False]}}, "at least 1 listening"),
         (
             {"calibration": {"residual_samples": -1.0}},
             r"calibration.residual_samples must be in \[0, 100\]",

@@ -27,6 +27,7 @@ from spiel_edge.pipeline import staged
 from spiel_edge.pipeline.compiled import one_target, several_targets
 from spiel_edge.pipeline.compiled.abi import KernelConfig, kernel_config
 from spiel_edge.pipeline.compiled.workspace import ThreadWorkspaces
+from spiel_edge.pipeline.stages.error_model import apply_error_model
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +120,12 @@ class FusedPipeline:
         ws = self._workspaces.get()
         y = _numeric(frames, "frames")
         bg = _numeric(background, "background") if background is not None else ws.background[:0]
-        return run(self.pipeline, self.config, ws, y, bg, np.asarray(frames), background)
+        result = run(self.pipeline, self.config, ws, y, bg, np.asarray(frames), background)
+        model = self.profile.scene.error_model
+        if model:  # per target, after the kernel (pipeline/stages/error_model.py)
+            captured = background is not None and background is not self.pipeline.static_model
+            apply_error_model(result, model, self.pipeline.facing, captured)
+        return result
 
     def _kernel(self):
         """The run function of the kernel for the pipeline's scene while it stays the one the

@@ -36,9 +36,14 @@ def fit_memg(
     *,
     mu_window: float = 3.0,
     max_iterations: int = 30,
+    window_before: int = WINDOW_BEFORE,
+    window_after: int = WINDOW_AFTER,
 ) -> np.ndarray:
     """Return MEMG parameters (channels, max_echoes, 4) as [alpha, mu, sigma, eta] per echo
-    (NaN where there is no echo), from the outputs of :func:`detect`."""
+    (NaN where there is no echo), from the outputs of :func:`detect`. Each echo (or cluster)
+    is fitted from ``window_before`` samples before its detection to ``window_after`` after
+    (the profile's ``[memg]``): the default 5/6 runs in one compiled call, any other window
+    cluster by cluster (:func:`_fit_windowed`, the same compiled fit per cluster)."""
     y = as_frames(envelope, "envelope")
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     counts = np.ascontiguousarray(counts, dtype=np.int64)
@@ -51,10 +56,43 @@ def fit_memg(
         raise InputError("peaks must be ascending sample indices inside the frame")
     if mu_window <= 0 or max_iterations < 1:
         raise InputError("mu_window must be > 0 and max_iterations >= 1")
+    if not (1 <= window_before <= 64 and 1 <= window_after <= 64):
+        raise InputError("window_before and window_after must be in [1, 64]")
     params = np.full((y.shape[0], peaks.shape[1], 4), np.nan)
     iterations = np.zeros(peaks.shape, dtype=np.int64)
-    _memg_kernel(y, peaks, counts, float(mu_window), int(max_iterations), params, iterations)
+    if (window_before, window_after) == (WINDOW_BEFORE, WINDOW_AFTER):
+        _memg_kernel(y, peaks, counts, float(mu_window), int(max_iterations), params, iterations)
+    else:
+        window = (int(window_before), int(window_after))
+        _fit_windowed(y, peaks, counts, float(mu_window), int(max_iterations), window, params)
     return params
+
+
+def _fit_windowed(y, peaks, counts, mu_window, max_iter, window, params) -> None:
+    """:func:`_memg_kernel`'s clusters and windows with another window, each cluster by the
+    compiled :func:`_fit_cluster` (no kernel of its own: boards with other windows have one
+    or two channels, a few echoes each)."""
+    before, after = window
+    n_t = y.shape[1]
+    p = np.empty(4 * peaks.shape[1])
+    for c in range(y.shape[0]):
+        first = 0
+        while first < counts[c]:
+            last = first
+            while last + 1 < counts[c] and peaks[c, last + 1] - peaks[c, last] < CLUSTER_GAP:
+                last += 1
+            n_comp = last - first + 1
+            lo = max(0, int(peaks[c, first]) - before)
+            hi = min(n_t, int(peaks[c, last]) + after + 1)
+            n_par = 4 * n_comp
+            work = np.empty(
+                2 * n_comp + 4 * n_par + 2 * n_par * n_par + (3 * n_comp + 1) * (hi - lo)
+            )
+            _fit_cluster(
+                y[c], lo, hi, peaks[c, first : last + 1], n_comp, mu_window, max_iter, p, work
+            )
+            params[c, first : last + 1] = p[:n_par].reshape(n_comp, 4)
+            first = last + 1
 
 
 @jit
