@@ -16,6 +16,7 @@ from spiel_edge.cli._options import (
     port_option,
     profile_option,
 )
+from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import FilePlan, atomic_write
 from spiel_edge.profile.schema import resolve_profile
@@ -24,12 +25,18 @@ from spiel_edge.profile.schema import resolve_profile
 @click.command("calibrate")
 @click.option(
     "--recordings",
-    type=click.Path(exists=True, file_okay=False),
+    type=click.Path(exists=True),
     default=None,
-    help="Offline: a folder of labelled recordings (target positions from the label files).",
+    help="Offline: a folder of labelled spiel-csv recordings (target positions from the label "
+    "files), or a labelled .npz such as spiel_edge/data/spiel_icra23_subset.npz.",
 )
 @click.option(
-    "--format", "fmt", type=click.Choice(["spiel-csv"]), default="spiel-csv", show_default=True
+    "--format",
+    "fmt",
+    type=click.Choice(["spiel-csv"]),
+    default="spiel-csv",
+    show_default=True,
+    help="Format of --recordings (kept for scripts: the content decides, folder or .npz).",
 )
 @click.option(
     "--background",
@@ -41,7 +48,8 @@ from spiel_edge.profile.schema import resolve_profile
     "--exclude-z",
     type=float,
     multiple=True,
-    help="Skip recordings whose target is at this height (mm); repeatable.",
+    help="Skip recordings whose target is at this height (mm); repeatable (default: the "
+    "mislabelled z = 90 mm of spiel-icra23, as evaluate).",
 )
 @port_option
 @click.option(
@@ -123,7 +131,7 @@ def command(
             "the one attached board)"
         )
     if recordings is not None:
-        data = load_recordings(recordings, background, exclude_z=exclude_z)
+        data = load_recordings(recordings, background, exclude_z=exclude_z or EXCLUDED_Z_MM)
         frames, backgrounds, truth, source = (
             data.frames,
             data.backgrounds,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 
@@ -17,12 +16,15 @@ from spiel_edge.cli._options import (
     toa_correction_option,
 )
 from spiel_edge.data import EXCLUDED_Z_MM
-from spiel_edge.errors import InputError
-from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
+from spiel_edge.errors import ConfigError, InputError
+from spiel_edge.io.limits import InputLimits
+from spiel_edge.measure.evaluate import evaluate_folder, evaluate_labelled, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.measure.track_eval import evaluate_tracked
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.recordings.kinds import recording_kind
+from spiel_edge.recordings.labelled import load_labelled
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
 
@@ -93,31 +95,50 @@ def command(
 ) -> int:
     """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings.
 
-    FOLDER is a labelled spiel-csv folder, or a scene file (.npz from tools/train/build_scenes.py:
-    several targets, or frames without background) for the per-number-of-targets metrics.
+    FOLDER is a labelled spiel-csv folder, a labelled .npz (the vendored
+    spiel_edge/data/spiel_icra23_subset.npz: frames, backgrounds, truth_mm, names), or a scene
+    file (.npz from tools/train/build_scenes.py: several targets, or frames without background)
+    for the per-number-of-targets metrics; told by its content.
     """
     pipeline = build_pipeline(
         resolve_profile(profile_name, calibration), association, toa_correction
     )
     if max_targets:
         pipeline.set_max_targets(max_targets)
-    if Path(folder).is_file():
+    kind = recording_kind(folder, ("spiel-csv", "labelled", "scenes"))
+    if background and kind != "spiel-csv":
+        raise ConfigError(f"--background is for a spiel-csv folder; {folder} is {kind}")
+    if kind == "scenes":
         return _evaluate_scene_file(pipeline, folder, as_json)
+    if kind == "labelled" and track:
+        raise ConfigError("--track needs a spiel-csv folder (recordings in time order)")
     positions = None
-    if split != "all":
-        train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
-        positions = train if split == "train" else val
     skip = exclude_z or EXCLUDED_Z_MM
-    recipe = PipelineRecipe(profile_name, calibration, association, toa_correction, max_targets)
-    ev = evaluate_folder(
-        pipeline,
-        folder,
-        background,
-        positions=positions,
-        exclude_z=skip,
-        jobs=resolve_jobs(jobs),
-        recipe=recipe,
-    )
+    if kind == "labelled":
+        data = load_labelled(folder, InputLimits.for_profile(pipeline.profile), exclude_z=skip)
+        if split != "all":
+            train, val = split_by_position(data.names, val_fraction)
+            data = load_labelled(
+                folder,
+                InputLimits.for_profile(pipeline.profile),
+                positions=train if split == "train" else val,
+                exclude_z=skip,
+            )
+        ev = evaluate_labelled(pipeline, data)
+    else:
+        if split != "all":
+            train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
+            positions = train if split == "train" else val
+        recipe = PipelineRecipe(profile_name, calibration, association, toa_correction, max_targets)
+        ev = evaluate_folder(
+            pipeline,
+            folder,
+            background,
+            positions=positions,
+            exclude_z=skip,
+            jobs=resolve_jobs(jobs),
+            recipe=recipe,
+        )
     summary = {
         "split": split,
         "max_z": max_z,
@@ -133,11 +154,25 @@ def command(
     else:
         _print_table(summary)
         print_scene_table(summary["by_targets"])
+        click.echo(COLUMNS)
     for message in ev.failed:
         click.echo(f"failed: {message}", err=True)
     if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result
         raise InputError(f"{folder}: no usable labelled acquisitions ({len(ev.failed)} failed)")
     return EXIT_PARTIAL if ev.failed else EXIT_OK
+
+
+SCENE_COLUMNS = (
+    "targets: true targets per acquisition; recall: true targets found within 30 mm; all: "
+    "acquisitions with every one found; prec: reported targets that are true; mean: their "
+    "error (mm); per fr: targets reported per acquisition; cover: true position inside the "
+    "reported 95 % ellipsoid; cov1: the same for the best target of one-target acquisitions"
+)
+COLUMNS = (
+    "fix: acquisitions with a position; mean/median/p95: 3-D error (mm) against the label; "
+    "association accuracy: matched echo = the echo nearest the true echo time, per channel\n"
+    + SCENE_COLUMNS
+)
 
 
 def fmt(v, spec=".1f"):
@@ -156,6 +191,7 @@ def _evaluate_scene_file(pipeline, path: str, as_json: bool) -> int:
         click.echo(json.dumps(summary))
     else:
         print_scene_table(summary["by_targets"])
+        click.echo(SCENE_COLUMNS)
     return EXIT_OK
 
 

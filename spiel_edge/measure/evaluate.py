@@ -143,6 +143,15 @@ def evaluate_folder(
     return ev
 
 
+def evaluate_labelled(pipeline: Pipeline, data) -> Evaluation:
+    """The same figures over a labelled set in memory
+    (:class:`spiel_edge.recordings.labelled.LabelledArrays`, already filtered)."""
+    ev = Evaluation()
+    for rec in data.recordings():
+        ev.add(pipeline.profile, pipeline.process(rec.frames, rec.background), rec.truth_mm)
+    return ev
+
+
 def _labelled_files(
     folder: str | Path, positions: set | None, skip_z: set
 ) -> list[tuple[Path, np.ndarray]]:

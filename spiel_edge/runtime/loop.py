@@ -240,6 +240,7 @@ class LiveRunner:
             "timestamp_ns": int(acq.host_time * 1e9),
             "background": background,
             **_v2_meta(acq),
+            **_truth_meta(acq),
         }
 
     def record(self, acq: LiveAcquisition) -> dict:
@@ -374,3 +375,9 @@ class LiveRunner:
             + cpu_text
             + (f"; {counters}" if counters else "")
         )
+
+
+def _truth_meta(acq: LiveAcquisition) -> dict:
+    """The ground truth a virtual board sent, kept in the recording so a replay keeps it."""
+    truth = getattr(acq, "truth_mm", None)
+    return {} if truth is None else {"truth_mm": [round(float(v), 2) for v in truth]}
