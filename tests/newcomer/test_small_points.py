@@ -1,0 +1,50 @@
+"""The smaller newcomer points: the status line and the log, option help texts, ..."""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+from spiel_edge.cli._status_line import StatusLine
+
+
+def test_a_log_record_never_joins_the_status_line(capsys):
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        status = StatusLine()
+        status.show("20 records, 20 fixes")
+        logging.getLogger("spiel_edge.test").warning("link lost")
+        status.show("21 records, 21 fixes")
+        status.close()
+        logging.getLogger("spiel_edge.test").warning("after the end")
+    finally:
+        root.removeHandler(handler)
+    err = capsys.readouterr().err
+    # stderr is no terminal here: the status line is ended, not erased
+    assert "\r20 records, 20 fixes\nWARNING link lost\n" in err
+    assert "\r21 records, 21 fixes\nWARNING after the end\n" in err
+    assert not handler.filters  # the filter goes with the status line
+
+
+def test_firmware_update_progress_in_a_log_is_a_few_lines(tmp_path, capsys):
+    from firmware_protocol.image import pack_image
+    from spiel_edge.cli import main
+    from spiel_edge.sim import protocol_sim
+
+    image = tmp_path / "new.img"
+    image.write_bytes(
+        pack_image(b"SIM:OK " + bytes(range(256)) * 40, version="sim-0.2.0", target="sim")
+    )
+    url = "sim://newcomer-fw?max_payload=256"
+    try:
+        assert main(["firmware", "update", "--port", url, str(image)]) == 0
+    finally:
+        protocol_sim.forget(url)
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    progress = [line.split() for line in err.splitlines() if line.startswith("  ")]
+    assert 1 <= len(progress) <= 4, err  # a line per quarter, not one per chunk
+    assert progress[-1] == ["10343/10343", "bytes"]
