@@ -48,3 +48,21 @@ def test_firmware_update_progress_in_a_log_is_a_few_lines(tmp_path, capsys):
     progress = [line.split() for line in err.splitlines() if line.startswith("  ")]
     assert 1 <= len(progress) <= 4, err  # a line per quarter, not one per chunk
     assert progress[-1] == ["10343/10343", "bytes"]
+
+
+def test_run_robot_records_are_in_unix_time_as_run_records(tmp_path):
+    import json
+    import time
+
+    from spiel_edge.cli import main
+
+    fused, single = tmp_path / "fused.ndjson", tmp_path / "one.ndjson"
+    assert main(["run", "--robot", "virtual-4", "--frames", "4", "-o", str(fused)]) == 0
+    assert main(["run", "--port", "sim://", "--frames", "4", "-o", str(single)]) == 0
+    now = time.time()
+    for path in (fused, single):
+        for line in path.read_text().splitlines():
+            record = json.loads(line)
+            assert abs(record["host_time"] - now) < 120, (path.name, record["host_time"])
+            for board in record.get("boards", {}).values():
+                assert abs(board["host_time"] - record["host_time"]) < 1.0
