@@ -48,7 +48,8 @@ class _Board:
 
 @click.group("config")
 def command() -> None:
-    """Pull, show, diff, push and commit the config stored on the board."""
+    """Pull, show, diff, push and commit the config stored on the board; `template` writes a
+    starting config for a new one."""
 
 
 @command.command("pull")
@@ -67,6 +68,29 @@ def pull_cmd(port: str, file: str | None, force: bool) -> int:
         with atomic_write(file) as fh:
             fh.write(text)
         click.echo(f"config of {config['board']['name']!r} written to {file}", err=True)
+    else:
+        click.echo(text, nl=False)
+    return EXIT_OK
+
+
+@command.command("template")
+@profile_option
+@click.option(
+    "--name", default="spiel-board", show_default=True, help="Board name to write into it."
+)
+@click.argument("file", required=False, type=click.Path(dir_okay=False))
+@force_option
+def template_cmd(profile_name: str, name: str, file: str | None, force: bool) -> int:
+    """A starting config for a new board, from --profile (no board needed): edit it, then
+    `config push --port PORT FILE --commit`. Written to FILE, or stdout."""
+    FilePlan(force).output(file, "FILE")
+    config = bc.from_profile(load_profile(profile_name), name)
+    text = f"# a starting board config from profile {profile_name!r}\n{bc.to_toml(config)}"
+    text += "" if text.endswith("\n") else "\n"
+    if file and file != "-":
+        with atomic_write(file) as fh:
+            fh.write(text)
+        click.echo(f"board config {name!r} written to {file}", err=True)
     else:
         click.echo(text, nl=False)
     return EXIT_OK

@@ -66,3 +66,22 @@ def test_run_robot_records_are_in_unix_time_as_run_records(tmp_path):
             assert abs(record["host_time"] - now) < 120, (path.name, record["host_time"])
             for board in record.get("boards", {}).values():
                 assert abs(board["host_time"] - record["host_time"]) < 1.0
+
+
+def test_a_new_board_gets_a_starting_config_to_push(tmp_path, capsys):
+    from spiel_edge.cli import main
+    from spiel_edge.sim import protocol_sim
+
+    board = tmp_path / "board.toml"
+    assert main(["config", "template", str(board), "--name", "front"]) == 0
+    text = board.read_text()
+    assert text.endswith("\n") and 'name = "front"' in text and "[geometry]" in text
+    url = "sim://newcomer-config"
+    try:
+        assert main(["config", "push", "--port", url, str(board), "--commit"]) == 0
+        capsys.readouterr()
+        assert main(["config", "pull", "--port", url]) == 0
+        assert 'name = "front"' in capsys.readouterr().out
+    finally:
+        protocol_sim.forget(url)
+    assert main(["config", "template", str(board)]) == 2  # exists: --force to overwrite
