@@ -136,7 +136,13 @@ def confirm_cmd(port: str) -> int:
 @click.option(
     "--protocol", default="1-2", show_default=True, help="protocol versions it speaks, LOW-HIGH"
 )
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False))
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="The image file to write (for `firmware update IMAGE`).",
+)
 @force_option
 def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, force: bool) -> int:
     """Wrap a firmware BODY (the target's binary) in an image header.
