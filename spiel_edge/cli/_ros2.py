@@ -10,6 +10,7 @@ import os
 
 import click
 
+from spiel_edge.outputs.rmw_zenoh.wire import DEFAULT_DISTRO, ROS_DISTROS
 from spiel_edge.outputs.ros2 import (
     RECORD_PROFILES,
     ZENOH_ENCODINGS,
@@ -95,6 +96,14 @@ _ZENOH = [
         "default peer, or the ZENOH_CONFIG file's.",
     ),
     click.option(
+        "--ros-distro",
+        type=click.Choice(ROS_DISTROS),
+        default=None,
+        help="ROS 2 distribution of the rmw_zenoh nodes that listen (--zenoh-encoding "
+        "rmw_zenoh): humble writes TypeHashNotSupported where the others write type hashes "
+        "(default $ROS_DISTRO when it is one of these, else jazzy; docs/ros2.md).",
+    ),
+    click.option(
         "--ros-domain-id",
         default=None,
         metavar="N",
@@ -160,4 +169,7 @@ def zenoh_settings(values: dict) -> ZenohSettings:
     else:
         domain = 0
     connect = tuple(check_endpoint(e) for e in values.get("zenoh_connect") or ())
-    return ZenohSettings(values.get("zenoh_mode") or "", connect, domain)
+    distro = values.get("ros_distro") or os.environ.get("ROS_DISTRO", "").strip().lower()
+    if distro not in ROS_DISTROS:  # unset, or a distribution without rmw_zenoh (iron, ...)
+        distro = DEFAULT_DISTRO
+    return ZenohSettings(values.get("zenoh_mode") or "", connect, domain, ros_distro=distro)

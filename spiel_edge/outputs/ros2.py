@@ -55,6 +55,7 @@ class ZenohSettings:
     connect: tuple[str, ...] = ()
     domain_id: int = 0
     config_file: str | None = None
+    ros_distro: str = "jazzy"  # rmw_zenoh's key format: humble has no type hashes (wire.py)
 
 
 def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform:
