@@ -10,6 +10,7 @@ from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
     calibration_option,
+    force_option,
     jobs_option,
     max_targets_option,
     profile_option,
@@ -17,6 +18,7 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import ConfigError, InputError
+from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.measure.evaluate import evaluate_folder, evaluate_labelled, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
@@ -27,6 +29,7 @@ from spiel_edge.recordings.kinds import recording_kind
 from spiel_edge.recordings.labelled import load_labelled
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
+from spiel_edge.view import require_matplotlib
 
 
 @click.command("evaluate")
@@ -77,6 +80,13 @@ from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
     "(`tracked`; docs/tracking.md).",
 )
 @jobs_option
+@click.option(
+    "--plot",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Also draw the error by position as a PNG (needs the 'plot' extra).",
+)
+@force_option
 def command(
     folder,
     background,
@@ -92,6 +102,8 @@ def command(
     as_json,
     track,
     jobs,
+    plot,
+    force,
 ) -> int:
     """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings.
 
@@ -100,6 +112,9 @@ def command(
     file (.npz from tools/train/build_scenes.py: several targets, or frames without background)
     for the per-number-of-targets metrics; told by its content.
     """
+    if plot:  # before any work
+        require_matplotlib("--plot")
+        FilePlan(force).output(plot, "--plot")
     pipeline = build_pipeline(
         resolve_profile(profile_name, calibration), association, toa_correction
     )
@@ -155,6 +170,11 @@ def command(
         _print_table(summary)
         print_scene_table(summary["by_targets"])
         click.echo(COLUMNS)
+    if plot and ev.by_position:
+        from spiel_edge.view.evaluation import draw_error_by_position
+
+        draw_error_by_position(ev.by_position, plot)
+        click.echo(f"plot written to {plot}", err=True)
     for message in ev.failed:
         click.echo(f"failed: {message}", err=True)
     if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result
