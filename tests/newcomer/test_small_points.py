@@ -8,10 +8,12 @@ import sys
 from spiel_edge.cli._status_line import StatusLine
 
 
-def test_a_log_record_never_joins_the_status_line(capsys):
+def test_a_log_record_never_joins_the_status_line(capsys, monkeypatch):
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
     root = logging.getLogger()
+    monkeypatch.setattr(root, "handlers", [])  # only this test's handler (earlier CLI runs
+    monkeypatch.setattr(root, "level", logging.WARNING)  # leave theirs on closed streams)
     root.addHandler(handler)
     try:
         status = StatusLine()
