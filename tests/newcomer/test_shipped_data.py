@@ -157,3 +157,21 @@ def test_a_virtual_board_recording_replays_with_its_truth(tmp_path, capsys):
     replayed = [json.loads(line) for line in again.read_text().splitlines()]
     assert [r["truth_mm"] for r in replayed] == [r["truth_mm"] for r in live]
     assert "against truth_mm" in capsys.readouterr().err
+
+
+def test_a_background_is_told_by_its_content(tmp_path, capsys):
+    from spiel_edge.data import load_subset
+
+    npy = tmp_path / "bg.data"  # a .npy under another name
+    np.save(tmp_path / "bg.npy", load_subset().backgrounds[0])
+    npy.write_bytes((tmp_path / "bg.npy").read_bytes())
+    out = tmp_path / "r.ndjson"
+    assert (
+        main(["run", "--port", "sim://", "--frames", "2", "--background", str(npy), "-o", str(out)])
+        == 0
+    )
+    assert main(["run", "--port", "sim://", "--frames", "2", "--background", SUBSET]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith(
+        "an .npz archive; a background is a .npy capture (`spiel-edge background -o bg.npy`) or a spiel-csv frames file"
+    )
