@@ -126,7 +126,11 @@ def localisation_errors(
     pipeline = build(profile.replace(geometry=geometry))
     errors = []
     for i in range(len(frames)):
-        bg = None if backgrounds is None else backgrounds[i]
+        bg = (
+            None
+            if backgrounds is None
+            else (backgrounds if backgrounds.ndim == 2 else backgrounds[i])
+        )
         pos = pipeline.process(frames[i], bg).position_mm
         if pos is not None:
             errors.append(float(np.linalg.norm(np.asarray(pos) - truth_mm[i])))
@@ -151,7 +155,9 @@ def cross_validate(
     start = profile.geometry
 
     def errors(geometry: Geometry, mask: np.ndarray) -> tuple[list[float], int]:
-        bg = None if backgrounds is None else backgrounds[mask]
+        bg = backgrounds
+        if bg is not None and bg.ndim == 3:  # one per acquisition (else one for all)
+            bg = bg[mask]
         return localisation_errors(profile, geometry, frames[mask], bg, truth_mm[mask], build)
 
     if k >= 2:

@@ -89,3 +89,31 @@ def test_plot_without_matplotlib_fails_before_anything(tmp_path, capsys, monkeyp
     assert rc == 2 and len(err) == 1, err
     assert "'plot' extra" in err[0] and "spiel-edge[plot]" in err[0]
     assert not out.exists() and not plot.exists()
+
+
+def test_cross_validation_takes_one_background_for_all():
+    from spiel_edge.calibrate import calibrate_echoes, extract_echoes
+    from spiel_edge.calibrate.validate import cross_validate
+    from spiel_edge.data import load_subset
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.profile.schema import load_profile
+
+    data = load_subset()
+    keep = data.truth_mm[:, 2] == 100.0
+    frames, truth = data.frames[keep], data.truth_mm[keep]
+    bg = data.backgrounds[keep]
+    profile = load_profile()
+    candidates = extract_echoes(profile, frames, bg)
+
+    def solve(mask):
+        return calibrate_echoes(
+            candidates[mask], truth[mask], profile, fix={"receivers", "emitter"}
+        ).geometry
+
+    every = cross_validate(
+        profile, solve(truth[:, 0] == truth[:, 0]), frames, bg, truth, solve, build_pipeline
+    )
+    shared = cross_validate(profile, profile.geometry, frames, bg[0], truth, solve, build_pipeline)
+    assert every.folds == shared.folds == 5 and every.positions == 25
+    assert len(every.before.errors_mm) == every.before.fixes > 60
+    assert shared.before.acquisitions == len(frames)
