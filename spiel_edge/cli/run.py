@@ -278,6 +278,7 @@ def command(
                 **ros2_kwargs,
             )
             finalizers.add(sink.close_files)
+            _say_live_views(sink)
             tracker = ResultTracker(profile.track, profile.scene) if track else None
             runner = LiveRunner(
                 session, pipeline, sink, background=fixed_background, tracker=tracker
@@ -312,6 +313,14 @@ def command(
 def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
     notifier.ping()
     notifier.status(f"waiting {waited:.0f} s for the board at {port} to come back")
+
+
+def _say_live_views(sink) -> None:
+    """Where to look, said at start without -v: the Foxglove server's address and layout."""
+    for out in getattr(sink, "sinks", [sink]):
+        line = getattr(out, "view_line", None)
+        if line:
+            click.echo(f"{line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
 
 
 STATUS = StatusLine()

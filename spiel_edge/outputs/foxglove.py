@@ -123,7 +123,8 @@ class FoxgloveSink(Sink):
         self._receivers = [self._cube(p) for p in ([] if receivers_mm is None else receivers_mm)]
         self._trails = Trails()
         self._shown: set[str] = set()
-        log.info("Foxglove live view on ws://%s:%d", host, self.port)
+        self.view_line = f"Foxglove live view on ws://{host}:{self.port}"
+        log.info("%s", self.view_line)
 
     def set_status_provider(self, provider) -> None:
         self.messages.status_provider = provider

@@ -86,3 +86,15 @@ def test_foxglove_serves_the_echogram_and_the_layout_names_its_topics():
         assert topic in text
     panels = set(layout["configById"])
     assert {layout["layout"]["first"], *layout["layout"]["second"].values()} & panels == panels
+
+
+def test_run_says_where_the_live_view_is_without_v(tmp_path, capsys):
+    pytest.importorskip("foxglove", reason="extra 'foxglove' not installed")
+    from spiel_edge.cli import main
+
+    out = tmp_path / "r.ndjson"
+    assert (
+        main(["run", "--port", "sim://", "--frames", "3", "--foxglove", "0", "-o", str(out)]) == 0
+    )
+    err = capsys.readouterr().err
+    assert "Foxglove live view on ws://127.0.0.1:" in err and "spiel-edge.json" in err
