@@ -63,13 +63,7 @@ def pull_cmd(port: str, file: str | None, force: bool) -> int:
         config = pull(session)
     if config is None:
         raise DeviceError("the board holds no config yet: `spiel-edge config push` one")
-    text = bc.to_toml(config)
-    if file and file != "-":
-        with atomic_write(file) as fh:
-            fh.write(text)
-        click.echo(f"config of {config['board']['name']!r} written to {file}", err=True)
-    else:
-        click.echo(text, nl=False)
+    _write_or_print(file, bc.to_toml(config), f"config of {config['board']['name']!r}")
     return EXIT_OK
 
 
@@ -87,13 +81,18 @@ def template_cmd(profile_name: str, name: str, file: str | None, force: bool) ->
     config = bc.from_profile(load_profile(profile_name), name)
     text = f"# a starting board config from profile {profile_name!r}\n{bc.to_toml(config)}"
     text += "" if text.endswith("\n") else "\n"
+    _write_or_print(file, text, f"board config {name!r}")
+    return EXIT_OK
+
+
+def _write_or_print(file: str | None, text: str, what: str) -> None:
+    """TOML to FILE (atomically, then said on stderr) or to stdout."""
     if file and file != "-":
         with atomic_write(file) as fh:
             fh.write(text)
-        click.echo(f"board config {name!r} written to {file}", err=True)
+        click.echo(f"{what} written to {file}", err=True)
     else:
         click.echo(text, nl=False)
-    return EXIT_OK
 
 
 @command.command("show")

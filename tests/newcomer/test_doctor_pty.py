@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-import time
 
 from spiel_edge.cli import main
 from spiel_edge.service.doctor import port_kind
+from tests.newcomer._pty import pty_board
 
 
 def _doctor(port, capsys):
@@ -25,30 +23,9 @@ def test_the_virtual_board_passes(capsys):
 
 def test_a_board_on_a_pty_passes(tmp_path, capsys):
     link = tmp_path / "board"
-    sim = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "spiel_edge.cli",
-            "simulate",
-            "--pty",
-            "sim://",
-            "--link",
-            str(link),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )
-    try:
-        deadline = time.monotonic() + 60
-        while not link.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert link.exists(), "the virtual board did not come up"
+    with pty_board(link):
         assert port_kind(str(link)) == "pseudo-terminal"
         rc, out = _doctor(str(link), capsys)
-    finally:
-        sim.terminate()
-        sim.communicate(timeout=10)
     assert rc == 0 and out["ok"], out
     names = {c["name"]: c for c in out["checks"]}
     assert names["board link"]["ok"] and "SIM0001" in names["board link"]["detail"]

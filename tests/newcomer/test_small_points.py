@@ -90,31 +90,8 @@ def test_a_new_board_gets_a_starting_config_to_push(tmp_path, capsys):
 
 
 def test_simulate_says_a_modelled_board_needs_no_learned_correction(tmp_path):
-    import subprocess
-    import sys
-    import time
+    from tests.newcomer._pty import pty_board
 
-    link = tmp_path / "board"
-    sim = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "spiel_edge.cli",
-            "simulate",
-            "--pty",
-            "sim://?scene=model",
-            "--link",
-            str(link),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        deadline = time.monotonic() + 60
-        while not link.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-    finally:
-        sim.terminate()
-        _out, err = sim.communicate(timeout=10)
-    assert "--toa-correction none" in err
+    with pty_board(tmp_path / "board", "sim://?scene=model") as board:
+        pass
+    assert "--toa-correction none" in board.stderr_text
