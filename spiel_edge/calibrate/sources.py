@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.errors import InputError
+from spiel_edge.errors import ConfigError, InputError
 from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_truth
 
 log = logging.getLogger(__name__)
@@ -31,8 +31,22 @@ def load_recordings(
     positions: set | None = None,
     exclude_z: Iterable[float] = (),
 ) -> LabelledSet:
-    """Labelled spiel-csv acquisitions; ``positions`` keeps those (x, y); unreadable or
-    unlabelled files are skipped with a warning."""
+    """Labelled acquisitions from a spiel-csv folder or a labelled .npz (told by the content);
+    ``positions`` keeps those (x, y); unreadable or unlabelled files are skipped with a
+    warning."""
+    from spiel_edge.recordings.kinds import recording_kind
+
+    if recording_kind(folder, ("spiel-csv", "labelled")) == "labelled":
+        if background is not None:
+            raise ConfigError(
+                f"--background is for a spiel-csv folder; {folder} carries its own backgrounds"
+            )
+        from spiel_edge.recordings.labelled import load_labelled
+
+        data = load_labelled(folder, positions=positions, exclude_z=exclude_z)
+        if not len(data):
+            raise InputError(f"{folder}: no labelled acquisitions to calibrate from")
+        return LabelledSet(data.names, data.frames, data.backgrounds, data.truth_mm)
     names, frames, bgs, truth = [], [], [], []
     skip_z = {float(z) for z in exclude_z}
     for rec in iter_recordings(folder, background):

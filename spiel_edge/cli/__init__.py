@@ -81,6 +81,7 @@ COMMANDS = {
     "run": "Stream from the board and write one record per acquisition.",
     "service": "The systemd service kit: unit, user, udev rule, config.",
     "simulate": "The virtual board on a pseudo-terminal (a sim:// URL).",
+    "view": "Pictures (PNG): A-scans with echoes and fits, positions and tracks.",
     "warmup": "Compile every kernel into the numba cache this environment uses.",
 }
 

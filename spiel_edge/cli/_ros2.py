@@ -10,6 +10,7 @@ import os
 
 import click
 
+from spiel_edge.outputs.rmw_zenoh.wire import DEFAULT_DISTRO, ROS_DISTROS
 from spiel_edge.outputs.ros2 import (
     RECORD_PROFILES,
     ZENOH_ENCODINGS,
@@ -103,6 +104,14 @@ _ZENOH = [
         "docs/security.md).",
     ),
     click.option(
+        "--ros-distro",
+        type=click.Choice(ROS_DISTROS),
+        default=None,
+        help="ROS 2 distribution of the rmw_zenoh nodes that listen (--zenoh-encoding "
+        "rmw_zenoh): humble writes TypeHashNotSupported where the others write type hashes "
+        "(default $ROS_DISTRO when it is one of these, else jazzy; docs/ros2.md).",
+    ),
+    click.option(
         "--ros-domain-id",
         default=None,
         metavar="N",
@@ -179,4 +188,9 @@ def zenoh_settings(values: dict) -> ZenohSettings:
                 "not with --zenoh-encoding " + str(values.get("zenoh_encoding"))
             )
         auth_key = load_key(values["zenoh_auth_key"], "--zenoh-auth-key")
-    return ZenohSettings(values.get("zenoh_mode") or "", connect, domain, auth_key=auth_key)
+    distro = values.get("ros_distro") or os.environ.get("ROS_DISTRO", "").strip().lower()
+    if distro not in ROS_DISTROS:  # unset, or a distribution without rmw_zenoh (iron, ...)
+        distro = DEFAULT_DISTRO
+    return ZenohSettings(
+        values.get("zenoh_mode") or "", connect, domain, auth_key=auth_key, ros_distro=distro
+    )

@@ -24,7 +24,13 @@ from spiel_edge.runtime.background import median_background, save_background
     show_default=True,
     help="Acquisitions to take; the per-sample median is kept.",
 )
-@click.option("--rate", type=click.FloatRange(0, 10000), default=50.0, show_default=True)
+@click.option(
+    "--rate",
+    type=click.FloatRange(0, 10000),
+    default=50.0,
+    show_default=True,
+    help="Acquisitions per second asked of the board while capturing.",
+)
 @click.option(
     "--samples",
     "n_samples",

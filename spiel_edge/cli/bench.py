@@ -16,7 +16,12 @@ from spiel_edge.measure.bench import run_bench, to_json
     show_default=True,
     help="Passes over the acquisitions.",
 )
-@click.option("--association", type=click.Choice(["auto", "onnx", "geometric"]), default=None)
+@click.option(
+    "--association",
+    type=click.Choice(["auto", "onnx", "geometric"]),
+    default=None,
+    help="Echo association to time (default: the profile's).",
+)
 @click.option(
     "--no-startup",
     is_flag=True,

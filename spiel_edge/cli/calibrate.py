@@ -5,31 +5,54 @@ from __future__ import annotations
 import sys
 
 import click
+import numpy as np
 
-from spiel_edge.calibrate import FIXABLE, calibrate_frames, load_recordings, read_positions
-from spiel_edge.calibrate.report import calibration_toml, plot_calibration, summary_lines
-from spiel_edge.cli import EXIT_OK
+from spiel_edge.calibrate import (
+    FIXABLE,
+    calibrate_echoes,
+    extract_echoes,
+    load_recordings,
+    read_positions,
+)
+from spiel_edge.calibrate.report import (
+    calibration_toml,
+    plot_calibration,
+    report_text,
+    summary_lines,
+)
+from spiel_edge.calibrate.validate import cross_validate
+from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
+    association_option,
     board_port,
     calibration_option,
-    force_option,
     port_option,
     profile_option,
+    toa_correction_option,
 )
+from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import FilePlan, atomic_write
+from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.view import require_matplotlib
 
 
 @click.command("calibrate")
 @click.option(
     "--recordings",
-    type=click.Path(exists=True, file_okay=False),
+    type=click.Path(exists=True),
     default=None,
-    help="Offline: a folder of labelled recordings (target positions from the label files).",
+    help="Offline: a folder of labelled spiel-csv recordings (target positions from the label "
+    "files), or a labelled .npz such as spiel_edge/data/spiel_icra23_subset.npz.",
 )
 @click.option(
-    "--format", "fmt", type=click.Choice(["spiel-csv"]), default="spiel-csv", show_default=True
+    "--format",
+    "fmt",
+    type=click.Choice(["spiel-csv"]),
+    default="spiel-csv",
+    show_default=True,
+    help="Format of --recordings (kept for scripts: the content decides, folder or .npz).",
 )
 @click.option(
     "--background",
@@ -41,7 +64,8 @@ from spiel_edge.profile.schema import resolve_profile
     "--exclude-z",
     type=float,
     multiple=True,
-    help="Skip recordings whose target is at this height (mm); repeatable.",
+    help="Skip recordings whose target is at this height (mm); repeatable (default: the "
+    "mislabelled z = 90 mm of spiel-icra23, as evaluate).",
 )
 @port_option
 @click.option(
@@ -89,7 +113,21 @@ from spiel_edge.profile.schema import resolve_profile
     default=None,
     help="Write a PNG of the geometry and the residuals (needs the 'plot' extra).",
 )
-@force_option
+@click.option(
+    "--report",
+    "report_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Also write the short report (before/after on unseen positions, the decision) here.",
+)
+@association_option
+@toa_correction_option
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Overwrite existing output files, and write the calibration even when it is worse "
+    "than the start on positions it did not fit.",
+)
 def command(
     recordings,
     fmt,
@@ -105,10 +143,19 @@ def command(
     reject_sigma,
     output,
     plot,
+    report_path,
+    association,
+    toa_correction,
     force,
 ) -> int:
     """Estimate receiver positions (and the emitter's), per-channel delays and the speed of sound
-    from a target at known positions: offline from labelled recordings, or live, guided."""
+    from a target at known positions: offline from labelled recordings, or live, guided.
+
+    Before writing, the calibration is checked on positions it did not fit: the data is split
+    by (x, y) position into folds, each fold solved from the others and located with the
+    pipeline, before and after. A calibration that makes those positions worse is not written
+    (exit status 1; --force writes it). docs/calibration.md.
+    """
     plan = FilePlan(force)  # outputs checked before anything is captured or fitted
     for path, option in ((calibration, "--calibration"), (positions, "--positions")):
         if path:
@@ -116,6 +163,9 @@ def command(
     plan.input_if_file(profile_name, "--profile")
     plan.output(output, "--output")
     plan.output(plot, "--plot")
+    plan.output(report_path, "--report")
+    if plot:  # before anything is captured, fitted or written
+        require_matplotlib("--plot")
     profile = resolve_profile(profile_name, calibration)
     if (recordings is None) == (positions is None):
         raise ConfigError(
@@ -123,7 +173,7 @@ def command(
             "the one attached board)"
         )
     if recordings is not None:
-        data = load_recordings(recordings, background, exclude_z=exclude_z)
+        data = load_recordings(recordings, background, exclude_z=exclude_z or EXCLUDED_Z_MM)
         frames, backgrounds, truth, source = (
             data.frames,
             data.backgrounds,
@@ -136,19 +186,42 @@ def command(
             port, profile, read_positions(positions), captures, not no_prompt
         )
         source = port
-    cal = calibrate_frames(
-        profile, frames, backgrounds, truth, fix=set(fix), reject_sigma=reject_sigma
-    )
+        from spiel_edge.runtime.loop import live_toa_correction  # the pipeline `run` builds
+
+        toa_correction = live_toa_correction(port, toa_correction)
+    candidates = extract_echoes(profile, frames, backgrounds)
+
+    def solve_on(mask):
+        return calibrate_echoes(
+            candidates[mask], truth[mask], profile, fix=set(fix), reject_sigma=reject_sigma
+        )
+
+    cal = solve_on(np.ones(len(truth), dtype=bool))
     for line in summary_lines(cal):
         click.echo(line, err=True)
-    if output:
+    validation = cross_validate(
+        profile,
+        cal.geometry,
+        frames,
+        backgrounds,
+        truth,
+        solve=lambda mask: solve_on(mask).geometry,
+        build=lambda p: build_pipeline(p, association, toa_correction),
+    )
+    refused = validation.worse and not force and output is not None
+    report = report_text(cal, validation, str(source), output, refused)
+    click.echo(report, err=True, nl=False)
+    if report_path:
+        with atomic_write(report_path) as fh:
+            fh.write(report)
+    if output and not refused:
         with atomic_write(output) as fh:
-            fh.write(calibration_toml(cal, str(source)))
+            fh.write(calibration_toml(cal, str(source), validation))
         click.echo(f"calibration written to {output}", err=True)
     if plot:
-        plot_calibration(cal, plot)
+        plot_calibration(cal, plot, validation)
         click.echo(f"plot written to {plot}", err=True)
-    return EXIT_OK
+    return EXIT_PARTIAL if refused else EXIT_OK
 
 
 def open_session(port: str):

@@ -48,7 +48,8 @@ class _Board:
 
 @click.group("config")
 def command() -> None:
-    """Pull, show, diff, push and commit the config stored on the board."""
+    """Pull, show, diff, push and commit the config stored on the board; `template` writes a
+    starting config for a new one."""
 
 
 @command.command("pull")
@@ -62,14 +63,36 @@ def pull_cmd(port: str, file: str | None, force: bool) -> int:
         config = pull(session)
     if config is None:
         raise DeviceError("the board holds no config yet: `spiel-edge config push` one")
-    text = bc.to_toml(config)
+    _write_or_print(file, bc.to_toml(config), f"config of {config['board']['name']!r}")
+    return EXIT_OK
+
+
+@command.command("template")
+@profile_option
+@click.option(
+    "--name", default="spiel-board", show_default=True, help="Board name to write into it."
+)
+@click.argument("file", required=False, type=click.Path(dir_okay=False))
+@force_option
+def template_cmd(profile_name: str, name: str, file: str | None, force: bool) -> int:
+    """A starting config for a new board, from --profile (no board needed): edit it, then
+    `config push --port PORT FILE --commit`. Written to FILE, or stdout."""
+    FilePlan(force).output(file, "FILE")
+    config = bc.from_profile(load_profile(profile_name), name)
+    text = f"# a starting board config from profile {profile_name!r}\n{bc.to_toml(config)}"
+    text += "" if text.endswith("\n") else "\n"
+    _write_or_print(file, text, f"board config {name!r}")
+    return EXIT_OK
+
+
+def _write_or_print(file: str | None, text: str, what: str) -> None:
+    """TOML to FILE (atomically, then said on stderr) or to stdout."""
     if file and file != "-":
         with atomic_write(file) as fh:
             fh.write(text)
-        click.echo(f"config of {config['board']['name']!r} written to {file}", err=True)
+        click.echo(f"{what} written to {file}", err=True)
     else:
         click.echo(text, nl=False)
-    return EXIT_OK
 
 
 @command.command("show")

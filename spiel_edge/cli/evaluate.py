@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 
@@ -11,20 +10,26 @@ from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
     calibration_option,
+    force_option,
     jobs_option,
     max_targets_option,
     profile_option,
     toa_correction_option,
 )
 from spiel_edge.data import EXCLUDED_Z_MM
-from spiel_edge.errors import InputError
-from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
+from spiel_edge.errors import ConfigError, InputError
+from spiel_edge.io.guard import FilePlan
+from spiel_edge.io.limits import InputLimits
+from spiel_edge.measure.evaluate import evaluate_folder, evaluate_labelled, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.measure.track_eval import evaluate_tracked
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.recordings.kinds import recording_kind
+from spiel_edge.recordings.labelled import load_labelled
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
+from spiel_edge.view import require_matplotlib
 
 
 @click.command("evaluate")
@@ -83,6 +88,13 @@ from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
     "(`tracked`; docs/tracking.md).",
 )
 @jobs_option
+@click.option(
+    "--plot",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Also draw the error by position as a PNG (needs the 'plot' extra).",
+)
+@force_option
 def command(
     folder,
     background,
@@ -99,12 +111,19 @@ def command(
     as_json,
     track,
     jobs,
+    plot,
+    force,
 ) -> int:
     """Mean, median and p95 3-D error, fix rate and association accuracy on labelled recordings.
 
-    FOLDER is a labelled spiel-csv folder, or a scene file (.npz from tools/train/build_scenes.py:
-    several targets, or frames without background) for the per-number-of-targets metrics.
+    FOLDER is a labelled spiel-csv folder, a labelled .npz (the vendored
+    spiel_edge/data/spiel_icra23_subset.npz: frames, backgrounds, truth_mm, names), or a scene
+    file (.npz from tools/train/build_scenes.py: several targets, or frames without background)
+    for the per-number-of-targets metrics; told by its content.
     """
+    if plot:  # before any work
+        require_matplotlib("--plot")
+        FilePlan(force).output(plot, "--plot")
     if fmt == "stof-chirp" or (fmt is None and _is_stof(folder)):
         return _evaluate_ranging(folder, profile_name, calibration, as_json)
     pipeline = build_pipeline(
@@ -112,23 +131,40 @@ def command(
     )
     if max_targets:
         pipeline.set_max_targets(max_targets)
-    if Path(folder).is_file():
+    kind = recording_kind(folder, ("spiel-csv", "labelled", "scenes"))
+    if background and kind != "spiel-csv":
+        raise ConfigError(f"--background is for a spiel-csv folder; {folder} is {kind}")
+    if kind == "scenes":
         return _evaluate_scene_file(pipeline, folder, as_json)
+    if kind == "labelled" and track:
+        raise ConfigError("--track needs a spiel-csv folder (recordings in time order)")
     positions = None
-    if split != "all":
-        train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
-        positions = train if split == "train" else val
     skip = exclude_z or EXCLUDED_Z_MM
-    recipe = PipelineRecipe(profile_name, calibration, association, toa_correction, max_targets)
-    ev = evaluate_folder(
-        pipeline,
-        folder,
-        background,
-        positions=positions,
-        exclude_z=skip,
-        jobs=resolve_jobs(jobs),
-        recipe=recipe,
-    )
+    if kind == "labelled":
+        data = load_labelled(folder, InputLimits.for_profile(pipeline.profile), exclude_z=skip)
+        if split != "all":
+            train, val = split_by_position(data.names, val_fraction)
+            data = load_labelled(
+                folder,
+                InputLimits.for_profile(pipeline.profile),
+                positions=train if split == "train" else val,
+                exclude_z=skip,
+            )
+        ev = evaluate_labelled(pipeline, data)
+    else:
+        if split != "all":
+            train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
+            positions = train if split == "train" else val
+        recipe = PipelineRecipe(profile_name, calibration, association, toa_correction, max_targets)
+        ev = evaluate_folder(
+            pipeline,
+            folder,
+            background,
+            positions=positions,
+            exclude_z=skip,
+            jobs=resolve_jobs(jobs),
+            recipe=recipe,
+        )
     summary = {
         "split": split,
         "max_z": max_z,
@@ -144,6 +180,12 @@ def command(
     else:
         _print_table(summary)
         print_scene_table(summary["by_targets"])
+        click.echo(COLUMNS)
+    if plot and ev.by_position:
+        from spiel_edge.view.evaluation import draw_error_by_position
+
+        draw_error_by_position(ev.by_position, plot)
+        click.echo(f"plot written to {plot}", err=True)
     for message in ev.failed:
         click.echo(f"failed: {message}", err=True)
     if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result
@@ -186,6 +228,17 @@ def _evaluate_ranging(folder, profile_name, calibration, as_json) -> int:
         f"{fmt(summary.get('over_1mm'), '.2%')}, 95 % coverage {fmt(summary.get('coverage95'), '.1%')}"
     )
     return EXIT_OK
+SCENE_COLUMNS = (
+    "targets: true targets per acquisition; recall: true targets found within 30 mm; all: "
+    "acquisitions with every one found; prec: reported targets that are true; mean: their "
+    "error (mm); per fr: targets reported per acquisition; cover: true position inside the "
+    "reported 95 % ellipsoid; cov1: the same for the best target of one-target acquisitions"
+)
+COLUMNS = (
+    "fix: acquisitions with a position; mean/median/p95: 3-D error (mm) against the label; "
+    "association accuracy: matched echo = the echo nearest the true echo time, per channel\n"
+    + SCENE_COLUMNS
+)
 
 
 def fmt(v, spec=".1f"):
@@ -204,6 +257,7 @@ def _evaluate_scene_file(pipeline, path: str, as_json: bool) -> int:
         click.echo(json.dumps(summary))
     else:
         print_scene_table(summary["by_targets"])
+        click.echo(SCENE_COLUMNS)
     return EXIT_OK
 
 

@@ -80,8 +80,16 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
     )
 
     line_open = [False]
+    on_terminal = click.get_text_stream("stderr").isatty()
+    quarters = [0]  # a log file gets a line at each quarter, not a \r per chunk
 
     def progress(sent: int, total: int) -> None:
+        if not on_terminal:
+            quarter = 4 * sent // total if total else 4
+            if quarter > quarters[0]:
+                quarters[0] = quarter
+                click.echo(f"  {sent}/{total} bytes", err=True)
+            return
         line_open[0] = sent < total
         click.echo(f"\r  {sent}/{total} bytes", nl=not line_open[0], err=True)
 
@@ -128,7 +136,13 @@ def confirm_cmd(port: str) -> int:
 @click.option(
     "--protocol", default="1-2", show_default=True, help="protocol versions it speaks, LOW-HIGH"
 )
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False))
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="The image file to write (for `firmware update IMAGE`).",
+)
 @force_option
 def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, force: bool) -> int:
     """Wrap a firmware BODY (the target's binary) in an image header.

@@ -38,10 +38,18 @@ from spiel_edge.cli._signals import Finalizers, stop_on_signals
 )
 @click.option("--zenoh", default=None, metavar="KEY", help="Publish the fused records on KEY too.")
 @click.option(
-    "--record-profile", type=click.Choice(["json", "ros2"]), default="json", show_default=True
+    "--record-profile",
+    type=click.Choice(["json", "ros2"]),
+    default="json",
+    show_default=True,
+    help="MCAP encoding of --record: json (Foxglove) or ros2 (CDR, read by rosbags, ros2 bag).",
 )
 @click.option(
-    "--zenoh-encoding", type=click.Choice(["json", "cdr"]), default="json", show_default=True
+    "--zenoh-encoding",
+    type=click.Choice(["json", "cdr"]),
+    default="json",
+    show_default=True,
+    help="Encoding of the fused records published on Zenoh: JSON or ROS 2 CDR.",
 )
 @click.option(
     "--connect",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 from contextlib import closing
+from pathlib import Path
 
 import click
 
@@ -19,7 +20,7 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.cli._ros2 import ros2_record_options, ros2_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
-from spiel_edge.errors import OutputError
+from spiel_edge.errors import ConfigError, OutputError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
@@ -30,7 +31,9 @@ from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
 from spiel_edge.runtime.replay import (
     FORMATS,
+    ReplaySummary,
     chosen_toa_correction,
+    format_of,
     iter_sources,
     recorded_toa_correction,
     replay,
@@ -93,7 +96,11 @@ def command(
     """Run the pipeline over recorded frames; one record per acquisition (NDJSON, or an MCAP
     recording that replays again, JSON or --record-profile ros2: docs/ros2.md).
 
-    Label files are never read. Exit status 1 when some inputs could not be processed. An
+    PATH is a spiel-csv folder, an MCAP recording or a labelled .npz (the vendored
+    spiel_edge/data/spiel_icra23_subset.npz), told by its content. Label files of a spiel-csv
+    folder are never read; a recording that carries the ground truth (a labelled .npz, a
+    `run --record` of the virtual board) keeps it in each record as `truth_mm`. A summary
+    line goes to stderr at the end. Exit status 1 when some inputs could not be processed. An
     output file appears only complete (written beside it, then renamed into place).
     """
     plan = FilePlan(force)
@@ -104,6 +111,9 @@ def command(
         plan.input_file(calibration, "--calibration")
     plan.input_if_file(profile_name, "--profile")
     plan.output(output, "--output")
+    fmt = format_of(Path(path), fmt)  # by content: one line for what is not a recording
+    if background and fmt != "spiel-csv":
+        raise ConfigError(f"--background is for a spiel-csv folder; {path} is {fmt}")
     profile = recording_profile(path, fmt, profile_name, calibration)
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work
     if toa_correction is None:  # as run chose when it recorded the file
@@ -117,6 +127,7 @@ def command(
     if max_targets:
         pipeline.set_max_targets(max_targets)
     failed = total = 0
+    summary = ReplaySummary()
     stop = threading.Event()
     meta = {
         "command": "replay",
@@ -155,6 +166,7 @@ def command(
             with closing(items):
                 for item in items:
                     sink.write(item)
+                    summary.add(item)
                     total += 1
                     failed += item.error is not None
                     if stop.is_set():
@@ -169,6 +181,7 @@ def command(
         raise OutputError(f"--output {output}: could not be completed (see the log above)")
     if not sink.owns_file:
         sink.close()
+    click.echo(summary.line(), err=True)
     if failed:
         click.echo(f"{failed} of {total} acquisitions could not be processed", err=True)
     return EXIT_PARTIAL if failed else EXIT_OK

@@ -23,6 +23,7 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.cli._ros2 import ros2_options, ros2_output_options, zenoh_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
+from spiel_edge.cli._status_line import StatusLine
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
 from spiel_edge.io.guard import FilePlan
@@ -277,6 +278,7 @@ def command(
                 **ros2_kwargs,
             )
             finalizers.add(sink.close_files)
+            _say_live_views(sink)
             tracker = ResultTracker(profile.track, profile.scene) if track else None
             runner = LiveRunner(
                 session, pipeline, sink, background=fixed_background, tracker=tracker
@@ -313,6 +315,17 @@ def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
     notifier.status(f"waiting {waited:.0f} s for the board at {port} to come back")
 
 
+def _say_live_views(sink) -> None:
+    """Where to look, said at start without -v: the Foxglove server's address and layout."""
+    for out in getattr(sink, "sinks", [sink]):
+        line = getattr(out, "view_line", None)
+        if line:
+            click.echo(f"{line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
+
+
+STATUS = StatusLine()
+
+
 def _reporter(show_status: bool, notifier: Notifier):
     if not show_status and not notifier.enabled:
         return None
@@ -321,7 +334,7 @@ def _reporter(show_status: bool, notifier: Notifier):
         line = runner.status_line()
         notifier.status(line)
         if show_status:
-            click.echo("\r" + line + "\x1b[K", err=True, nl=False)
+            STATUS.show(line)  # a log record clears it first, never joins it
 
     return report
 
@@ -337,7 +350,7 @@ def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status:
             sink.close()
     with contextlib.suppress(OSError):  # stderr may be a terminal that hung up
         if show_status:
-            click.echo("", err=True)
+            STATUS.close()
         if runner is not None and (runner.stats.records or streamed):
             click.echo(runner.summary(), err=True)
 

@@ -37,6 +37,14 @@ def command(url: str, use_pty: bool, link: str | None) -> int:
         )
     if not url.lower().startswith("sim://"):
         raise click.UsageError(f"URL must start with sim://, got {url!r}")
+    from spiel_edge.sim.options import modelled_envelope
+
+    if modelled_envelope(url):  # over a pty the host cannot tell it from a real board
+        click.echo(
+            "this board's envelope is modelled: run the host with --toa-correction none "
+            "(the learned correction is the real board's; docs/virtual-board.md)",
+            err=True,
+        )
     stop = threading.Event()
     with stop_on_signals(stop):
         device = serve_pty(url, link=link, stop=stop, announce=click.echo)

@@ -42,11 +42,13 @@ class Evaluation:
     association: AssociationScore = field(default_factory=AssociationScore)
     failed: list[str] = field(default_factory=list)
     scenes: SceneTally = field(default_factory=SceneTally)
+    by_position: dict[tuple, list[float]] = field(default_factory=dict)  # (x, y, z): errors
 
     def add(self, profile: Profile, result: Result, truth: np.ndarray) -> None:
         z = float(truth[2])
         self.scenes.add(result, truth[None, :])
         self.frames[z] = self.frames.get(z, 0) + 1
+        at = self.by_position.setdefault(tuple(round(float(v), 1) for v in truth), [])
         labels = label_echoes(result.features, result.counts, expected_toa(profile, truth))
         listening = profile.geometry.listening_mask()
         seen = int(((labels >= 0) & listening).sum()) >= 3
@@ -56,9 +58,9 @@ class Evaluation:
         if result.position_mm is not None:
             self.fixes[z] = self.fixes.get(z, 0) + 1
             self.fixes_seen3[z] = self.fixes_seen3.get(z, 0) + seen
-            self.errors_mm.setdefault(z, []).append(
-                float(np.linalg.norm(result.position_mm - truth))
-            )
+            error = float(np.linalg.norm(result.position_mm - truth))
+            self.errors_mm.setdefault(z, []).append(error)
+            at.append(error)
 
     def summary(self, max_z: float | None = None) -> dict:
         """Metrics over all heights (or those <= max_z), and per height."""
@@ -140,6 +142,15 @@ def evaluate_folder(
             ev.failed.append(rec.error)
             continue
         ev.add(pipeline.profile, pipeline.process(rec.frames, rec.background), truth)
+    return ev
+
+
+def evaluate_labelled(pipeline: Pipeline, data) -> Evaluation:
+    """The same figures over a labelled set in memory
+    (:class:`spiel_edge.recordings.labelled.LabelledArrays`, already filtered)."""
+    ev = Evaluation()
+    for rec in data.recordings():
+        ev.add(pipeline.profile, pipeline.process(rec.frames, rec.background), rec.truth_mm)
     return ev
 
 

@@ -9,7 +9,9 @@ schemas ``ros2msg``; outputs/ros2_messages.py), plus
   (``<--frame-id>_optical``): every target as a sphere inside its translucent 95 % uncertainty
   ellipsoid, every track as a sphere with its id and a short trail, the receivers as small
   cubes; the best position alone when a record has no ``targets``;
-* ``/spiel/position``: the JSON records.
+* ``/spiel/position``: the JSON records;
+* ``/spiel/echogram``: foxglove.RawImage (rgb8), the waterfall of the last 128 A-scans with
+  the echoes marked (outputs/echogram.py; the layout packaging/foxglove/spiel-edge.json).
 
 Binds 127.0.0.1 unless told otherwise: the server has no authentication.
 """
@@ -36,6 +38,7 @@ TF_PERIOD_S = 1.0
 TF_TOPIC = "/tf"
 SCENE_TOPIC = "/spiel/scene"
 POSITION_TOPIC = "/spiel/position"
+ECHOGRAM_TOPIC = "/spiel/echogram"
 TARGET_SIZE_M = 0.03
 RECEIVER_SIZE_M = 0.01
 TRACK_SIZE_M = 0.015
@@ -69,6 +72,8 @@ def _import_foxglove():
 
 class FoxgloveSink(Sink):
     """Serve records on a Foxglove WebSocket at ``[HOST:]PORT`` (port 0 picks a free one)."""
+
+    wants_acquisitions = True  # the echogram draws the raw samples
 
     def __init__(
         self,
@@ -123,12 +128,20 @@ class FoxgloveSink(Sink):
                 },
             )
         self._tf_channel = foxglove.channels.FrameTransformsChannel(TF_TOPIC, context=self._context)
+        from spiel_edge.outputs.echogram import Echogram
+
+        self._echogram = Echogram()
+        self._echogram_channel = foxglove.channels.RawImageChannel(
+            ECHOGRAM_TOPIC, context=self._context
+        )
+        self._acquisition = None  # the raw samples of the record to come
         self._next_tf = 0.0
         self._send_transforms()
         self._receivers = [self._cube(p) for p in ([] if receivers_mm is None else receivers_mm)]
         self._trails = Trails()
         self._shown: set[str] = set()
-        log.info("Foxglove live view on ws://%s:%d", host, self.port)
+        self.view_line = f"Foxglove live view on ws://{host}:{self.port}"
+        log.info("%s", self.view_line)
 
     def set_status_provider(self, provider) -> None:
         self.messages.status_provider = provider
@@ -174,6 +187,28 @@ class FoxgloveSink(Sink):
         self._shown = shown
         self._scene.log(self._m.SceneUpdate(deletions=gone, entities=entities))
         self._records.log(record)
+        self._send_echogram(record)
+
+    def write_acquisition(self, acquisition: dict, frames) -> None:
+        self._acquisition = (frames, acquisition.get("background"))
+
+    def _send_echogram(self, record: dict) -> None:
+        if self._acquisition is None or not isinstance(record.get("echoes"), list):
+            return
+        frames, background = self._acquisition
+        self._acquisition = None
+        image = self._echogram.add(frames, background, record["echoes"], record.get("matched"))
+        rows, width = image.shape[:2]
+        self._echogram_channel.log(
+            self._m.RawImage(
+                frame_id="spiel_echogram",
+                width=width,
+                height=rows,
+                encoding="rgb8",
+                step=3 * width,
+                data=image.tobytes(),
+            )
+        )
 
     def _target_entities(self, record: dict, shown: set[str]) -> list:
         m = self._m

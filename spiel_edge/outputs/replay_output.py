@@ -109,6 +109,8 @@ class ReplayMcap:
         rec = item.recording
         if rec is not None and rec.frames is not None:
             meta = {"seq": self.count, "timestamp_ns": int(t * 1e9), "source": rec.source}
+            if rec.truth_mm is not None:
+                meta["truth_mm"] = [round(float(v), 2) for v in rec.truth_mm]
             self.sink.write_acquisition({**meta, "background": rec.background}, rec.frames)
         self.sink.write(record)
         self.count += 1

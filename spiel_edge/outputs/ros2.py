@@ -56,6 +56,7 @@ class ZenohSettings:
     domain_id: int = 0
     config_file: str | None = None
     auth_key: bytes | None = field(default=None, repr=False)  # tag JSON records (record_auth)
+    ros_distro: str = "jazzy"  # rmw_zenoh's key format: humble has no type hashes (wire.py)
 
 
 def parse_static_tf(text: str, child: str = DEFAULT_FRAME_ID) -> StaticTransform:

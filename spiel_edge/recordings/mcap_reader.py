@@ -232,7 +232,24 @@ def _recording(
             f"{source}: background shape {background.shape} differs from frames {frames.shape}",
         )
     stamp = msg.publish_time  # the acquisition's host time, as McapSink writes it
-    return Recording(source, frames, background, time_s=stamp / 1e9 if stamp > 0 else None)
+    return Recording(
+        source,
+        frames,
+        background,
+        time_s=stamp / 1e9 if stamp > 0 else None,
+        truth_mm=_truth_of(payload),
+    )
+
+
+def _truth_of(payload: dict) -> np.ndarray | None:
+    """The ground truth the acquisition was recorded with (a virtual board's), when valid."""
+    truth = payload.get("truth_mm")
+    if not (isinstance(truth, list) and len(truth) == 3):
+        return None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in truth):
+        return None
+    arr = np.array(truth, dtype=np.float64)
+    return arr if np.isfinite(arr).all() else None
 
 
 def frames_of(payload: dict, limits: InputLimits | None = None) -> np.ndarray:

@@ -34,6 +34,7 @@ class Recording:
     background: np.ndarray | None
     error: str | None = None  # why frames (or the required background) could not be read
     time_s: float | None = None  # capture time (Unix s) when the recording has it (MCAP)
+    truth_mm: np.ndarray | None = None  # ground truth (3,) when the recording carries it
 
 
 def frame_files(folder: str | Path) -> list[Path]:

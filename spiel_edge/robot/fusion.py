@@ -154,8 +154,12 @@ class Fuser:
         track: bool = True,
         field_of_view_deg: dict[str, float] | None = None,
         coast: CoastPolicy | None = None,
+        unix_offset: Callable[[], float] | None = None,
     ):
         self.mounts = dict(mounts)
+        # the reports' time axis to Unix time in the records (run --robot times pulses on
+        # perf_counter; `run` and `fuse` records are Unix already): one clock in every record
+        self.unix_offset = unix_offset
         fov = field_of_view_deg or {}
         # a target further off its board's facing than this is not fused (cosine, board frame)
         self._fov_cos = {n: math.cos(math.radians(fov.get(n, 90.0))) for n in mounts}
@@ -309,12 +313,13 @@ class Fuser:
                 np.array([tr.position_mm for tr in confirmed]).reshape(-1, 3),
                 np.array([tr.velocity_mm_s for tr in confirmed]).reshape(-1, 3),
             )
+        offset = self.unix_offset() if self.unix_offset is not None else 0.0
         record = {
             "seq": self.seq,
-            "host_time": round(t, 6),
+            "host_time": round(t + offset, 6),
             "frame_id": frame,
             "targets": [f.record() for f in fused],
-            "boards": {name: _board_summary(r) for name, r in sorted(reports.items())},
+            "boards": {name: _board_summary(r, offset) for name, r in sorted(reports.items())},
             "missing": sorted(set(self.mounts) - self._gone - set(reports)),
         }
         if tracks is not None:
@@ -351,10 +356,10 @@ def stamp_latency(record: dict, now: float, latencies_ms: list[float]) -> None:
         record["fuser_ms"] = round((now - max(received)) * 1e3, 3)
 
 
-def _board_summary(r: BoardReport) -> dict:
+def _board_summary(r: BoardReport, offset: float = 0.0) -> dict:
     out = {
         "acquisition": r.acquisition,
-        "host_time": round(r.host_time, 6),
+        "host_time": round(r.host_time + offset, 6),
         "targets": len(r.targets),
         "crosstalk": r.crosstalk,
     }

@@ -25,6 +25,7 @@ import numpy as np
 
 from spiel_edge.errors import SpielError
 from spiel_edge.robot.board_worker import BoardWorker, toa_of
+from spiel_edge.robot.clock import unix_minus_perf_s
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, stamp_latency
@@ -86,6 +87,7 @@ class RobotRunner:
             track=track,
             spec=spec or robot.track_spec(),
             odometry=self.odometry,
+            unix_offset=unix_minus_perf_s,  # records in Unix time, as `run`'s
         )
         if odom_key:  # its messages join the boards' reports in the queue (one reader)
             from spiel_edge.robot.odometry_sources import OdometrySubscription

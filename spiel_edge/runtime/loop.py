@@ -55,9 +55,17 @@ class LiveStats:
 
 
 def load_background(path: str | Path) -> np.ndarray:
-    """A target-free capture (channels, samples) from a .npy file or a spiel-csv frames file."""
+    """A target-free capture (channels, samples) from a .npy file or a spiel-csv frames file,
+    told by the content."""
     path = Path(path)
-    if path.suffix == ".npy":
+    kind = None if path.suffix == ".npy" else _head_kind(path)
+    if kind in ("npz", "mcap"):
+        what = {"npz": "an .npz archive", "mcap": "an MCAP recording"}[kind]
+        raise InputError(
+            f"{path}: {what}; a background is a .npy capture (`spiel-edge background -o "
+            "bg.npy`) or a spiel-csv frames file"
+        )
+    if path.suffix == ".npy" or kind == "npy":
         arr = load_npy_bounded(path, "background")  # header checked before the data is read
     else:
         from spiel_edge.recordings.spiel_csv import read_frames
@@ -68,6 +76,22 @@ def load_background(path: str | Path) -> np.ndarray:
             f"{path}: a background must be a finite (channels, samples) array, got shape {arr.shape}"
         )
     return arr.astype(np.float64)
+
+
+def _head_kind(path: Path) -> str | None:
+    """What a regular file's first bytes say it is (recordings/kinds.sniff); None for anything
+    else, which the bounded readers refuse in their own words (a FIFO is never opened here)."""
+    import os
+    import stat
+
+    from spiel_edge.recordings.kinds import sniff
+
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return None
+        return sniff(path)
+    except (OSError, InputError):
+        return None
 
 
 def warm_up(pipeline: Pipeline) -> None:
@@ -240,6 +264,7 @@ class LiveRunner:
             "timestamp_ns": int(acq.host_time * 1e9),
             "background": background,
             **_v2_meta(acq),
+            **_truth_meta(acq),
         }
 
     def record(self, acq: LiveAcquisition) -> dict:
@@ -376,3 +401,9 @@ class LiveRunner:
             + cpu_text
             + (f"; {counters}" if counters else "")
         )
+
+
+def _truth_meta(acq: LiveAcquisition) -> dict:
+    """The ground truth a virtual board sent, kept in the recording so a replay keeps it."""
+    truth = getattr(acq, "truth_mm", None)
+    return {} if truth is None else {"truth_mm": [round(float(v), 2) for v in truth]}

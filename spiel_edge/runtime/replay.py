@@ -7,6 +7,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from spiel_edge.errors import InputError, SpielError
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.pipeline.staged import Pipeline, Result
@@ -16,7 +18,7 @@ from spiel_edge.runtime.records import error_record
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("spiel-csv", "mcap", "stof-chirp")
+FORMATS = ("spiel-csv", "mcap", "labelled", "stof-chirp")
 
 
 @dataclass
@@ -36,19 +38,63 @@ class Replayed:
     def _record(self) -> dict:
         if self.result is None:
             return {"source": self.source, **error_record(str(self.error))}
-        return {"source": self.source, **self.result.record()}
+        out = {"source": self.source, **self.result.record()}
+        truth = None if self.recording is None else self.recording.truth_mm
+        if truth is not None:  # kept from the input (a labelled set, a sim:// recording)
+            out["truth_mm"] = [round(float(v), 2) for v in truth]
+        return out
+
+
+class ReplaySummary:
+    """What a replay did, in one line for a person: acquisitions, fixes, targets, and the
+    error against the ground truth where the recordings carry it."""
+
+    def __init__(self) -> None:
+        self.total = self.failed = self.fixes = self.targets = 0
+        self.errors_mm: list[float] = []
+
+    def add(self, item: Replayed) -> None:
+        self.total += 1
+        if item.result is None:
+            self.failed += 1
+            return
+        self.targets += len(item.result.targets)
+        pos = item.result.position_mm
+        if pos is None:
+            return
+        self.fixes += 1
+        truth = None if item.recording is None else item.recording.truth_mm
+        if truth is not None:
+            self.errors_mm.append(float(np.linalg.norm(np.asarray(pos) - truth)))
+
+    def line(self) -> str:
+        done = self.total - self.failed
+        share = f" ({self.fixes / done:.0%})" if done else ""
+        text = (
+            f"replayed {self.total} acquisitions: {self.fixes} with a position{share}, "
+            f"{self.targets} targets in all"
+        )
+        if self.errors_mm:
+            errs = np.array(self.errors_mm)
+            text += (
+                f"; against truth_mm: mean {errs.mean():.1f} mm, median "
+                f"{np.median(errs):.1f} mm over {errs.size} positions"
+            )
+        if self.failed:
+            text += f"; {self.failed} failed"
+        return text
 
 
 def format_of(path: Path, fmt: str | None = None) -> str:
-    """``fmt``, else guessed from the path: MCAP for ``*.mcap``, SToF-Chirp for a folder of
-    ``NN_envelope_frame.txt`` files, a spiel-csv folder otherwise."""
+    """``fmt``, else told by the content: a SToF-Chirp sequence folder (``NN_envelope_frame.txt``
+    files), else :mod:`spiel_edge.recordings.kinds`: a spiel-csv folder, an MCAP recording or a
+    labelled .npz; one InputError line for anything else."""
     if fmt:
         return fmt
-    if path.suffix == ".mcap":
-        return "mcap"
+    from spiel_edge.recordings.kinds import recording_kind
     from spiel_edge.recordings.stof_chirp import is_sequence
 
-    return "stof-chirp" if is_sequence(path) else "spiel-csv"
+    return "stof-chirp" if is_sequence(path) else recording_kind(path, FORMATS)
 
 
 def iter_sources(
@@ -59,9 +105,10 @@ def iter_sources(
     *,
     iq: bool = False,
 ) -> Iterator[Recording]:
-    """Recordings from a spiel-csv folder, an MCAP file or a SToF-Chirp folder (format
-    guessed from the path), each bounded by ``limits`` (the profile's frame shape) before it
-    is parsed. ``iq``: SToF-Chirp frames from the I/Q files (the profile's signal is "iq")."""
+    """Recordings from a spiel-csv folder, an MCAP file, a labelled .npz or a SToF-Chirp
+    folder (format told by the content), each bounded by ``limits`` (the profile's frame shape)
+    before it is parsed. ``iq``: SToF-Chirp frames from the I/Q files (the profile's signal is
+    "iq")."""
     path = Path(path)
     fmt = format_of(path, fmt)
     if fmt == "spiel-csv":
@@ -76,6 +123,10 @@ def iter_sources(
                 f"{path}: MCAP replay is not available in this install ({exc})"
             ) from exc
         yield from iter_mcap_recordings(path, limits)
+    elif fmt == "labelled":
+        from spiel_edge.recordings.labelled import load_labelled
+
+        yield from load_labelled(path, limits).recordings(path.name)
     else:
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
 

@@ -298,6 +298,40 @@ def check_link(port: str) -> Check:
     )
 
 
+HOST_DEVICE_CHECKS = ("board", "device access", "stable names", "groups", "ModemManager")
+PTY_MAJORS = range(136, 144)  # Unix98 pseudo-terminal slaves (/dev/pts/N)
+
+
+def port_kind(port: str) -> str | None:
+    """``virtual board`` for a sim:// URL, ``pseudo-terminal`` for a pty (a board served by
+    `spiel-edge simulate --pty` or the posix firmware), None for anything else (a USB board)."""
+    import os
+    import stat
+
+    if port.lower().startswith("sim:"):
+        return "virtual board"
+    path = port.removeprefix("serial://").split("?", 1)[0]
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISCHR(st.st_mode) and os.major(st.st_rdev) in PTY_MAJORS:
+        return "pseudo-terminal"
+    return None
+
+
+def _not_needed(check: Check, port: str, kind: str) -> Check:
+    """A USB board's host check, passed for a board on a pty or the virtual board: it answered,
+    and no USB id, udev name, group or ModemManager stands between it and spiel-edge."""
+    if check.ok or check.name not in HOST_DEVICE_CHECKS:
+        return check
+    return Check(
+        check.name,
+        True,
+        f"not needed for {port} (a {kind}, answering); for a USB board: {check.detail}",
+    )
+
+
 def run_checks(
     profile: str | None = None,
     calibration: str | None = None,
@@ -322,7 +356,11 @@ def run_checks(
         check_unit(),  # the installed unit would start (sandbox.py)
     ]
     if port:
-        checks.insert(1, check_link(port))
+        link = check_link(port)
+        checks.insert(1, link)
+        kind = port_kind(port)
+        if link.ok and kind is not None:  # a working board that no USB or udev check concerns
+            checks = [_not_needed(c, port, kind) for c in checks]
     if not skip_numba:
         cache = numba_cache_dir()
         checks.append(check_numba_cache_dir(cache))

@@ -192,4 +192,4 @@ def test_scene_file_evaluate_and_max_targets_option(subset, tmp_path, capsys):
     bad = tmp_path / "bad.npz"
     np.savez(bad, frames=np.zeros(3))
     assert main(["evaluate", str(bad)]) != 0
-    assert "not a scene file" in capsys.readouterr().err
+    assert "without frames, backgrounds, truth_mm and names" in capsys.readouterr().err

@@ -51,6 +51,15 @@ def test_quick_start_simulated_board(tmp_path):
     assert len((tmp_path / "again.ndjson").read_text().splitlines()) == 20
 
 
+def test_quick_start_shipped_recordings(tmp_path):
+    data = "spiel_edge/data/"  # written from the repository's root; run here in a scratch folder
+    lines = [line.replace(data, f"{ROOT / data}/") for line in quickstart("data")]
+    run_lines(lines, tmp_path)
+    assert "verdict:" in (tmp_path / "cal.txt").read_text()
+    records = (tmp_path / "subset.ndjson").read_text().splitlines()
+    assert len(records) == 228 and '"truth_mm"' in records[0]
+
+
 def test_quick_start_real_board_on_a_pty(tmp_path):
     link = tmp_path / "board"
     sim = subprocess.Popen(

@@ -114,8 +114,9 @@ class RmwZenohSink(Sink):
                 return
             self._session = session
         log.info(
-            "ROS 2 node /%s on Zenoh (rmw_zenoh format, domain %d): %s",
+            "ROS 2 node /%s on Zenoh (rmw_zenoh format of %s, domain %d): %s",
             self.node_name,
+            self.settings.ros_distro,
             self.domain_id,
             ", ".join(self.topics.values()),
         )
@@ -142,7 +143,9 @@ class RmwZenohSink(Sink):
             type_name = rm.TOPICS[name]
             latched = name in rm.LATCHED
             qos = wire.LATCHED_QOS if latched else wire.SENSOR_QOS
-            type_hash = ros2_types.type_hash(type_name)
+            type_hash = wire.distro_type_hash(
+                self.settings.ros_distro, ros2_types.type_hash(type_name)
+            )
             dds = ros2_types.dds_type_name(type_name)
             key = wire.topic_key(self.domain_id, topic, dds, type_hash)
             if latched:

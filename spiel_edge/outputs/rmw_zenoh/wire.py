@@ -30,6 +30,12 @@ from dataclasses import dataclass
 from spiel_edge.errors import ConfigError
 
 ADMIN_SPACE = "@ros2_lv"
+# ROS 2 distributions and the type-hash part of their keys and tokens: Humble's rmw_zenoh
+# (0.1.x) has no type hashes (REP 2011 came with Iron) and writes this word in their place;
+# Jazzy (0.2.x), Kilted (0.6.x), Lyrical (0.10.x) and Rolling (0.12.x) write RIHS01_<sha256>.
+ROS_DISTROS = ("humble", "jazzy", "kilted", "lyrical", "rolling")
+DEFAULT_DISTRO = "jazzy"
+NO_TYPE_HASH = "TypeHashNotSupported"
 NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
 GID_SIZE = 16
 MAX_DOMAIN_ID = 232  # DDS's port mapping ends here; the bridge's DDS side needs it too
@@ -97,6 +103,13 @@ def mangle(name: str) -> str:
 
 def demangle(name: str) -> str:
     return name.replace("%", "/")
+
+
+def distro_type_hash(distro: str, type_hash: str) -> str:
+    """The type-hash part ``distro``'s rmw_zenoh writes for a type whose RIHS01 is ``type_hash``."""
+    if distro not in ROS_DISTROS:
+        raise ConfigError(f"ROS 2 distribution {distro!r}: one of {', '.join(ROS_DISTROS)}")
+    return NO_TYPE_HASH if distro == "humble" else type_hash
 
 
 def topic_key(domain_id: int, topic: str, dds_type: str, type_hash: str) -> str:
@@ -167,7 +180,8 @@ def parse_token(key: str) -> Token:
 def parse_topic_key(key: str) -> tuple[int, str, str, str]:
     """(domain id, topic with its leading slash, dds type, type hash) of a data key."""
     parts = key.split("/")
-    if len(parts) < 4 or not parts[0].isdigit() or not parts[-1].startswith("RIHS01_"):
+    hashed = parts[-1].startswith("RIHS01_") or parts[-1] == NO_TYPE_HASH
+    if len(parts) < 4 or not parts[0].isdigit() or not hashed:
         raise ValueError(f"not an rmw_zenoh topic key: {key!r}")
     return int(parts[0]), "/" + "/".join(parts[1:-2]), parts[-2], parts[-1]
 
