@@ -15,7 +15,7 @@ from typing import Any
 
 from numba import njit
 
-from spiel_edge import _cache_load, _kernel_cache
+from spiel_edge import _cache_load, _kernel_cache, _tiers
 
 _cache_load.install()
 
@@ -29,6 +29,7 @@ def jit(fn: Callable | None = None, **extra: Any) -> Any:
     def wrap(py_func: Callable) -> Any:
         dispatcher = njit(**{**FLAGS, **extra})(py_func)
         dispatcher._cache = _kernel_cache.make(py_func)  # what enable_caching() would set
+        _tiers.register(dispatcher)  # its interpreted twin, when a tiered start needs one
         return dispatcher
 
     return wrap if fn is None else wrap(fn)

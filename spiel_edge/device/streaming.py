@@ -174,6 +174,26 @@ class StreamingMixin:
                     raise
                 self._recover(exc, stop)
 
+    def newest_only(self, max_reads: int = 64) -> int:
+        """Read what the link holds now (never waiting) and drop every ready acquisition but
+        the newest: a host behind its board (interpreted kernels) processes the newest and
+        counts the others, instead of queueing without bound. How many were dropped."""
+        link = self._require_link()
+        for _ in range(max_reads):
+            data = link.read(0.0)
+            if not data:
+                break
+            ns = time.perf_counter_ns()
+            self._inbox.extend((frame, ns) for frame in self.decoder.feed(data))
+        while self._inbox:
+            self._dispatch(*self._inbox.popleft())
+        ready = self.tracker.ready
+        dropped = 0
+        while len(ready) > 1:
+            ready.popleft()
+            dropped += 1
+        return dropped
+
     def _pump(self) -> None:
         while self._inbox:
             self._dispatch(*self._inbox.popleft())

@@ -176,6 +176,16 @@ STEPS = {
 }
 
 
+def _step_plan() -> None:
+    """A tiered start's compile plan (``tier_compile``): not part of a full warm-up."""
+    from spiel_edge.runtime.tier_compile import compile_plan
+
+    compile_plan()
+
+
+EXTRA_STEPS = {"plan": _step_plan}  # run by name only (warmup_child), never by _exercise
+
+
 def _exercise(steps=None) -> None:
     for name in steps or STEPS:
         STEPS[name]()
