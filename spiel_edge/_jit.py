@@ -15,18 +15,24 @@ from typing import Any
 
 from numba import njit
 
-from spiel_edge import _cache_load, _kernel_cache, _tiers
+from spiel_edge import _cache_load, _kernel_cache, _numba_gate, _tiers
 
-_cache_load.install()
+GATED = _numba_gate.ok()  # numba's internals as tested: the project's cache layers
+if GATED:
+    _cache_load.install()
 
 FLAGS = {"nogil": True}  # and cached: see :func:`jit`
 
 
 def jit(fn: Callable | None = None, **extra: Any) -> Any:
     """``@jit``, ``@jit(inline="always")`` or ``jit(fn, **options)``: ``numba.njit`` with
-    :data:`FLAGS` and ``extra``, cached by :class:`~spiel_edge._kernel_cache.KernelCache`."""
+    :data:`FLAGS` and ``extra``, cached by :class:`~spiel_edge._kernel_cache.KernelCache`
+    (outside numba's tested range: numba's own ``njit(cache=True)``, one warning)."""
 
     def wrap(py_func: Callable) -> Any:
+        if not GATED:
+            _numba_gate.warn_once()
+            return njit(cache=True, **{**FLAGS, **extra})(py_func)
         dispatcher = njit(**{**FLAGS, **extra})(py_func)
         dispatcher._cache = _kernel_cache.make(py_func)  # what enable_caching() would set
         _tiers.register(dispatcher)  # its interpreted twin, when a tiered start needs one

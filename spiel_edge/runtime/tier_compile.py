@@ -18,12 +18,14 @@ a compile cut anywhere leaves no cache entry that loads half-written).
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
 import pickle
 import signal
 import sys
+import time
 from pathlib import Path
 
 ENV_PLAN = "SPIEL_EDGE_COMPILE_PLAN"
@@ -55,7 +57,7 @@ def try_lock(folder: Path):
     """An open, locked file in ``folder`` (held until closed or the process ends), or None
     when another process holds it."""
     folder.mkdir(parents=True, exist_ok=True)
-    fh = open(folder / LOCK_NAME, "a+")
+    fh = open(folder / LOCK_NAME, "a+")  # noqa: SIM115 - held past this function
     try:
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -99,14 +101,20 @@ def main(argv: list[str]) -> int:
     lock.truncate()
     lock.write(str(os.getpid()))
     lock.flush()
-    try:
+    with contextlib.suppress(OSError):
         os.nice(NICE)  # the command's interpreted kernels go first
-    except OSError:
-        pass
     os.environ[ENV_PLAN] = os.path.abspath(argv[0])
+
+    t0 = time.monotonic()
 
     def relay(event: str, name: str, detail: object) -> None:
         out({"event": event, "name": name, "detail": detail})
+        if event == "compiled":  # the log keeps each kernel's time (compile_times.json)
+            print(
+                f"compiled {name} {float(detail):.2f} s (at {time.monotonic() - t0:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
 
     try:
         report = _run_child("plan", relay)
@@ -114,6 +122,11 @@ def main(argv: list[str]) -> int:
         out({"error": str(exc)})
         return 1
     out({"done": {"compiled": report["compiled"], "seconds": report["seconds"]}})
+    print(
+        f"done: {len(report['compiled'])} kernels in {time.monotonic() - t0:.0f} s",
+        file=sys.stderr,
+        flush=True,
+    )
     return 0
 
 

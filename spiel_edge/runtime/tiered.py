@@ -102,7 +102,9 @@ class TieredStart:
             "compiled": len(self.done & self.planned),
             "to_compile": self.total,
             "estimate_left_s": round(left),
-            "switched_after_s": None if self.switched_after is None else round(self.switched_after, 1),
+            "switched_after_s": None
+            if self.switched_after is None
+            else round(self.switched_after, 1),
             "error": self.error,
         }
 
@@ -141,7 +143,7 @@ class TieredStart:
         write_plan(self._plan_file, plan)
         log_path = Path(folder) / LOG_NAME
         try:
-            err = open(log_path, "ab")
+            err = open(log_path, "ab")  # noqa: SIM115 - the child's; closed below
         except OSError:
             err = subprocess.DEVNULL
         self.proc = subprocess.Popen(
@@ -336,10 +338,15 @@ def start_tiered(
     from spiel_edge.runtime.compile_progress import about, estimate_for
 
     tiers.estimate_s = estimate_for(sorted(tiers.planned))
+    doing = (
+        f"compiles the {tiers.total} kernels this command needs ({about(tiers.estimate_s)})"
+        if tiers.total
+        else "loads the compiled kernels"
+    )
     tiers._say(
         f"spiel-edge {what}: kernel {first} has no compiled copy: starting on the interpreted "
-        f"kernels while a background process compiles the {tiers.total} this command needs "
-        f"({about(tiers.estimate_s)}; log: {Path(folder) / 'spiel-edge-compile.log'})"
+        f"kernels (slower, the same records) while a background process {doing}; "
+        f"log: {Path(folder) / 'spiel-edge-compile.log'}"
     )
     if notifier is not None:
         notifier.status("interpreted kernels; compiling in the background")
