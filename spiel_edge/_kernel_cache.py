@@ -120,6 +120,9 @@ def make(py_func):
 
 
 if _numba_gate.ok():  # else spiel_edge._jit uses numba's own njit(cache=True)
-    from spiel_edge._kernel_layers import (  # noqa: E402
+    from spiel_edge._kernel_layers import (  # noqa: F401 - re-exported
+        SEAL_TAG,
         KernelCache,
+        _SealedIndex,
+        _ShippedIndex,
     )
