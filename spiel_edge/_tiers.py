@@ -73,7 +73,7 @@ def callees(dispatcher, by_id: dict[int, object]) -> set[int]:
     while stack:
         code = stack.pop()
         for name in code.co_names:
-            value = glb.get(name)
+            value = getattr(glb.get(name), "dispatcher", glb.get(name))  # an interpreted wrapper
             if value is not None and id(value) in by_id:
                 found.add(id(value))
         stack.extend(c for c in code.co_consts if isinstance(c, types.CodeType))
@@ -199,7 +199,12 @@ class Interpreted:
         if self.active:
             return
         swapped = []
-        for module in _own_modules():
+        modules = {id(m): m for m in _own_modules()}
+        for k in self.kernels:  # and the kernels' own modules (a plugin's, a test's)
+            module = sys.modules.get(k.py_func.__module__)
+            if module is not None:
+                modules[id(module)] = module
+        for module in modules.values():
             d = vars(module)
             for name, value in list(d.items()):
                 wrapper = self.outer.get(id(value))

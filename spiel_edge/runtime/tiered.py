@@ -64,6 +64,7 @@ class TieredStart:
         self._loader: threading.Thread | None = None
         self._said = 0.0
         self._waiting_on_other = False
+        self.stopped = False  # the command stopped the compile (close)
 
     # --- the two tiers -------------------------------------------------------------------
 
@@ -111,6 +112,9 @@ class TieredStart:
     def status_text(self) -> str:
         if self.tier == "compiled":
             return "kernels compiled"
+        if self.stopped:
+            p = self.progress()
+            return f"kernels interpreted (compile stopped at {p['compiled']}/{p['to_compile']})"
         if self.error:
             return f"kernels interpreted (compile failed: {self.error})"
         if self._waiting_on_other:
@@ -173,6 +177,8 @@ class TieredStart:
                 busy = True
         status = proc.wait()
         self.proc = None
+        if self.stopped:  # by close(): said there
+            return
         if busy:  # another command compiles into this cache: wait for it, then load
             self._waiting_on_other = True
             return
@@ -248,6 +254,7 @@ class TieredStart:
         if proc is None or proc.poll() is not None:
             return None
         if stop_compile or os.environ.get(ENV_AFTER, "1") == "0":
+            self.stopped = True
             try:
                 os.killpg(proc.pid, signal.SIGTERM)
                 proc.wait(timeout=10)
