@@ -31,6 +31,8 @@ from spiel_edge.runtime.tracking import ResultTracker, track_records
 log = logging.getLogger(__name__)
 
 LATENCY_WINDOW = 4096  # recent latencies kept for the status line
+# interpreted kernels: the backlog kept (board time) before the oldest acquisitions are skipped
+MAX_BEHIND_S = 1.0
 
 
 @dataclass
@@ -224,7 +226,7 @@ class LiveRunner:
         """Interpreted kernels: switch when the compiled ones are ready, else keep to the
         newest acquisition (the ones skipped are counted)."""
         if not self.tiers.between():
-            self.stats.skipped += self.session.newest_only()
+            self.stats.skipped += self.session.newest_only(MAX_BEHIND_S)
 
     def handle(self, acq: LiveAcquisition) -> dict:
         record = self.record(acq)

@@ -279,3 +279,14 @@ def test_the_jit_registry_holds_every_kernel():
     registered = {id(k) for k in _tiers.KERNELS}
     assert all(id(k) in registered for k in found.values())
     assert _jit.GATED
+
+
+def test_bench_reports_the_first_record_from_an_empty_cache_and_the_interpreted_tier():
+    from spiel_edge.measure.bench_run import first_record_cold, interpreted_tier
+
+    cold = first_record_cold(frames=2)
+    assert cold["exit"] == 0 and cold["records_by_tier"] == {"interpreted": 2}
+    assert 0 < cold["first_record_s"] <= cold["end_s"]
+    tier = interpreted_tier(passes=1, acquisitions=3)
+    assert tier["acquisitions"] == 3
+    assert tier["interpreted_median_us"] > tier["compiled_median_us"] > 0
