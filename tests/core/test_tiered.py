@@ -290,3 +290,27 @@ def test_bench_reports_the_first_record_from_an_empty_cache_and_the_interpreted_
     tier = interpreted_tier(passes=1, acquisitions=3)
     assert tier["acquisitions"] == 3
     assert tier["interpreted_median_us"] > tier["compiled_median_us"] > 0
+
+
+def test_replay_starts_tiered_and_gives_the_same_records(tmp_path):
+    mcap = tmp_path / "run.mcap"
+    run = _cli(
+        "run",
+        "--port",
+        "sim://",
+        "--frames",
+        "60",
+        "--rate",
+        "0",
+        "--no-track",
+        "--record",
+        str(mcap),
+    )
+    assert run.returncode == 0, run.stderr
+    env = {"SPIEL_EDGE_TIERED": "force", "SPIEL_EDGE_COMPILE_AFTER_EXIT": "0"}
+    tiered = _cli("replay", str(mcap), env=env)
+    assert tiered.returncode == 0, tiered.stderr
+    assert "starting on the interpreted kernels" in tiered.stderr
+    plain = _cli("replay", str(mcap), env={"SPIEL_EDGE_TIERED": "0"})
+    assert plain.returncode == 0, plain.stderr
+    assert tiered.stdout == plain.stdout and len(plain.stdout.splitlines()) == 60
