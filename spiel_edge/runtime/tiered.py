@@ -311,6 +311,8 @@ def start_tiered(
                 _exercise_run(profile, association, max_targets, track, toa_correction)
             return tiers  # all cached: the compiled tier
     except _kernel_cache.CompileNeeded as exc:
+        if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
+            raise  # SPIEL_EDGE_NO_COMPILE=1: a missing kernel is an error
         first = exc.name
     except SpielError as exc:  # an unusual profile: the live stream will tell
         log.debug("kernel preparation: %s", exc)

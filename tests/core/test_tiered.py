@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -147,6 +148,10 @@ def test_a_run_that_switches_tiers_records_what_replay_computes(tmp_path):
     assert tiers[0] == "interpreted" and tiers[-1] == "compiled", run.stderr
     assert tiers == sorted(tiers, key=lambda t: t == "compiled")  # one switch, never back
     assert "compiled kernels in use after" in run.stderr
+    index = [r["acquisition"] for r in live]
+    gaps = sum(b - a - 1 for a, b in zip(index, index[1:], strict=False))
+    skipped = re.search(r"(\d+) skipped", run.stderr)
+    assert gaps == (int(skipped.group(1)) if skipped else 0)  # every gap counted as skipped
     replay = _cli("replay", str(mcap), env={"SPIEL_EDGE_TIERED": "0"})
     assert replay.returncode == 0, replay.stderr
     replayed = [json.loads(line) for line in replay.stdout.splitlines()]
@@ -314,3 +319,28 @@ def test_replay_starts_tiered_and_gives_the_same_records(tmp_path):
     plain = _cli("replay", str(mcap), env={"SPIEL_EDGE_TIERED": "0"})
     assert plain.returncode == 0, plain.stderr
     assert tiered.stdout == plain.stdout and len(plain.stdout.splitlines()) == 60
+
+
+def test_progress_counts_each_kernel_once_and_says_which_tier_runs():
+    import io
+
+    from spiel_edge.runtime.tiered import TieredStart
+
+    out = io.StringIO()
+    tiers = TieredStart(stream=out)
+    tiers.tier = "interpreted"
+    tiers.planned = {f"m.k{i}" for i in range(4)}
+    tiers.total, tiers.estimate_s = 4, 40.0
+    for name in ("m.k0", "m.k0", "m.k1", "m.k2", "m.k2", "m.k3"):  # second signatures
+        tiers._on_event("compile", name, "(sig)")
+        tiers._on_event("compiled", name, 5.0)
+    lines = out.getvalue().splitlines()
+    assert [line.split(" kernels")[0].split()[-1] for line in lines] == ["1/4", "2/4", "3/4", "4/4"]
+    assert tiers.progress()["compiled"] == 4 and tiers.progress()["estimate_left_s"] == 10
+    tiers._on_event("compiled", "m.unplanned", 1.0)  # more than planned: counted honestly
+    assert tiers.progress()["to_compile"] == 5 and tiers.progress()["compiled"] == 5
+    assert tiers.status_text() == "kernels interpreted, loading the compiled ones"
+    tiers.total += 1  # one more to go
+    assert tiers.status_text() == "kernels interpreted, compiling 5/6 (~9 s left)"
+    tiers.stopped = True
+    assert tiers.status_text() == "kernels interpreted (compile stopped at 5/5)"
