@@ -343,4 +343,4 @@ def test_progress_counts_each_kernel_once_and_says_which_tier_runs():
     tiers.total += 1  # one more to go
     assert tiers.status_text() == "kernels interpreted, compiling 5/6 (~9 s left)"
     tiers.stopped = True
-    assert tiers.status_text() == "kernels interpreted (compile stopped at 5/5)"
+    assert tiers.status_text() == "kernels interpreted (compile stopped at 5/6)"
