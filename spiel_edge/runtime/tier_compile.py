@@ -92,10 +92,12 @@ def main(argv: list[str]) -> int:
     folder = cache_dir()
     if folder is None:
         out({"error": "no writable folder for compiled kernels"})
+        Path(argv[0]).unlink(missing_ok=True)
         return 1
     lock = try_lock(Path(folder))
     if lock is None:
         out({"busy": True})
+        Path(argv[0]).unlink(missing_ok=True)
         return 3
     lock.seek(0)
     lock.truncate()
@@ -121,6 +123,8 @@ def main(argv: list[str]) -> int:
     except WarmupError as exc:
         out({"error": str(exc)})
         return 1
+    finally:
+        Path(argv[0]).unlink(missing_ok=True)  # the plan was the command's; it may be gone
     out({"done": {"compiled": report["compiled"], "seconds": report["seconds"]}})
     print(
         f"done: {len(report['compiled'])} kernels in {time.monotonic() - t0:.0f} s",

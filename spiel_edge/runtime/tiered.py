@@ -248,9 +248,7 @@ class TieredStart:
     def close(self, stop_compile: bool) -> str | None:
         """The command ends: stop the compile (``stop_compile``, or SPIEL_EDGE_COMPILE_AFTER_EXIT
         =0), else leave it running; the line saying which, or None when none runs."""
-        proc = self.proc
-        if self._plan_file is not None and proc is None:
-            self._plan_file.unlink(missing_ok=True)
+        proc = self.proc  # (its plan file is the compile process's to remove)
         if proc is None or proc.poll() is not None:
             return None
         if stop_compile or os.environ.get(ENV_AFTER, "1") == "0":
@@ -260,6 +258,8 @@ class TieredStart:
                 proc.wait(timeout=10)
             except (OSError, subprocess.TimeoutExpired):
                 pass
+            if self._plan_file is not None:  # stopped before it could remove it
+                self._plan_file.unlink(missing_ok=True)
             p = self.progress()
             return (
                 f"spiel-edge: compile stopped at {p['compiled']}/{p['to_compile']} kernels "

@@ -193,7 +193,7 @@ def test_a_signal_during_the_compile_stops_it_with_one_line(tmp_path, signum):
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert "Traceback" not in err and "ended with status" not in err
-    stopped = [line for line in err.splitlines() if "compile stopped" in line]
+    stopped = [line for line in err.splitlines() if line.startswith("spiel-edge: compile stopped")]
     switched = [line for line in err.splitlines() if "compiled kernels in use" in line]
     assert len(stopped) == 1 or switched, err  # (under load it may have finished first)
     for _ in range(50):
