@@ -1,6 +1,9 @@
 """numba's cache for this project's kernels, in two layers and never a crash.
 
-Each ``spiel_edge._jit.jit`` kernel (and the stream decoder's) gets a :class:`KernelCache`, a
+This module holds what needs no numba internal (compile reports, the "not compiled" probe,
+the cache folder's check); the numba subclasses are in ``spiel_edge._kernel_layers``,
+imported only when ``spiel_edge._numba_gate`` passes. Each ``spiel_edge._jit.jit`` kernel (and
+the stream decoder's) gets a ``_kernel_layers.KernelCache``, a
 ``numba.core.caching.FunctionCache`` that
 
 - looks a kernel up first in the prebuilt kernels of a release wheel (``spiel_edge/_kernels``,
@@ -32,7 +35,6 @@ import os
 import tempfile
 from collections.abc import Callable
 
-from spiel_edge import _numba_gate
 from spiel_edge.errors import SpielError
 
 log = logging.getLogger(__name__)
@@ -105,24 +107,3 @@ def cache_dir_problem() -> str | None:
 def _cache_dir_problem_once() -> str | None:
     """:func:`cache_dir_problem`, looked at once per process (not per kernel)."""
     return cache_dir_problem()
-
-
-def make(py_func):
-    """A :class:`KernelCache` for ``py_func``, or numba's no-op cache when numba finds no
-    locator at all (NUMBA_CACHE_LOCATOR_CLASSES naming none that fits)."""
-    from numba.core import caching
-
-    try:
-        return KernelCache(py_func)
-    except RuntimeError as exc:
-        _warn_once("nocache", f"kernels are not cached: {exc}")
-        return caching.NullCache()
-
-
-if _numba_gate.ok():  # else spiel_edge._jit uses numba's own njit(cache=True)
-    from spiel_edge._kernel_layers import (  # noqa: F401 - re-exported
-        SEAL_TAG,
-        KernelCache,
-        _SealedIndex,
-        _ShippedIndex,
-    )

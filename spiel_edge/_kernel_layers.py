@@ -160,7 +160,6 @@ class _ShippedIndex(caching.IndexDataCacheFile):
         raise OSError("the shipped kernels are read-only")
 
 
-
 class KernelCache(caching.FunctionCache):
     _impl_class = _Impl
 
@@ -259,3 +258,11 @@ class KernelCache(caching.FunctionCache):
         _emit("compiled", self._name, seconds)
 
 
+def make(py_func) -> caching._Cache:
+    """A :class:`KernelCache` for ``py_func``, or numba's no-op cache when numba finds no
+    locator at all (NUMBA_CACHE_LOCATOR_CLASSES naming none that fits)."""
+    try:
+        return KernelCache(py_func)
+    except RuntimeError as exc:
+        _warn_once("nocache", f"kernels are not cached: {exc}")
+        return caching.NullCache()

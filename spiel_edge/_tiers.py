@@ -218,9 +218,8 @@ class Interpreted:
 
     def use_pure_cobs(self) -> None:
         """The stream decoder on its pure-Python path (the same bytes, faster than twins)."""
-        from firmware_protocol import cobs
-
-        if cobs.kernels() is not None:
+        cobs = sys.modules.get("firmware_protocol.cobs")  # imported with the kernels
+        if cobs is not None and cobs.kernels() is not None:
             self._swapped.append((vars(cobs), "_kernels", cobs._kernels))
             cobs._kernels = None
 

@@ -28,29 +28,15 @@ import sys
 import time
 from pathlib import Path
 
-ENV_PLAN = "SPIEL_EDGE_COMPILE_PLAN"
 LOCK_NAME = "spiel-edge-compile.lock"
 LOG_NAME = "spiel-edge-compile.log"
 NICE = 10
-
-
-def read_plan(path: str | os.PathLike) -> list[tuple[str, str, tuple]]:
-    with open(path, "rb") as fh:
-        return pickle.load(fh)
 
 
 def write_plan(path: Path, plan: list[tuple[str, str, tuple]]) -> None:
     tmp = path.with_suffix(".tmp")
     tmp.write_bytes(pickle.dumps(plan, protocol=pickle.HIGHEST_PROTOCOL))
     os.replace(tmp, path)
-
-
-def compile_plan() -> None:
-    """The warm-up step ``plan``: compile (or load) every call of ``$SPIEL_EDGE_COMPILE_PLAN``."""
-    import importlib
-
-    for module, attr, argtypes in read_plan(os.environ[ENV_PLAN]):
-        getattr(importlib.import_module(module), attr).compile(argtypes)
 
 
 def try_lock(folder: Path):
@@ -83,7 +69,7 @@ class _Out:
 
 
 def main(argv: list[str]) -> int:
-    from spiel_edge.runtime.warmup import cache_dir
+    from spiel_edge.runtime.warmup import ENV_PLAN, cache_dir
     from spiel_edge.runtime.warmup_child import WarmupError, _run_child
 
     out = _Out()

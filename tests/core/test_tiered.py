@@ -270,7 +270,7 @@ def test_a_compile_cut_by_sigterm_leaves_nothing_that_loads_half_written(tmp_pat
     assert result["warnings"] == []  # no damaged file met
     assert result["loaded"] >= 2 and result["loaded"] + result["missing"] == 8
     # every file in the cache is whole: sealed, or numba's own temporary never read
-    from spiel_edge._kernel_cache import SEAL_TAG
+    from spiel_edge._kernel_layers import SEAL_TAG
 
     for path in (tmp_path / "cache").rglob("tiny_plan.*.nb*"):
         data = path.read_bytes()
