@@ -344,3 +344,36 @@ def test_progress_counts_each_kernel_once_and_says_which_tier_runs():
     assert tiers.status_text() == "kernels interpreted, compiling 5/6 (~9 s left)"
     tiers.stopped = True
     assert tiers.status_text() == "kernels interpreted (compile stopped at 5/6)"
+
+
+def test_status_line_summary_and_diagnostics_say_the_tier():
+    import io
+
+    from spiel_edge.runtime.loop import LiveRunner
+    from spiel_edge.runtime.tiered import TieredStart
+
+    class Session:
+        url = "sim://"
+        hello = None
+
+        def counts(self):
+            return {"lost": 0, "damaged": 0, "overruns": 0, "reconnects": 0, "disconnects": 0}
+
+    class Sink:
+        def set_status_provider(self, provider):
+            self.provider = provider
+
+    sink = Sink()
+    runner = LiveRunner(Session(), pipeline=None, sink=sink)
+    tiers = TieredStart(stream=io.StringIO())
+    tiers.tier, tiers.planned, tiers.total, tiers.estimate_s = "interpreted", {"m.k"}, 1, 30.0
+    runner.tiers = tiers
+    runner.stats.skipped = 7
+    values = sink.provider()["values"]
+    assert values["kernels"] == "kernels interpreted, compiling 0/1 (~30 s left)"
+    assert values["skipped"] == 7
+    assert "skipped 7  kernels interpreted, compiling 0/1" in runner.status_line()
+    tiers.tier = "compiled"
+    tiers.rounds = 1
+    assert runner.status_line().endswith("kernels compiled")
+    assert "7 skipped (interpreted kernels behind the board); kernels compiled" in runner.summary()
