@@ -89,6 +89,8 @@ class Progress:
             self.current = short
             self._draw()
         elif event == "compiled":
+            if name in self._compiled:  # another signature of a kernel counted: no new line
+                return
             self._compiled.add(name)
             self.done = len(self._compiled)
             if self.notifier is not None:

@@ -300,8 +300,13 @@ def start_tiered(
     numba outside the tested range): then kernels compile first, as before."""
     from spiel_edge import _kernel_cache, _tiers
     from spiel_edge.errors import SpielError
-    from spiel_edge.runtime.first_start import _exercise_run, cache_writable, prepare_for_run
-    from spiel_edge.runtime.warmup import cache_dir, pipeline_kernels
+    from spiel_edge.runtime.first_start import (
+        _exercise_run,
+        cache_writable,
+        make_plan,
+        prepare_for_run,
+    )
+    from spiel_edge.runtime.warmup import cache_dir
 
     tiers = TieredStart(stream, notifier)
     first = "(SPIEL_EDGE_TIERED=force)"
@@ -321,28 +326,9 @@ def start_tiered(
     if not enabled() or not cache_writable() or folder is None or not _tiers.KERNELS:
         prepare_for_run(profile, association, max_targets, track, toa_correction, stream, notifier)
         return None
-    pipeline_kernels()  # every kernel module imported: each kernel has its twin
-    interpreted = _tiers.Interpreted()
-    interpreted.enter(pure_cobs=False)
-    from firmware_protocol import cobs
-
-    cobs._warm = False  # the try above may have marked it warm: its calls go in the plan
-    try:
-        _exercise_run(profile, association, max_targets, track, toa_correction)
-    except SpielError as exc:
-        log.debug("interpreted plan: %s", exc)
-    interpreted.use_pure_cobs()
+    interpreted, plan, units = make_plan(profile, association, max_targets, track, toa_correction)
     tiers.interpreted, tiers.tier, tiers._folder = interpreted, "interpreted", folder
-    plan = [(*_tiers.where(k), t) for k, t in interpreted.calls]
-    from numba.core.registry import cpu_target
-
-    codegen = cpu_target.target_context.codegen()
-    units = [
-        k
-        for k in _tiers.reach([k for k, _t in interpreted.calls])
-        if not (hasattr(k._cache, "has_copy") and k._cache.has_copy(codegen))
-    ]
-    tiers.planned = {_tiers.qualified_name(k) for k in units}
+    tiers.planned = set(units)
     tiers.total = len(tiers.planned)
     from spiel_edge.runtime.compile_progress import about, estimate_for
 
