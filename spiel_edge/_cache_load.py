@@ -30,30 +30,16 @@ import tempfile
 import weakref
 from pathlib import Path
 
-from spiel_edge import _shipped
+from spiel_edge import _numba_gate, _shipped
 
 log = logging.getLogger(__name__)
 
 ENV_SWITCH = "SPIEL_EDGE_NUMBA_LEAN"
-# the numba and llvmlite versions whose internals this was checked against (tests/core/
-# test_cache_load.py runs the lean and the stock path on the installed ones); any other
-# version, or one that lacks an attribute below, loads cached kernels numba's own way
-SUPPORTED = ((0, 68),)
-SUPPORTED_LLVMLITE = ((0, 50),)
-RELIED_ON = (
-    ("numba.core.caching", "FunctionCache", "load_overload"),
-    ("numba.core.caching", "FunctionCache", "_load_overload"),
-    ("numba.core.caching", "FunctionCache", "_guard_against_spurious_io_errors"),
-    ("numba.core.runtime.nrt", "rtsys", "initialize"),
-    ("numba.core.runtime.nrtdynmod", "compile_nrt_functions", None),
-    ("numba.core.runtime.nrtdynmod", "create_nrt_module", None),
-    ("numba.core.codegen", "JITCPUCodegen", "unserialize_library"),
-    ("numba.core.codegen", "JITCPUCodegen", "magic_tuple"),
-    ("numba.core.codegen", "JITCodeLibrary", "_set_compiled_object"),
-    ("numba.core.codegen", "JITCodeLibrary", "_finalize_final_module"),
-    ("numba.core.codegen", "JITCodeLibrary", "serialize_using_object_code"),
-    ("numba.core.cpu", "CPUContext", "refresh"),
-)
+# the numba and llvmlite versions checked, and the internals replaced below: spiel_edge.
+# _numba_gate (one list for both layers); another version or a missing name loads cached
+# kernels numba's own way
+SUPPORTED = _numba_gate.TESTED["numba"]
+SUPPORTED_LLVMLITE = _numba_gate.TESTED["llvmlite"]
 OWN_MODULES = ("spiel_edge.", "firmware_protocol.")
 RUNTIME_MAGIC = b"spiel-edge nrt 1\n"
 
@@ -108,24 +94,8 @@ def install() -> bool:
 
 def unsupported() -> str:
     """'' when the installed numba and llvmlite are the versions this module was checked
-    against and have every internal it replaces, else what is not."""
-    import importlib
-
-    import llvmlite
-    import numba
-
-    if _version(numba.__version__) not in SUPPORTED:
-        return f"numba {numba.__version__} (checked: {_versions(SUPPORTED)})"
-    if _version(llvmlite.__version__) not in SUPPORTED_LLVMLITE:
-        return f"llvmlite {llvmlite.__version__} (checked: {_versions(SUPPORTED_LLVMLITE)})"
-    for module_name, name, attr in RELIED_ON:
-        try:
-            obj = getattr(importlib.import_module(module_name), name)
-            if attr is not None:
-                getattr(obj, attr)
-        except (ImportError, AttributeError):
-            return f"numba {numba.__version__} has no {module_name}.{name}.{attr or ''}"
-    return ""
+    against and have every internal it replaces (``_numba_gate.problem``), else what is not."""
+    return _numba_gate.problem()
 
 
 def _versions(pairs) -> str:

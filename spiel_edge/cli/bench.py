@@ -121,6 +121,20 @@ def command(
             f"CPU-us per record ({run.get('over_pipeline', '-')}x the pipeline's), "
             f"latency at --rate 0 {run['latency_ms']}"
         )
+    if not no_startup:  # a tiered start (docs/first-start.md): cheap, the compile is stopped
+        from spiel_edge.measure.bench_run import first_record_cold, interpreted_tier
+
+        result["tiered_start"] = tiered = {
+            "cold_run_5_frames": first_record_cold(),
+            "interpreted_4x64": interpreted_tier(),
+        }
+        cold, tier = tiered["cold_run_5_frames"], tiered["interpreted_4x64"]
+        click.echo(
+            f"first record from an empty cache (run --port sim:// --frames 5): "
+            f"{cold['first_record_s']} s; interpreted kernels: median "
+            f"{tier['interpreted_median_us'] / 1e3:.1f} ms per acquisition "
+            f"(compiled {tier['compiled_median_us']:.0f} us)"
+        )
     if first_start:
         from spiel_edge.measure.bench_run import cold_figures
 

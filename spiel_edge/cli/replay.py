@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from contextlib import closing
 from pathlib import Path
@@ -27,7 +28,6 @@ from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.recording_profile import recording_profile
 from spiel_edge.recordings.spiel_csv import frame_files
-from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
 from spiel_edge.runtime.replay import (
     FORMATS,
@@ -38,6 +38,7 @@ from spiel_edge.runtime.replay import (
     recorded_toa_correction,
     replay,
 )
+from spiel_edge.runtime.tiered import start_tiered
 from spiel_edge.runtime.tracking import replay_tracked
 
 
@@ -118,11 +119,15 @@ def command(
     frame = ros2_settings(ros2, profile)  # bad frame options: before any work
     if toa_correction is None:  # as run chose when it recorded the file
         toa_correction = recorded_toa_correction(path, fmt)
-    # missing kernels compile now, said at once with progress (once, not in every worker)
-    prepare_for_run(profile, association, max_targets, track, toa_correction)
+    # missing kernels: the interpreted ones run while a background process compiles them
+    # (said at once, with progress), in this process only (workers would each compile)
+    tiers = start_tiered(profile, association, max_targets, track, toa_correction, what="replay")
     pipeline = build_pipeline(profile, association, toa_correction)
     limits = InputLimits.for_profile(profile)
     jobs = usable_jobs(jobs, path, fmt, track, profile)
+    if tiers is not None and tiers.is_interpreted and jobs > 1:
+        click.echo(f"--jobs {jobs}: 1 while the kernels compile (interpreted)", err=True)
+        jobs = 1
     files = frame_files(path) if jobs > 1 else None
     if max_targets:
         pipeline.set_max_targets(max_targets)
@@ -141,6 +146,8 @@ def command(
     finalizers = Finalizers(exit_status=EXIT_PARTIAL)  # stuck on a blocked stdout: keep the
     if sink.owns_file:  # complete lines written so far; the replay is incomplete (1)
         finalizers.add(sink.close)
+    if tiers is not None:  # a signal stops the background compile; a normal end leaves it
+        finalizers.add(lambda: _say(tiers.close(stop_compile=stop.is_set())))
     try:
         with stop_on_signals(stop, finalizers):
             if files is not None:
@@ -167,6 +174,8 @@ def command(
                 for item in items:
                     sink.write(item)
                     summary.add(item)
+                    if tiers is not None and tiers.is_interpreted:
+                        tiers.between()  # the compiled kernels from the next acquisition on
                     total += 1
                     failed += item.error is not None
                     if stop.is_set():
@@ -185,3 +194,9 @@ def command(
     if failed:
         click.echo(f"{failed} of {total} acquisitions could not be processed", err=True)
     return EXIT_PARTIAL if failed else EXIT_OK
+
+
+def _say(line: str | None) -> None:
+    if line:
+        with contextlib.suppress(OSError):
+            click.echo(line, err=True)

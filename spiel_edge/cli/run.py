@@ -30,7 +30,6 @@ from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.profile.schema import resolve_profile
-from spiel_edge.runtime.first_start import prepare_for_run
 from spiel_edge.runtime.loop import (
     LiveRunner,
     check_stream_shape,
@@ -41,6 +40,7 @@ from spiel_edge.runtime.loop import (
 from spiel_edge.runtime.realtime import apply_realtime
 from spiel_edge.runtime.replay import chosen_toa_correction
 from spiel_edge.runtime.slotted_stream import slot_keeper_of, start_in_slot
+from spiel_edge.runtime.tiered import start_tiered
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier
 
@@ -236,10 +236,10 @@ def command(
     fixed_background = load_background(background) if background else None
     port = board_port(port)
     toa_correction = live_toa_correction(port, toa_correction)
-    # kernels missing from every cache compile now, said at once and with progress, before
-    # the board is opened (its stream never waits on a silent host)
+    # kernels missing from every cache: the interpreted ones run while a background process
+    # compiles them (said at once, with progress), before the board is opened
     notifier = Notifier()
-    prepare_for_run(chosen, association, max_targets, track, toa_correction, notifier=notifier)
+    tiers = start_tiered(chosen, association, max_targets, track, toa_correction, notifier=notifier)
     apply_realtime(realtime)  # compiled: the link's and the outputs' threads inherit it
     if show_status is None:
         show_status = sys.stderr.isatty()
@@ -248,6 +248,8 @@ def command(
     sink = None
     stop = threading.Event()
     finalizers = Finalizers()
+    if tiers is not None:  # a signal stops the background compile; a normal end leaves it
+        finalizers.add(lambda: _say(tiers.close(stop_compile=stop.is_set())))
     with stop_on_signals(stop, finalizers):
         try:
             pipeline, source = open_pipeline(
@@ -283,6 +285,7 @@ def command(
             runner = LiveRunner(
                 session, pipeline, sink, background=fixed_background, tracker=tracker
             )
+            runner.tiers = tiers
             runner.on_record = notifier.ping
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
             stream = dict(
@@ -308,6 +311,12 @@ def command(
     if failed:
         click.echo(f"outputs that failed: {'; '.join(sink.failed)}", err=True)
     return EXIT_PARTIAL if failed or (runner is not None and runner.stats.errors) else EXIT_OK
+
+
+def _say(line: str | None) -> None:
+    if line:
+        with contextlib.suppress(OSError):
+            click.echo(line, err=True)
 
 
 def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:

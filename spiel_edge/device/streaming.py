@@ -174,6 +174,31 @@ class StreamingMixin:
                     raise
                 self._recover(exc, stop)
 
+    def newest_only(self, max_behind_s: float = 0.0, max_reads: int = 64) -> int:
+        """Read what the link holds now (never waiting) and drop every ready acquisition
+        more than ``max_behind_s`` (board time) older than the newest, which is always kept:
+        a host behind its board (interpreted kernels) rides out a hiccup within that bound
+        and beyond it processes the newest and counts the others, instead of queueing
+        without bound. How many were dropped."""
+        link = self._require_link()
+        for _ in range(max_reads):
+            data = link.read(0.0)
+            if not data:
+                break
+            ns = time.perf_counter_ns()
+            self._inbox.extend((frame, ns) for frame in self.decoder.feed(data))
+        while self._inbox:
+            self._dispatch(*self._inbox.popleft())
+        ready = self.tracker.ready
+        if not ready:
+            return 0
+        oldest_kept = ready[-1].timestamp_us - max_behind_s * 1e6
+        dropped = 0
+        while len(ready) > 1 and ready[0].timestamp_us < oldest_kept:
+            ready.popleft()
+            dropped += 1
+        return dropped
+
     def _pump(self) -> None:
         while self._inbox:
             self._dispatch(*self._inbox.popleft())

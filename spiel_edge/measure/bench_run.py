@@ -217,3 +217,93 @@ def cold_figures() -> dict:
         out["cold_warmup"] = warmup_figures(env)
         out["warm_run"] = first_start(env)
     return out
+
+
+def first_record_cold(frames: int = 5, timeout_s: float = 120.0) -> dict:
+    """``spiel-edge run --port sim:// --frames N`` on an empty cache: seconds to its first
+    record and to its end, and its records' tiers (a tiered start runs the interpreted
+    kernels while a background process compiles; it is stopped at the end: cheap)."""
+    import json
+
+    with tempfile.TemporaryDirectory() as cache:
+        env = {
+            **os.environ,
+            "NUMBA_CACHE_DIR": cache,
+            "SPIEL_EDGE_HOST_KERNELS": "1",
+            "SPIEL_EDGE_COMPILE_AFTER_EXIT": "0",
+        }
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(
+            [*CLI, "run", "--port", "sim://", "--frames", str(frames), "--no-status"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            env=env,
+            text=True,
+        )
+        first, tiers = None, {}
+        try:
+            for line in proc.stdout:
+                if not line.startswith("{"):
+                    continue
+                first = first if first is not None else time.perf_counter() - t0
+                tier = json.loads(line).get("tier", "compiled")
+                tiers[tier] = tiers.get(tier, 0) + 1
+            proc.wait(timeout=timeout_s)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    return {
+        "first_record_s": None if first is None else round(first, 2),
+        "end_s": round(time.perf_counter() - t0, 2),
+        "records_by_tier": tiers,
+        "exit": proc.returncode,
+    }
+
+
+def interpreted_tier(passes: int = 2, acquisitions: int = 16) -> dict:
+    """Microseconds per acquisition of the fused pipeline and tracker on the interpreted
+    kernels (a tiered start's first tier) and on the compiled ones, on the vendored
+    acquisitions (one target, with their backgrounds)."""
+    import numpy as np
+
+    from spiel_edge import _tiers
+    from spiel_edge.data import load_subset
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.profile.schema import load_profile
+    from spiel_edge.runtime.tracking import ResultTracker
+    from spiel_edge.runtime.warmup import pipeline_kernels
+
+    pipeline_kernels()
+    subset = load_subset()
+    pairs = [
+        (f.astype(np.float64), b.astype(np.float64))
+        for f, b in zip(
+            subset.frames[:acquisitions], subset.backgrounds[:acquisitions], strict=True
+        )
+    ]
+
+    def per_acquisition() -> list[float]:
+        pipeline = build_pipeline(load_profile(), None)
+        tracker = ResultTracker(load_profile().track)
+        times = []
+        for p in range(passes):
+            for i, (frames, background) in enumerate(pairs):
+                t = time.perf_counter()
+                tracker.update(pipeline.process(frames, background), 0.02 * (p * len(pairs) + i))
+                times.append((time.perf_counter() - t) * 1e6)
+        return times
+
+    compiled = per_acquisition()
+    interpreted = _tiers.Interpreted()
+    interpreted.enter()
+    try:
+        slow = per_acquisition()
+    finally:
+        interpreted.leave()
+    return {
+        "interpreted_median_us": round(float(np.median(slow)), 1),
+        "interpreted_p95_us": round(float(np.percentile(slow, 95)), 1),
+        "compiled_median_us": round(float(np.median(compiled)), 1),
+        "acquisitions": len(slow),
+    }

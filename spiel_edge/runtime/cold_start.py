@@ -25,6 +25,7 @@ from spiel_edge import _shipped
 
 PROBE_SOURCE = Path(__file__).resolve().parents[2] / "firmware_protocol" / "_cobs_numba.py"
 PROBE_PATTERN = "_cobs_numba.encode-*.nbi"  # numba's index file: <qualname>-<line>.pyXY.nbi
+TIERED = ("run", "replay")  # commands with a tiered start (runtime/tiered.py)
 WHAT_WAITS = {"run": "the board is opened", "replay": "the first file is read"}
 
 
@@ -71,9 +72,15 @@ def say_if_cold(command: str, stream: TextIO | None = None) -> bool:
     if not has_no_kernels():
         return False
     stream = stream or sys.stderr
+    tiered = command in TIERED and os.environ.get("SPIEL_EDGE_TIERED", "1") != "0"
+    then = (
+        "they compile in the background while the interpreted ones run"
+        if tiered
+        else f"they compile now, before {WHAT_WAITS.get(command, 'it starts')}"
+    )
     print(
         f"spiel-edge {command}: no compiled kernels in the cache ({probe_folders()[0].parent}): "
-        f"they compile now, before {WHAT_WAITS.get(command, 'it starts')}; counting them...",
+        f"{then}; counting them...",
         file=stream,
         flush=True,
     )

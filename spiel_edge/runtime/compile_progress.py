@@ -25,6 +25,30 @@ def estimate_seconds(n_missing: int, n_total: int, machine: str) -> float:
     return FULL_COMPILE_S * share * SLOWER_ON.get(machine, 1.0)
 
 
+def kernel_seconds() -> dict[str, float]:
+    """Measured seconds to compile each kernel (with its callees cached) on one x86-64 core
+    (``compile_times.json``, written from a cold compile's own reports: docs/first-start.md)."""
+    import json
+    from pathlib import Path
+
+    try:
+        table = json.loads((Path(__file__).parent / "compile_times.json").read_text())
+        return {str(k): float(v) for k, v in table["seconds"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+
+
+def estimate_for(names: list[str], machine: str | None = None) -> float:
+    """About how long compiling the kernels ``names`` takes here: the measured time of each
+    (the mean of the measured ones for a kernel not in the table), times the CPU's factor."""
+    import platform
+
+    table = kernel_seconds()
+    mean = sum(table.values()) / len(table) if table else FULL_COMPILE_S / 100
+    factor = SLOWER_ON.get(machine or platform.machine(), 1.0)
+    return sum(table.get(n, mean) for n in names) * factor
+
+
 def about(seconds: float) -> str:
     if seconds < 90:
         return f"about {max(10, round(seconds, -1)):.0f} s"
@@ -65,6 +89,8 @@ class Progress:
             self.current = short
             self._draw()
         elif event == "compiled":
+            if name in self._compiled:  # another signature of a kernel counted: no new line
+                return
             self._compiled.add(name)
             self.done = len(self._compiled)
             if self.notifier is not None:

@@ -80,7 +80,14 @@ def prepare_for_run(
     if notifier is not None:
         notifier.starting("compiling kernels for this CPU")
     writable = cache_writable()
-    if writable:
+    if writable and _tiers_available():  # only what this configuration needs, counted
+        interpreted, plan, units = make_plan(
+            profile, association, max_targets, track, toa_correction
+        )
+        interpreted.leave()
+        say_plan(progress, units)
+        _compile_plan(plan, progress)
+    elif writable:
         for step in RUN_STEPS:
             _run_child(step, progress)
     _kernel_cache.listeners.append(progress)  # what the profile needs beyond the steps: here
@@ -99,34 +106,61 @@ def prepare_for_run(
 
 
 def announce(when: str, stream=None, first: str | None = None):
-    """Say at once that kernels must compile (``first``: the one found missing), then how
-    many, why and about how long; return the display."""
-    import platform
-
-    from spiel_edge import _shipped
-    from spiel_edge.runtime.compile_progress import Progress, about, estimate_seconds
+    """Say at once that kernels must compile (``first``: the one found missing); the count
+    and the estimate follow (:func:`say_plan`). The display is returned."""
+    from spiel_edge.runtime.compile_progress import Progress
 
     progress = Progress(total=1, stream=stream)
-    if first is not None:  # at once: counting them imports every kernel module (seconds)
+    progress.when = when
+    if first is not None:
         progress.say(f"spiel-edge: kernel {first} has no compiled copy: compiling {when}")
-    status = kernel_status()
-    n, total = max(len(status["missing"]), 1), max(status["total"], 1)
-    progress.total = n
-    progress.say(
-        f"spiel-edge: compiling {n} of {total} kernels for this CPU {when}, "
-        f"{about(estimate_seconds(n, total, platform.machine()))} "
-        f"({_why(status, _shipped.status())}; once: later starts load them from "
-        f"{status['cache_dir'] or 'nowhere: no writable cache folder'})"
-    )
     return progress
 
 
-def _why(status: dict, shipped: dict) -> str:
-    if shipped["active"]:
-        return "the prebuilt kernels lack them"
-    if status["missing"] and len(status["missing"]) < status["total"]:
-        return f"{shipped['reason']}; the cache holds some of them: the code or numba changed"
-    return f"{shipped['reason']}; the cache is empty"
+def say_plan(progress, units: list[str]) -> None:
+    """How many kernels this command compiles, why and about how long (from the measured
+    per-kernel times)."""
+    from spiel_edge import _shipped
+    from spiel_edge.runtime.compile_progress import about, estimate_for
+
+    shipped = _shipped.status()
+    why = "the prebuilt kernels lack them" if shipped["active"] else shipped["reason"]
+    progress.total = max(len(units), 1)
+    progress.say(
+        f"spiel-edge: compiling the {len(units)} kernels this command needs for this CPU "
+        f"{progress.when}, {about(estimate_for(units))} ({why}; once: later starts load them "
+        f"from {cache_dir() or 'nowhere: no writable cache folder'})"
+    )
+
+
+def _tiers_available() -> bool:
+    from spiel_edge import _tiers
+
+    return bool(_tiers.KERNELS)
+
+
+def _compile_plan(plan: list, progress) -> None:
+    """The plan compiled in the warm-up's children (each within its memory budget)."""
+    import tempfile
+    from pathlib import Path
+
+    from spiel_edge.runtime.tier_compile import write_plan
+    from spiel_edge.runtime.warmup import ENV_PLAN
+
+    fd, name = tempfile.mkstemp(prefix="spiel-edge-plan-", suffix=".pickle")
+    os.close(fd)
+    path = Path(name)
+    before = os.environ.get(ENV_PLAN)
+    try:
+        write_plan(path, plan)
+        os.environ[ENV_PLAN] = str(path)  # the children's
+        _run_child("plan", progress)
+    finally:
+        path.unlink(missing_ok=True)
+        if before is None:
+            os.environ.pop(ENV_PLAN, None)
+        else:
+            os.environ[ENV_PLAN] = before
 
 
 def kernel_status() -> dict:
@@ -151,3 +185,33 @@ def cache_writable() -> bool:
     except (ImportError, RuntimeError):  # no numba, or numba's own cache with no folder
         return False
     return bool(getattr(_cobs_numba.decode._cache, "writable", True))
+
+
+def make_plan(profile, association=None, max_targets=None, track=True, toa_correction=None):
+    """What a command with this configuration compiles: the interpreted tier (entered: the
+    caller leaves it, or runs on it), the plan ([(module, attribute, argument types)] of
+    each call from Python) and the kernels that compile with it and have no compiled copy."""
+    from numba.core.registry import cpu_target
+
+    from firmware_protocol import cobs
+    from spiel_edge import _tiers
+    from spiel_edge.errors import SpielError
+    from spiel_edge.runtime.warmup import pipeline_kernels
+
+    pipeline_kernels()  # every kernel module imported: each kernel has its twin
+    interpreted = _tiers.Interpreted()
+    interpreted.enter(pure_cobs=False)
+    cobs._warm = False  # a try with compiling forbidden may have marked it warm: in the plan
+    try:
+        _exercise_run(profile, association, max_targets, track, toa_correction)
+    except SpielError as exc:
+        log.debug("interpreted plan: %s", exc)
+    interpreted.use_pure_cobs()
+    plan = [(*_tiers.where(k), t) for k, t in interpreted.calls]
+    codegen = cpu_target.target_context.codegen()
+    units = sorted(
+        _tiers.qualified_name(k)
+        for k in _tiers.reach([k for k, _t in interpreted.calls])
+        if not (hasattr(k._cache, "has_copy") and k._cache.has_copy(codegen))
+    )
+    return interpreted, plan, units

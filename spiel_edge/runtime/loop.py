@@ -31,6 +31,8 @@ from spiel_edge.runtime.tracking import ResultTracker, track_records
 log = logging.getLogger(__name__)
 
 LATENCY_WINDOW = 4096  # recent latencies kept for the status line
+# interpreted kernels: the backlog kept (board time) before the oldest acquisitions are skipped
+MAX_BEHIND_S = 1.0
 
 
 @dataclass
@@ -38,6 +40,7 @@ class LiveStats:
     records: int = 0
     fixes: int = 0
     errors: int = 0  # acquisitions the pipeline rejected
+    skipped: int = 0  # acquisitions dropped unprocessed: interpreted kernels behind the board
     started: float = field(default_factory=time.monotonic)
     latencies_us: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     all_latencies_us: list[float] = field(default_factory=list)  # kept when asked (benchmarks)
@@ -202,6 +205,7 @@ class LiveRunner:
         self.on_record: Callable[[], None] | None = None  # e.g. the systemd watchdog ping
         self.on_acquisition: Callable[[LiveAcquisition], None] | None = None  # run --slot
         self.stats = LiveStats()
+        self.tiers = None  # a runtime.tiered.TieredStart: interpreted kernels until compiled
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
         self._warned_no_background = False
         self.problems = OncePerProblem(log)
@@ -223,6 +227,8 @@ class LiveRunner:
         waiting = getattr(getattr(self.session, "tracker", None), "ready", ())
         for acq in self.session.acquisitions(stop):
             self.handle(acq)
+            if self.tiers is not None and self.tiers.is_interpreted:
+                self._between_tiers()
             if self.on_acquisition is not None:
                 self.on_acquisition(acq)
             if batch is not None and not waiting:
@@ -239,6 +245,12 @@ class LiveRunner:
         if batch is not None:
             self.sink.flush()  # what is held, before the caller closes: a failure shows here
         return self.stats
+
+    def _between_tiers(self) -> None:
+        """Interpreted kernels: switch when the compiled ones are ready, else keep to the
+        newest acquisition (the ones skipped are counted)."""
+        if not self.tiers.between():
+            self.stats.skipped += self.session.newest_only(MAX_BEHIND_S)
 
     def handle(self, acq: LiveAcquisition) -> dict:
         record = self.record(acq)
@@ -300,6 +312,8 @@ class LiveRunner:
         truths = acq.truth_targets_mm
         if truths is not None:
             record["truth_targets_mm"] = [[round(v, 2) for v in p] for p in truths.tolist()]
+        if self.tiers is not None and self.tiers.is_interpreted:
+            record["tier"] = "interpreted"  # the same values; compiled records carry no tier
         return record
 
     def _track(self, result, acq: LiveAcquisition) -> list[dict] | None:
@@ -358,6 +372,9 @@ class LiveRunner:
             "rejected": s.errors,
             **c,
         }
+        if self.tiers is not None:
+            values["kernels"] = self.tiers.status_text()
+            values["skipped"] = s.skipped
         if hello is not None:
             values["firmware"] = getattr(hello, "firmware_version", "")
         return {
@@ -380,7 +397,12 @@ class LiveRunner:
             f"{s.records} records {s.records / elapsed:.1f}/s  fixes {fixes:.0f}%  "
             f"lost {c['lost']} (damaged {c['damaged']}, overruns {c['overruns']})  "
             f"reconnects {c['reconnects']}  latency {lat}"
+            + (f"  skipped {s.skipped}" if s.skipped else "")
+            + (f"  {self.tiers.status_text()}" if self._tier_shown() else "")
         )
+
+    def _tier_shown(self) -> bool:
+        return self.tiers is not None and (self.tiers.is_interpreted or bool(self.tiers.rounds))
 
     def summary(self) -> str:
         s = self.stats
@@ -393,6 +415,10 @@ class LiveRunner:
             else "no latency"
         )
         errors = f", {s.errors} rejected" if s.errors else ""
+        if s.skipped:
+            errors += f", {s.skipped} skipped (interpreted kernels behind the board)"
+        if self.tiers is not None and self.tiers.rounds:
+            errors += f"; {self.tiers.status_text()}"
         counters = ", ".join(f"{k} {v}" for k, v in c.items() if v and k != "acquisitions")
         cpu = s.cpu_us_per_record()
         cpu_text = f"; CPU {cpu:.0f} us per record" if cpu is not None else ""

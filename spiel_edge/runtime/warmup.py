@@ -176,6 +176,24 @@ STEPS = {
 }
 
 
+ENV_PLAN = "SPIEL_EDGE_COMPILE_PLAN"  # a tiered start's plan file (runtime/tier_compile.py)
+
+
+def _step_plan() -> None:
+    """A tiered start's compile plan: every call of ``$SPIEL_EDGE_COMPILE_PLAN`` (a pickle of
+    ``[(module, attribute, argument types)]``) compiled or loaded; not part of a full warm-up."""
+    import os
+    import pickle
+
+    with open(os.environ[ENV_PLAN], "rb") as fh:
+        plan = pickle.load(fh)
+    for module, attr, argtypes in plan:
+        getattr(importlib.import_module(module), attr).compile(argtypes)
+
+
+EXTRA_STEPS = {"plan": _step_plan}  # run by name only (warmup_child), never by _exercise
+
+
 def _exercise(steps=None) -> None:
     for name in steps or STEPS:
         STEPS[name]()

@@ -14,11 +14,13 @@ callee of the one it was handed (the call tree is finite).
 from __future__ import annotations
 
 import base64
+import contextlib
 import importlib
 import json
 import logging
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import time
@@ -59,7 +61,22 @@ def _one_child(step: str, progress, compiled: set, first: list[str]):
     """One child of ``step`` (compiling ``first``, a kernel and its signature, before it):
     (its report or None, its exit status, the kernel to compile first in the next)."""
     cmd = [sys.executable, "-m", "spiel_edge.runtime.warmup", step, *first]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    # a session of its own: Ctrl-C on the terminal reaches this process only, which stops
+    # the child below (SIGTERM: it ends by the signal's default action, no traceback)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    report, handover = None, []
+    try:
+        report, handover = _relay(proc, progress, compiled)
+    finally:
+        if proc.poll() is None:
+            with contextlib.suppress(OSError):
+                os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait()
+    return report, proc.wait(), handover
+
+
+def _relay(proc, progress, compiled: set):
+    """The child's JSON lines: (its report or None, the kernel it handed over or [])."""
     report, handover = None, []
     with proc.stdout:
         for line in proc.stdout:
@@ -76,7 +93,7 @@ def _one_child(step: str, progress, compiled: set, first: list[str]):
                     compiled.add(message["name"])
                 if progress is not None:
                     progress(message["event"], message["name"], message["detail"])
-    return report, proc.wait(), handover
+    return report, handover
 
 
 def child_main(argv: list[str], warmup) -> int:
@@ -115,7 +132,7 @@ def child_main(argv: list[str], warmup) -> int:
             getattr(importlib.import_module(module), attr).compile(signature)
         except Exception as exc:  # the step below compiles it anyway, where it is called
             log.warning("compiling %s first failed (%s): it compiles in its step", first, exc)
-    warmup.STEPS[argv[0]]()
+    {**warmup.STEPS, **warmup.EXTRA_STEPS}[argv[0]]()
     kernels = warmup.pipeline_kernels()
     report = warmup._report(t0, kernels)
     used = [n for n, k in kernels.items() if k.signatures]

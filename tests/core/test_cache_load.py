@@ -69,17 +69,23 @@ def test_other_packages_cached_functions_keep_numbas_own_loading(tmp_path):
 
 
 def test_the_versions_and_internals_it_relies_on_are_checked(monkeypatch):
-    import llvmlite
-    import numba
+    from importlib import metadata
 
-    supported = _cache_load._version(numba.__version__) in _cache_load.SUPPORTED and (
-        _cache_load._version(llvmlite.__version__) in _cache_load.SUPPORTED_LLVMLITE
+    from spiel_edge import _numba_gate
+
+    supported = all(
+        _numba_gate._version(metadata.version(d)) in t for d, t in _numba_gate.TESTED.items()
     )
+    _numba_gate.problem.cache_clear()
     assert (_cache_load.unsupported() == "") == supported
-    monkeypatch.setattr(_cache_load, "SUPPORTED_LLVMLITE", ((0, 1),))
-    assert _cache_load.unsupported().startswith(("llvmlite", "numba"))
-    monkeypatch.setattr(_cache_load, "SUPPORTED_LLVMLITE", ((0, 50),))
-    missing = (("numba.core.caching", "FunctionCache", "no_such_method"),)
-    monkeypatch.setattr(_cache_load, "RELIED_ON", missing)
+    monkeypatch.setitem(_numba_gate.TESTED, "llvmlite", ((0, 1),))
+    _numba_gate.problem.cache_clear()
+    assert _cache_load.unsupported().startswith("llvmlite")
+    monkeypatch.setitem(_numba_gate.TESTED, "llvmlite", ((0, 50),))
+    missing = (("numba.core.caching", "FunctionCache.no_such_method"),)
+    monkeypatch.setattr(_numba_gate, "RELIED_ON", missing)
+    _numba_gate.problem.cache_clear()
     if supported:
         assert "FunctionCache.no_such_method" in _cache_load.unsupported()
+    monkeypatch.undo()
+    _numba_gate.problem.cache_clear()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from spiel_edge import _jit, _kernel_cache, _shipped
+from spiel_edge import _jit, _kernel_layers, _shipped
 
 TINY = """
 from spiel_edge._jit import jit
@@ -105,7 +105,7 @@ def test_a_flipped_bit_in_a_cached_kernel_is_found_before_it_runs(tmp_path):
     assert _probe(tmp_path)["counts"]["hits"] == 1  # rewritten whole, sealed
     # a file numba itself wrote (no seal) is a quiet miss, then sealed
     for path in _cache_files(tmp_path, "*.nb*"):
-        path.write_bytes(path.read_bytes()[: -(len(_kernel_cache.SEAL_TAG) + 32)])
+        path.write_bytes(path.read_bytes()[: -(len(_kernel_layers.SEAL_TAG) + 32)])
     third = _probe(tmp_path)
     assert third["counts"]["compiled"] == 1 and not third["warnings"], third
     assert _probe(tmp_path)["counts"]["hits"] == 1
@@ -130,7 +130,7 @@ def test_a_damaged_sealed_index_is_started_afresh_when_saving(tmp_path):
     writes a new index instead of failing on the old one."""
     assert _probe(tmp_path)["counts"]["compiled"] == 1
     (index,) = _cache_files(tmp_path, "*.nbi")
-    index.write_bytes(b"not what was sealed" + _kernel_cache.SEAL_TAG + bytes(32))
+    index.write_bytes(b"not what was sealed" + _kernel_layers.SEAL_TAG + bytes(32))
     second = _probe(tmp_path)
     assert second["value"] == 41 and second["counts"]["compiled"] == 1
     assert not any("not saved" in w for w in second["warnings"]), second

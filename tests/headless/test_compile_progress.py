@@ -38,6 +38,7 @@ def test_a_kernel_compiled_for_a_second_signature_counts_once():
     for _ in range(3):
         progress("compiled", "spiel_edge.pipeline.stages.locate.locate_kernel", 0.5)
     assert progress.done == 1 and out.getvalue().splitlines()[-1].startswith("compiled 1/2: ")
+    assert len(out.getvalue().splitlines()) == 1  # one line per kernel, not per signature
 
 
 def test_a_bar_redrawn_in_place_on_a_terminal():

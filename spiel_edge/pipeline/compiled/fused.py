@@ -57,6 +57,7 @@ class FusedPipeline:
         self.fallback = unsupported_stages(pipeline)
         if self.fallback:
             log.info("compiled path falls back to the staged one for %s", ", ".join(self.fallback))
+        self._writable_bg: tuple[np.ndarray, np.ndarray] | None = None  # (read-only, copy)
         self._scene = None  # the scene the kernel constants below were built for
         self.config: KernelConfig | None = None
         self._run = None  # one_target.run or several_targets.run
@@ -120,12 +121,22 @@ class FusedPipeline:
         ws = self._workspaces.get()
         y = _numeric(frames, "frames")
         bg = _numeric(background, "background") if background is not None else ws.background[:0]
+        if not bg.flags.writeable:  # e.g. the static model: one kernel signature, not two
+            bg = self._writable(bg)
         result = run(self.pipeline, self.config, ws, y, bg, np.asarray(frames), background)
         model = self.profile.scene.error_model
         if model:  # per target, after the kernel (pipeline/stages/error_model.py)
             captured = background is not None and background is not self.pipeline.static_model
             apply_error_model(result, model, self.pipeline.facing, captured)
         return result
+
+    def _writable(self, bg: np.ndarray) -> np.ndarray:
+        """A writable copy of a read-only background, kept while the same one comes (the
+        kernels read it only: a read-only array would be a second signature to compile)."""
+        kept = self._writable_bg
+        if kept is None or kept[0] is not bg:
+            kept = self._writable_bg = (bg, np.array(bg))
+        return kept[1]
 
     def _kernel(self):
         """The run function of the kernel for the pipeline's scene while it stays the one the
