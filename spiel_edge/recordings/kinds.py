@@ -7,6 +7,8 @@ The kinds a command takes:
 - ``labelled``: a labelled set, an ``.npz`` with ``frames`` and ``backgrounds`` (M, channels,
   samples), ``truth_mm`` (M, 3) and ``names`` (M,): the vendored
   ``spiel_edge/data/spiel_icra23_subset.npz``;
+- ``stof-chirp``: a SToF-Chirp sequence folder (told apart by its file names in
+  :mod:`spiel_edge.recordings.stof_chirp`; listed here for the messages);
 - ``scenes``: a scene file, the same with ``truth_mm`` (M, targets, 3) (tools/train/build_scenes.py).
 
 Anything else is one :class:`InputError` line saying what the file is and what was expected.
@@ -91,6 +93,7 @@ def _expected(accepted: tuple[str, ...]) -> str:
         "mcap": "an MCAP recording",
         "labelled": "a labelled .npz (spiel_edge/data/spiel_icra23_subset.npz)",
         "scenes": "a scene file (.npz with truth_mm per target)",
+        "stof-chirp": "a SToF-Chirp sequence folder (NN_envelope_frame.txt)",
     }
     parts = [names[k] for k in accepted]
     return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " or " + parts[-1]
