@@ -3,8 +3,10 @@
 # IMAGE (.uf2 or .bin) defaults to what `make -C firmware_protocol/firmware TARGET=rp2040` built
 # for the emulator (build/rp2040/firmware-emu.uf2). Prints the pty's path as its first line on
 # stdout, then runs until SIGTERM/SIGINT or until its caller exits (the emulator keeps a core
-# busy: it must never outlive the test or shell that started it). Needs node, socat and
-# rp2040js in emu/node_modules (.ci/run installs it: npm install --prefix emu); installs nothing.
+# busy: it must never outlive the test or shell that started it). The emulator's own messages
+# (each boot, the USB configuration) go to stderr.
+# Needs node, socat and rp2040js in emu/node_modules (.ci/run installs it: npm install --prefix
+# emu); installs nothing.
 set -u
 here="$(cd "$(dirname "$0")" && pwd)"
 image="${1:-$here/../../build/rp2040/firmware-emu.uf2}"
@@ -26,11 +28,11 @@ trap 'cleanup; exit 0' TERM INT HUP
 trap cleanup EXIT
 # socat owns the pty and runs the emulator on its other side; node leaves when its stdin closes
 socat PTY,link="$dir/tty",raw,echo=0 \
-  EXEC:"node $here/emu/run.mjs $image",nofork 2>>"$dir/log" &
+  EXEC:"node $here/emu/run.mjs $image",nofork &
 socat_pid=$!
 for _ in $(seq 1 100); do
   [ -e "$dir/tty" ] && break
-  kill -0 "$socat_pid" 2>/dev/null || { cat "$dir/log" >&2; exit 1; }
+  kill -0 "$socat_pid" 2>/dev/null || exit 1
   sleep 0.05
 done
 [ -e "$dir/tty" ] || { echo "run-emulated.sh: socat made no pty" >&2; exit 1; }

@@ -60,6 +60,8 @@ function boot(flash, scratch) {
   };
   cdc = new USBCDC(mcu.usbCtrl);
   cdc.onSerialData = (buf) => process.stdout.write(Buffer.from(buf));
+  cdc.onDeviceConnected = () => process.stderr.write(
+    `rp2040js: USB configured: CDC data IN endpoint ${cdc.inEndpoint}, OUT ${cdc.outEndpoint}\n`);
   const read = mcu.usbCtrl.onEndpointRead;
   mcu.usbCtrl.onEndpointRead = (ep, size) => { pump(); read(ep, size); };
   boots++;
