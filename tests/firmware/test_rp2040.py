@@ -69,7 +69,13 @@ def test_the_build_makes_a_uf2_for_bootsel(rp2040_image):
         block = data[512 * i : 512 * (i + 1)]
         m0, m1, flags, addr, size, no, total, family = struct.unpack_from("<8I", block)
         assert (m0, m1, flags, size, no, total, family) == (
-            0x0A324655, 0x9E5D5157, 0x2000, 256, i, n, 0xE48BFF56
+            0x0A324655,
+            0x9E5D5157,
+            0x2000,
+            256,
+            i,
+            n,
+            0xE48BFF56,
         )
         assert addr == 0x10000000 + 256 * i
         assert struct.unpack_from("<I", block, 508)[0] == 0x0AB16F30
@@ -112,7 +118,7 @@ def test_run_gives_the_posix_targets_records(pico, posix_board, tmp_path):
         got[name] = records(out)
     assert len(got["rp2040"]) == len(got["posix"]) == N_FRAMES
     fixes = 0
-    for k, (a, b) in enumerate(zip(got["rp2040"], got["posix"])):
+    for k, (a, b) in enumerate(zip(got["rp2040"], got["posix"], strict=True)):
         assert a["position_mm"] == b["position_mm"], k
         assert a["echoes"] == b["echoes"], k
         assert (a["matched"], a["reason"]) == (b["matched"], b["reason"]), k
