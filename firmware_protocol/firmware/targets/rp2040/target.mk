@@ -107,8 +107,8 @@ $(BUILD)/%.bin: $(BUILD)/%.elf
 $(BUILD)/%.uf2: $(BUILD)/%.bin $(RP_DIR)/uf2.py
 	$(PYTHON) $(RP_DIR)/uf2.py $< $@
 
-# the deepest stack frames (-fstack-usage, bytes; a chain adds the frames of its calls)
+# the deepest stack chains (-fstack-usage frames along the direct calls of the ELF)
 stack: $(BUILD)/firmware.elf
-	@cat $(BUILD)/obj/*.su | sort -t'	' -k2 -n -r | head -15
+	@$(PYTHON) $(RP_DIR)/stack_chain.py $(BUILD)/firmware.elf $(BUILD)/obj
 
 .PHONY: stack
