@@ -67,16 +67,19 @@ class Rp2040Board:
         self.proc: subprocess.Popen | None = None
         self.port = ""
 
-    def start(self, timeout_s: float = 10.0) -> Rp2040Board:
+    def start(self, timeout_s: float = 60.0) -> Rp2040Board:
         with open(self.log, "ab") as err:
             self.proc = subprocess.Popen(
                 [str(RUN), str(self.image)], stdout=subprocess.PIPE, stderr=err, text=True
             )
         line = self.proc.stdout.readline().strip()  # the script waits at most 5 s for socat
-        if not line.startswith("/dev/"):
+        if not line.endswith("/tty"):
             self.stop()
             raise RuntimeError(f"run-emulated.sh gave no pty: {line!r} {self.messages()}")
         self.port = line
+        # the boot stage checks the image's SHA-256 before the application starts USB: a few
+        # seconds of the emulated M0+ for the full build
+        self.wait_message("USB configured", timeout_s=timeout_s)
         return self
 
     def messages(self) -> str:

@@ -1,7 +1,9 @@
 """The reference firmware on the Raspberry Pi Pico target (targets/rp2040: TinyUSB CDC-ACM over
 the Pico SDK's hardware layers) in the rp2040js emulator, its USB CDC host bridged to a pty by
 run-emulated.sh: USB enumeration and HELLO, ``run`` giving the records the posix target gives
-for the same recordings, config push/commit/pull kept across a REBOOT through the watchdog.
+for the same recordings, config push/commit/pull kept across a REBOOT through the watchdog, a
+firmware update through the boot stage (flash to flash install) and a hung trial image rolled
+back by the watchdog the boot stage armed, with no power cycle.
 
 Few and short on purpose: the emulator keeps a core busy while it runs, so each test starts
 one and stops it the moment it ends. Skipped, naming what is missing, without make,
@@ -10,6 +12,7 @@ arm-none-eabi-gcc, node, socat or rp2040js (.ci/run installs them)."""
 from __future__ import annotations
 
 import json
+import struct
 import subprocess
 import sys
 import time
@@ -19,9 +22,13 @@ import pytest
 import serial
 
 from firmware_protocol import Reboot, encode_message
+from firmware_protocol.image import pack_image, parse_image
+from firmware_protocol.v2_messages import BootState
 from spiel_edge.board import schema as bc
 from spiel_edge.compat import tomllib
 from spiel_edge.device import DeviceSession
+from spiel_edge.device.firmware import firmware_info, update_firmware
+from spiel_edge.errors import DeviceError
 from spiel_edge.profile.schema import load_profile
 from tests.firmware.rp2040_board import Rp2040Board, Unavailable, build_rp2040, missing_tools
 
@@ -38,6 +45,20 @@ def rp2040_image(tmp_path_factory) -> Path:
         return build_rp2040(tmp_path_factory.mktemp("rp2040-build"))
     except Unavailable as exc:
         pytest.skip(f"rp2040 target: {exc}")
+
+
+@pytest.fixture(scope="session")
+def small_image(rp2040_image, tmp_path_factory) -> Path:
+    """A build that embeds two recordings (a 38 KB application): the emulated M0+ hashes its
+    slots (FW_INFO, FW_VERIFY, the boot stage) within the host's timeouts; the full build's
+    154 KB take it seconds, the real chip about 0.1 s."""
+    import numpy as np
+
+    from spiel_edge.data import load_subset
+
+    d = tmp_path_factory.mktemp("rp2040-small")
+    np.savez(d / "two.npz", frames=np.round(load_subset().frames[:2]).astype(np.uint16))
+    return build_rp2040(d, extra=(f"SUBSET={d / 'two.npz'}",))
 
 
 @pytest.fixture
@@ -57,14 +78,15 @@ def records(path: Path) -> list[dict]:
 
 
 def test_the_build_makes_a_uf2_for_bootsel(rp2040_image):
-    """firmware.uf2: 512-byte UF2 blocks of 256 bytes for the RP2040 family, from 0x10000000,
-    boot2 first with the CRC-32 the bootrom checks (pad_checksum's, over its first 252 bytes)."""
-    import struct
-
-    data = (rp2040_image.parent / "firmware.uf2").read_bytes()
+    """firmware.uf2: 512-byte UF2 blocks of 256 bytes for the RP2040 family. At 0x10000000
+    boot2 with the CRC-32 the bootrom checks (pad_checksum's, over its first 252 bytes), then
+    the boot stage's vector table; slot 0 holds app.bin packed as pack_image packs it (the
+    build's own packer agrees with the host's) and the execution region the same image
+    installed (its header, then the body at 0x10011000, where the application is linked)."""
+    build = rp2040_image.parent
+    data = (build / "firmware.uf2").read_bytes()
     assert len(data) % 512 == 0 and len(data) > 0
-    n = len(data) // 512
-    flash = bytearray()
+    n, flash = len(data) // 512, {}
     for i in range(n):
         block = data[512 * i : 512 * (i + 1)]
         m0, m1, flags, addr, size, no, total, family = struct.unpack_from("<8I", block)
@@ -77,20 +99,31 @@ def test_the_build_makes_a_uf2_for_bootsel(rp2040_image):
             n,
             0xE48BFF56,
         )
-        assert addr == 0x10000000 + 256 * i
-        assert struct.unpack_from("<I", block, 508)[0] == 0x0AB16F30
-        flash += block[32 : 32 + 256]
-    boot2 = bytes(flash[:252])
+        assert struct.unpack_from("<I", block, 508)[0] == 0x0AB16F30 and addr % 256 == 0
+        flash[addr] = block[32 : 32 + 256]
+
+    def read(addr: int, size: int) -> bytes:
+        base = addr - addr % 256
+        raw = b"".join(flash[a] for a in range(base, addr + size, 256))
+        return raw[addr - base : addr - base + size]
+
+    boot2 = read(0x1000_0000, 252)
     # the bootrom's CRC-32: MSB first, polynomial 0x04C11DB7, initial 0xFFFFFFFF, no final xor
     crc = 0xFFFFFFFF
     for byte in boot2:
         crc ^= byte << 24
         for _ in range(8):
             crc = ((crc << 1) ^ 0x04C11DB7 if crc & 0x80000000 else crc << 1) & 0xFFFFFFFF
-    assert struct.unpack_from("<I", flash, 252)[0] == crc
-    # the vector table right after boot2: the stack top and a Thumb reset handler in flash
-    sp, reset = struct.unpack_from("<II", flash, 256)
-    assert sp == 0x20042000 and reset & 1 and 0x10000100 < reset < 0x10000000 + len(flash)
+    assert struct.unpack("<I", read(0x1000_00FC, 4))[0] == crc
+    sp, reset = struct.unpack("<II", read(0x1000_0100, 8))
+    assert sp == 0x2004_2000 and reset & 1 and 0x1000_0100 < reset < 0x1001_0000
+
+    body = (build / "app.bin").read_bytes()
+    packed = pack_image(body, version="1.0.0+rp2040", target="rp2040")
+    assert read(0x1009_0000, len(packed)) == packed  # slot 0
+    assert read(0x1001_0000, 96) == packed[:96]  # installed: the header ...
+    assert read(0x1001_1000, len(body)) == body  # ... and the body where it is linked
+    assert parse_image(packed).target == "rp2040"
 
 
 def test_enumerates_and_answers_hello(pico):
@@ -165,3 +198,67 @@ def test_the_emulator_stops_with_its_script(rp2040_image, tmp_path):
         ["pgrep", "-f", f"run.mjs {rp2040_image}"], capture_output=True, text=True
     ).stdout.split()
     assert left == [], (pid, left)
+
+
+def hello_when_up(port: str, timeout_s: float = 30.0):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with DeviceSession(port, reconnect=False) as dev:
+                return dev.hello, firmware_info(dev)
+        except DeviceError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+
+
+def test_update_confirms_and_a_hung_trial_rolls_back_by_the_watchdog(small_image, tmp_path):
+    """firmware pack + update: the boot stage installs slot 1 into the execution region (flash
+    to flash) and runs it as a trial; the host confirms it. Then an image that hangs (its reset
+    handler is `b .`): it never kicks the watchdog the boot stage armed, the watchdog resets the
+    chip and the boot stage rolls back to the confirmed image, with no power cycle."""
+    with Rp2040Board(small_image, tmp_path / "emulator.log") as pico:
+        update_and_roll_back(pico.start(), small_image.with_name("app-emu.bin"), tmp_path)
+
+
+def update_and_roll_back(pico: Rp2040Board, app: Path, tmp_path: Path) -> None:
+    h, info = hello_when_up(pico.port)
+    assert (h.firmware_version, info.running_slot, info.confirmed_slot) == ("1.0.0+rp2040", 0, 0)
+    body = app.read_bytes()
+    assert body.count(b"RP2040-EMU-0001") == 1
+    (tmp_path / "app.bin").write_bytes(body.replace(b"RP2040-EMU-0001", b"RP2040-EMU-0002"))
+    packed = tmp_path / "fw.img"
+    ran = cli(
+        "firmware",
+        "pack",
+        "--version",
+        "rp2040-1.1.0",
+        "--target",
+        "rp2040",
+        "-o",
+        packed,
+        tmp_path / "app.bin",
+    )
+    assert ran.returncode == 0, ran.stderr
+    started = time.monotonic()
+    ran = cli("firmware", "update", "--port", pico.port, packed, timeout=300)
+    took = time.monotonic() - started
+    assert ran.returncode == 0, ran.stderr + ran.stdout
+    h, info = hello_when_up(pico.port)
+    assert (h.firmware_version, h.serial) == ("rp2040-1.1.0", "RP2040-EMU-0002")
+    assert (info.running_slot, info.confirmed_slot, info.boot_state) == (1, 1, BootState.CONFIRMED)
+    print(f"update of {packed.stat().st_size} bytes: {took:.1f} s")
+
+    hang = struct.pack("<II", 0x2004_2000, 0x1001_1009) + b"\xfe\xe7" + bytes(6)
+    boots = pico.messages().count("rp2040js: boot ")
+    result = update_firmware(
+        pico.port,
+        pack_image(hang, version="rp2040-hang", target="rp2040"),
+        boot_wait_s=60,
+    )
+    assert result.rolled_back and not result.confirmed
+    assert (result.previous, result.version) == ("rp2040-1.1.0", "rp2040-1.1.0")
+    pico.wait_message("rp2040js: boot ", count=boots + 2)  # the trial, then the watchdog's
+    h, info = hello_when_up(pico.port)
+    assert (h.firmware_version, h.serial) == ("rp2040-1.1.0", "RP2040-EMU-0002")
+    assert (info.running_slot, info.confirmed_slot) == (1, 1)

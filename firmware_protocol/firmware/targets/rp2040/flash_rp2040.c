@@ -26,8 +26,8 @@
 
 static int in_flash(uint32_t off, uint32_t len)
 {
-    /* the program's own area is never written: only the data areas behind it */
-    return off >= RP2040_CFG_OFF && off <= RP2040_FLASH_BYTES && len <= RP2040_FLASH_BYTES - off;
+    /* the boot stage is never written: only the areas behind it (rp2040_board.h) */
+    return off >= RP2040_BOOT_SIZE && off <= RP2040_FLASH_BYTES && len <= RP2040_FLASH_BYTES - off;
 }
 
 #if RP2040_EMU_FLASH

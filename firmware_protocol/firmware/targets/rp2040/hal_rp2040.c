@@ -11,13 +11,15 @@
  * A-scans    the vendored recordings as constant data (ascans.c, generated as for mps2), in
  *            order and looped, one per measurement that was read; ready after the listening
  *            time n_samples / sample rate. The CH101 sensor layer is not part of this build.
- * flash      the config store's 64 KiB at the end of the 2 MiB flash (flash_rp2040.c).
+ * flash      the config store's 64 KiB at the end of the 2 MiB flash (flash_rp2040.c); the
+ *            image areas and the watchdog are image_rp2040.c's.
  * reset      the watchdog (a reboot), or the ROM's USB boot mode (BOOTSEL) for the bootloader.
  */
 #include <string.h>
 
 #include "ascans.h"
 #include "hardware/clocks.h"
+#include "hardware/irq.h"
 #include "hardware/pll.h"
 #include "hardware/resets.h"
 #include "hardware/structs/rosc.h"
@@ -228,6 +230,9 @@ void isr_timer0(void)
 void rp2040_wait(uint32_t us)
 {
     uint32_t irq;
+    if (us < 20u) {
+        return; /* not worth an alarm */
+    }
     if (us > 100000u) {
         us = 100000u; /* tud_task() runs at least every 100 ms */
     }
@@ -269,6 +274,12 @@ void rp2040_hal_init(void)
 {
     clocks_start(); /* pll_init takes the PLLs out of reset, TinyUSB the USB controller */
     unreset_block_wait(RESETS_RESET_TIMER_BITS);
+    static char version[17];
+    if (rp2040_image_version(version) == 0) {
+        board.firmware_version = version;
+    }
     board.serial = rp2040_serial();
+    timer_hw->intr = 1u;
+    irq_set_enabled(TIMER_IRQ_0, true); /* rp2040_wait's wake-up (usb_rp2040.c: the NVIC) */
     tusb_init();
 }

@@ -36,7 +36,9 @@ for _ in $(seq 1 100); do
   sleep 0.05
 done
 [ -e "$dir/tty" ] || { echo "run-emulated.sh: socat made no pty" >&2; exit 1; }
-readlink -f "$dir/tty"
+# the link, not the /dev/pts name it points to: a pty number freed by a crash is soon another
+# program's, the link dies with this emulator
+echo "$dir/tty"
 # stay while the caller and socat live; sleep in short steps so a TERM is handled at once
 while kill -0 "$caller" 2>/dev/null && kill -0 "$socat_pid" 2>/dev/null; do
   sleep 0.2 & wait $!

@@ -1,11 +1,15 @@
-# targets/rp2040/target.mk - the Raspberry Pi Pico (RP2040) image, included by ../../Makefile for
+# targets/rp2040/target.mk - the Raspberry Pi Pico (RP2040) images, included by ../../Makefile for
 # TARGET=rp2040. make only (no CMake, no picotool), offline: the Pico SDK and TinyUSB files it
 # uses are vendored under vendor/ (vendor/README.md). Outputs under $(BUILD):
-#   firmware.uf2      what a person drags onto a Pico in BOOTSEL mode (firmware.elf, .bin)
-#   firmware-emu.uf2  the same program with the emulator's flash path (flash_rp2040.c): what
-#                     run-emulated.sh runs in rp2040js; never for a board
-#   boot2.S           boot2 (the W25Q080 second stage) padded to 252 bytes + its CRC-32
-#   *.su              -fstack-usage of every file (make TARGET=rp2040 stack)
+#   firmware.uf2      what a person drags onto a Pico in BOOTSEL mode: the boot stage, the
+#                     application packed as the image in slot 0, and installed in the execution
+#                     region (rp2040_board.h)
+#   app.bin           the application alone (linked for the execution region): the BODY that
+#                     `spiel-edge firmware pack --target rp2040` wraps for `firmware update`
+#   boot.elf, app.elf the two programs; boot2.S: boot2 padded to 252 bytes + its CRC-32
+#   *-emu.*           the same with the emulator's flash path (flash_rp2040.c): what
+#                     run-emulated.sh runs in rp2040js (firmware-emu.uf2); never for a board
+#   obj/*.su          -fstack-usage of every file (make TARGET=rp2040 stack)
 RP_DIR := targets/rp2040
 SDK := $(RP_DIR)/vendor/pico-sdk/src
 TUSB := $(RP_DIR)/vendor/tinyusb/src
@@ -15,6 +19,8 @@ ARM_OBJCOPY ?= arm-none-eabi-objcopy
 PYTHON ?= python3
 SUBSET ?= ../../spiel_edge/data/spiel_icra23_subset.npz
 RP_ARCH := -mcpu=cortex-m0plus -mthumb
+RP_FW := -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_EXEC_COPY=1 -DSPIEL_FW_TARGET=\"rp2040\"
+RP_VERSION ?= 1.0.0+rp2040
 RP_DEFS := -DPICO_RP2040=1 -DPICO_ON_DEVICE=1 -DPICO_NO_HARDWARE=0 -DPICO_BUILD=1 \
 	-DPICO_32BIT=1 -DPICO_NO_FLASH=0 -DPICO_COPY_TO_RAM=0 -DPICO_USE_BLOCKED_RAM=0 \
 	-DPICO_CXX_ENABLE_EXCEPTIONS=0 -DNDEBUG -DCFG_TUSB_MCU=OPT_MCU_RP2040 \
@@ -35,17 +41,17 @@ RP_SYSINC := -I$(RP_DIR)/sdk_config $(addprefix -isystem $(SDK)/,$(addsuffix /in
 RP_INC := $(INC) -I$(RP_DIR) -I$(BUILD) $(RP_SYSINC)
 # the core: C99 and every warning, as on every target
 RP_CORE_CFLAGS := $(RP_ARCH) $(WARN) -Os -g -ffunction-sections -fdata-sections -ffreestanding \
-	-fstack-usage -DSPIEL_MAX_SAMPLES=64 $(CFLAGS_EXTRA)
+	-fstack-usage -DSPIEL_MAX_SAMPLES=64 $(RP_FW) $(CFLAGS_EXTRA)
 # the port's own files: gnu11 (the SDK headers use static_assert and GNU extensions)
 RP_PORT_CFLAGS := $(RP_ARCH) -MD $(filter-out -std=c99 -pedantic,$(WARN)) -std=gnu11 -Os -g \
-	-ffunction-sections -fdata-sections -fstack-usage -DSPIEL_MAX_SAMPLES=64 $(RP_DEFS) \
+	-ffunction-sections -fdata-sections -fstack-usage -DSPIEL_MAX_SAMPLES=64 $(RP_FW) $(RP_DEFS) \
 	$(CFLAGS_EXTRA)
 # the vendored SDK and TinyUSB files: as upstream builds them, warnings shown, not errors
 RP_VENDOR_CFLAGS := $(RP_ARCH) -MD -std=gnu11 -Os -g -ffunction-sections -fdata-sections \
 	-fstack-usage -Wall -Wno-unused-parameter $(RP_DEFS)
-RP_LDFLAGS := $(RP_ARCH) -nostartfiles --specs=nano.specs -Wl,--gc-sections -T$(RP_DIR)/rp2040.ld
+RP_LDFLAGS := $(RP_ARCH) -nostartfiles --specs=nano.specs -Wl,--gc-sections -L$(RP_DIR)
 
-RP_PORT := main hal_rp2040 usb_rp2040 startup_rp2040
+RP_PORT := main hal_rp2040 usb_rp2040 startup_rp2040 image_rp2040 boot_rp2040
 RP_CORE := $(basename $(notdir $(CORE_SRC)))
 RP_SDK_SRC := rp2_common/hardware_clocks/clocks.c rp2_common/hardware_pll/pll.c \
 	rp2_common/hardware_xosc/xosc.c rp2_common/hardware_watchdog/watchdog.c \
@@ -55,15 +61,17 @@ RP_TUSB_SRC := tusb.c common/tusb_fifo.c device/usbd.c device/usbd_control.c \
 	class/cdc/cdc_device.c portable/raspberrypi/rp2040/dcd_rp2040.c \
 	portable/raspberrypi/rp2040/rp2040_usb.c
 RP_VENDOR := $(basename $(notdir $(RP_SDK_SRC) $(RP_TUSB_SRC)))
-RP_COMMON_OBJS := $(addprefix $(BUILD)/obj/,$(addsuffix .o,$(RP_PORT) $(RP_CORE) $(RP_VENDOR) ascans boot2))
-RP_OBJS := $(RP_COMMON_OBJS) $(BUILD)/obj/flash_rp2040.o
-RP_EMU_OBJS := $(RP_COMMON_OBJS) $(BUILD)/obj/flash_rp2040_emu.o
+O := $(BUILD)/obj
+RP_APP_OBJS := $(addprefix $(O)/,$(addsuffix .o,main hal_rp2040 usb_rp2040 startup_rp2040 \
+	image_rp2040 $(RP_CORE) $(RP_VENDOR) ascans))
+RP_BOOT_OBJS := $(addprefix $(O)/,$(addsuffix .o,boot_rp2040 image_rp2040 boot sha256 spiel_proto \
+	flash bootrom xosc ticks watchdog platform boot2))
 RP_HDRS := $(wildcard include/*.h core/*.h $(PROTO)/*.h $(RP_DIR)/*.h) $(BUILD)/ascans.h
 vpath %.c $(RP_DIR) core $(PROTO) $(BUILD) $(addprefix $(SDK)/,$(dir $(RP_SDK_SRC))) \
 	$(addprefix $(TUSB)/,$(dir $(RP_TUSB_SRC)))
 
 all: $(BUILD)/firmware.uf2 $(BUILD)/firmware-emu.uf2
-.PRECIOUS: $(BUILD)/%.bin $(BUILD)/%.elf
+.PRECIOUS: $(BUILD)/%.bin $(BUILD)/%.elf $(BUILD)/%.img
 
 $(BUILD)/ascans.c: targets/mps2-an386/gen_ascans.py $(SUBSET)
 	@mkdir -p $(@D)
@@ -97,18 +105,28 @@ $(BUILD)/obj/boot2.o: $(BUILD)/boot2.S
 	@mkdir -p $(@D)
 	$(ARM_CC) $(RP_ARCH) -c $< -o $@
 
-$(BUILD)/firmware.elf: $(RP_OBJS) $(RP_DIR)/rp2040.ld
-	$(ARM_CC) $(RP_LDFLAGS) -Wl,-Map=$(BUILD)/firmware.map $(RP_OBJS) -o $@
-	$(ARM_SIZE) $@
-$(BUILD)/firmware-emu.elf: $(RP_EMU_OBJS) $(RP_DIR)/rp2040.ld
-	$(ARM_CC) $(RP_LDFLAGS) -Wl,-Map=$(BUILD)/firmware-emu.map $(RP_EMU_OBJS) -o $@
+$(BUILD)/app.elf: $(RP_APP_OBJS) $(O)/flash_rp2040.o $(RP_DIR)/rp2040-app.ld $(RP_DIR)/rp2040-sections.ld
+	$(ARM_CC) $(RP_LDFLAGS) -Trp2040-app.ld -Wl,-Map=$(BUILD)/app.map $(RP_APP_OBJS) $(O)/flash_rp2040.o -o $@
+$(BUILD)/app-emu.elf: $(RP_APP_OBJS) $(O)/flash_rp2040_emu.o $(RP_DIR)/rp2040-app.ld $(RP_DIR)/rp2040-sections.ld
+	$(ARM_CC) $(RP_LDFLAGS) -Trp2040-app.ld $(RP_APP_OBJS) $(O)/flash_rp2040_emu.o -o $@
+$(BUILD)/boot.elf: $(RP_BOOT_OBJS) $(O)/flash_rp2040.o $(RP_DIR)/rp2040-boot.ld $(RP_DIR)/rp2040-sections.ld
+	$(ARM_CC) $(RP_LDFLAGS) -Trp2040-boot.ld -Wl,-Map=$(BUILD)/boot.map $(RP_BOOT_OBJS) $(O)/flash_rp2040.o -o $@
+$(BUILD)/boot-emu.elf: $(RP_BOOT_OBJS) $(O)/flash_rp2040_emu.o $(RP_DIR)/rp2040-boot.ld $(RP_DIR)/rp2040-sections.ld
+	$(ARM_CC) $(RP_LDFLAGS) -Trp2040-boot.ld $(RP_BOOT_OBJS) $(O)/flash_rp2040_emu.o -o $@
 $(BUILD)/%.bin: $(BUILD)/%.elf
 	$(ARM_OBJCOPY) -O binary $< $@
-$(BUILD)/%.uf2: $(BUILD)/%.bin $(RP_DIR)/uf2.py
-	$(PYTHON) $(RP_DIR)/uf2.py $< $@
+$(BUILD)/%.img: $(BUILD)/%.bin $(RP_DIR)/pack_image.py
+	$(PYTHON) $(RP_DIR)/pack_image.py $< $(RP_VERSION) rp2040 $@
+	head -c 96 $@ > $(@:.img=.hdr)
+# the boot stage at the flash's start, the image in slot 0 and installed in the execution region
+$(BUILD)/firmware%uf2: $(BUILD)/boot%bin $(BUILD)/app%img $(RP_DIR)/uf2.py
+	$(PYTHON) $(RP_DIR)/uf2.py $@ $(BUILD)/boot$*bin@0x10000000 $(BUILD)/app$*img@0x10090000 \
+		$(BUILD)/app$*hdr@0x10010000 $(BUILD)/app$*bin@0x10011000
+	$(ARM_SIZE) $(BUILD)/boot$*elf $(BUILD)/app$*elf
 
 # the deepest stack chains (-fstack-usage frames along the direct calls of the ELF)
-stack: $(BUILD)/firmware.elf
-	@$(PYTHON) $(RP_DIR)/stack_chain.py $(BUILD)/firmware.elf $(BUILD)/obj
+stack: $(BUILD)/firmware.uf2
+	@$(PYTHON) $(RP_DIR)/stack_chain.py $(BUILD)/app.elf $(BUILD)/obj
+	@$(PYTHON) $(RP_DIR)/stack_chain.py $(BUILD)/boot.elf $(BUILD)/obj boot_reset
 
 .PHONY: stack

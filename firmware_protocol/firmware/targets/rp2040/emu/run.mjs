@@ -9,7 +9,7 @@
 // same flash and watchdog scratch registers, as a real watchdog reset keeps them. Exits when
 // stdin closes or its parent goes; diagnostics go to stderr only.
 import { readFileSync } from 'node:fs';
-import { Simulator, USBCDC, LogLevel } from 'rp2040js';
+import { Simulator, USBCDC } from 'rp2040js';
 
 const image = process.argv[2];
 if (!image) {
@@ -37,15 +37,61 @@ function loadImage(flash) {
   }
 }
 
-const pending = []; // host -> device bytes not yet taken by the CDC host's 512-byte FIFO
-let sim = null, cdc = null, boots = 0;
+const pending = []; // host -> device bytes the device has not read yet
+let sim = null, cdc = null, boots = 0, outWait = null, timer = null, wallStart = 0n;
 
+// The host side of the CDC OUT endpoint as a real host does it: a read the device arms is
+// answered when the host has bytes (a real host NAKs until then). rp2040js's own USBCDC answers
+// at once with zero bytes, which makes the device take an interrupt every 10 us of emulated time
+// and never sleep.
 function pump() {
-  while (pending.length && cdc && !cdc.txFIFO.full) cdc.txFIFO.push(pending.shift());
+  if (outWait === null || !pending.length) return;
+  const data = Uint8Array.from(pending.splice(0, Math.min(outWait, pending.length)));
+  outWait = null;
+  sim.rp2040.usbCtrl.endpointReadDone(cdc.outEndpoint, data);
+}
+
+// Run the chip. While it sleeps (WFI) its clock moves to its next alarm, or with the wall clock
+// when it has none, but never ahead of the wall clock since boot: emulated time is at most real
+// time (less while the emulated CPU is busy: it runs slower than the chip) and an idle chip
+// costs no host CPU.
+function wallNanos() {
+  return Number(process.hrtime.bigint() - wallStart);
+}
+function run(me) {
+  timer = null;
+  const mcu = me.rp2040, clock = me.clock;
+  for (let i = 0; i < 200000 && sim === me; i++) {
+    if (mcu.core.waiting && mcu.core.pendingInterrupts & mcu.core.enabledInterrupts) {
+      // WFI returns while an enabled interrupt is pending, PRIMASK or not (ARMv6-M); rp2040js
+      // 1.4.1 wakes only on a new one, so one that came just before the WFI slept forever
+      mcu.core.waiting = false;
+    }
+    if (mcu.core.waiting) {
+      const next = clock.nanosToNextAlarm, room = wallNanos() - clock.nanos;
+      if (next > 0 && next <= room) {
+        clock.tick(next);
+        continue;
+      }
+      if (room > 0) clock.tick(room);
+      const sleep = next > 0 ? (next - room) / 1e6 : 5;
+      timer = setTimeout(() => run(me), Math.min(Math.max(sleep, 1), 20));
+      return;
+    }
+    clock.tick(mcu.core.executeInstruction() * 8); // 125 MHz: 8 ns a cycle
+  }
+  if (sim === me) timer = setImmediate(() => run(me));
+}
+// Run now (host bytes arrived): one loop only, whatever was scheduled is dropped.
+function wake() {
+  if (timer !== null) {
+    clearTimeout(timer);
+    clearImmediate(timer);
+  }
+  timer = setImmediate(() => run(sim));
 }
 
 function boot(flash, scratch) {
-  if (sim) sim.stop();
   sim = new Simulator();
   const mcu = sim.rp2040;
   mcu.logger = quiet;
@@ -54,25 +100,51 @@ function boot(flash, scratch) {
   const watchdog = mcu.peripherals[0x40058];
   if (scratch) watchdog.scratchData.set(scratch);
   watchdog.onWatchdogTrigger = () => {
+    // once per chip: rp2040js 1.4.1 re-arms the expired watchdog's alarm 0 ns ahead, which
+    // would fire again at the same instant forever; the chip is reset anyway
+    watchdog.alarm.enable = false;
+    watchdog.timer.enable = false;
+    watchdog.onWatchdogTrigger = () => {};
     const keep = mcu.flash.slice(0), regs = watchdog.scratchData.slice(0);
-    setImmediate(() => boot(keep, regs)); // not from inside the running instruction
-    sim.stop();
+    sim = null; // the running loop ends with this instruction
+    setImmediate(() => boot(keep, regs));
   };
   cdc = new USBCDC(mcu.usbCtrl);
-  cdc.onSerialData = (buf) => process.stdout.write(Buffer.from(buf));
+  cdc.onSerialData = (buf) => {
+    if (trace) trace(`device ${buf.length} B, t ${mcu.clock.nanos}`);
+    process.stdout.write(Buffer.from(buf));
+  };
   cdc.onDeviceConnected = () => process.stderr.write(
     `rp2040js: USB configured: CDC data IN endpoint ${cdc.inEndpoint}, OUT ${cdc.outEndpoint}\n`);
   const read = mcu.usbCtrl.onEndpointRead;
-  mcu.usbCtrl.onEndpointRead = (ep, size) => { pump(); read(ep, size); };
+  outWait = null;
+  mcu.usbCtrl.onEndpointRead = (ep, size) => {
+    if (ep === cdc.outEndpoint) {
+      outWait = size;
+      pump();
+    } else {
+      read(ep, size);
+    }
+  };
   boots++;
   process.stderr.write(`rp2040js: boot ${boots}\n`);
   mcu.core.PC = 0x10000000;
-  sim.execute();
+  wallStart = process.hrtime.bigint();
+  wake();
 }
 
-process.stdin.on('data', (chunk) => { for (const b of chunk) pending.push(b); pump(); });
+const trace = process.env.RP2040_EMU_TRACE ? (text) => process.stderr.write(`${text}\n`) : null;
+process.stdin.on('data', (chunk) => {
+  if (trace) trace(`host ${chunk.length} B, device reading: ${outWait}, t ${sim && sim.clock.nanos}`);
+  for (const b of chunk) pending.push(b);
+  pump();
+  if (sim) wake();
+});
 process.stdin.on('end', () => process.exit(0));
 process.on('SIGTERM', () => process.exit(0));
+if (trace) {
+  setInterval(() => sim && trace(`pc ${sim.rp2040.core.PC.toString(16)}, waiting ${sim.rp2040.core.waiting}, t ${sim.clock.nanos}`), 1000).unref();
+}
 const parent = process.ppid;
 setInterval(() => { if (process.ppid !== parent) process.exit(0); }, 500).unref();
 boot(null, null);
