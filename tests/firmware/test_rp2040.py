@@ -29,6 +29,7 @@ from spiel_edge.compat import tomllib
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError
+from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.profile.schema import load_profile
 from tests.firmware.rp2040_board import Rp2040Board, Unavailable, build_rp2040, missing_tools
 
@@ -133,7 +134,7 @@ def test_enumerates_and_answers_hello(pico):
     took = time.monotonic() - started
     assert "USB configured: CDC data IN endpoint 2, OUT 2" in pico.messages()
     assert hello.firmware_version == "1.0.0+rp2040"
-    assert (hello.usb_vid, hello.usb_pid) == (0x2E8A, 0x000A)
+    assert (hello.usb_vid, hello.usb_pid) == BOARD_USB_IDS[0]  # what discovery looks for
     assert hello.serial == "RP2040-EMU-0001" and hello.n_channels == 4
     assert hello.max_samples == 64 and hello.max_payload == 1024
     assert took < 30, took

@@ -23,10 +23,11 @@
 
 #include "hardware/regs/intctrl.h" /* isr_usbctrl is isr_irq5 */
 
-/* Raspberry Pi's vendor id with the Pico SDK's CDC product id: fine for a prototype; a product
- * asks Raspberry Pi for a product id of its own (docs/build-a-board.md). */
-#define RP2040_USB_VID 0x2E8Au
-#define RP2040_USB_PID 0x000Au
+/* The USB id the host looks for by default (spiel_edge/link/usb_ids.py BOARD_USB_IDS, the udev
+ * rule of `spiel-edge service`): pid.codes' test id 1209:0001, fine for a prototype; a product
+ * takes an id of its own and sets SPIEL_USB_IDS on the host (docs/build-a-board.md). */
+#define RP2040_USB_VID 0x1209u
+#define RP2040_USB_PID 0x0001u
 
 #define RP2040_FLASH_BYTES (2u * 1024u * 1024u)
 #define RP2040_SECTOR 4096u
