@@ -189,16 +189,27 @@ def test_config_is_kept_across_a_watchdog_reboot(pico, tmp_path):
     assert pulled(pico.port)["board"]["name"] == "pico-one"
 
 
-def test_the_emulator_stops_with_its_script(rp2040_image, tmp_path):
-    """SIGTERM to run-emulated.sh ends socat and node too: nothing keeps a core busy."""
+def test_the_emulator_stops_with_its_script_or_its_caller(rp2040_image, tmp_path):
+    """SIGTERM to run-emulated.sh ends socat and node too; so does the end of the process that
+    started it (here a shell that exits after 2 s): nothing keeps a core busy."""
+    from tests.firmware.rp2040_board import RUN
+
+    def left() -> list[str]:
+        found = subprocess.run(
+            ["pgrep", "-f", f"run.mjs {rp2040_image}"], capture_output=True, text=True
+        )
+        return found.stdout.split()
+
     board = Rp2040Board(rp2040_image, tmp_path / "log").start()
-    pid = board.proc.pid
     board.stop()
     time.sleep(0.5)
-    left = subprocess.run(
-        ["pgrep", "-f", f"run.mjs {rp2040_image}"], capture_output=True, text=True
-    ).stdout.split()
-    assert left == [], (pid, left)
+    assert left() == []
+    shell = f"{RUN} {rp2040_image} >/dev/null 2>&1 & sleep 2"
+    subprocess.run(["bash", "-c", shell], timeout=30, check=True)
+    deadline = time.monotonic() + 10
+    while left() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert left() == []
 
 
 def hello_when_up(port: str, timeout_s: float = 30.0):
