@@ -11,6 +11,13 @@
 #                     run-emulated.sh runs in rp2040js (firmware-emu.uf2); never for a board
 #   obj/*.su          -fstack-usage of every file (make TARGET=rp2040 stack)
 RP_DIR := targets/rp2040
+# The CH101/CH201 sensor layer over TDK SonicLib (built against the user's checkout, never
+# vendored: its licence restricts it to TDK sensors) is issue 37 part 5, not written yet.
+ifdef SONICLIB_DIR
+$(error rp2040: the SonicLib sensor layer is not written yet (issue 37 part 5): build without SONICLIB_DIR, the firmware then streams its embedded recordings)
+else
+$(info rp2040: no SONICLIB_DIR: no sensor layer, the firmware streams its embedded recordings)
+endif
 SDK := $(RP_DIR)/vendor/pico-sdk/src
 TUSB := $(RP_DIR)/vendor/tinyusb/src
 ARM_CC ?= arm-none-eabi-gcc
