@@ -1,6 +1,6 @@
 /*
  * boot_rp2040.c - the boot stage of the RP2040 target: the program boot2 starts (vector table
- * at 0x10000100), never updated itself. It starts the crystal and the watchdog tick, then asks
+ * at 0x10000100), never updated itself. It starts the clocks (the watchdog tick too), then asks
  * the core's boot_start() (boot.c) which image to run: a pending test becomes a trial, an
  * unconfirmed trial is rolled back, a slot whose length, CRC-32C or SHA-256 does not check is
  * never chosen; the chosen image is installed flash to flash into the execution region
@@ -11,11 +11,8 @@
 #include <stdint.h>
 
 #include "core.h"
-#include "hardware/clocks.h"
 #include "hardware/structs/scb.h"
 #include "hardware/structs/watchdog.h"
-#include "hardware/ticks.h"
-#include "hardware/xosc.h"
 #include "rp2040_board.h"
 
 #define APP_BASE (XIP_BASE + RP2040_EXEC_OFF + RP2040_SECTOR)
@@ -45,13 +42,8 @@ void boot_reset(void)
         *dst++ = 0;
     }
     hw_clear_bits(&watchdog_hw->ctrl, WATCHDOG_CTRL_ENABLE_BITS); /* armed again for a trial */
-    /* the watchdog counts ticks of clk_ref: the crystal's 12 MHz divided to 1 MHz */
-    xosc_init();
-    hw_write_masked(&clocks_hw->clk[clk_ref].ctrl, CLOCKS_CLK_REF_CTRL_SRC_VALUE_XOSC_CLKSRC,
-                    CLOCKS_CLK_REF_CTRL_SRC_BITS);
-    while (!(clocks_hw->clk[clk_ref].selected & (1u << CLOCKS_CLK_REF_CTRL_SRC_VALUE_XOSC_CLKSRC))) {
-    }
-    tick_start(TICK_WATCHDOG, XOSC_HZ / 1000000u);
+    /* 125 MHz for the image check and copy; the watchdog's 1 MHz tick from the crystal */
+    rp2040_clocks_start();
 
     slot = boot_start(SPIEL_FW_WATCHDOG_MS);
     if (slot >= 0 && hal_image_read(SPIEL_IMAGE_EXEC, 0, head, sizeof head) == 0) {

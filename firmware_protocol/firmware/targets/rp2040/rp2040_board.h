@@ -52,6 +52,8 @@ const char *rp2040_serial(void);
 
 /* image_rp2040.c: the running image's version text (its header): 0, or -1 */
 int rp2040_image_version(char version[17]);
+/* clocks_rp2040.c: crystal, clk_sys 125 MHz, clk_usb 48 MHz, the 1 MHz tick */
+void rp2040_clocks_start(void);
 /* hal_rp2040.c */
 void rp2040_hal_init(void);
 void rp2040_wait(uint32_t us); /* sleep until USB activity or us microseconds */

@@ -58,7 +58,7 @@ RP_VENDOR_CFLAGS := $(RP_ARCH) -MD -std=gnu11 -Os -g -ffunction-sections -fdata-
 	-fstack-usage -Wall -Wno-unused-parameter $(RP_DEFS)
 RP_LDFLAGS := $(RP_ARCH) -nostartfiles --specs=nano.specs -Wl,--gc-sections -L$(RP_DIR)
 
-RP_PORT := main hal_rp2040 usb_rp2040 startup_rp2040 image_rp2040 boot_rp2040
+RP_PORT := main hal_rp2040 usb_rp2040 startup_rp2040 image_rp2040 boot_rp2040 clocks_rp2040
 RP_CORE := $(basename $(notdir $(CORE_SRC)))
 RP_SDK_SRC := rp2_common/hardware_clocks/clocks.c rp2_common/hardware_pll/pll.c \
 	rp2_common/hardware_xosc/xosc.c rp2_common/hardware_watchdog/watchdog.c \
@@ -70,9 +70,9 @@ RP_TUSB_SRC := tusb.c common/tusb_fifo.c device/usbd.c device/usbd_control.c \
 RP_VENDOR := $(basename $(notdir $(RP_SDK_SRC) $(RP_TUSB_SRC)))
 O := $(BUILD)/obj
 RP_APP_OBJS := $(addprefix $(O)/,$(addsuffix .o,main hal_rp2040 usb_rp2040 startup_rp2040 \
-	image_rp2040 $(RP_CORE) $(RP_VENDOR) ascans))
-RP_BOOT_OBJS := $(addprefix $(O)/,$(addsuffix .o,boot_rp2040 image_rp2040 boot sha256 spiel_proto \
-	flash bootrom xosc ticks watchdog platform boot2))
+	image_rp2040 clocks_rp2040 $(RP_CORE) $(RP_VENDOR) ascans))
+RP_BOOT_OBJS := $(addprefix $(O)/,$(addsuffix .o,boot_rp2040 image_rp2040 clocks_rp2040 boot sha256 \
+	spiel_proto flash bootrom clocks pll xosc ticks watchdog platform boot2))
 RP_HDRS := $(wildcard include/*.h core/*.h $(PROTO)/*.h $(RP_DIR)/*.h) $(BUILD)/ascans.h
 vpath %.c $(RP_DIR) core $(PROTO) $(BUILD) $(addprefix $(SDK)/,$(dir $(RP_SDK_SRC))) \
 	$(addprefix $(TUSB)/,$(dir $(RP_TUSB_SRC)))
