@@ -5,9 +5,10 @@
 // code (mufplib) licensed for use on RP2040 silicon only or GPLv2, which this project does not
 // ship. In its place a ROM of zeros whose vector table gives boot2 the stack the real ROM sets
 // up (0x20042000). The firmware calls into the ROM only on paths that run on hardware alone
-// (flash erase/program and unique id, reboot to BOOTSEL): docs/build-a-board.md. A watchdog reset (REBOOT, hal_reset) starts a new chip with the
-// same flash and watchdog scratch registers, as a real watchdog reset keeps them. Exits when
-// stdin closes or its parent goes; diagnostics go to stderr only.
+// (flash erase/program and unique id, reboot to BOOTSEL): docs/build-a-board.md.
+// A watchdog reset (REBOOT, a trial that stops kicking) starts a new chip with the same flash
+// and watchdog scratch registers, as a real watchdog reset keeps them. Exits when stdin closes
+// or its parent goes; diagnostics go to stderr only (RP2040_EMU_TRACE=1: every transfer too).
 import { readFileSync } from 'node:fs';
 import { Simulator, USBCDC } from 'rp2040js';
 
