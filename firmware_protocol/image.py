@@ -110,6 +110,7 @@ def pack_image(
 # end) of its vector table's reset handler and initial stack pointer (targets/*/mps2.h).
 FLAT_TARGETS: dict[str, tuple[int, int, int]] = {
     "mps2-an386": (0x0001_0000, 0x2000_0000, 0x2020_0000),
+    "rp2040": (0x1001_1000, 0x2000_0000, 0x2004_2000),  # targets/rp2040/rp2040_board.h
 }
 
 
