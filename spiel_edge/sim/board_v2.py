@@ -16,7 +16,7 @@ from crc32c import crc32c
 
 from firmware_protocol import Capability, ErrorCode, ErrorResponse, encode_message
 from firmware_protocol import messages as m
-from firmware_protocol.image import ImageError, parse_image
+from firmware_protocol.image import ImageError, ImageRefused, parse_image, verify_image
 from firmware_protocol.v2_messages import (
     KNOWN_ERROR_FLAGS,
     SHA256_SIZE,
@@ -337,6 +337,9 @@ class BoardV2Mixin:
         else:
             try:
                 header = parse_image(image)
+                verify_image(image, self.fw.public_key, self.fw.record().security_counter)
+            except ImageRefused as exc:  # unsigned, another key, tampered, a downgrade
+                error = (exc.code, str(exc))
             except ImageError as exc:
                 error = (ErrorCode.INVALID, str(exc))
             else:

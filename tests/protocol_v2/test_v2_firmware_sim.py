@@ -10,7 +10,7 @@ import time
 import pytest
 from crc32c import crc32c
 
-from firmware_protocol.image import pack_image
+from tests.fwsign import signed_image
 from firmware_protocol.v2_messages import BootState, FwBegin, FwVerify
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
@@ -18,7 +18,7 @@ from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError, DeviceRequestError
 from spiel_edge.sim.protocol_sim import device_for_url
 
-NEW = pack_image(b"SIM:OK " + bytes(range(256)) * 12, version="sim-0.2.0", target="sim")
+NEW = signed_image(b"SIM:OK " + bytes(range(256)) * 12, version="sim-0.2.0", target="sim")
 
 
 class Killed(Exception):
@@ -63,6 +63,7 @@ def test_a_reboot_that_repeats_the_boot_id_is_seen_by_the_clock(sim_url, caplog)
     board = device_for_url(url).board
     board._rng.getrandbits = lambda bits: 0x5EED  # every boot draws the same id
     board.boot_id = 0x5EED
+    board._boot_time -= 5.0  # up for 5 s: its clock after the reboot is behind FW_TEST's
     with caplog.at_level("WARNING", logger="spiel_edge.device.firmware"):
         result = update_firmware(url, NEW, boot_wait_s=5)
     assert result.confirmed and result.version == "sim-0.2.0"
@@ -71,7 +72,7 @@ def test_a_reboot_that_repeats_the_boot_id_is_seen_by_the_clock(sim_url, caplog)
 
 def test_a_firmware_that_never_answers_is_rolled_back(sim_url) -> None:
     url = sim_url("watchdog_ms=500")
-    silent = pack_image(b"SIM:SILENT", version="sim-bad", target="sim")
+    silent = signed_image(b"SIM:SILENT", version="sim-bad", target="sim")
     result = update_firmware(url, silent, boot_wait_s=10)
     assert result.rolled_back and not result.confirmed and result.version == "sim-0.1.0"
     assert hello_version(url) == "sim-0.1.0"
@@ -154,11 +155,11 @@ def test_refused_before_the_switch(sim_url, tmp_path, capsys) -> None:
         "truncated": (NEW[:-10], "truncated"),
         "hash": (NEW[:200] + bytes([NEW[200] ^ 1]) + NEW[201:], "corrupt"),
         "protocol": (
-            pack_image(b"SIM:OK", version="v9", target="sim", min_protocol=3, max_protocol=4),
+            signed_image(b"SIM:OK", version="v9", target="sim", min_protocol=3, max_protocol=4),
             "protocol 3-4",
         ),
-        "target": (pack_image(b"SIM:OK", version="v9", target="mps2-an386"), "target"),
-        "large": (pack_image(b"SIM:OK" * 20000, version="big", target="sim"), "larger than"),
+        "target": (signed_image(b"SIM:OK", version="v9", target="mps2-an386"), "target"),
+        "large": (signed_image(b"SIM:OK" * 20000, version="big", target="sim"), "larger than"),
     }
     for name, (image, message) in cases.items():
         path = tmp_path / f"{name}.img"
@@ -174,7 +175,7 @@ def test_the_cli_says_what_a_failed_upload_leaves(sim_url, tmp_path, capsys) -> 
     the progress), saying the running firmware stays and to run the update again; a bad
     --wait is refused before the board is touched; pack names the value at fault."""
     path = tmp_path / "new.img"
-    path.write_bytes(pack_image(bytes(range(256)) * 200, version="sim-0.2.0", target="sim"))
+    path.write_bytes(signed_image(bytes(range(256)) * 200, version="sim-0.2.0", target="sim"))
     url = sim_url("max_payload=1024&fw_power_cut=3")
     capsys.readouterr()
     assert main(["firmware", "update", "--port", url, str(path)]) == 2

@@ -85,7 +85,8 @@ int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17])
         sp_crc32c(0, head, SP_IMAGE_HEADER_SIZE - 4u) != h.header_crc ||
         h.header_version != SP_IMAGE_HEADER_VERSION || h.header_size != SP_IMAGE_HEADER_SIZE ||
         /* in u64: a slot smaller than the header must not wrap the bound */
-        (uint64_t)h.body_size + SP_IMAGE_HEADER_SIZE > hal_image_slot_size()) {
+        (uint64_t)h.body_size + SP_IMAGE_HEADER_SIZE + image_trailer_size(&h) >
+            hal_image_slot_size()) {
         return -1;
     }
     all_crc = sp_crc32c(0, head, SP_IMAGE_HEADER_SIZE);
@@ -104,8 +105,15 @@ int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17])
     if (body_crc != h.body_crc || memcmp(sha, h.body_sha256, 32) != 0) {
         return -1;
     }
+    if (image_trailer_size(&h)) { /* the signature trailer: in the image's size and CRC */
+        if (hal_image_read(slot, SP_IMAGE_HEADER_SIZE + h.body_size, buf, SP_SIG_TRAILER_SIZE) !=
+            0) {
+            return -1;
+        }
+        all_crc = sp_crc32c(all_crc, buf, SP_SIG_TRAILER_SIZE);
+    }
     if (size) {
-        *size = SP_IMAGE_HEADER_SIZE + h.body_size;
+        *size = SP_IMAGE_HEADER_SIZE + h.body_size + image_trailer_size(&h);
     }
     if (crc) {
         *crc = all_crc;

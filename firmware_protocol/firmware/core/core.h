@@ -81,6 +81,14 @@ int boot_record_write(const boot_record_t *r);
 int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17]);
 /* At reset: the slot to run (the record updated as PROTOCOL.md 14.3 says), -1: none. */
 int boot_choose(void);
+
+/* verify.c (PROTOCOL.md 14.6): bytes of the signature trailer an image's header announces. */
+uint32_t image_trailer_size(const sp_image_header_t *h);
+/* The slot's signature by the built-in key and its security counter (>= min_counter):
+ * SP_ERR_OK, or SP_ERR_FW_UNSIGNED / _FW_BAD_SIGNATURE / _FW_WRONG_KEY / _FW_ROLLBACK (or
+ * _FLASH_VERIFY_FAILED) with *why a short reason. Call after image_check() passed (it matches
+ * the body to the signed header). *counter: the image's counter, when the signature verifies. */
+uint16_t image_auth(int slot, uint32_t min_counter, uint32_t *counter, const char **why);
 #endif
 
 #endif
