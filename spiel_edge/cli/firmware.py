@@ -129,28 +129,104 @@ def confirm_cmd(port: str) -> int:
     "--protocol", default="1-2", show_default=True, help="protocol versions it speaks, LOW-HIGH"
 )
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False))
+@click.option(
+    "--key",
+    "key_path",
+    type=click.Path(dir_okay=False),
+    help="private key to sign with (keygen's KEY.key; needs the 'sign' extra). Boards refuse "
+    "unsigned images",
+)
+@click.option(
+    "--security-counter",
+    type=click.IntRange(0, 0xFFFF_FFFF),
+    default=0,
+    show_default=True,
+    help="anti-rollback counter: a board that confirmed an image with a higher one refuses this",
+)
+@click.option("--release", is_flag=True, help="refuse the development key")
 @force_option
-def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, force: bool) -> int:
-    """Wrap a firmware BODY (the target's binary) in an image header.
+def pack_cmd(
+    body: str,
+    version: str,
+    target: str,
+    protocol: str,
+    output: str,
+    key_path: str | None,
+    security_counter: int,
+    release: bool,
+    force: bool,
+) -> int:
+    """Wrap a firmware BODY (the target's binary) in an image header, signed with --key.
 
     For mps2-an386 the BODY is build/mps2/app.bin (make TARGET=mps2), the application linked
     for the boot stage's execution region."""
     from firmware_protocol.image import ImageError, check_body, pack_image
+    from spiel_edge.device.fwkeys import is_dev_key, load_private_key
 
     plan = FilePlan(force)
     plan.input_file(body, "BODY")
+    if key_path is not None:
+        plan.input_file(key_path, "--key")
     plan.output(output, "--output")
     try:
         low, high = (int(v) for v in protocol.split("-"))
     except ValueError as exc:
         raise InputError(f"--protocol must be LOW-HIGH, e.g. 1-2, got {protocol!r}") from exc
+    if key_path is None and release:
+        raise InputError("--release needs --key: a release image is signed")
+    signer = load_private_key(key_path) if key_path is not None else None
+    if signer is not None and is_dev_key(signer.public_key) and release:
+        raise InputError(f"--key {key_path}: the development key; --release refuses it")
     try:
         raw = _read_image(body)
         check_body(raw, target)
-        image = pack_image(raw, version=version, target=target, min_protocol=low, max_protocol=high)
+        image = pack_image(
+            raw,
+            version=version,
+            target=target,
+            min_protocol=low,
+            max_protocol=high,
+            security_counter=security_counter,
+            signer=signer,
+        )
     except (ValueError, ImageError) as exc:
         raise InputError(str(exc)) from exc
     with atomic_write(output, "wb") as fh:
         fh.write(image)
-    click.echo(f"{output}: {version} for {target}, {len(image)} bytes", err=True)
+    if signer is None:
+        how = "UNSIGNED: boards refuse it (FW_UNSIGNED); sign with --key"
+    elif is_dev_key(signer.public_key):
+        how = f"signed with the DEVELOPMENT key {signer.key_id}"
+    else:
+        how = f"signed with key {signer.key_id}"
+    click.echo(
+        f"{output}: {version} for {target}, security counter {security_counter}, "
+        f"{len(image)} bytes, {how}",
+        err=True,
+    )
+    return EXIT_OK
+
+
+@command.command("keygen")
+@click.argument("name", type=click.Path(dir_okay=False))
+@force_option
+def keygen_cmd(name: str, force: bool) -> int:
+    """Make a signing key pair: NAME.key (private, mode 0600: keep it off the robot) and
+    NAME.pub (the public key; build the boot stage with make FW_KEY=NAME.pub)."""
+    from spiel_edge.device.fwkeys import generate_key
+
+    private, public = Path(name + ".key"), Path(name + ".pub")
+    plan = FilePlan(force)
+    plan.output(private, "NAME.key")
+    plan.output(public, "NAME.pub")
+    if force:
+        private.unlink(missing_ok=True)  # written anew with O_EXCL and mode 0600
+    try:
+        key = generate_key(private, public)
+    except OSError as exc:
+        raise InputError(f"{name}: cannot write the key ({exc.strerror or exc})") from exc
+    click.echo(f"{private}: private key (mode 0600), key id {key.key_id}", err=True)
+    click.echo(
+        f"{public}: public key: make -C firmware_protocol/firmware FW_KEY={public}", err=True
+    )
     return EXIT_OK

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from crc32c import crc32c
 
-from firmware_protocol import MAX_PAYLOAD, Capability, Message
+from firmware_protocol import MAX_PAYLOAD, Capability, ErrorCode, Message
 from firmware_protocol.image import ImageError, ImageHeader, parse_image
 from firmware_protocol.messages import MAX_PROTOCOL_VERSION, MIN_PROTOCOL_VERSION
 from firmware_protocol.v2_messages import (
@@ -72,6 +72,11 @@ def check_image(image: bytes) -> ImageHeader:
         header = parse_image(image)
     except ImageError as exc:
         raise DeviceError(f"refused: {exc}") from exc
+    if not header.signed:
+        raise DeviceError(
+            "refused: the image is not signed; boards boot only signed images "
+            "(spiel-edge firmware pack --key KEY)"
+        )
     if not header.speaks(MIN_PROTOCOL_VERSION, MAX_PROTOCOL_VERSION):
         raise DeviceError(
             f"refused: firmware {header.version} speaks protocol {header.min_protocol}-"
@@ -184,8 +189,8 @@ def update_firmware(
             begin = _upload(session, url, image, crc, sha, progress)
             clock_at_test = _board_clock_us(session)
             session.request(FwTest(test_delay_ms))
-        except DeviceRequestError:
-            raise  # the board refused: the reason says why, running it again would not help
+        except DeviceRequestError as exc:  # refused: the reason says why, again would not help
+            raise _refusal(exc, url, header.version, previous) from exc
         except DeviceError as exc:  # the link failed; nothing switched: the running one stays
             raise DeviceError(
                 f"{exc}; the board keeps firmware {previous} (the new one was not started): "
@@ -316,3 +321,26 @@ def _close(session) -> None:
         session.close()
     except DeviceError as exc:
         log.debug("close: %s", exc)
+
+
+# the board's FW_VERIFY answers for an image it does not trust (PROTOCOL.md § 14.6)
+_AUTH_CODES = (
+    ErrorCode.FW_UNSIGNED,
+    ErrorCode.FW_BAD_SIGNATURE,
+    ErrorCode.FW_WRONG_KEY,
+    ErrorCode.FW_ROLLBACK,
+)
+
+
+def _refusal(exc: DeviceRequestError, url: str, version: str, previous: str) -> DeviceError:
+    """One line: why the board refused the image, and that it keeps what it runs."""
+    if exc.code not in _AUTH_CODES:
+        return exc
+    code = ErrorCode(exc.code)
+    detail = str(exc).split("): ", 1)[-1] if "): " in str(exc) else ""
+    return DeviceRequestError(
+        f"{url}: the board refused firmware {version}: {code.text} ({code.name}"
+        f"{': ' + detail if detail else ''}); it keeps firmware {previous}",
+        exc.code,
+        exc.request_type,
+    )
