@@ -78,6 +78,7 @@ from firmware_protocol.stream import (
 from firmware_protocol.v2_messages import (
     BoardState,
     BootState,
+    SelfTest,
     ErrorFlag,
     FwBegin,
     FwBeginResponse,
@@ -124,6 +125,7 @@ __all__ = [
     "AssemblerStats",
     "BoardState",
     "BootState",
+    "SelfTest",
     "Capability",
     "ConfigCommit",
     "ConfigCommitResponse",

@@ -43,6 +43,7 @@ def v2_part(_enum, _defines, _layout, _c_string) -> list[str]:
         "/* FW_INFO slot state and boot state */",
         *_enum("SP_SLOT_", v2.SlotState),
         *_enum("SP_BOOT_", v2.BootState),
+        *_enum("SP_SELFTEST_", v2.SelfTest),
         *_defines([("SP_SHA256_SIZE", f"{v2.SHA256_SIZE}u", "")]),
         "",
     ]

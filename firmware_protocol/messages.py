@@ -32,6 +32,7 @@ from firmware_protocol.stream import SampleFormat, StreamData
 from firmware_protocol.v2_messages import (  # noqa: F401  (registers the version 2 messages)
     BoardState,
     BootState,
+    SelfTest,
     ErrorFlag,
     FwBegin,
     FwBeginResponse,

@@ -19,6 +19,7 @@ __all__ = [
     "V2_LAYOUTS",
     "BoardState",
     "BootState",
+    "SelfTest",
     "ErrorFlag",
     "FwBegin",
     "FwBeginResponse",
@@ -109,6 +110,17 @@ class BootState(IntEnum):
     CONFIRMED = 0  # the running image is the permanent one
     TRIAL = 1  # running a test image once: FW_CONFIRM keeps it, a reset rolls back
     TEST_PENDING = 2  # FW_TEST accepted: the other slot boots once at the next reset
+
+
+class SelfTest(IntEnum):
+    """FW_INFO ``selftest``: a trial image's self-test (the sensor answers and a first
+    acquisition completes); FW_CONFIRM is refused until it PASSED."""
+
+    NONE = 0  # not a trial (or a board from before the self-test: byte 3 was 0)
+    PENDING = 1  # not started yet (waits for a stream to end)
+    RUNNING = 2  # the first acquisition is in flight
+    PASSED = 3  # the trial may be confirmed
+    FAILED = 4  # the trial resets itself and the boot stage rolls it back
 
 
 # --- time sync --------------------------------------------------------------------------
@@ -212,7 +224,7 @@ class FwInfo(Message):
     running_slot: int = 0
     boot_state: int = BootState.CONFIRMED
     confirmed_slot: int = 0  # the slot a reset boots when no test is pending (0xFF: built-in image)
-    reserved: int = 0
+    selftest: int = SelfTest.NONE  # the trial's self-test (was reserved, 0)
     slot_size: int = 0  # bytes an image may take (header included)
     target: str = ""  # the image target this board runs, e.g. "posix", "mps2-an386", "sim"
     slot0_state: int = SlotState.EMPTY

@@ -387,6 +387,11 @@ static inline void sp_config_header_unpack(const uint8_t in[SP_CONFIG_HEADER_SIZ
 #define SP_BOOT_CONFIRMED    0u
 #define SP_BOOT_TRIAL        1u
 #define SP_BOOT_TEST_PENDING 2u
+#define SP_SELFTEST_NONE    0u
+#define SP_SELFTEST_PENDING 1u
+#define SP_SELFTEST_RUNNING 2u
+#define SP_SELFTEST_PASSED  3u
+#define SP_SELFTEST_FAILED  4u
 #define SP_SHA256_SIZE 32u
 
 /* TimeSync: msg_type 0x0006, request or device-originated frame, fixed part (8 bytes, little-endian, no padding) */
@@ -567,8 +572,8 @@ static inline void sp_log_unpack(const uint8_t in[SP_LOG_SIZE],
 #define SP_FW_INFO_BOOT_STATE_SIZE       1u
 #define SP_FW_INFO_CONFIRMED_SLOT_OFFSET 2u
 #define SP_FW_INFO_CONFIRMED_SLOT_SIZE   1u
-#define SP_FW_INFO_RESERVED_OFFSET       3u
-#define SP_FW_INFO_RESERVED_SIZE         1u
+#define SP_FW_INFO_SELFTEST_OFFSET       3u
+#define SP_FW_INFO_SELFTEST_SIZE         1u
 #define SP_FW_INFO_SLOT_SIZE_OFFSET      4u
 #define SP_FW_INFO_SLOT_SIZE_SIZE        4u
 #define SP_FW_INFO_TARGET_OFFSET         8u
@@ -594,7 +599,7 @@ typedef struct {
     uint8_t running_slot; /*  */
     uint8_t boot_state; /*  */
     uint8_t confirmed_slot; /*  */
-    uint8_t reserved; /*  */
+    uint8_t selftest; /*  */
     uint32_t slot_size; /*  */
     uint8_t target[16]; /*  */
     uint8_t slot0_state; /*  */
@@ -613,7 +618,7 @@ static inline void sp_fw_info_pack(const sp_fw_info_t *h,
     out[SP_FW_INFO_RUNNING_SLOT_OFFSET] = h->running_slot;
     out[SP_FW_INFO_BOOT_STATE_OFFSET] = h->boot_state;
     out[SP_FW_INFO_CONFIRMED_SLOT_OFFSET] = h->confirmed_slot;
-    out[SP_FW_INFO_RESERVED_OFFSET] = h->reserved;
+    out[SP_FW_INFO_SELFTEST_OFFSET] = h->selftest;
     sp_le_put_u32(out + SP_FW_INFO_SLOT_SIZE_OFFSET, h->slot_size);
     memcpy(out + SP_FW_INFO_TARGET_OFFSET, h->target, sizeof h->target);
     out[SP_FW_INFO_SLOT0_STATE_OFFSET] = h->slot0_state;
@@ -632,7 +637,7 @@ static inline void sp_fw_info_unpack(const uint8_t in[SP_FW_INFO_SIZE],
     h->running_slot = in[SP_FW_INFO_RUNNING_SLOT_OFFSET];
     h->boot_state = in[SP_FW_INFO_BOOT_STATE_OFFSET];
     h->confirmed_slot = in[SP_FW_INFO_CONFIRMED_SLOT_OFFSET];
-    h->reserved = in[SP_FW_INFO_RESERVED_OFFSET];
+    h->selftest = in[SP_FW_INFO_SELFTEST_OFFSET];
     h->slot_size = sp_le_get_u32(in + SP_FW_INFO_SLOT_SIZE_OFFSET);
     memcpy(h->target, in + SP_FW_INFO_TARGET_OFFSET, sizeof h->target);
     h->slot0_state = in[SP_FW_INFO_SLOT0_STATE_OFFSET];

@@ -55,7 +55,7 @@ def build_posix(out_dir: Path, **defines) -> Path:
     """The posix target, e.g. ``build_posix(d, SPIEL_MAX_PAYLOAD=256)``; with its firmware
     image slots (``--images DIR``) unless ``SPIEL_FW_UPDATE=0``, and I/Q streams (its recordings'
     amplitude as i, q = 0) unless ``SPIEL_IQ_SAMPLES=0``."""
-    defines = {"SPIEL_FW_UPDATE": 1, "SPIEL_IQ_SAMPLES": 1, **defines}
+    defines = {"SPIEL_FW_UPDATE": 1, "SPIEL_FW_EXEC_COPY": 1, "SPIEL_IQ_SAMPLES": 1, **defines}
     out_dir.mkdir(parents=True, exist_ok=True)
     name = "spiel_fw_posix" + "".join(f"_{k}{v}" for k, v in sorted(defines.items()))
     sources = core_sources() + sorted((FIRMWARE / "targets" / "posix").glob("*.c"))

@@ -56,6 +56,8 @@ int v2_request(uint16_t msg_type, const uint8_t *p, uint16_t len, uint8_t *out,
 uint16_t v2_due(uint64_t now, uint8_t *out, uint16_t *out_len);
 uint64_t v2_next_us(uint64_t now); /* when v2_due may have a frame (now + 50 ms at most) */
 void v2_log(uint8_t level, const char *text); /* queue a LOG line (bounded; drops counted) */
+void v2_tick(uint64_t now);   /* every poll: a trial's self-test, the watchdog kick */
+int v2_selftest_busy(void);   /* 1 while the self-test's acquisition is in flight */
 
 /* device.c, for v2.c */
 uint8_t core_version(void);   /* the negotiated protocol version */
@@ -63,6 +65,7 @@ int core_streaming(void);
 uint32_t core_boot_id(void);
 uint16_t core_max_payload(void); /* the link's: min(device, host's HELLO) */
 void core_reboot_after_ms(uint32_t ms);
+uint16_t *core_sample_buffer(uint16_t *cap); /* the sample buffer (free while not streaming) */
 
 #ifndef SPIEL_FW_TARGET
 #define SPIEL_FW_TARGET "posix" /* the image target this build runs (PROTOCOL.md 14.3) */
@@ -73,6 +76,7 @@ void core_reboot_after_ms(uint32_t ms);
 #define BOOT_NO_SLOT 0xFFu
 typedef struct {
     uint8_t confirmed, trial, state; /* state: SP_BOOT_CONFIRMED / _TEST_PENDING / _TRIAL */
+    uint32_t security_counter;       /* anti-rollback floor, carried across writes */
 } boot_record_t;
 void boot_record_read(boot_record_t *r); /* defaults (slot 0 confirmed) when none is valid */
 int boot_record_write(const boot_record_t *r);
@@ -81,6 +85,14 @@ int boot_record_write(const boot_record_t *r);
 int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17]);
 /* At reset: the slot to run (the record updated as PROTOCOL.md 14.3 says), -1: none. */
 int boot_choose(void);
+int boot_is_trial(int slot); /* 1: the record says `slot` runs as an unconfirmed trial */
+#if SPIEL_FW_EXEC_COPY
+int boot_install(int slot); /* copy the slot into SPIEL_IMAGE_EXEC (idempotent): 0 ok */
+#endif
+/* The boot stage's whole decision: boot_choose(), the install (copying targets; a trial whose
+ * install fails is rolled back), and the watchdog started (watchdog_ms) before a trial runs.
+ * The slot to run, or -1: the built-in image / recovery loader. */
+int boot_start(uint32_t watchdog_ms);
 
 /* verify.c (PROTOCOL.md 14.6): bytes of the signature trailer an image's header announces. */
 uint32_t image_trailer_size(const sp_image_header_t *h);

@@ -405,6 +405,9 @@ static void schedule(uint64_t now)
             scheduled(now);
             continue;
         }
+        if (v2_selftest_busy()) {
+            return; /* a trial's self-test holds the front end: this one waits */
+        }
         if (hal_acq_trigger(st.mask, st.n_samples) == 0) {
             st.busy = 1;
             st.index = dev.acquisition++;
@@ -661,6 +664,12 @@ uint16_t core_max_payload(void)
     return dev.max_payload;
 }
 
+uint16_t *core_sample_buffer(uint16_t *cap)
+{
+    *cap = (uint16_t)(SPIEL_MAX_SAMPLES > 0xFFFFu ? 0xFFFFu : SPIEL_MAX_SAMPLES);
+    return samples;
+}
+
 void core_reboot_after_ms(uint32_t ms)
 {
     dev.reboot_pending = 1;
@@ -795,6 +804,7 @@ void spiel_device_poll(void)
 {
     sp_frame_t f;
     uint64_t now;
+    v2_tick(hal_time_us()); /* a trial's self-test; the watchdog kick */
     flush();
     if (tx.len) {
         schedule(hal_time_us()); /* the link is blocked: count the slots that pass */

@@ -29,8 +29,27 @@ static struct {
     int verified;
     int running;          /* slot running now, -1 none */
     uint8_t boot_state;
+    uint32_t erased_to;   /* the upload slot is erased in [0, erased_to): sector by sector */
+    uint8_t unit_buf[SPIEL_FW_UNIT_MAX]; /* the upload's bytes short of a program unit */
+    uint32_t unit_fill;
+    uint8_t selftest;     /* SP_SELFTEST_*: a trial's self-test (FW_INFO byte 3) */
+    uint64_t selftest_deadline, trial_end;
 #endif
 } v2;
+
+#if SPIEL_FW_UPDATE
+static uint32_t trial_window_ms = SPIEL_FW_TRIAL_WINDOW_MS;
+#define SELFTEST_TIMEOUT_US 1000000u /* the first acquisition must complete within 1 s */
+#endif
+
+void spiel_device_set_trial_window_ms(uint32_t ms)
+{
+#if SPIEL_FW_UPDATE
+    trial_window_ms = ms;
+#else
+    (void)ms;
+#endif
+}
 
 void v2_init(void)
 {
@@ -48,7 +67,88 @@ void v2_init(void)
         boot_record_read(&r);
         v2.boot_state = (r.state == SP_BOOT_TRIAL && (int)r.trial == v2.running)
                             ? (uint8_t)SP_BOOT_TRIAL : (uint8_t)SP_BOOT_CONFIRMED;
+        /* a trial proves itself: the sensor answers and one acquisition completes */
+        v2.selftest = v2.boot_state == SP_BOOT_TRIAL ? (uint8_t)SP_SELFTEST_PENDING
+                                                     : (uint8_t)SP_SELFTEST_NONE;
+        v2.trial_end = hal_time_us() + (uint64_t)trial_window_ms * 1000u;
     }
+#endif
+}
+
+#if SPIEL_FW_UPDATE
+static void selftest_done(uint8_t result, const char *why)
+{
+    v2.selftest = result;
+    if (result == SP_SELFTEST_FAILED) {
+        v2_log(SP_LOG_ERROR, why);
+        core_reboot_after_ms(2000u); /* the boot stage rolls the trial back */
+    } else {
+        v2_log(SP_LOG_NOTICE, "self-test passed");
+    }
+}
+
+static void selftest_step(uint64_t now)
+{
+    const hal_board_info_t *b = hal_board_info();
+    if (v2.selftest == SP_SELFTEST_PENDING && !core_streaming()) {
+        uint16_t cap = 0, n = b->default_n_samples;
+        uint32_t mask = b->n_channels >= 32u ? 0xFFFFFFFFu : (1u << b->n_channels) - 1u;
+        (void)core_sample_buffer(&cap);
+        if (n > cap) {
+            n = cap;
+        }
+        if (n == 0 || b->n_channels == 0 || hal_acq_trigger(mask, n) != 0) {
+            selftest_done(SP_SELFTEST_FAILED, "self-test failed: the sensor refused a trigger");
+            return;
+        }
+        v2.selftest = SP_SELFTEST_RUNNING;
+        v2.selftest_deadline = now + SELFTEST_TIMEOUT_US;
+    } else if (v2.selftest == SP_SELFTEST_RUNNING) {
+        uint16_t cap = 0, n = b->default_n_samples, ch;
+        uint16_t *buf = core_sample_buffer(&cap);
+        if (!hal_acq_ready()) {
+            if (now >= v2.selftest_deadline) {
+                selftest_done(SP_SELFTEST_FAILED, "self-test failed: no acquisition within 1 s");
+            }
+            return;
+        }
+        if (n > cap) {
+            n = cap;
+        }
+        for (ch = 0; ch < b->n_channels; ch++) {
+            if (hal_acq_read((uint8_t)ch, buf, n) != 0) {
+                selftest_done(SP_SELFTEST_FAILED, "self-test failed: a channel did not read");
+                return;
+            }
+        }
+        selftest_done(SP_SELFTEST_PASSED, NULL);
+    }
+}
+#endif
+
+void v2_tick(uint64_t now)
+{
+#if SPIEL_FW_UPDATE
+    if (v2.boot_state == SP_BOOT_TRIAL) {
+        selftest_step(now);
+        /* an unconfirmed trial stops kicking once its self-test failed or its window passed:
+         * the watchdog resets it and the boot stage rolls it back, with nobody there */
+        if (v2.selftest == SP_SELFTEST_FAILED || now >= v2.trial_end) {
+            return;
+        }
+    }
+    hal_watchdog_kick();
+#else
+    (void)now;
+#endif
+}
+
+int v2_selftest_busy(void)
+{
+#if SPIEL_FW_UPDATE
+    return v2.selftest == SP_SELFTEST_PENDING || v2.selftest == SP_SELFTEST_RUNNING;
+#else
+    return 0;
 #endif
 }
 
@@ -129,6 +229,9 @@ static uint32_t error_flags(void)
 #if SPIEL_FW_UPDATE
     if (v2.boot_state == SP_BOOT_TRIAL) {
         f |= SP_EFLAG_TRIAL_IMAGE;
+    }
+    if (v2.selftest == SP_SELFTEST_FAILED) {
+        f |= SP_EFLAG_SENSOR;
     }
 #endif
     return f;
@@ -233,7 +336,7 @@ static uint16_t fw_info(uint8_t *out)
     out[0] = v2.running < 0 ? (uint8_t)0xFF : (uint8_t)v2.running;
     out[1] = r.state == SP_BOOT_TEST_PENDING ? (uint8_t)SP_BOOT_TEST_PENDING : v2.boot_state;
     out[2] = r.confirmed;
-    out[3] = 0;
+    out[3] = v2.selftest;
     sp_le_put_u32(out + 4, hal_image_slot_size());
     memset(out + 8, 0, 16);
     memcpy(out + 8, SPIEL_FW_TARGET, strlen(SPIEL_FW_TARGET));
@@ -305,7 +408,9 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
     }
     v2.upload_slot = -1;
     v2.verified = 0;
-    if (hal_image_erase(slot) != 0) {
+    /* only the header's sector now (the old image is gone at once); the rest as the upload
+     * reaches it, one sector per FW_WRITE at most: no request waits for a whole slot erase */
+    if (hal_image_erase(slot, 0, hal_image_sector_size()) != 0) {
         spiel_stats.flash_errors++;
         *code = SP_ERR_FLASH_WRITE_FAILED, *text = "slot erase failed";
         return 0;
@@ -315,10 +420,79 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
     v2.expect_crc = sp_le_get_u32(in + 4);
     memcpy(v2.expect_sha, p + 10, 32);
     v2.written = 0;
+    v2.erased_to = hal_image_sector_size();
+    v2.unit_fill = 0;
     v2_log(SP_LOG_INFO, "firmware upload started");
     out[0] = (uint8_t)slot;
     sp_le_put_u32(out + 1, hal_image_slot_size());
     return 5;
+}
+
+/* Program [at, at + len) of the upload slot (whole units), erasing each sector first as the
+ * upload reaches it. */
+static int program(uint32_t at, const uint8_t *data, uint32_t len)
+{
+    uint32_t sector = hal_image_sector_size();
+    while ((uint64_t)at + len > v2.erased_to) {
+        if (v2.erased_to >= hal_image_slot_size() ||
+            hal_image_erase(v2.upload_slot, v2.erased_to, sector) != 0) {
+            return -1;
+        }
+        v2.erased_to += sector;
+    }
+    return hal_image_write(v2.upload_slot, at, data, len);
+}
+
+/* The upload's next n bytes: whole program units go to flash, the rest waits in unit_buf
+ * (flushed, padded with 0xFF, when the image is complete). */
+static int upload_bytes(const uint8_t *d, uint32_t n)
+{
+    uint32_t unit = hal_image_program_unit();
+    uint32_t base = v2.written - v2.unit_fill; /* unit-aligned: where unit_buf goes */
+    if (unit == 0 || unit > SPIEL_FW_UNIT_MAX) {
+        return -1;
+    }
+    if (v2.unit_fill) {
+        uint32_t take = unit - v2.unit_fill < n ? unit - v2.unit_fill : n;
+        memcpy(v2.unit_buf + v2.unit_fill, d, take);
+        v2.unit_fill += take;
+        d += take;
+        n -= take;
+        if (v2.unit_fill < unit) {
+            return 0;
+        }
+        if (program(base, v2.unit_buf, unit) != 0) {
+            return -1;
+        }
+        base += unit;
+        v2.unit_fill = 0;
+    }
+    if (n >= unit) {
+        uint32_t whole = n / unit * unit;
+        if (program(base, d, whole) != 0) {
+            return -1;
+        }
+        base += whole;
+        d += whole;
+        n -= whole;
+    }
+    memcpy(v2.unit_buf, d, n);
+    v2.unit_fill = n;
+    return 0;
+}
+
+static int upload_flush(void)
+{
+    uint32_t unit = hal_image_program_unit();
+    if (v2.unit_fill == 0) {
+        return 0;
+    }
+    memset(v2.unit_buf + v2.unit_fill, 0xFF, unit - v2.unit_fill);
+    if (program(v2.written - v2.unit_fill, v2.unit_buf, unit) != 0) {
+        return -1;
+    }
+    v2.unit_fill = 0;
+    return 0;
 }
 
 static int fw_write(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
@@ -353,7 +527,8 @@ static int fw_write(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
         return 0;
     }
     v2.verified = 0;
-    if (hal_image_write(v2.upload_slot, off, p + 6, n) != 0) {
+    if (upload_bytes(p + 6, n) != 0) {
+        v2.upload_slot = -1; /* the bytes buffered are lost: FW_BEGIN again */
         spiel_stats.flash_errors++;
         *code = SP_ERR_FLASH_WRITE_FAILED, *text = "slot write failed";
         return 0;
@@ -375,6 +550,12 @@ static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
     }
     if (v2.written != v2.expect_size) {
         *code = SP_ERR_BAD_STATE, *text = "image incomplete";
+        return 0;
+    }
+    if (upload_flush() != 0) {
+        v2.upload_slot = -1;
+        spiel_stats.flash_errors++;
+        *code = SP_ERR_FLASH_WRITE_FAILED, *text = "slot write failed";
         return 0;
     }
     if (slot_digest(slot, v2.expect_size, &crc, sha) != 0) {
@@ -447,8 +628,15 @@ static int fw_confirm(uint8_t *out, uint16_t *code, const char **text)
         *code = SP_ERR_BAD_STATE, *text = "no image is running";
         return 0;
     }
+    if (v2.boot_state == SP_BOOT_TRIAL && v2.selftest != SP_SELFTEST_PASSED) {
+        *code = SP_ERR_BAD_STATE;
+        *text = v2.selftest == SP_SELFTEST_FAILED ? "the self-test failed: the trial rolls back"
+                                                  : "the self-test has not passed yet";
+        return 0;
+    }
     if (v2.boot_state == SP_BOOT_TRIAL) {
         boot_record_t r;
+        boot_record_read(&r);
         r.confirmed = (uint8_t)v2.running;
         r.trial = BOOT_NO_SLOT;
         r.state = SP_BOOT_CONFIRMED;

@@ -7,7 +7,7 @@ FUZZ_CC ?= clang
 # FUZZ_COVERAGE=-fno-sanitize-coverage=trace-cmp: about 3x the inputs per second, without
 # libFuzzer's comparison-guided mutations (for long runs over a corpus grown with them)
 FUZZ_COVERAGE ?=
-FUZZ_CFLAGS := $(WARN) -O1 -g -DSPIEL_FW_UPDATE=1 -DSPIEL_IQ_SAMPLES=1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
+FUZZ_CFLAGS := $(WARN) -O1 -g -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_EXEC_COPY=1 -DSPIEL_IQ_SAMPLES=1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
 	-fno-omit-frame-pointer $(FUZZ_COVERAGE) $(INC) $(CFLAGS_EXTRA)
 FUZZ_OUT := $(BUILD)/spiel_fuzz
 

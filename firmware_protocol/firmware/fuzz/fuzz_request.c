@@ -69,10 +69,14 @@ static sp_decoder_t out_decoder;
 static unsigned long long inputs;
 
 #define IMAGE_SLOT 2048u  /* bytes per image slot: small, so that inputs fill one */
-#define RECORD_AREA 32u   /* slot 2: the boot record's two copies */
+#define IMAGE_SECTOR 512u /* erase unit: a slot is 4 sectors, erased as the upload goes */
+#define IMAGE_UNIT 8u     /* program unit (ECC flash): whole units of erased bytes only */
+#define RECORD_AREA (2u * IMAGE_SECTOR) /* slot 2: the boot record's two copies */
+#define EXEC_AREA (IMAGE_SECTOR + IMAGE_SLOT) /* slot 3: the boot stage's copy */
 #define MAX_RESETS 8u     /* resets per input */
 
-static uint8_t slots[2][IMAGE_SLOT], record_area[RECORD_AREA];
+static uint8_t slots[2][IMAGE_SLOT], record_area[RECORD_AREA], exec_area[EXEC_AREA];
+static int watchdog_started;
 static uint8_t image0[IMAGE_SLOT]; /* a valid image for slot 0 (mode bit 3) */
 static int image_running;          /* the slot the boot stage chose: 0, 1, -1 none */
 static unsigned resets;
@@ -256,15 +260,23 @@ void hal_apply_settings(const hal_settings_t *settings)
  * only clears bits; erase sets 0xFF), slot 2 (the boot record) as the mps2 target's: a write
  * replaces one copy (its own sector, erased first). ---------------------------------------- */
 
+static uint32_t area_cap(int slot)
+{
+    return slot == SPIEL_IMAGE_RECORD ? RECORD_AREA : slot == SPIEL_IMAGE_EXEC ? EXEC_AREA
+                                                                             : IMAGE_SLOT;
+}
+
 static uint8_t *image_area(int slot, uint32_t offset, uint32_t len)
 {
-    uint32_t cap = slot == 2 ? RECORD_AREA : IMAGE_SLOT;
-    if (slot < 0 || slot > 2 || offset > cap || len > cap - offset) {
+    uint32_t cap = area_cap(slot);
+    if (slot < 0 || slot > SPIEL_IMAGE_EXEC || offset > cap || len > cap - offset) {
         fprintf(stderr, "spiel_fuzz: image slot %d accessed outside it: offset %lu, %lu bytes\n",
                 slot, (unsigned long)offset, (unsigned long)len);
         abort();
     }
-    return slot == 2 ? record_area + offset : slots[slot] + offset;
+    return slot == SPIEL_IMAGE_RECORD ? record_area + offset
+           : slot == SPIEL_IMAGE_EXEC ? exec_area + offset
+                                      : slots[slot] + offset;
 }
 
 uint32_t hal_image_slot_size(void)
@@ -272,21 +284,47 @@ uint32_t hal_image_slot_size(void)
     return IMAGE_SLOT;
 }
 
+uint32_t hal_image_sector_size(void)
+{
+    return IMAGE_SECTOR;
+}
+
+uint32_t hal_image_program_unit(void)
+{
+    return IMAGE_UNIT;
+}
+
 int hal_image_running(void)
 {
     return image_running;
 }
 
-int hal_image_erase(int slot)
+void hal_watchdog_start(uint32_t timeout_ms)
 {
-    uint8_t *area = image_area(slot, 0, 0);
+    (void)timeout_ms;
+    watchdog_started = 1;
+}
+
+void hal_watchdog_kick(void)
+{
+}
+
+/* NOR flash with ECC: erase whole sectors (a cut leaves the first half erased), program whole
+ * units of erased bytes once (a cut programs half of them). */
+int hal_image_erase(int slot, uint32_t offset, uint32_t len)
+{
+    uint8_t *area = image_area(slot, offset, len);
+    if (offset % IMAGE_SECTOR != 0 || len % IMAGE_SECTOR != 0 || len == 0) {
+        fail_check("the core erased a range that is not whole sectors");
+    }
     if (slot == image_running) {
         fail_check("the core erased the running slot");
     }
     if (storage_fails()) {
+        memset(area, 0xFF, len / 2u);
         return -1;
     }
-    memset(area, 0xFF, slot == 2 ? RECORD_AREA : IMAGE_SLOT);
+    memset(area, 0xFF, len);
     return 0;
 }
 
@@ -294,28 +332,24 @@ int hal_image_write(int slot, uint32_t offset, const uint8_t *data, uint32_t len
 {
     uint8_t *area = image_area(slot, offset, len);
     uint32_t i, n = len;
-    int fails;
     if (slot == image_running) {
         fail_check("the core wrote the running slot");
     }
-    fails = storage_fails();
-    if (slot == 2) { /* a cut leaves this copy erased; the other one holds */
-        memset(area, 0xFF, len);
-        if (!fails) {
-            memcpy(area, data, len);
-        }
-        return fails ? -1 : 0;
+    if (offset % IMAGE_UNIT != 0 || len % IMAGE_UNIT != 0) {
+        fail_check("the core programmed a part of a program unit");
     }
-    if (fails) {
+    for (i = 0; i < len; i++) {
+        if (area[i] != 0xFF && !failed) {
+            fail_check("the core programmed a unit twice without an erase");
+        }
+    }
+    if (storage_fails()) {
         n = len / 2; /* half of it reaches the flash */
     }
     for (i = 0; i < n; i++) {
-        if ((area[i] & data[i]) != data[i] && !failed) {
-            fail_check("the core programmed a slot byte twice without an erase");
-        }
         area[i] &= data[i];
     }
-    return fails ? -1 : 0;
+    return n == len ? 0 : -1;
 }
 
 int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len)
@@ -539,7 +573,11 @@ static void power_on(void)
 {
     int choice;
     image_running = -1;
-    choice = boot_choose();
+    watchdog_started = 0;
+    choice = boot_start(2000u); /* the choice, the install into slot 3, the trial's watchdog */
+    if (choice >= 0 && boot_is_trial(choice) && !watchdog_started && !failed) {
+        fail_check("a trial image was started without the watchdog");
+    }
     if (choice >= 0 && image_check(choice, NULL, NULL, NULL) != 0 && !failed) {
         fail_check("the boot stage chose a slot whose image does not check");
     }
@@ -653,6 +691,7 @@ static void boot(const uint8_t *image, int with_image0)
     memcpy(flash, image, FLASH_SIZE);
     memset(slots, 0xFF, sizeof slots);
     memset(record_area, 0xFF, sizeof record_area);
+    memset(exec_area, 0xFF, sizeof exec_area);
     if (with_image0) {
         memcpy(slots[0], image0, IMAGE_SLOT);
     }

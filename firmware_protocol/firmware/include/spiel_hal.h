@@ -114,12 +114,46 @@ int hal_acq_read_iq(uint8_t channel, uint16_t *qi, uint16_t n_samples);
 #endif
 
 #if SPIEL_FW_UPDATE
-uint32_t hal_image_slot_size(void);                 /* bytes an image slot holds */
-int hal_image_erase(int slot);                      /* 0 ok, <0 error */
+/* Image slots on NOR flash (a real part's constraints, PROTOCOL.md 14.3 "Flash layout"):
+ *   slot 0, 1             the two image slots, hal_image_slot_size() bytes each;
+ *   SPIEL_IMAGE_RECORD    the boot record area: two copies, copy k at offset k * sector size,
+ *                         each erased by the core just before it is written (>= 2 sectors);
+ *   SPIEL_IMAGE_EXEC      the execution region of a target whose boot stage copies the chosen
+ *                         image flash to flash (SPIEL_FW_EXEC_COPY, boot_start() in boot.c):
+ *                         its first sector holds the installed image's header (written last),
+ *                         the body starts at offset hal_image_sector_size(), where the
+ *                         application is linked. Used by the boot stage only.
+ * Erase: whole sectors only (offset and len multiples of hal_image_sector_size()); the core
+ * erases the slot being written one sector at a time as the upload reaches it, so no request
+ * waits for more than one sector erase (2.4-32 s for a 1 MiB slot of real NOR flash).
+ * Write: offset and len multiples of hal_image_program_unit(), into erased bytes only (ECC
+ * flash programs each unit once: 8 bytes on STM32G0/L4, 32 on H7); the core buffers the
+ * upload's chunks to whole units and pads the last one with 0xFF. */
+#define SPIEL_IMAGE_RECORD 2
+#define SPIEL_IMAGE_EXEC 3
+#define SPIEL_FW_UNIT_MAX 32u               /* the largest program unit the core buffers */
+uint32_t hal_image_slot_size(void);         /* bytes an image slot holds (a sector multiple) */
+uint32_t hal_image_sector_size(void);       /* erase unit of every area: power of two, >= 64 */
+uint32_t hal_image_program_unit(void);      /* program unit: power of two, 1..SPIEL_FW_UNIT_MAX */
+int hal_image_erase(int slot, uint32_t offset, uint32_t len); /* whole sectors; 0 ok, <0 error */
 int hal_image_write(int slot, uint32_t offset, const uint8_t *data, uint32_t len);
 int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len); /* erased: 0xFF */
-int hal_image_running(void);                        /* the slot running now: 0, 1, -1 none */
+int hal_image_running(void);                /* the slot running now: 0, 1, -1 none */
 /* (-1: the built-in image with SPIEL_FW_FACTORY, else the recovery loader) */
+
+/* The watchdog (PROTOCOL.md 14.3 "Trial images"). The boot stage starts it just before it
+ * jumps to a trial image (boot_start()); once started it cannot be stopped until the next
+ * reset, and a reset it causes runs the boot stage, which rolls the unconfirmed trial back.
+ * The core kicks it from spiel_device_poll(): while the trial runs only until its self-test
+ * has failed or the trial window (SPIEL_FW_TRIAL_WINDOW_MS) has passed unconfirmed; after
+ * FW_CONFIRM always. A board whose watchdog was not started ignores the kicks. */
+void hal_watchdog_start(uint32_t timeout_ms);
+void hal_watchdog_kick(void);
+#endif
+/* A copying boot stage (mps2-an386, posix): the chosen image is copied into SPIEL_IMAGE_EXEC
+ * before it runs, so an image never has to fit in RAM. */
+#ifndef SPIEL_FW_EXEC_COPY
+#define SPIEL_FW_EXEC_COPY 0
 #endif
 
 #ifdef __cplusplus

@@ -27,28 +27,10 @@ static int runnable(uint32_t sp, uint32_t pc, uint32_t body_size)
            (pc & 1u) && pc > EXEC_BASE && pc < EXEC_BASE + body_size;
 }
 
-/* Copy the slot's body to EXEC_BASE: 0, or -1 (nothing copied) when it is not an image of
- * this target's layout; the slot has passed boot_choose()'s checks. */
-static int load(int slot)
-{
-    uint8_t head[SP_IMAGE_HEADER_SIZE], vec[8];
-    sp_image_header_t h;
-    if (hal_image_read(slot, 0, head, sizeof head) != 0) {
-        return -1;
-    }
-    sp_image_header_unpack(head, &h);
-    if (h.body_size < 8u || h.body_size > EXEC_SIZE ||
-        hal_image_read(slot, SP_IMAGE_HEADER_SIZE, vec, sizeof vec) != 0 ||
-        !runnable(sp_le_get_u32(vec), sp_le_get_u32(vec + 4), h.body_size)) {
-        return -1;
-    }
-    return hal_image_read(slot, SP_IMAGE_HEADER_SIZE, (uint8_t *)(uintptr_t)EXEC_BASE,
-                          h.body_size);
-}
-
 void boot_reset(void)
 {
-    uint32_t *src = &_sidata, *dst = &_sdata, sp, pc;
+    uint32_t *src = &_sidata, *dst = &_sdata, sp, pc, body = EXEC_SIZE;
+    uint8_t head[SP_IMAGE_HEADER_SIZE];
     int slot;
     while (dst < &_edata) {
         *dst++ = *src++;
@@ -56,17 +38,26 @@ void boot_reset(void)
     for (dst = &_sbss; dst < &_ebss;) {
         *dst++ = 0;
     }
-    slot = boot_choose();
-    if (slot >= 0 && load(slot) != 0) {
-        slot = -1; /* a trial stays unconfirmed: the next reset rolls it back */
+    /* the choice, the flash-to-flash install into the execution region, the watchdog for a
+     * trial (boot.c); -1: the built-in image (qemu's loader restored it at this reset) */
+    slot = boot_start(SPIEL_FW_WATCHDOG_MS);
+    if (slot >= 0 && hal_image_read(SPIEL_IMAGE_EXEC, 0, head, sizeof head) == 0) {
+        sp_image_header_t h;
+        sp_image_header_unpack(head, &h);
+        body = h.body_size;
+    }
+    sp = REG32(EXEC_BASE);
+    pc = REG32(EXEC_BASE + 4u);
+    if (!runnable(sp, pc, body)) {
+        /* not an image of this layout: a trial stays unconfirmed, so a reset rolls it back
+         * (the watchdog would too); without a trial there is nothing to run */
+        if (slot >= 0) {
+            SCB_AIRCR = AIRCR_VECTKEY | AIRCR_SYSRESETREQ;
+        }
+        boot_fault();
     }
     REG32(HANDOFF_ADDR) = HANDOFF_MAGIC;
     REG32(HANDOFF_ADDR + 4u) = slot < 0 ? HANDOFF_FACTORY : (uint32_t)slot;
-    sp = REG32(EXEC_BASE);
-    pc = REG32(EXEC_BASE + 4u);
-    if (!runnable(sp, pc, EXEC_SIZE)) {
-        boot_fault(); /* not even a built-in image */
-    }
     SCB_VTOR = EXEC_BASE;
     dsb();
     isb();

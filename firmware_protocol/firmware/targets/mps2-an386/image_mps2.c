@@ -1,10 +1,10 @@
 /*
  * image_mps2.c - the firmware image slots of the mps2-an386 target (PROTOCOL.md 14.3), shared
  * by the boot stage (boot_mps2.c) and the application: slots 0 and 1 are two 1 MiB regions of
- * the persistent PSRAM, slot 2 the boot record area. The core writes its two 16-byte record
- * copies in place, alternately; on NOR each copy has a sector of its own, erased just before
- * the copy is programmed, so a cut there spoils only the copy being written (boot.c keeps the
- * other). Every erase and write is one flash operation of nor_mps2.c (its power-cut hook).
+ * the persistent PSRAM, slot 2 the boot record area (two sectors: the core erases a copy's
+ * sector just before it programs it), slot 3 the execution region the boot stage installs the
+ * chosen image into. NOR rules: erase in 4 KiB sectors, program in 8-byte units. Every erase
+ * and write is one flash operation of nor_mps2.c (its power-cut hook). The watchdog too.
  */
 #include <string.h>
 
@@ -14,71 +14,83 @@
 
 int mps2_image_version(char version[17]);
 
-#define RECORD_COPY 16u
-
 uint32_t hal_image_slot_size(void)
 {
     return IMAGE_SLOT_SIZE;
 }
 
-static int slot_range(int slot, uint32_t offset, uint32_t len)
+uint32_t hal_image_sector_size(void)
 {
-    return (slot == 0 || slot == 1) && offset <= IMAGE_SLOT_SIZE &&
-           len <= IMAGE_SLOT_SIZE - offset;
+    return NOR_SECTOR;
 }
 
-static uint32_t slot_off(int slot, uint32_t offset)
+uint32_t hal_image_program_unit(void)
 {
-    return SLOT0_OFF + (uint32_t)slot * IMAGE_SLOT_SIZE + offset;
+    return IMAGE_UNIT;
 }
 
-/* the record area's byte `offset` (0 .. 31): copy offset / 16 in its own sector */
-static uint32_t record_off(uint32_t offset)
+/* The absolute address of an area's byte `offset` when [offset, offset + len) lies inside it,
+ * else 0. Slot 3 (the boot stage's execution region): the header sector, then EXEC_BASE. */
+static uint32_t area_addr(int slot, uint32_t offset, uint32_t len)
 {
-    return BOOT_REC_OFF + (offset / RECORD_COPY) * NOR_SECTOR + offset % RECORD_COPY;
-}
-
-int hal_image_erase(int slot)
-{
-    if (slot == 2) {
-        return nor_erase(BOOT_REC_OFF, 2u * NOR_SECTOR);
+    uint32_t base, size;
+    if (slot == 0 || slot == 1) {
+        base = PSRAM_BASE + SLOT0_OFF + (uint32_t)slot * IMAGE_SLOT_SIZE;
+        size = IMAGE_SLOT_SIZE;
+    } else if (slot == SPIEL_IMAGE_RECORD) {
+        base = PSRAM_BASE + BOOT_REC_OFF;
+        size = 2u * NOR_SECTOR;
+    } else if (slot == SPIEL_IMAGE_EXEC) {
+        base = EXEC_HDR_ADDR;
+        size = NOR_SECTOR + IMAGE_SLOT_SIZE;
+    } else {
+        return 0;
     }
-    return slot_range(slot, 0, IMAGE_SLOT_SIZE) ? nor_erase(slot_off(slot, 0), IMAGE_SLOT_SIZE)
-                                                : -1;
+    return offset <= size && len <= size - offset ? base + offset : 0u;
+}
+
+int hal_image_erase(int slot, uint32_t offset, uint32_t len)
+{
+    uint32_t at = area_addr(slot, offset, len);
+    return at != 0 ? flash_erase_at(at, len) : -1;
 }
 
 int hal_image_write(int slot, uint32_t offset, const uint8_t *data, uint32_t len)
 {
-    if (slot == 2) { /* one whole copy or part of one */
-        uint32_t copy = offset / RECORD_COPY;
-        if (len == 0 || copy > 1u || offset % RECORD_COPY + len > RECORD_COPY) {
-            return -1;
-        }
-        if (nor_erase(BOOT_REC_OFF + copy * NOR_SECTOR, NOR_SECTOR) != 0) {
-            return -1;
-        }
-        return nor_write(record_off(offset), data, len);
+    uint32_t at = area_addr(slot, offset, len);
+    if (at == 0 || offset % IMAGE_UNIT != 0 || len % IMAGE_UNIT != 0) {
+        return -1; /* ECC flash: whole program units only */
     }
-    return slot_range(slot, offset, len) ? nor_write(slot_off(slot, offset), data, len) : -1;
+    return flash_write_at(at, data, len);
 }
 
 int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len)
 {
-    if (slot == 2) {
-        uint32_t i;
-        if (offset > 2u * RECORD_COPY || len > 2u * RECORD_COPY - offset) {
-            return -1;
-        }
-        for (i = 0; i < len; i++) {
-            nor_read(record_off(offset + i), data + i, 1u);
-        }
-        return 0;
-    }
-    if (!slot_range(slot, offset, len)) {
+    uint32_t at = area_addr(slot, offset, len);
+    if (at == 0) {
         return -1;
     }
-    nor_read(slot_off(slot, offset), data, len);
+    flash_read_at(at, data, len);
     return 0;
+}
+
+/* The watchdog: armed by the boot stage before a trial; the application kicks it. */
+void hal_watchdog_start(uint32_t timeout_ms)
+{
+    WDOG_LOCK = WDOG_UNLOCK;
+    /* the reset comes at the second expiry without a kick: half the timeout each */
+    WDOG_LOAD = (MPS2_SYSCLK_HZ / 1000u) * (timeout_ms / 2u);
+    WDOG_CTRL = WDOG_CTRL_RESEN; /* no interrupt (the NMI would go to the image's table) */
+    WDOG_LOCK = 0;
+}
+
+void hal_watchdog_kick(void)
+{
+    if (WDOG_CTRL & WDOG_CTRL_RESEN) {
+        WDOG_LOCK = WDOG_UNLOCK;
+        WDOG_INTCLR = 1u; /* clears the expiry and reloads the counter */
+        WDOG_LOCK = 0;
+    }
 }
 
 int hal_image_running(void)

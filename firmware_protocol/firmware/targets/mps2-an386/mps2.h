@@ -66,6 +66,21 @@
  * here at every reset. */
 #define EXEC_BASE 0x00010000u
 #define EXEC_SIZE (IMAGE_SLOT_SIZE - 96u)
+/* The execution region is flash of its own here (SSRAM1 plays the MCU's internal flash): the
+ * boot stage copies an image into it flash to flash (boot_install: per sector, in program
+ * units of IMAGE_UNIT), with the installed image's header in the sector below EXEC_BASE,
+ * written last. qemu's loader puts the built-in image and a zeroed header sector (no image
+ * header: "the built-in image is installed") back at every reset. */
+#define EXEC_HDR_ADDR (EXEC_BASE - NOR_SECTOR)
+#define IMAGE_UNIT 8u            /* program unit of the image areas (ECC flash) */
+/* CMSDK APB watchdog (qemu: the reset after two expiries without INTCLR, at 25 MHz) */
+#define WDOG_BASE 0x40008000u
+#define WDOG_LOAD REG32(WDOG_BASE + 0x000u)
+#define WDOG_CTRL REG32(WDOG_BASE + 0x008u)
+#define WDOG_INTCLR REG32(WDOG_BASE + 0x00Cu)
+#define WDOG_LOCK REG32(WDOG_BASE + 0xC00u)
+#define WDOG_UNLOCK 0x1ACCE551u
+#define WDOG_CTRL_RESEN 0x2u
 #define APP_RAM_BASE 0x20000000u /* the application's data and stack: 2 MiB */
 #define APP_RAM_SIZE 0x00200000u
 /* The boot stage tells the application which slot it copied: two words at the top of SSRAM2/3,
@@ -74,6 +89,11 @@
 #define HANDOFF_MAGIC 0x4F464E48u /* "HNFO" */
 #define HANDOFF_FACTORY 0xFFFFFFFFu
 
+/* NOR rules at an absolute address (the PSRAM, or SSRAM1's execution region, the MCU's
+ * internal flash of this model); each call is one operation of the power-cut hook */
+int flash_erase_at(uint32_t addr, uint32_t len);
+int flash_write_at(uint32_t addr, const uint8_t *data, uint32_t len);
+void flash_read_at(uint32_t addr, uint8_t *data, uint32_t len);
 int nor_erase(uint32_t off, uint32_t len);                     /* 0 ok, -1 failed */
 int nor_write(uint32_t off, const uint8_t *data, uint32_t len); /* 0 ok, -1 failed */
 void nor_read(uint32_t off, uint8_t *data, uint32_t len);

@@ -12,7 +12,6 @@
  */
 #include "mps2.h"
 
-#define NOR ((volatile uint8_t *)(uintptr_t)PSRAM_BASE)
 #define FI_BASE (PSRAM_BASE + FI_OFF)
 #define FI_MAGIC REG32(FI_BASE + 0u) /* "SPFI" */
 #define FI_MODE REG32(FI_BASE + 4u)  /* 1 CUT, 2 FAIL */
@@ -52,11 +51,11 @@ static void nor_die(void)
     }
 }
 
-int nor_erase(uint32_t off, uint32_t len)
+int flash_erase_at(uint32_t addr, uint32_t len)
 {
     uint32_t i, n;
     int op;
-    if (off % NOR_SECTOR != 0 || len % NOR_SECTOR != 0) {
+    if (addr % NOR_SECTOR != 0 || len % NOR_SECTOR != 0) {
         return -1;
     }
     op = nor_op();
@@ -65,7 +64,7 @@ int nor_erase(uint32_t off, uint32_t len)
     }
     n = op ? len : len / 2u;
     for (i = 0; i < n; i += 4u) { /* aligned words: a 1 MiB slot in a few ms of qemu */
-        REG32(PSRAM_BASE + off + i) = 0xFFFFFFFFu;
+        REG32(addr + i) = 0xFFFFFFFFu;
     }
     if (!op) {
         nor_die();
@@ -73,15 +72,16 @@ int nor_erase(uint32_t off, uint32_t len)
     return 0;
 }
 
-int nor_write(uint32_t off, const uint8_t *data, uint32_t len)
+int flash_write_at(uint32_t addr, const uint8_t *data, uint32_t len)
 {
+    volatile uint8_t *p = (volatile uint8_t *)(uintptr_t)addr;
     uint32_t i;
     int op = nor_op();
     if (op < 0) {
         return -1;
     }
     for (i = 0; i < (op ? len : len / 2u); i++) {
-        NOR[off + i] &= data[i]; /* NOR: programming only clears bits */
+        p[i] &= data[i]; /* NOR: programming only clears bits */
     }
     if (!op) {
         nor_die();
@@ -89,10 +89,26 @@ int nor_write(uint32_t off, const uint8_t *data, uint32_t len)
     return 0;
 }
 
-void nor_read(uint32_t off, uint8_t *data, uint32_t len)
+void flash_read_at(uint32_t addr, uint8_t *data, uint32_t len)
 {
+    const volatile uint8_t *p = (const volatile uint8_t *)(uintptr_t)addr;
     uint32_t i;
     for (i = 0; i < len; i++) {
-        data[i] = NOR[off + i];
+        data[i] = p[i];
     }
+}
+
+int nor_erase(uint32_t off, uint32_t len)
+{
+    return flash_erase_at(PSRAM_BASE + off, len);
+}
+
+int nor_write(uint32_t off, const uint8_t *data, uint32_t len)
+{
+    return flash_write_at(PSRAM_BASE + off, data, len);
+}
+
+void nor_read(uint32_t off, uint8_t *data, uint32_t len)
+{
+    flash_read_at(PSRAM_BASE + off, data, len);
 }

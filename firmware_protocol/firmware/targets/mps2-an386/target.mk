@@ -20,7 +20,7 @@ MPS2_ARCH := -mcpu=cortex-m4 -mthumb -mfloat-abi=hard -mfpu=fpv4-sp-d16
 # the embedded A-scans have 64 samples: the core's sample buffer needs no more
 MPS2_DEFINES ?= -DSPIEL_MAX_SAMPLES=64
 ifeq ($(TARGET),mps2)
-MPS2_FW := -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_FACTORY=1 -DSPIEL_FW_TARGET=\"mps2-an386\"
+MPS2_FW := -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_FACTORY=1 -DSPIEL_FW_EXEC_COPY=1 -DSPIEL_FW_TARGET=\"mps2-an386\"
 endif
 MPS2_CFLAGS := $(MPS2_ARCH) $(WARN) -Wstack-usage=1024 -Os -g -ffunction-sections -fdata-sections -ffreestanding \
 	$(INC) -I$(MPS2_DIR) -I$(BUILD) $(MPS2_DEFINES) $(MPS2_FW) $(CFLAGS_EXTRA)

@@ -184,8 +184,18 @@ uint64_t hal_time_us(void)
 
 /* ---- measurement -------------------------------------------------------------------------- */
 
+static int no_sensor;
+
+void posix_hal_no_sensor(void)
+{
+    no_sensor = 1;
+}
+
 int hal_acq_trigger(uint32_t channel_mask, uint16_t samples)
 {
+    if (no_sensor) {
+        return -1; /* --no-sensor: nothing answers */
+    }
     /* no shift by 32 (undefined; x86 shifts by 0 and refused every trigger of 32 channels) */
     if (samples > n_samples || channel_mask == 0 ||
         (n_channels < 32 && (channel_mask >> n_channels) != 0)) {
@@ -351,9 +361,7 @@ void hal_reset(int to_bootloader)
     }
     fsync(flash_fd);
     unsetenv("SPIEL_FW_SLOT"); /* a reset runs the bootloader again, which chooses */
-#if SPIEL_FW_UPDATE
-    posix_image_before_exec();
-#endif
+    posix_image_reset();       /* under the watchdog: its parent executes the loader */
     execv(loader != NULL ? loader : "/proc/self/exe", saved_argv);
     perror("re-exec");
     exit(1);

@@ -11,7 +11,11 @@
  * N-th flash operation (0-based: erase or write; half of it done), --flash-fail N makes the
  * N-th one fail.
  * Firmware update (protocol 2): --images DIR holds the image slots and the boot record
- * (image_posix.c); the program then starts as the bootloader and runs the chosen image. */
+ * (image_posix.c); the program then starts as the bootloader and runs the chosen image.
+ * --program-unit N (default 8): the image flash's program unit; --watchdog-ms N: the
+ * watchdog the boot stage starts before a trial image; --trial-window-ms N: how long an
+ * unconfirmed trial keeps kicking it; --no-sensor: the front end refuses every trigger (a
+ * sensorless board: a trial's self-test fails). */
 #define _XOPEN_SOURCE 600
 #define _DEFAULT_SOURCE
 #include <errno.h>
@@ -30,7 +34,8 @@ static void usage(void)
 {
     fprintf(stderr, "usage: spiel_fw_posix --scans FILE --flash FILE [--pty] [--link PATH] "
                     "[--serial S] [--flash-cut N] [--flash-fail N] [--images DIR] "
-                    "[--image-cut N]\n");
+                    "[--image-cut N] [--program-unit N] [--watchdog-ms N] "
+                    "[--trial-window-ms N] [--no-sensor]\n");
     exit(2);
 }
 
@@ -53,7 +58,8 @@ int main(int argc, char **argv)
 {
     const char *scans = NULL, *flash = NULL, *link = NULL, *serial = "POSIX0001";
     const char *images = NULL;
-    long cut = -1, fail = -1, image_cut = -1;
+    long cut = -1, fail = -1, image_cut = -1, unit = 8, watchdog_ms = SPIEL_FW_WATCHDOG_MS;
+    long trial_window_ms = SPIEL_FW_TRIAL_WINDOW_MS;
     int use_pty = 0, i, in_fd = 0, out_fd = 1, slave = -1;
     const char *inherited = getenv("SPIEL_FW_PTY_FD");
     for (i = 1; i < argc; i++) {
@@ -61,6 +67,10 @@ int main(int argc, char **argv)
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--pty") == 0) {
             use_pty = 1;
+            continue;
+        }
+        if (strcmp(a, "--no-sensor") == 0) {
+            posix_hal_no_sensor();
             continue;
         }
         if (v == NULL) {
@@ -82,6 +92,12 @@ int main(int argc, char **argv)
             images = v;
         } else if (strcmp(a, "--image-cut") == 0) {
             image_cut = strtol(v, NULL, 0);
+        } else if (strcmp(a, "--program-unit") == 0) {
+            unit = strtol(v, NULL, 0);
+        } else if (strcmp(a, "--watchdog-ms") == 0) {
+            watchdog_ms = strtol(v, NULL, 0);
+        } else if (strcmp(a, "--trial-window-ms") == 0) {
+            trial_window_ms = strtol(v, NULL, 0);
         } else {
             usage();
         }
@@ -90,25 +106,18 @@ int main(int argc, char **argv)
     if (scans == NULL || flash == NULL) {
         usage();
     }
-    if (images != NULL) {
-#if SPIEL_FW_UPDATE
-        if (posix_image_open(images, image_cut) != 0) {
-            return 1;
-        }
-        if (getenv("SPIEL_FW_SLOT") == NULL) {
-            posix_image_boot(argv); /* the bootloader: returns only without a bootable image */
-        }
-#else
-        (void)image_cut;
-        fprintf(stderr, "--images needs a build with -DSPIEL_FW_UPDATE=1\n");
-        return 2;
-#endif
+    if (watchdog_ms <= 0 || watchdog_ms > 600000 || trial_window_ms < 0 || unit <= 0 ||
+        unit > 0xFFFF) {
+        usage();
     }
+    spiel_device_set_trial_window_ms((uint32_t)trial_window_ms);
+    /* the pty first: the boot stage passes it on to the image it starts (and keeps it over a
+     * watchdog reset), so the port stays where it was */
     if (use_pty) {
-        if (inherited != NULL) { /* a reset: the same pty, so the port stays where it was */
+        if (inherited != NULL) { /* a reset: the same pty */
             in_fd = out_fd = atoi(inherited);
         } else {
-            char *name;
+            char *name, fd[16];
             in_fd = out_fd = open_pty();
             name = ptsname(in_fd);
             /* keep the slave open too, so the pty survives a host that closes and reopens */
@@ -124,7 +133,24 @@ int main(int argc, char **argv)
             }
             printf("%s\n", name);
             fflush(stdout);
+            snprintf(fd, sizeof fd, "%d", in_fd);
+            setenv("SPIEL_FW_PTY_FD", fd, 1);
         }
+    }
+    if (images != NULL) {
+#if SPIEL_FW_UPDATE
+        if (posix_image_open(images, image_cut, (uint32_t)unit) != 0) {
+            return 1;
+        }
+        if (getenv("SPIEL_FW_SLOT") == NULL) {
+            /* the bootloader: returns only without a bootable image */
+            posix_image_boot(argv, (uint32_t)watchdog_ms);
+        }
+#else
+        (void)image_cut;
+        fprintf(stderr, "--images needs a build with -DSPIEL_FW_UPDATE=1\n");
+        return 2;
+#endif
     }
     (void)slave;
     if (posix_hal_open(scans, flash, serial, in_fd, out_fd, cut, fail, argv) != 0) {

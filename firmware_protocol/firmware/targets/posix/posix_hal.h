@@ -15,10 +15,12 @@ int posix_hal_open(const char *scans, const char *flash, const char *serial, int
 void posix_hal_wait(uint32_t us);
 
 /* Firmware image slots (image_posix.c, PROTOCOL.md 14.3): --images DIR and --image-cut N. */
-int posix_image_open(const char *images, long cut);
-void posix_image_boot(char **argv);      /* the bootloader; returns only without an image */
+int posix_image_open(const char *images, long cut, uint32_t program_unit);
+/* the bootloader (boot_start: choice, install, watchdog); returns only without an image */
+void posix_image_boot(char **argv, uint32_t watchdog_ms);
 int posix_image_started(char version[17]); /* the running slot (-1 none) and its version */
-void posix_image_before_exec(void); /* a reset: keep counting image operations (--image-cut) */
+void posix_image_reset(void); /* an image under the watchdog: the reset goes through it */
+void posix_hal_no_sensor(void); /* --no-sensor: every trigger is refused */
 /* The firmware version HELLO reports (default "1.0.0+posix"). */
 void posix_hal_set_firmware_version(const char *version);
 
