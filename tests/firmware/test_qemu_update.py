@@ -24,7 +24,6 @@ import numpy as np
 import pytest
 
 from firmware_protocol import Reboot
-from firmware_protocol.image import pack_image
 from firmware_protocol.v2_messages import BootState, FwBegin, FwTest, FwVerify, FwWrite
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
@@ -39,6 +38,7 @@ from tests.firmware.qemu_board import (
     missing_tools,
     new_flash,
 )
+from tests.fwsign import DEV_KEY, signed_image
 
 SWEEP = os.environ.get("SPIEL_QEMU_UPDATE_SWEEP") == "1"
 FACTORY = "1.0.0+mps2-an386"
@@ -64,7 +64,7 @@ def elf(tmp_path_factory) -> Path:
 def image(elf: Path, version: str, serial: str, **kw) -> bytes:
     body = app_bin(elf).read_bytes()
     assert body.count(SERIAL) == 1
-    return pack_image(
+    return signed_image(
         body.replace(SERIAL, serial.encode()), version=version, target="mps2-an386", **kw
     )
 
@@ -132,7 +132,8 @@ def test_pack_update_confirm_and_roll_back(elf, tmp_path, capsys) -> None:
     packed = tmp_path / "fw.img"
     body = tmp_path / "app.bin"
     body.write_bytes(app_bin(elf).read_bytes().replace(SERIAL, b"MPS2-AN386-0002"))
-    pack = ["firmware", "pack", "--version", "mps2-1.1.0", "--target", "mps2-an386", "-o"]
+    pack = ["firmware", "pack", "--version", "mps2-1.1.0", "--target", "mps2-an386"]
+    pack += ["--key", str(DEV_KEY), "-o"]
     assert main([*pack, str(tmp_path / "elf.img"), str(elf)]) != 0  # the ELF, not the body
     assert "app.bin" in capsys.readouterr().err
     assert main([*pack, str(packed), str(body)]) == 0
@@ -162,7 +163,7 @@ def test_pack_update_confirm_and_roll_back(elf, tmp_path, capsys) -> None:
         # an image that hangs (its reset handler is `b .`): not confirmed; a power cycle rolls
         # it back
         hang = struct.pack("<II", 0x2000_1000, 0x0001_0009) + b"\xfe\xe7" + bytes(6)
-        hang_img = pack_image(hang, version="mps2-hang", target="mps2-an386")
+        hang_img = signed_image(hang, version="mps2-hang", target="mps2-an386")
         with pytest.raises(DeviceError, match="did not answer HELLO"):
             update_firmware(b.port, hang_img, boot_wait_s=3)
         assert power_cycle(b).firmware_version == "mps2-1.1.0"

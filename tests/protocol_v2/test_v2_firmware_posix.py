@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from firmware_protocol.image import pack_image
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError
 from tests.firmware.firmware import PosixBoard, build_posix
+from tests.fwsign import signed_image
 from tools.release.firmware_scans import write_scans
 
 
@@ -33,13 +33,13 @@ def board(posix, tmp_path: Path, *extra: str) -> PosixBoard:
     images = tmp_path / "images"
     if not images.exists():
         images.mkdir()
-        factory = pack_image(exe.read_bytes(), version="posix-1.0.0", target="posix")
+        factory = signed_image(exe.read_bytes(), version="posix-1.0.0", target="posix")
         (images / "slot0.img").write_bytes(factory)
     return PosixBoard(exe, scans, tmp_path / "flash.bin", "--images", str(images), *extra)
 
 
 def new_image(posix, version: str = "posix-1.1.0") -> bytes:
-    return pack_image(posix[0].read_bytes(), version=version, target="posix")
+    return signed_image(posix[0].read_bytes(), version=version, target="posix")
 
 
 def hello_version(port: str, timeout_s: float = 10.0) -> str:
@@ -62,7 +62,7 @@ def test_update_confirm_and_rollback_of_a_hanging_image(posix, tmp_path) -> None
             info = firmware_info(dev)
             assert (info.running_slot, info.boot_state, info.target) == (1, 0, "posix")
             assert info.slot0_version == "posix-1.0.0" and info.slot1_version == "posix-1.1.0"
-        hang = pack_image(b"#!/bin/sh\nexec sleep 600\n", version="posix-hang", target="posix")
+        hang = signed_image(b"#!/bin/sh\nexec sleep 600\n", version="posix-hang", target="posix")
         with pytest.raises(DeviceError, match="did not answer HELLO"):
             update_firmware(b.port, hang, boot_wait_s=2)
     # power cycle: the bootloader finds the trial unconfirmed and rolls back
@@ -71,7 +71,7 @@ def test_update_confirm_and_rollback_of_a_hanging_image(posix, tmp_path) -> None
 
 
 def test_refused_by_the_board_before_the_switch(posix, tmp_path) -> None:
-    foreign = pack_image(b"\x7fELF", version="x", target="mps2-an386")
+    foreign = signed_image(b"\x7fELF", version="x", target="mps2-an386")
     with board(posix, tmp_path) as b:
         with pytest.raises(DeviceError, match="target"):
             update_firmware(b.port, foreign)
@@ -84,7 +84,7 @@ def script_image(posix, version: str, size: int = 6000) -> bytes:
     to span several chunks."""
     body = f'#!/bin/sh\nexec "{posix[0]}" "$@"\n'.encode()
     body += b"#" + b"." * (size - len(body) - 2) + b"\n"
-    return pack_image(body, version=version, target="posix")
+    return signed_image(body, version=version, target="posix")
 
 
 def test_fw_write_at_an_offset_near_2_to_the_32_is_too_large(posix, tmp_path) -> None:

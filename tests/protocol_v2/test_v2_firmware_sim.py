@@ -10,13 +10,13 @@ import time
 import pytest
 from crc32c import crc32c
 
-from tests.fwsign import signed_image
 from firmware_protocol.v2_messages import BootState, FwBegin, FwVerify
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError, DeviceRequestError
 from spiel_edge.sim.protocol_sim import device_for_url
+from tests.fwsign import signed_image
 
 NEW = signed_image(b"SIM:OK " + bytes(range(256)) * 12, version="sim-0.2.0", target="sim")
 

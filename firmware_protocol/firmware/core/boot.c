@@ -148,7 +148,7 @@ int boot_choose(void)
     w.trial = BOOT_NO_SLOT;
     w.state = SP_BOOT_CONFIRMED;
     if (r.state == SP_BOOT_TEST_PENDING && r.trial <= 1u) {
-        if (image_check(r.trial, NULL, NULL, NULL) == 0) {
+        if (image_bootable(r.trial, r.security_counter)) { /* intact, signed, no downgrade */
             w.trial = r.trial;
             w.state = SP_BOOT_TRIAL; /* the record first, then the jump: a cut rolls back */
             choice = r.trial;
@@ -160,9 +160,9 @@ int boot_choose(void)
     if (choice < 0) {
         return -1;
     }
-    if (image_check(choice, NULL, NULL, NULL) != 0) {
+    if (!image_bootable(choice, r.security_counter)) {
         int other = 1 - choice;
-        if (image_check(other, NULL, NULL, NULL) != 0) {
+        if (!image_bootable(other, r.security_counter)) {
             return -1;
         }
         w.confirmed = (uint8_t)other;

@@ -101,6 +101,10 @@ uint32_t image_trailer_size(const sp_image_header_t *h);
  * _FLASH_VERIFY_FAILED) with *why a short reason. Call after image_check() passed (it matches
  * the body to the signed header). *counter: the image's counter, when the signature verifies. */
 uint16_t image_auth(int slot, uint32_t min_counter, uint32_t *counter, const char **why);
+/* 1: the slot may be started (image_check() and image_auth() pass with this floor). */
+int image_bootable(int slot, uint32_t floor);
+/* The floor a confirmation of the slot's image leaves: max(floor, its header's counter). */
+uint32_t image_counter_floor(int slot, uint32_t floor);
 #endif
 
 #endif

@@ -572,6 +572,15 @@ static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
         v2_log(SP_LOG_ERROR, "firmware verify failed: image header");
         return 0;
     }
+    { /* signed by the built-in key, not below the record's security counter (14.6) */
+        boot_record_t r;
+        boot_record_read(&r);
+        *code = image_auth(slot, r.security_counter, NULL, text);
+        if (*code != SP_ERR_OK) {
+            v2_log(SP_LOG_ERROR, "firmware verify failed: signature or security counter");
+            return 0;
+        }
+    }
     {
         uint8_t head[SP_IMAGE_HEADER_SIZE];
         sp_image_header_t h;
@@ -640,6 +649,9 @@ static int fw_confirm(uint8_t *out, uint16_t *code, const char **text)
         r.confirmed = (uint8_t)v2.running;
         r.trial = BOOT_NO_SLOT;
         r.state = SP_BOOT_CONFIRMED;
+        /* anti-rollback: in the same record write as the confirmation (one power-cut-safe
+         * step), the floor rises to the confirmed image's counter */
+        r.security_counter = image_counter_floor(v2.running, r.security_counter);
         if (boot_record_write(&r) != 0) {
             spiel_stats.flash_errors++;
             *code = SP_ERR_FLASH_WRITE_FAILED, *text = "boot record write failed";

@@ -77,4 +77,22 @@ uint16_t image_auth(int slot, uint32_t min_counter, uint32_t *counter, const cha
     return SP_ERR_OK;
 }
 
+int image_bootable(int slot, uint32_t floor)
+{
+    const char *why;
+    return image_check(slot, NULL, NULL, NULL) == 0 &&
+           image_auth(slot, floor, NULL, &why) == SP_ERR_OK;
+}
+
+uint32_t image_counter_floor(int slot, uint32_t floor)
+{
+    uint8_t head[SP_IMAGE_HEADER_SIZE];
+    sp_image_header_t h;
+    if (slot < 0 || hal_image_read(slot, 0, head, sizeof head) != 0) {
+        return floor;
+    }
+    sp_image_header_unpack(head, &h);
+    return h.security_counter > floor ? h.security_counter : floor;
+}
+
 #endif
