@@ -90,19 +90,28 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
     finally:
         if line_open[0]:  # the error goes on a line of its own
             click.echo("", err=True)
-    if result.rolled_back:
-        click.echo(
-            f"the board came back with {result.version}: firmware {header.version} was rolled "
-            "back (it did not answer in time, or the board lost power before its confirmation "
-            "was stored)",
-            err=True,
+    click.echo(update_outcome_line(result, header.version), err=True)
+    return EXIT_OK if result.confirmed else EXIT_ERROR
+
+
+def update_outcome_line(result, version: str) -> str:
+    """One line: what the board reports after the update (its slot, version and state)."""
+    from spiel_edge.io.shown import escape
+
+    state = f"board {escape(result.serial)} runs {escape(result.version)} in slot {result.slot}"
+    if result.confirmed:
+        return (
+            f"firmware {escape(result.previous)} -> {escape(result.version)}, confirmed: "
+            f"{state} ({result.seconds:.1f} s)"
         )
-        return EXIT_ERROR
-    click.echo(
-        f"firmware {result.previous} -> {result.version}, confirmed ({result.seconds:.1f} s)",
-        err=True,
+    if result.rolled_back:
+        return (
+            f"firmware {escape(version)} was rolled back: {result.reason}; {state}, confirmed"
+        )
+    return (
+        f"firmware {escape(version)} is NOT confirmed ({result.reason}): {state} on trial; it "
+        "rolls back by itself unless `spiel-edge firmware confirm` keeps it"
     )
-    return EXIT_OK
 
 
 @command.command("confirm")
