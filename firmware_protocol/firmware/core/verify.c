@@ -15,9 +15,11 @@
 #endif
 
 /* the public key file: 32 bytes as 0x.., under a comment (spiel-edge firmware keygen) */
-static const uint8_t fw_key[32] = {
+static const uint8_t fw_key[] = {
 #include SPIEL_FW_KEY_FILE
 };
+/* a key file of more or fewer than 32 bytes fails the build (C would zero-fill a short one) */
+typedef char fw_key_is_32_bytes[sizeof fw_key == 32 ? 1 : -1];
 
 uint32_t image_trailer_size(const sp_image_header_t *h)
 {
