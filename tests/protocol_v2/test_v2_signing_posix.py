@@ -171,3 +171,14 @@ def test_a_power_cut_during_the_counters_update_keeps_old_or_new(posix, tmp_path
             else:
                 assert version == "posix-1.0.0" and answer is None, (cut, version, answer)
     assert seen == {"posix-1.0.0", "posix-1.5.0"}
+
+
+def test_the_fuzz_harness_image_is_signed_by_the_development_key() -> None:
+    """fuzz_request.c's slot-0 image carries a stored trailer: the one keys/dev.key makes."""
+    import re
+
+    src = (FIRMWARE / "fuzz" / "fuzz_request.c").read_text()
+    block = src.split("image0_trailer[SP_SIG_TRAILER_SIZE] = {", 1)[1].split("}", 1)[0]
+    stored = bytes(int(h, 16) for h in re.findall(r"0x([0-9a-f]{2})", block))
+    body = bytes((i * 7 + 1) & 0xFF for i in range(160))
+    assert signed_image(body, version="1.0.0+fuzz", target="posix")[-80:] == stored

@@ -363,7 +363,19 @@ int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len)
     return 0;
 }
 
-/* A valid image for slot 0 (target SPIEL_FW_TARGET, protocols 1-2, a 160-byte body). */
+/* Its signature trailer by the development key (keys/dev.key, the default FW_KEY; Ed25519 is
+ * deterministic: tests/protocol_v2/test_v2_signing_posix.py makes it again and compares). */
+static const uint8_t image0_trailer[SP_SIG_TRAILER_SIZE] = {
+    0x53, 0x50, 0x53, 0x47, 0x01, 0x00, 0x40, 0x00, 0x2e, 0xf2, 0x88, 0x43,
+    0x16, 0xb5, 0xbc, 0x8c, 0x26, 0x89, 0x18, 0x8d, 0x90, 0x26, 0xf1, 0xfe,
+    0x6e, 0x25, 0x6e, 0x60, 0xb0, 0xb1, 0x02, 0x8c, 0x3b, 0x67, 0xb1, 0x22,
+    0x6d, 0x35, 0x0c, 0x18, 0x67, 0xaf, 0xfa, 0xe4, 0x0b, 0x6b, 0x50, 0x7e,
+    0x30, 0x42, 0xb8, 0x03, 0xc6, 0x24, 0xab, 0x75, 0x8a, 0x09, 0x59, 0x73,
+    0x5e, 0xac, 0x12, 0xe8, 0x7d, 0xc1, 0xb6, 0xcf, 0xd4, 0xa0, 0x34, 0xd2,
+    0xbb, 0x11, 0xc6, 0x7f, 0xf8, 0x48, 0x3c, 0x0c};
+
+/* A valid image for slot 0 (target SPIEL_FW_TARGET, protocols 1-2, a 160-byte body, signed
+ * by the development key). */
 static void make_image0(void)
 {
     uint8_t body[160];
@@ -381,6 +393,7 @@ static void make_image0(void)
     memcpy(h.target, SPIEL_FW_TARGET, strlen(SPIEL_FW_TARGET));
     h.min_protocol = 1;
     h.max_protocol = 2;
+    h.flags = SP_IMAGE_FLAG_SIGNED;
     h.body_size = sizeof body;
     h.body_crc = sp_crc32c(0, body, sizeof body);
     sha256_init(&s);
@@ -391,6 +404,7 @@ static void make_image0(void)
     h.header_crc = sp_crc32c(0, image0, SP_IMAGE_HEADER_SIZE - 4u);
     sp_image_header_pack(&h, image0);
     memcpy(image0 + SP_IMAGE_HEADER_SIZE, body, sizeof body);
+    memcpy(image0 + SP_IMAGE_HEADER_SIZE + sizeof body, image0_trailer, sizeof image0_trailer);
 }
 
 /* ---- the oracle's model of the host side: the request being fed, the device's retry cache,
