@@ -211,8 +211,12 @@ def update_firmware(
             )
         if info.boot_state == BootState.TRIAL:
             running = info.running_slot
+            # the version too: a whole image's CRC-32C depends on its body only (the header
+            # ends with its own CRC)
             same = running in (0, 1) and (
-                getattr(info, f"slot{running}_crc") == crc
+                hello.firmware_version == header.version
+                and getattr(info, f"slot{running}_version") == header.version
+                and getattr(info, f"slot{running}_crc") == crc
                 and getattr(info, f"slot{running}_size") == len(image)
             )
             if same:  # an update whose host died after the test boot: finish it
