@@ -105,9 +105,7 @@ def update_outcome_line(result, version: str) -> str:
             f"{state} ({result.seconds:.1f} s)"
         )
     if result.rolled_back:
-        return (
-            f"firmware {escape(version)} was rolled back: {result.reason}; {state}, confirmed"
-        )
+        return f"firmware {escape(version)} was rolled back: {result.reason}; {state}, confirmed"
     return (
         f"firmware {escape(version)} is NOT confirmed ({result.reason}): {state} on trial; it "
         "rolls back by itself unless `spiel-edge firmware confirm` keeps it"

@@ -64,9 +64,7 @@ def elf(tmp_path_factory) -> Path:
 def image(elf: Path, version: str, mark: str, **kw) -> bytes:
     body = app_bin(elf).read_bytes()
     assert body.count(MARK) == 1
-    return pack_image(
-        body.replace(MARK, mark.encode()), version=version, target="mps2-an386", **kw
-    )
+    return pack_image(body.replace(MARK, mark.encode()), version=version, target="mps2-an386", **kw)
 
 
 class Ident:
@@ -102,15 +100,21 @@ def steps(port: str, img: bytes, upto: str) -> None:
     from crc32c import crc32c
 
     with DeviceSession(port, reconnect=False) as dev:
-        boot_id = dev.hello.boot_id
         dev.request(FwBegin(len(img), crc32c(img), hashlib.sha256(img).digest()))
         for off in range(0, len(img), CHUNK):
             dev.request(FwWrite(off, img[off : off + CHUNK]))
         if upto == "write":
             return
         dev.request(FwVerify())
-        if upto == "verify":
-            return
+    if upto != "verify":
+        steps_from_test(port, upto)
+
+
+def steps_from_test(port: str, upto: str = "confirm") -> None:
+    """FW_TEST of the upload verified before; then (trial) wait for the test image to answer,
+    and (confirm) for its self-test to pass (FW_CONFIRM is refused before), and confirm it."""
+    with DeviceSession(port, reconnect=False) as dev:
+        boot_id = dev.hello.boot_id
         dev.request(FwTest(50))
     if upto == "test":
         return
@@ -118,25 +122,8 @@ def steps(port: str, img: bytes, upto: str) -> None:
     while hello(port).boot_id == boot_id:
         assert time.monotonic() < deadline
         time.sleep(0.1)
-    if upto == "confirm":  # once the trial's self-test passed (FW_CONFIRM is refused before)
-        while True:
-            with DeviceSession(port, reconnect=False) as dev:
-                if firmware_info(dev).selftest == 3:
-                    break
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
-        assert main(["firmware", "confirm", "--port", port]) == 0
-
-
-def steps_from_test(port: str) -> None:
-    """FW_TEST of the upload verified before, then wait for the trial and confirm it."""
-    with DeviceSession(port, reconnect=False) as dev:
-        dev.request(FwTest(50))
-        boot_id = dev.hello.boot_id
-    deadline = time.monotonic() + 15
-    while hello(port).boot_id == boot_id:
-        assert time.monotonic() < deadline
-        time.sleep(0.1)
+    if upto != "confirm":
+        return
     while True:
         with DeviceSession(port, reconnect=False) as dev:
             if firmware_info(dev).selftest == 3:

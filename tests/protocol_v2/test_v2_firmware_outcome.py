@@ -13,12 +13,7 @@ from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import _upload, firmware_info, update_firmware
 from spiel_edge.errors import DeviceError
-from tests.protocol_v2.test_v2_firmware_posix import (  # noqa: F401  (the fixture)
-    board,
-    hello_version,
-    posix,
-    script_image,
-)
+from tests.protocol_v2.test_v2_firmware_posix import board, script_image
 
 
 def killed_after_test_boot(port: str, image: bytes) -> None:
@@ -122,12 +117,24 @@ def test_a_sensorless_trial_fails_its_self_test_and_rolls_back(posix, tmp_path) 
     assert "rolled back" in line and "\n" not in line and "runs posix-1.0.0 in slot 0" in line
 
 
-def test_the_virtual_board_refuses_to_confirm_before_its_self_test() -> None:
-    from firmware_protocol.v2_messages import FwConfirm
-
-    from spiel_edge.sim.firmware_slots import factory_image  # noqa: F401
-
-    with DeviceSession("sim://?no_sensor=1", reconnect=False) as dev:
-        info = firmware_info(dev)
-        assert info.selftest == SelfTest.NONE  # not a trial: no self-test
-        assert dev.request(FwConfirm()).boot_state == 0  # idempotent on a confirmed image
+def test_a_trial_that_crashes_at_start_is_rolled_back_and_reported_so(posix, tmp_path) -> None:
+    """A trial that ends at once (a fault): the board resets (the posix boot stage takes an
+    image that ends as a reset, as a fault handler would) and rolls back; the host reports the
+    state the board reports: rolled back, the old slot, confirmed, never "confirmed"."""
+    crash = pack_image(b"#!/bin/sh\nexit 1\n", version="posix-crash", target="posix")
+    with board(posix, tmp_path) as b:
+        result = update_firmware(b.port, crash, boot_wait_s=10)
+        assert (result.outcome, result.version, result.slot, result.boot_state) == (
+            "rolled back",
+            "posix-1.0.0",
+            0,
+            0,
+        )
+        assert b.proc.poll() is None  # no power cycle
+        with DeviceSession(b.port, reconnect=False) as dev:  # what it reports now: the same
+            info = firmware_info(dev)
+            assert (dev.hello.firmware_version, info.running_slot, info.boot_state) == (
+                result.version,
+                result.slot,
+                result.boot_state,
+            )

@@ -29,7 +29,7 @@ def _timed(port: str, image: bytes) -> dict:
         marks.append(time.monotonic())
 
     result = update_firmware(port, image, progress=progress, boot_wait_s=60)
-    gaps = [b - a for a, b in zip([t0, *marks], marks)]
+    gaps = [b - a for a, b in zip([t0, *marks[:-1]], marks, strict=True)]
     return {
         "outcome": result.outcome,
         "bytes": len(image),
@@ -53,7 +53,9 @@ def posix_case(tmp: Path) -> dict:
     scans = write_scans(tmp / "scans.spas", load_subset().frames[:20], 22000)
     images = tmp / "images"
     images.mkdir()
-    (images / "slot0.img").write_bytes(pack_image(exe.read_bytes(), version="p-1.0", target="posix"))
+    (images / "slot0.img").write_bytes(
+        pack_image(exe.read_bytes(), version="p-1.0", target="posix")
+    )
     image = pack_image(exe.read_bytes(), version="p-1.1", target="posix")
     with PosixBoard(exe, scans, tmp / "flash.bin", "--images", str(images)) as b:
         row = _timed(b.port, image)
