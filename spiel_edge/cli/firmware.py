@@ -68,8 +68,10 @@ def info_cmd(port: str) -> int:
     help="seconds to wait for the new firmware to answer",
 )
 def update_cmd(port: str, image: str, wait_s: float) -> int:
-    """Write IMAGE into the inactive slot, boot it once and confirm it once it answers HELLO;
-    a firmware that does not answer is rolled back by the board at its next reset."""
+    """Write IMAGE into the inactive slot, boot it once and confirm it once its self-test
+    passed, on the same board (serial and target checked). Prints the state the board reports
+    after: confirmed (exit 0), rolled back, or still on trial. A trial an interrupted update
+    left is finished (the same image) or rolled back first."""
     from spiel_edge.device.firmware import check_image, update_firmware
 
     data = _read_image(image)
@@ -105,9 +107,7 @@ def update_outcome_line(result, version: str) -> str:
             f"{state} ({result.seconds:.1f} s)"
         )
     if result.rolled_back:
-        return (
-            f"firmware {escape(version)} was rolled back: {result.reason}; {state}, confirmed"
-        )
+        return f"firmware {escape(version)} was rolled back: {result.reason}; {state}, confirmed"
     return (
         f"firmware {escape(version)} is NOT confirmed ({result.reason}): {state} on trial; it "
         "rolls back by itself unless `spiel-edge firmware confirm` keeps it"
@@ -117,7 +117,8 @@ def update_outcome_line(result, version: str) -> str:
 @command.command("confirm")
 @port_option
 def confirm_cmd(port: str) -> int:
-    """Keep the running trial image (what `update` does once the new firmware answers)."""
+    """Keep the running trial image (what `update` does once its self-test passed; the board
+    refuses before)."""
     from spiel_edge.device.firmware import confirm_firmware
 
     session = _open(port)

@@ -216,8 +216,12 @@ def update_firmware(
             )
         if info.boot_state == BootState.TRIAL:
             running = info.running_slot
+            # the version too: a whole image's CRC-32C depends on its body only (the header
+            # ends with its own CRC)
             same = running in (0, 1) and (
-                getattr(info, f"slot{running}_crc") == crc
+                hello.firmware_version == header.version
+                and getattr(info, f"slot{running}_version") == header.version
+                and getattr(info, f"slot{running}_crc") == crc
                 and getattr(info, f"slot{running}_size") == len(image)
             )
             if same:  # an update whose host died after the test boot: finish it
@@ -227,8 +231,18 @@ def update_firmware(
                     url,
                     escape(hello.serial),
                 )
-                return _settle(session, url, header, board, running, hello.firmware_version,
-                               open_session, boot_wait_s, len(image), started)
+                return _settle(
+                    session,
+                    url,
+                    header,
+                    board,
+                    running,
+                    hello.firmware_version,
+                    open_session,
+                    boot_wait_s,
+                    len(image),
+                    started,
+                )
             session = _roll_back_trial(session, url, board, open_session, boot_wait_s)
             hello = session.hello
         previous, boot_id = hello.firmware_version, hello.boot_id
@@ -251,10 +265,26 @@ def update_firmware(
         _close(session)
         raise
     _close(session)
-    session = _wait_board(url, open_session, board, (boot_id, clock_at_test), boot_wait_s,
-                          f"firmware {escape(header.version)} is not confirmed")
-    return _settle(session, url, header, board, begin.slot, previous, open_session,
-                   boot_wait_s, len(image), started)
+    session = _wait_board(
+        url,
+        open_session,
+        board,
+        (boot_id, clock_at_test),
+        boot_wait_s,
+        f"firmware {escape(header.version)} is not confirmed",
+    )
+    return _settle(
+        session,
+        url,
+        header,
+        board,
+        begin.slot,
+        previous,
+        open_session,
+        boot_wait_s,
+        len(image),
+        started,
+    )
 
 
 def _other_board(url: str, board: tuple[str, str], hello, target: str | None) -> str | None:
@@ -308,6 +338,10 @@ def _wait_board(url, open_session, board, before, wait_s, what):
     )
 
 
+class _TrialReset(Exception):
+    """The trial resets itself (its self-test failed): wait for the board again."""
+
+
 def _await_selftest(session, deadline: float) -> tuple[FwInfo, int]:
     """FW_INFO polled until the trial's self-test passed or failed (or ``deadline``)."""
     while True:
@@ -332,20 +366,36 @@ def _settle(session, url, header, board, slot, previous, open_session, wait_s, s
             and hello.firmware_version == header.version
         )
         if on_trial:
-            info, test = _await_selftest(session, time.monotonic() + wait_s)
-            if test in (SelfTest.PASSED, SelfTest.NONE):  # NONE: a board without a self-test
-                try:
-                    confirm_firmware(session)
-                except DeviceRequestError as exc:
-                    reason = f"FW_CONFIRM refused: {exc}"
-            elif test == SelfTest.FAILED:
-                reason = "its self-test failed (the sensor did not answer or no acquisition completed)"
+            try:
+                info, test = _await_selftest(session, time.monotonic() + wait_s)
+                if test in (SelfTest.PASSED, SelfTest.NONE):  # NONE: a board without one
+                    try:
+                        confirm_firmware(session)
+                    except DeviceRequestError as exc:
+                        reason = f"FW_CONFIRM refused: {exc}"
+                elif test == SelfTest.FAILED:
+                    reason = (
+                        "its self-test failed (the sensor did not answer or no acquisition "
+                        "completed)"
+                    )
+                    raise _TrialReset
+                else:
+                    reason = f"its self-test did not finish within {wait_s:g} s"
+            except (_TrialReset, DeviceError) as exc:
+                if isinstance(exc, DeviceRequestError):
+                    raise
+                if not reason:  # the link went: the trial reset (crashed, or its watchdog)
+                    reason = "the trial image reset before it was confirmed"
                 boot_id = hello.boot_id
                 _close(session)
-                session = _wait_board(url, open_session, board, (boot_id, None), wait_s,
-                                      f"firmware {escape(header.version)} failed its self-test")
-            else:
-                reason = f"its self-test did not finish within {wait_s:g} s"
+                session = _wait_board(
+                    url,
+                    open_session,
+                    board,
+                    (boot_id, None),
+                    wait_s,
+                    f"firmware {escape(header.version)} is not confirmed",
+                )
         elif hello.firmware_version != header.version or info.running_slot != slot:
             reason = (
                 "the new firmware did not start or did not answer in time (its watchdog or a "
@@ -360,11 +410,24 @@ def _settle(session, url, header, board, slot, previous, open_session, wait_s, s
     if new and not confirmed and not reason:
         reason = "it runs unconfirmed"
     result = UpdateResult(
-        previous, hello.firmware_version, confirmed, not new, sent, time.monotonic() - started,
-        hello.serial, info.running_slot, info.boot_state, reason,
+        previous,
+        hello.firmware_version,
+        confirmed,
+        not new,
+        sent,
+        time.monotonic() - started,
+        hello.serial,
+        info.running_slot,
+        info.boot_state,
+        reason,
     )
-    log.info("%s: board %s reports firmware %s, %s", url, escape(hello.serial),
-             escape(hello.firmware_version), result.outcome)
+    log.info(
+        "%s: board %s reports firmware %s, %s",
+        url,
+        escape(hello.serial),
+        escape(hello.firmware_version),
+        result.outcome,
+    )
     return result
 
 
@@ -385,8 +448,14 @@ def _roll_back_trial(session, url, board, open_session, wait_s):
         session.request(Reboot(RebootMode.NORMAL, 100))
     finally:
         _close(session)
-    session = _wait_board(url, open_session, board, (hello.boot_id, clock), wait_s,
-                          "the unfinished trial was not rolled back")
+    session = _wait_board(
+        url,
+        open_session,
+        board,
+        (hello.boot_id, clock),
+        wait_s,
+        "the unfinished trial was not rolled back",
+    )
     info = firmware_info(session)
     if info.boot_state == BootState.TRIAL:
         _close(session)

@@ -22,9 +22,9 @@ from firmware_protocol.v2_messages import (
     SHA256_SIZE,
     BoardState,
     BootState,
-    SelfTest,
     ErrorFlag,
     LogLevel,
+    SelfTest,
 )
 from spiel_edge.sim.faults import Outgoing
 from spiel_edge.sim.firmware_slots import NO_SLOT, SILENT_MARK, TARGET, FirmwareFlash
@@ -107,7 +107,9 @@ class BoardV2Mixin:
         if self._selftest == SelfTest.RUNNING and now >= self._selftest_at:
             if self.no_sensor:
                 self._selftest = SelfTest.FAILED
-                self.board_log(LogLevel.ERROR, "self-test failed: the sensor refused a trigger", now)
+                self.board_log(
+                    LogLevel.ERROR, "self-test failed: the sensor refused a trigger", now
+                )
                 self.reboot_at = now + 2.0
             else:
                 self._selftest = SelfTest.PASSED
@@ -117,8 +119,7 @@ class BoardV2Mixin:
     def trial_expired(self, now: float) -> bool:
         """The trial window passed unconfirmed: the watchdog is no longer kicked."""
         return (
-            self.fw.boot_state == BootState.TRIAL
-            and now - self._boot_time >= self.trial_window_s
+            self.fw.boot_state == BootState.TRIAL and now - self._boot_time >= self.trial_window_s
         )
 
     def _v2_boot(self, now: float) -> None:

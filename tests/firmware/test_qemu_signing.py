@@ -14,7 +14,6 @@ from spiel_edge.errors import DeviceError
 from tests.firmware.qemu_board import CUT, QemuBoard, new_flash
 from tests.firmware.test_qemu_update import (  # noqa: F401  (elf: the fixture)
     FACTORY,
-    SERIAL,
     _update_until_cut,
     elf,
     hello,
@@ -27,8 +26,8 @@ NEVER = 1 << 30  # an armed cut that never fires: the mailbox counts the operati
 
 
 def test_forged_images_and_a_downgrade_are_refused(elf, tmp_path) -> None:  # noqa: F811
-    good = image(elf, "mps2-1.2.0", SERIAL.decode(), security_counter=2)
-    low = image(elf, "mps2-1.1.9", SERIAL.decode(), security_counter=1)
+    good = image(elf, "mps2-1.2.0", "spiel-c m120", security_counter=2)
+    low = image(elf, "mps2-1.1.9", "spiel-c m119", security_counter=1)
     with QemuBoard(elf, new_flash(tmp_path / "flash.bin")) as b:
         for name, (bad, code) in forged_images(good, other_signer(tmp_path)).items():
             assert raw_upload(b.port, bad) == code, name
@@ -47,8 +46,8 @@ def test_a_power_cut_during_the_counters_update_keeps_old_or_new(elf, tmp_path) 
     middle of FW_CONFIRM's record erase and write (the update's last two flash operations),
     then qemu started again on the same flash: the built-in image with counter 0 (a counter-3
     image is accepted), or, with no cut, the new one with counter 5 (refused: FW_ROLLBACK)."""
-    v5 = image(elf, "mps2-1.5.0", SERIAL.decode(), security_counter=5)
-    v3 = image(elf, "mps2-1.3.0", SERIAL.decode(), security_counter=3)
+    v5 = image(elf, "mps2-1.5.0", "spiel-c m150", security_counter=5)
+    v3 = image(elf, "mps2-1.3.0", "spiel-c m130", security_counter=3)
     count = QemuBoard(elf, new_flash(tmp_path / "count.bin"))
     count.arm(CUT, NEVER)
     with count:

@@ -207,3 +207,45 @@ def test_firmware_info_and_a_version_1_board(sim_url, capsys) -> None:
     assert "target sim" in out and "slot 0: verified, version sim-0.1.0" in out
     assert main(["firmware", "info", "--port", sim_url("protocol=1")]) == 2
     assert "does not offer firmware update (protocol 1)" in capsys.readouterr().err
+
+
+def test_virtual_board_sensorless_trial_fails_its_self_test_and_rolls_back(sim_url) -> None:
+    """The virtual board runs the C core's self-test: with no sensor the trial refuses
+    FW_CONFIRM, resets itself and rolls back; the host reports the state it reports after."""
+    url = sim_url("no_sensor=1")
+    result = update_firmware(url, NEW, boot_wait_s=10)
+    assert (result.outcome, result.version) == ("rolled back", "sim-0.1.0")
+    assert "self-test failed" in result.reason
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert (info.boot_state, info.selftest, info.running_slot) == (0, 0, info.confirmed_slot)
+
+
+def test_virtual_board_trial_nobody_confirms_rolls_back_after_its_window(sim_url) -> None:
+    """A host killed after FW_TEST: the trial passes its self-test, FW_INFO says so, and with
+    nobody confirming it the watchdog resets it after the trial window: rolled back."""
+    from firmware_protocol.v2_messages import FwConfirm, FwTest, SelfTest
+
+    url = sim_url("trial_window_ms=1500")
+    with DeviceSession(url, reconnect=False) as dev:
+        dev.request(FwBegin(len(NEW), crc32c(NEW), hashlib.sha256(NEW).digest()))
+        from firmware_protocol.v2_messages import FwWrite
+
+        for off in range(0, len(NEW), 1000):
+            dev.request(FwWrite(off, NEW[off : off + 1000]))
+        dev.request(FwVerify())
+        dev.request(FwTest(50))
+    deadline = time.monotonic() + 5
+    while hello_version(url) != "sim-0.2.0":  # the test boot
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert info.boot_state == BootState.TRIAL
+        if info.selftest != SelfTest.PASSED:  # before the first acquisition: refused
+            with pytest.raises(DeviceRequestError, match="self-test"):
+                dev.request(FwConfirm())
+    deadline = time.monotonic() + 10
+    while hello_version(url) != "sim-0.1.0":
+        assert time.monotonic() < deadline
+        time.sleep(0.1)

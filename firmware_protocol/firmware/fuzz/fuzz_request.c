@@ -1,9 +1,11 @@
 /*
  * fuzz_request.c - libFuzzer harness of the device's request decoder: the whole portable core
- * (core/ over ../c/spiel_proto.c, built with -DSPIEL_FW_UPDATE=1 -DSPIEL_IQ_SAMPLES=1) on an
- * in-memory HAL with config flash, two firmware image slots and a boot record area, fed one
- * input per power-on. A reset (REBOOT, FW_TEST) runs the core's boot stage (boot_choose) and
- * boots the core again on the same flash and slots; the input goes on (at most 8 resets).
+ * (core/ over ../c/spiel_proto.c, built with -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_EXEC_COPY=1
+ * -DSPIEL_IQ_SAMPLES=1) on an in-memory HAL with config flash, two firmware image slots, a boot
+ * record area and an execution region (NOR with ECC: 512-byte sectors, 8-byte program units),
+ * fed one input per power-on. A reset (REBOOT, FW_TEST) runs the core's boot stage (boot_start:
+ * the choice, the flash-to-flash install, the trial's watchdog) and boots the core again on the
+ * same flash and slots; the input goes on (at most 8 resets).
  *
  *   make TARGET=fuzz            clang -fsanitize=fuzzer,address,undefined
  *   python -m tools.release.firmware_fuzz --runs 10000000
@@ -20,14 +22,15 @@
  *   byte 1            bytes per transport read (0: all available)
  *   byte 2            0xFF: nothing fails; 0x00..0x7F: that erase or write (config flash and
  *                     image slots counted together, 0-based) fails (a failing slot write
- *                     programs half its bytes first, a failing boot record write leaves
- *                     that copy erased); 0x80..0xFE: image read (byte 2 & 0x7F) fails
+ *                     programs half its bytes first, a failing erase erases half the
+ *                     range); 0x80..0xFE: image read (byte 2 & 0x7F) fails
  * Between reads the core is polled and the clock moves on, so streams are scheduled, sent,
  * overrun and stopped. Oracles beyond the sanitizers:
  *   - everything the device writes decodes as valid frames (no CRC, COBS, length or flag error
  *     in the host's decoder);
- *   - the core never erases or writes the running slot, never reads or writes outside a slot,
- *     and never programs a slot byte back from 0 to 1 without an erase (NOR flash);
+ *   - the core never erases or writes the running slot, never reads or writes outside an
+ *     area, erases whole sectors only and programs whole units of erased bytes only (ECC NOR);
+ *   - a trial image is never started without the watchdog;
  *   - framed records: the answers to FW_* requests agree with the requests (a model of the
  *     upload): FW_BEGIN's size in [96, slot_size], never the running slot; FW_WRITE answered
  *     OK only within the size FW_BEGIN announced; FW_VERIFY's size, CRC-32C and SHA-256 are
