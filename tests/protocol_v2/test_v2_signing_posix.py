@@ -19,12 +19,7 @@ from spiel_edge.errors import DeviceError
 from tests.firmware.firmware import FIRMWARE, VENDOR, PosixBoard, compiler
 from tests.fwsign import signed_image
 from tests.protocol_v2.signing_cases import forged_images, other_signer, raw_upload
-from tests.protocol_v2.test_v2_firmware_posix import (  # noqa: F401  (the fixture)
-    count_image_ops,
-    hello_version,
-    posix,
-    script_image,
-)
+from tests.protocol_v2.test_v2_firmware_posix import hello_version, script_image
 from tests.protocol_v2.test_v2_signing import RFC8032, flips
 
 
@@ -89,7 +84,7 @@ def test_a_release_build_refuses_the_development_key(tmp_path) -> None:
     assert "not a public key file" in make(f"FW_KEY={tmp_path / 'junk.pub'}").stderr
 
 
-def posix_board(posix, case: Path, factory: bytes, *extra: str) -> PosixBoard:  # noqa: F811
+def posix_board(posix, case: Path, factory: bytes, *extra: str) -> PosixBoard:
     exe, scans = posix
     images = case / "images"
     if not images.exists():
@@ -98,7 +93,7 @@ def posix_board(posix, case: Path, factory: bytes, *extra: str) -> PosixBoard:  
     return PosixBoard(exe, scans, case / "flash.bin", "--images", str(images), *extra)
 
 
-def test_the_boot_stage_starts_only_a_signed_slot(posix, tmp_path) -> None:  # noqa: F811
+def test_the_boot_stage_starts_only_a_signed_slot(posix, tmp_path) -> None:
     """slot 0 holds the only image: unsigned, tampered or signed by another key, the boot stage
     does not start it (the recovery loader answers); signed by the build's key, it runs."""
     good = signed_image(posix[0].read_bytes(), version="posix-1.0.0", target="posix")
@@ -110,7 +105,7 @@ def test_the_boot_stage_starts_only_a_signed_slot(posix, tmp_path) -> None:  # n
         assert hello_version(b.port) == "posix-1.0.0"
 
 
-def test_fw_verify_refuses_forged_images(posix, tmp_path) -> None:  # noqa: F811
+def test_fw_verify_refuses_forged_images(posix, tmp_path) -> None:
     factory = signed_image(posix[0].read_bytes(), version="posix-1.0.0", target="posix")
     good = script_image(posix, "posix-1.1.0")
     with posix_board(posix, tmp_path, factory) as b:
@@ -121,12 +116,12 @@ def test_fw_verify_refuses_forged_images(posix, tmp_path) -> None:  # noqa: F811
             assert dev.hello.firmware_version == "posix-1.0.0"
 
 
-def counter_image(posix, version: str, counter: int) -> bytes:  # noqa: F811
+def counter_image(posix, version: str, counter: int) -> bytes:
     body = f'#!/bin/sh\nexec "{posix[0]}" "$@"\n# {version}\n'.encode()
     return signed_image(body, version=version, target="posix", security_counter=counter)
 
 
-def test_a_downgrade_is_refused_and_the_host_says_why(posix, tmp_path) -> None:  # noqa: F811
+def test_a_downgrade_is_refused_and_the_host_says_why(posix, tmp_path) -> None:
     factory = signed_image(posix[0].read_bytes(), version="posix-1.0.0", target="posix")
     with posix_board(posix, tmp_path, factory) as b:
         assert update_firmware(
@@ -141,7 +136,7 @@ def test_a_downgrade_is_refused_and_the_host_says_why(posix, tmp_path) -> None: 
         ).confirmed
 
 
-def test_a_power_cut_during_the_counters_update_keeps_old_or_new(posix, tmp_path) -> None:  # noqa: F811
+def test_a_power_cut_during_the_counters_update_keeps_old_or_new(posix, tmp_path) -> None:
     """The counter rises with FW_CONFIRM's boot record (the last two image operations of an
     update: the record sector's erase and its write). SIGKILL in either, or none: the board
     comes back with the old image and counter 0 (a counter-3 image accepted) or the new one
