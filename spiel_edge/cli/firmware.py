@@ -217,6 +217,51 @@ def pack_cmd(
     return EXIT_OK
 
 
+@command.command("check")
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.option(
+    "--pub",
+    "pub_path",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="the public key file a board is built with (keygen's NAME.pub)",
+)
+@click.option(
+    "--min-counter",
+    type=click.IntRange(0, 0xFFFF_FFFF),
+    default=0,
+    show_default=True,
+    help="the board's security counter",
+)
+def check_cmd(image: str, pub_path: str, min_counter: int) -> int:
+    """Check IMAGE offline as a board built with --pub would at FW_VERIFY: intact, signed by
+    that key, its security counter at least --min-counter (exit 0), or say why not (exit 2)."""
+    from firmware_protocol.image import ImageError, verify_image
+    from firmware_protocol.signing import parse_public_key_text
+
+    plan = FilePlan(False)
+    plan.input_file(image, "IMAGE")
+    plan.input_file(pub_path, "--pub")
+    try:
+        public = parse_public_key_text(Path(pub_path).read_text(errors="replace"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"--pub {pub_path}: {exc}") from exc
+    try:
+        header = verify_image(_read_image(image), public, min_counter)
+    except ImageError as exc:
+        code = getattr(exc, "code", None)
+        raise InputError(
+            f"{image}: {exc}" + (f" ({code.name})" if code is not None else "")
+        ) from exc
+    click.echo(
+        f"{image}: firmware {header.version} for {header.target}, security counter "
+        f"{header.security_counter}, signed by key {header.key_id.hex()}: a board with this key "
+        "accepts it",
+        err=True,
+    )
+    return EXIT_OK
+
+
 @command.command("keygen")
 @click.argument("name", type=click.Path(dir_okay=False))
 @force_option

@@ -249,3 +249,18 @@ def test_a_power_cut_during_the_counters_update_keeps_old_or_new(sim_url) -> Non
             assert version == FACTORY_VERSION and fw.record().security_counter == 0, cut
             assert refused is None, cut
     assert seen == {FACTORY_VERSION, "sim-0.5.0"}
+
+
+def test_check_says_whether_a_board_would_accept_an_image(tmp_path, capsys) -> None:
+    image = tmp_path / "fw.img"
+    image.write_bytes(signed_image(BODY, version="1.0", target="sim", security_counter=4))
+    check = ["firmware", "check", str(image), "--pub", str(DEV_PUB)]
+    assert main(check) == 0
+    assert "a board with this key accepts it" in capsys.readouterr().err
+    assert main([*check, "--min-counter", "5"]) == 2
+    assert "FW_ROLLBACK" in capsys.readouterr().err
+    other_signer(tmp_path)
+    assert main([*check[:3], "--pub", str(tmp_path / "other.pub")]) == 2
+    assert "FW_WRONG_KEY" in capsys.readouterr().err
+    assert main([*check[:3], "--pub", str(image)]) == 2  # not a key file
+    assert "not a public key file" in capsys.readouterr().err
