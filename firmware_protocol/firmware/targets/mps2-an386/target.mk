@@ -83,6 +83,8 @@ sizes: $(BUILD)/firmware.elf
 	@$(ARM_SIZE) -t $(CORE_OBJS)
 	@echo "protocol version 2 in the core (time sync, telemetry, firmware update):"
 	@$(ARM_SIZE) -t $(V2_OBJS)
+	@echo "signed images (core/verify.c and the vendored Ed25519 verifier, vendor/monocypher):"
+	@$(ARM_SIZE) -t $(filter $(BUILD)/obj/verify.o $(BUILD)/obj/monocypher.o $(BUILD)/obj/monocypher-ed25519.o,$(MPS2_OBJS))
 	@echo "their largest RAM buffers (bytes):"
 	@$(ARM_NM) -S --size-sort -t d $(CORE_OBJS) $(V2_OBJS) | awk '$$3 ~ /^[bBdD]$$/ && $$2 + 0 >= 64 {print "  " $$4, $$2 + 0}'
 	@echo "library routines linked into the application (bytes; entry points that share code, once):"
