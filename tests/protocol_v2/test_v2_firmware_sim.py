@@ -249,3 +249,23 @@ def test_virtual_board_trial_nobody_confirms_rolls_back_after_its_window(sim_url
     while hello_version(url) != "sim-0.1.0":
         assert time.monotonic() < deadline
         time.sleep(0.1)
+
+
+def test_a_silent_image_of_the_same_version_is_reported_rolled_back(sim_url) -> None:
+    """Issue 43: an image with the running image's own version that never answers: the
+    watchdog rolls it back, and the host must not take the old image's HELLO (same version)
+    for the new one: the outcome comes from the slot the board reports."""
+    from spiel_edge.sim.firmware_slots import FACTORY_VERSION, SILENT_MARK
+
+    url = sim_url("watchdog_ms=500")
+    same = pack_image(SILENT_MARK + bytes(300), version=FACTORY_VERSION, target="sim")
+    result = update_firmware(url, same, boot_wait_s=10)
+    assert (result.outcome, result.version, result.confirmed) == (
+        "rolled back",
+        FACTORY_VERSION,
+        False,
+    )
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert (info.running_slot, info.boot_state) == (result.slot, BootState.CONFIRMED)
+        assert info.running_slot == info.confirmed_slot != 1
