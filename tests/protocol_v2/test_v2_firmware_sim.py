@@ -258,7 +258,7 @@ def test_a_silent_image_of_the_same_version_is_reported_rolled_back(sim_url) -> 
     from spiel_edge.sim.firmware_slots import FACTORY_VERSION, SILENT_MARK
 
     url = sim_url("watchdog_ms=500")
-    same = pack_image(SILENT_MARK + bytes(300), version=FACTORY_VERSION, target="sim")
+    same = signed_image(SILENT_MARK + bytes(300), version=FACTORY_VERSION, target="sim")
     result = update_firmware(url, same, boot_wait_s=10)
     assert (result.outcome, result.version, result.confirmed) == (
         "rolled back",
