@@ -78,7 +78,6 @@ from firmware_protocol.stream import (
 from firmware_protocol.v2_messages import (
     BoardState,
     BootState,
-    SelfTest,
     ErrorFlag,
     FwBegin,
     FwBeginResponse,
@@ -95,6 +94,7 @@ from firmware_protocol.v2_messages import (
     Heartbeat,
     LogLevel,
     LogMessage,
+    SelfTest,
     SlotState,
     Telemetry,
     TelemetryResponse,

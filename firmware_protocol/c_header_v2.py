@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from firmware_protocol import image, v2_messages
+from firmware_protocol import image, signing, v2_messages
 
 __all__ = ["v2_part"]
 
@@ -52,11 +52,20 @@ def v2_part(_enum, _defines, _layout, _c_string) -> list[str]:
         title = f"{cls.__name__}: msg_type 0x{cls.MSG_TYPE:04X}, {kind}, fixed part"
         lines += _layout(prefix, f"{prefix}_t", title, _message_fields(cls))
     lines += [
-        "/* Firmware image: this header, then body_size bytes of body */",
+        "/* Firmware image: this header, then body_size bytes of body, then (flags bit 0) the",
+        " * signature trailer: magic, u8 sig_type, u8 0, u16 sig_len, u8[8] key_id, u8[64] sig */",
         *_defines(
             [
                 ("SP_IMAGE_MAGIC", _c_string(image.IMAGE_MAGIC.decode()), "the first bytes"),
                 ("SP_IMAGE_HEADER_VERSION", f"{image.IMAGE_HEADER_VERSION}u", ""),
+                ("SP_IMAGE_FLAG_SIGNED", f"{image.FLAG_SIGNED}u", "a signature trailer follows"),
+                (
+                    "SP_SIG_MAGIC",
+                    _c_string(signing.SIG_MAGIC.decode()),
+                    "the trailer's first bytes",
+                ),
+                ("SP_SIG_TRAILER_SIZE", f"{signing.SIG_TRAILER_SIZE}u", "bytes"),
+                ("SP_SIG_TYPE_ED25519", f"{signing.SIG_TYPE_ED25519}u", "over the 96-byte header"),
             ]
         ),
         "",

@@ -61,6 +61,11 @@ class ErrorCode(IntEnum):
     VERSION_TOO_NEW = 13
     FLASH_WRITE_FAILED = 14
     FLASH_VERIFY_FAILED = 15
+    # firmware images refused for their authenticity (PROTOCOL.md § 14.6)
+    FW_UNSIGNED = 16
+    FW_BAD_SIGNATURE = 17
+    FW_WRONG_KEY = 18
+    FW_ROLLBACK = 19
 
     @property
     def text(self) -> str:
@@ -84,6 +89,10 @@ ERROR_TEXT: dict[ErrorCode, str] = {
     ErrorCode.VERSION_TOO_NEW: "the host's protocol version is too new for this firmware",
     ErrorCode.FLASH_WRITE_FAILED: "writing the flash failed",
     ErrorCode.FLASH_VERIFY_FAILED: "flash read-back did not match what was written",
+    ErrorCode.FW_UNSIGNED: "the firmware image is not signed; this board boots only signed images",
+    ErrorCode.FW_BAD_SIGNATURE: "the firmware image's signature does not verify (tampered or truncated)",
+    ErrorCode.FW_WRONG_KEY: "the firmware image is signed by a key this board does not trust",
+    ErrorCode.FW_ROLLBACK: "the firmware image's security counter is below the board's (a downgrade)",
 }
 
 

@@ -1,9 +1,12 @@
-"""Firmware images: a 96-byte header (magic, version, target, protocol range, size, hashes) and
-the body. Pure: ``pack_image`` builds one, ``parse_image`` checks one (PROTOCOL.md § 14.3), ``check_body`` checks
-that a body can run on a target whose boot stage jumps into a flat binary (mps2-an386).
+"""Firmware images: a 96-byte header (magic, version, target, protocol range, size, hashes,
+security counter), the body and, when signed, an 80-byte signature trailer. Pure: ``pack_image``
+builds one (signing it with a ``Signer``), ``parse_image`` checks one (PROTOCOL.md § 14.3),
+``verify_image`` checks its signature and counter (§ 14.6), ``check_body`` checks that a body
+can run on a target whose boot stage jumps into a flat binary (mps2-an386).
 
 The header carries the body's size, CRC-32C and SHA-256 and its own CRC-32C, so a host checks
 an image file before it sends a byte, and a device checks the slot again before it boots it.
+The signature is over the header, so it covers the body through the header's SHA-256.
 """
 
 from __future__ import annotations
@@ -14,7 +17,16 @@ from dataclasses import dataclass
 
 from crc32c import crc32c
 
-from firmware_protocol.errors import ProtocolError
+from firmware_protocol.errors import ErrorCode, ProtocolError
+from firmware_protocol.signing import (
+    SIG_MAGIC,
+    SIG_TRAILER,
+    SIG_TRAILER_SIZE,
+    SIG_TYPE_ED25519,
+    Signer,
+    ed25519_verify,
+    key_id,
+)
 
 __all__ = [
     "IMAGE_HEADER",
@@ -23,13 +35,16 @@ __all__ = [
     "IMAGE_MAGIC",
     "ImageError",
     "ImageHeader",
+    "ImageRefused",
     "check_body",
     "pack_image",
     "parse_image",
+    "verify_image",
 ]
 
 IMAGE_MAGIC = b"SPFW"
 IMAGE_HEADER_VERSION = 1
+FLAG_SIGNED = 0x0001  # an 80-byte signature trailer follows the body
 # (name, struct code, meaning); header_crc covers every byte before it
 IMAGE_HEADER_FIELDS: tuple[tuple[str, str, str], ...] = (
     ("magic", "4s", "the bytes SPFW"),
@@ -39,11 +54,12 @@ IMAGE_HEADER_FIELDS: tuple[tuple[str, str, str], ...] = (
     ("target", "16s", "board target the image runs on, NUL-padded"),
     ("min_protocol", "B", "lowest protocol version the firmware speaks"),
     ("max_protocol", "B", "highest protocol version the firmware speaks"),
-    ("flags", "H", "reserved, 0"),
+    ("flags", "H", "bit 0: signed (a signature trailer follows the body); others 0"),
     ("body_size", "I", "bytes of the body after the header"),
     ("body_crc", "I", "CRC-32C of the body"),
     ("body_sha256", "32s", "SHA-256 of the body"),
-    ("reserved", "8s", "zeros"),
+    ("security_counter", "I", "anti-rollback: a board refuses an image below its counter"),
+    ("reserved", "4s", "zeros"),
     ("header_crc", "I", "CRC-32C of the header bytes before this field"),
 )
 IMAGE_HEADER = struct.Struct("<" + "".join(code for _, code, _ in IMAGE_HEADER_FIELDS))
@@ -52,6 +68,15 @@ IMAGE_HEADER_SIZE = IMAGE_HEADER.size  # 96
 
 class ImageError(ProtocolError):
     """A firmware image that must not be sent or booted."""
+
+
+class ImageRefused(ImageError):
+    """An intact image a board would refuse for its signature or counter; ``code`` is the
+    ErrorCode the board answers FW_VERIFY with."""
+
+    def __init__(self, code: ErrorCode, message: str) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 @dataclass(frozen=True)
@@ -63,10 +88,13 @@ class ImageHeader:
     body_size: int
     body_crc: int
     body_sha256: bytes
+    security_counter: int = 0
+    signed: bool = False
+    key_id: bytes = b""  # the trailer's key id (8 bytes), when signed
 
     @property
     def image_size(self) -> int:
-        return IMAGE_HEADER_SIZE + self.body_size
+        return IMAGE_HEADER_SIZE + self.body_size + (SIG_TRAILER_SIZE if self.signed else 0)
 
     def speaks(self, low: int, high: int) -> bool:
         """Whether the firmware shares a protocol version with the range ``low..high``."""
@@ -81,11 +109,20 @@ def _text(value: str, name: str) -> bytes:
 
 
 def pack_image(
-    body: bytes, *, version: str, target: str, min_protocol: int = 1, max_protocol: int = 2
+    body: bytes,
+    *,
+    version: str,
+    target: str,
+    min_protocol: int = 1,
+    max_protocol: int = 2,
+    security_counter: int = 0,
+    signer: Signer | None = None,
 ) -> bytes:
-    """Header + body of a firmware image."""
+    """Header + body of a firmware image, + the signature trailer when ``signer`` is given."""
     if not 1 <= min_protocol <= max_protocol <= 255:
         raise ImageError(f"protocol range {min_protocol}-{max_protocol} is not valid")
+    if not 0 <= security_counter <= 0xFFFF_FFFF:
+        raise ImageError(f"security counter {security_counter} is not a u32")
     body = bytes(body)
     head = IMAGE_HEADER.pack(
         IMAGE_MAGIC,
@@ -95,15 +132,23 @@ def pack_image(
         _text(target, "target"),
         min_protocol,
         max_protocol,
-        0,
+        FLAG_SIGNED if signer is not None else 0,
         len(body),
         crc32c(body),
         hashlib.sha256(body).digest(),
-        bytes(8),
+        security_counter,
+        bytes(4),
         0,
     )
     head = head[:-4] + crc32c(head[:-4]).to_bytes(4, "little")
-    return head + body
+    if signer is None:
+        return head + body
+    public = bytes(signer.public_key)
+    signature = bytes(signer.sign(head))
+    if len(public) != 32 or len(signature) != 64:
+        raise ImageError("the signer did not give an Ed25519 key and signature")
+    trailer = SIG_TRAILER.pack(SIG_MAGIC, SIG_TYPE_ED25519, 0, 64, key_id(public), signature)
+    return head + body + trailer
 
 
 # Targets whose body is a flat binary the boot stage jumps into: (run address, RAM start, RAM
@@ -142,7 +187,7 @@ def parse_image(image: bytes) -> ImageHeader:
     if len(image) < IMAGE_HEADER_SIZE:
         raise ImageError(f"{len(image)} bytes is shorter than the {IMAGE_HEADER_SIZE}-byte header")
     fields = IMAGE_HEADER.unpack_from(image)
-    magic, hver, hsize, version, target, lo, hi, _, size, crc, sha, _, hcrc = fields
+    magic, hver, hsize, version, target, lo, hi, flags, size, crc, sha, counter, _, hcrc = fields
     if magic != IMAGE_MAGIC:
         raise ImageError(f"not a spiel-edge firmware image (magic {magic!r}, expected b'SPFW')")
     if crc32c(image[: IMAGE_HEADER_SIZE - 4]) != hcrc:
@@ -151,13 +196,23 @@ def parse_image(image: bytes) -> ImageHeader:
         raise ImageError(f"image header version {hver} size {hsize} is not supported")
     if not 1 <= lo <= hi:
         raise ImageError(f"the image declares an empty protocol range {lo}-{hi}")
-    body = image[IMAGE_HEADER_SIZE:]
+    signed = bool(flags & FLAG_SIGNED)
+    body, trailer = (
+        image[IMAGE_HEADER_SIZE : IMAGE_HEADER_SIZE + size],
+        image[IMAGE_HEADER_SIZE + size :],
+    )
     if len(body) < size:
         raise ImageError(
             f"the image is truncated: its header says {size} body bytes, {len(body)} are there"
         )
-    if len(body) > size:
-        raise ImageError(f"the image has {len(body) - size} bytes after its declared end")
+    if signed and len(trailer) < SIG_TRAILER_SIZE:
+        raise ImageRefused(
+            ErrorCode.FW_BAD_SIGNATURE,
+            f"the image's signature is truncated ({len(trailer)} of {SIG_TRAILER_SIZE} trailer bytes)",
+        )
+    extra = len(trailer) - (SIG_TRAILER_SIZE if signed else 0)
+    if extra > 0:
+        raise ImageError(f"the image has {extra} bytes after its declared end")
     if crc32c(body) != crc:
         raise ImageError("the image body is corrupt (CRC-32C mismatch)")
     if hashlib.sha256(body).digest() != sha:
@@ -170,4 +225,38 @@ def parse_image(image: bytes) -> ImageHeader:
         size,
         crc,
         sha,
+        counter,
+        signed,
+        SIG_TRAILER.unpack(trailer)[4] if signed else b"",
     )
+
+
+def verify_image(image: bytes, public_key: bytes, min_counter: int = 0) -> ImageHeader:
+    """The header of an intact image signed by ``public_key`` whose security counter is at
+    least ``min_counter``; ImageRefused (with the board's error code) or ImageError otherwise.
+    The checks and their order are the boards' (PROTOCOL.md § 14.6)."""
+    header = parse_image(image)
+    if not header.signed:
+        raise ImageRefused(ErrorCode.FW_UNSIGNED, "the image is not signed (pack it with --key)")
+    magic, sig_type, _, sig_len, kid, signature = SIG_TRAILER.unpack_from(
+        image, header.image_size - SIG_TRAILER_SIZE
+    )
+    if magic != SIG_MAGIC or sig_type != SIG_TYPE_ED25519 or sig_len != 64:
+        raise ImageRefused(ErrorCode.FW_BAD_SIGNATURE, "the image's signature trailer is damaged")
+    if kid != key_id(public_key):
+        raise ImageRefused(
+            ErrorCode.FW_WRONG_KEY,
+            f"the image is signed by key {kid.hex()}, the board trusts {key_id(public_key).hex()}",
+        )
+    if not ed25519_verify(public_key, image[:IMAGE_HEADER_SIZE], signature):
+        raise ImageRefused(
+            ErrorCode.FW_BAD_SIGNATURE,
+            "the image's signature does not verify (header or body changed after signing)",
+        )
+    if header.security_counter < min_counter:
+        raise ImageRefused(
+            ErrorCode.FW_ROLLBACK,
+            f"the image's security counter {header.security_counter} is below the board's "
+            f"{min_counter} (a downgrade)",
+        )
+    return header

@@ -32,7 +32,6 @@ from firmware_protocol.stream import SampleFormat, StreamData
 from firmware_protocol.v2_messages import (  # noqa: F401  (registers the version 2 messages)
     BoardState,
     BootState,
-    SelfTest,
     ErrorFlag,
     FwBegin,
     FwBeginResponse,
@@ -49,6 +48,7 @@ from firmware_protocol.v2_messages import (  # noqa: F401  (registers the versio
     Heartbeat,
     LogLevel,
     LogMessage,
+    SelfTest,
     SlotState,
     Telemetry,
     TelemetryResponse,

@@ -93,6 +93,10 @@
 #define SP_ERR_VERSION_TOO_NEW     13u /* the host's protocol version is too new for this firmware */
 #define SP_ERR_FLASH_WRITE_FAILED  14u /* writing the flash failed */
 #define SP_ERR_FLASH_VERIFY_FAILED 15u /* flash read-back did not match what was written */
+#define SP_ERR_FW_UNSIGNED         16u /* the firmware image is not signed; this board boots only signed images */
+#define SP_ERR_FW_BAD_SIGNATURE    17u /* the firmware image's signature does not verify (tampered or truncated) */
+#define SP_ERR_FW_WRONG_KEY        18u /* the firmware image is signed by a key this board does not trust */
+#define SP_ERR_FW_ROLLBACK         19u /* the firmware image's security counter is below the board's (a downgrade) */
 
 /* STREAM_DATA sample formats, bytes per sample, samples per frame at most */
 #define SP_SAMPLE_U16_ENVELOPE 0u
@@ -144,6 +148,14 @@ static inline const char *sp_error_text(uint16_t code)
         return "writing the flash failed";
     case SP_ERR_FLASH_VERIFY_FAILED:
         return "flash read-back did not match what was written";
+    case SP_ERR_FW_UNSIGNED:
+        return "the firmware image is not signed; this board boots only signed images";
+    case SP_ERR_FW_BAD_SIGNATURE:
+        return "the firmware image's signature does not verify (tampered or truncated)";
+    case SP_ERR_FW_WRONG_KEY:
+        return "the firmware image is signed by a key this board does not trust";
+    case SP_ERR_FW_ROLLBACK:
+        return "the firmware image's security counter is below the board's (a downgrade)";
     default:
         return "unrecognised device error code";
     }
@@ -804,38 +816,45 @@ static inline void sp_fw_confirm_response_unpack(const uint8_t in[SP_FW_CONFIRM_
     h->boot_state = in[SP_FW_CONFIRM_RESPONSE_BOOT_STATE_OFFSET];
 }
 
-/* Firmware image: this header, then body_size bytes of body */
+/* Firmware image: this header, then body_size bytes of body, then (flags bit 0) the
+ * signature trailer: magic, u8 sig_type, u8 0, u16 sig_len, u8[8] key_id, u8[64] sig */
 #define SP_IMAGE_MAGIC          "SPFW" /* the first bytes */
 #define SP_IMAGE_HEADER_VERSION 1u
+#define SP_IMAGE_FLAG_SIGNED    1u /* a signature trailer follows */
+#define SP_SIG_MAGIC            "SPSG" /* the trailer's first bytes */
+#define SP_SIG_TRAILER_SIZE     80u /* bytes */
+#define SP_SIG_TYPE_ED25519     1u /* over the 96-byte header */
 
 /* Firmware image header (96 bytes, little-endian, no padding) */
-#define SP_IMAGE_HEADER_SIZE                  96u
-#define SP_IMAGE_HEADER_MAGIC_OFFSET          0u
-#define SP_IMAGE_HEADER_MAGIC_SIZE            4u
-#define SP_IMAGE_HEADER_HEADER_VERSION_OFFSET 4u
-#define SP_IMAGE_HEADER_HEADER_VERSION_SIZE   2u
-#define SP_IMAGE_HEADER_HEADER_SIZE_OFFSET    6u
-#define SP_IMAGE_HEADER_HEADER_SIZE_SIZE      2u
-#define SP_IMAGE_HEADER_VERSION_OFFSET        8u
-#define SP_IMAGE_HEADER_VERSION_SIZE          16u
-#define SP_IMAGE_HEADER_TARGET_OFFSET         24u
-#define SP_IMAGE_HEADER_TARGET_SIZE           16u
-#define SP_IMAGE_HEADER_MIN_PROTOCOL_OFFSET   40u
-#define SP_IMAGE_HEADER_MIN_PROTOCOL_SIZE     1u
-#define SP_IMAGE_HEADER_MAX_PROTOCOL_OFFSET   41u
-#define SP_IMAGE_HEADER_MAX_PROTOCOL_SIZE     1u
-#define SP_IMAGE_HEADER_FLAGS_OFFSET          42u
-#define SP_IMAGE_HEADER_FLAGS_SIZE            2u
-#define SP_IMAGE_HEADER_BODY_SIZE_OFFSET      44u
-#define SP_IMAGE_HEADER_BODY_SIZE_SIZE        4u
-#define SP_IMAGE_HEADER_BODY_CRC_OFFSET       48u
-#define SP_IMAGE_HEADER_BODY_CRC_SIZE         4u
-#define SP_IMAGE_HEADER_BODY_SHA256_OFFSET    52u
-#define SP_IMAGE_HEADER_BODY_SHA256_SIZE      32u
-#define SP_IMAGE_HEADER_RESERVED_OFFSET       84u
-#define SP_IMAGE_HEADER_RESERVED_SIZE         8u
-#define SP_IMAGE_HEADER_HEADER_CRC_OFFSET     92u
-#define SP_IMAGE_HEADER_HEADER_CRC_SIZE       4u
+#define SP_IMAGE_HEADER_SIZE                    96u
+#define SP_IMAGE_HEADER_MAGIC_OFFSET            0u
+#define SP_IMAGE_HEADER_MAGIC_SIZE              4u
+#define SP_IMAGE_HEADER_HEADER_VERSION_OFFSET   4u
+#define SP_IMAGE_HEADER_HEADER_VERSION_SIZE     2u
+#define SP_IMAGE_HEADER_HEADER_SIZE_OFFSET      6u
+#define SP_IMAGE_HEADER_HEADER_SIZE_SIZE        2u
+#define SP_IMAGE_HEADER_VERSION_OFFSET          8u
+#define SP_IMAGE_HEADER_VERSION_SIZE            16u
+#define SP_IMAGE_HEADER_TARGET_OFFSET           24u
+#define SP_IMAGE_HEADER_TARGET_SIZE             16u
+#define SP_IMAGE_HEADER_MIN_PROTOCOL_OFFSET     40u
+#define SP_IMAGE_HEADER_MIN_PROTOCOL_SIZE       1u
+#define SP_IMAGE_HEADER_MAX_PROTOCOL_OFFSET     41u
+#define SP_IMAGE_HEADER_MAX_PROTOCOL_SIZE       1u
+#define SP_IMAGE_HEADER_FLAGS_OFFSET            42u
+#define SP_IMAGE_HEADER_FLAGS_SIZE              2u
+#define SP_IMAGE_HEADER_BODY_SIZE_OFFSET        44u
+#define SP_IMAGE_HEADER_BODY_SIZE_SIZE          4u
+#define SP_IMAGE_HEADER_BODY_CRC_OFFSET         48u
+#define SP_IMAGE_HEADER_BODY_CRC_SIZE           4u
+#define SP_IMAGE_HEADER_BODY_SHA256_OFFSET      52u
+#define SP_IMAGE_HEADER_BODY_SHA256_SIZE        32u
+#define SP_IMAGE_HEADER_SECURITY_COUNTER_OFFSET 84u
+#define SP_IMAGE_HEADER_SECURITY_COUNTER_SIZE   4u
+#define SP_IMAGE_HEADER_RESERVED_OFFSET         88u
+#define SP_IMAGE_HEADER_RESERVED_SIZE           4u
+#define SP_IMAGE_HEADER_HEADER_CRC_OFFSET       92u
+#define SP_IMAGE_HEADER_HEADER_CRC_SIZE         4u
 
 typedef struct {
     uint8_t magic[4]; /* the bytes SPFW */
@@ -845,11 +864,12 @@ typedef struct {
     uint8_t target[16]; /* board target the image runs on, NUL-padded */
     uint8_t min_protocol; /* lowest protocol version the firmware speaks */
     uint8_t max_protocol; /* highest protocol version the firmware speaks */
-    uint16_t flags; /* reserved, 0 */
+    uint16_t flags; /* bit 0: signed (a signature trailer follows the body); others 0 */
     uint32_t body_size; /* bytes of the body after the header */
     uint32_t body_crc; /* CRC-32C of the body */
     uint8_t body_sha256[32]; /* SHA-256 of the body */
-    uint8_t reserved[8]; /* zeros */
+    uint32_t security_counter; /* anti-rollback: a board refuses an image below its counter */
+    uint8_t reserved[4]; /* zeros */
     uint32_t header_crc; /* CRC-32C of the header bytes before this field */
 } sp_image_header_t;
 
@@ -867,6 +887,7 @@ static inline void sp_image_header_pack(const sp_image_header_t *h,
     sp_le_put_u32(out + SP_IMAGE_HEADER_BODY_SIZE_OFFSET, h->body_size);
     sp_le_put_u32(out + SP_IMAGE_HEADER_BODY_CRC_OFFSET, h->body_crc);
     memcpy(out + SP_IMAGE_HEADER_BODY_SHA256_OFFSET, h->body_sha256, sizeof h->body_sha256);
+    sp_le_put_u32(out + SP_IMAGE_HEADER_SECURITY_COUNTER_OFFSET, h->security_counter);
     memcpy(out + SP_IMAGE_HEADER_RESERVED_OFFSET, h->reserved, sizeof h->reserved);
     sp_le_put_u32(out + SP_IMAGE_HEADER_HEADER_CRC_OFFSET, h->header_crc);
 }
@@ -885,6 +906,7 @@ static inline void sp_image_header_unpack(const uint8_t in[SP_IMAGE_HEADER_SIZE]
     h->body_size = sp_le_get_u32(in + SP_IMAGE_HEADER_BODY_SIZE_OFFSET);
     h->body_crc = sp_le_get_u32(in + SP_IMAGE_HEADER_BODY_CRC_OFFSET);
     memcpy(h->body_sha256, in + SP_IMAGE_HEADER_BODY_SHA256_OFFSET, sizeof h->body_sha256);
+    h->security_counter = sp_le_get_u32(in + SP_IMAGE_HEADER_SECURITY_COUNTER_OFFSET);
     memcpy(h->reserved, in + SP_IMAGE_HEADER_RESERVED_OFFSET, sizeof h->reserved);
     h->header_crc = sp_le_get_u32(in + SP_IMAGE_HEADER_HEADER_CRC_OFFSET);
 }

@@ -68,8 +68,10 @@ def info_cmd(port: str) -> int:
     help="seconds to wait for the new firmware to answer",
 )
 def update_cmd(port: str, image: str, wait_s: float) -> int:
-    """Write IMAGE into the inactive slot, boot it once and confirm it once it answers HELLO;
-    a firmware that does not answer is rolled back by the board at its next reset."""
+    """Write IMAGE into the inactive slot, boot it once and confirm it once its self-test
+    passed, on the same board (serial and target checked). Prints the state the board reports
+    after: confirmed (exit 0), rolled back, or still on trial. A trial an interrupted update
+    left is finished (the same image) or rolled back first."""
     from spiel_edge.device.firmware import check_image, update_firmware
 
     data = _read_image(image)
@@ -98,25 +100,33 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
     finally:
         if line_open[0]:  # the error goes on a line of its own
             click.echo("", err=True)
-    if result.rolled_back:
-        click.echo(
-            f"the board came back with {result.version}: firmware {header.version} was rolled "
-            "back (it did not answer in time, or the board lost power before its confirmation "
-            "was stored)",
-            err=True,
+    click.echo(update_outcome_line(result, header.version), err=True)
+    return EXIT_OK if result.confirmed else EXIT_ERROR
+
+
+def update_outcome_line(result, version: str) -> str:
+    """One line: what the board reports after the update (its slot, version and state)."""
+    from spiel_edge.io.shown import escape
+
+    state = f"board {escape(result.serial)} runs {escape(result.version)} in slot {result.slot}"
+    if result.confirmed:
+        return (
+            f"firmware {escape(result.previous)} -> {escape(result.version)}, confirmed: "
+            f"{state} ({result.seconds:.1f} s)"
         )
-        return EXIT_ERROR
-    click.echo(
-        f"firmware {result.previous} -> {result.version}, confirmed ({result.seconds:.1f} s)",
-        err=True,
+    if result.rolled_back:
+        return f"firmware {escape(version)} was rolled back: {result.reason}; {state}, confirmed"
+    return (
+        f"firmware {escape(version)} is NOT confirmed ({result.reason}): {state} on trial; it "
+        "rolls back by itself unless `spiel-edge firmware confirm` keeps it"
     )
-    return EXIT_OK
 
 
 @command.command("confirm")
 @port_option
 def confirm_cmd(port: str) -> int:
-    """Keep the running trial image (what `update` does once the new firmware answers)."""
+    """Keep the running trial image (what `update` does once its self-test passed; the board
+    refuses before)."""
     from spiel_edge.device.firmware import confirm_firmware
 
     session = _open(port)
@@ -143,28 +153,149 @@ def confirm_cmd(port: str) -> int:
     type=click.Path(dir_okay=False),
     help="The image file to write (for `firmware update IMAGE`).",
 )
+@click.option(
+    "--key",
+    "key_path",
+    type=click.Path(dir_okay=False),
+    help="private key to sign with (keygen's KEY.key; needs the 'sign' extra). Boards refuse "
+    "unsigned images",
+)
+@click.option(
+    "--security-counter",
+    type=click.IntRange(0, 0xFFFF_FFFF),
+    default=0,
+    show_default=True,
+    help="anti-rollback counter: a board that confirmed an image with a higher one refuses this",
+)
+@click.option("--release", is_flag=True, help="refuse the development key")
 @force_option
-def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, force: bool) -> int:
-    """Wrap a firmware BODY (the target's binary) in an image header.
+def pack_cmd(
+    body: str,
+    version: str,
+    target: str,
+    protocol: str,
+    output: str,
+    key_path: str | None,
+    security_counter: int,
+    release: bool,
+    force: bool,
+) -> int:
+    """Wrap a firmware BODY (the target's binary) in an image header, signed with --key.
 
     For mps2-an386 the BODY is build/mps2/app.bin (make TARGET=mps2), the application linked
     for the boot stage's execution region."""
     from firmware_protocol.image import ImageError, check_body, pack_image
+    from spiel_edge.device.fwkeys import is_dev_key, load_private_key
 
     plan = FilePlan(force)
     plan.input_file(body, "BODY")
+    if key_path is not None:
+        plan.input_file(key_path, "--key")
     plan.output(output, "--output")
     try:
         low, high = (int(v) for v in protocol.split("-"))
     except ValueError as exc:
         raise InputError(f"--protocol must be LOW-HIGH, e.g. 1-2, got {protocol!r}") from exc
+    if key_path is None and release:
+        raise InputError("--release needs --key: a release image is signed")
+    signer = load_private_key(key_path) if key_path is not None else None
+    if signer is not None and is_dev_key(signer.public_key) and release:
+        raise InputError(f"--key {key_path}: the development key; --release refuses it")
     try:
         raw = _read_image(body)
         check_body(raw, target)
-        image = pack_image(raw, version=version, target=target, min_protocol=low, max_protocol=high)
+        image = pack_image(
+            raw,
+            version=version,
+            target=target,
+            min_protocol=low,
+            max_protocol=high,
+            security_counter=security_counter,
+            signer=signer,
+        )
     except (ValueError, ImageError) as exc:
         raise InputError(str(exc)) from exc
     with atomic_write(output, "wb") as fh:
         fh.write(image)
-    click.echo(f"{output}: {version} for {target}, {len(image)} bytes", err=True)
+    if signer is None:
+        how = "UNSIGNED: boards refuse it (FW_UNSIGNED); sign with --key"
+    elif is_dev_key(signer.public_key):
+        how = f"signed with the DEVELOPMENT key {signer.key_id}"
+    else:
+        how = f"signed with key {signer.key_id}"
+    click.echo(
+        f"{output}: {version} for {target}, security counter {security_counter}, "
+        f"{len(image)} bytes, {how}",
+        err=True,
+    )
+    return EXIT_OK
+
+
+@command.command("check")
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.option(
+    "--pub",
+    "pub_path",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="the public key file a board is built with (keygen's NAME.pub)",
+)
+@click.option(
+    "--min-counter",
+    type=click.IntRange(0, 0xFFFF_FFFF),
+    default=0,
+    show_default=True,
+    help="the board's security counter",
+)
+def check_cmd(image: str, pub_path: str, min_counter: int) -> int:
+    """Check IMAGE offline as a board built with --pub would at FW_VERIFY: intact, signed by
+    that key, its security counter at least --min-counter (exit 0), or say why not (exit 2)."""
+    from firmware_protocol.image import ImageError, verify_image
+    from firmware_protocol.signing import parse_public_key_text
+
+    plan = FilePlan(False)
+    plan.input_file(image, "IMAGE")
+    plan.input_file(pub_path, "--pub")
+    try:
+        public = parse_public_key_text(Path(pub_path).read_text(errors="replace"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"--pub {pub_path}: {exc}") from exc
+    try:
+        header = verify_image(_read_image(image), public, min_counter)
+    except ImageError as exc:
+        code = getattr(exc, "code", None)
+        raise InputError(
+            f"{image}: {exc}" + (f" ({code.name})" if code is not None else "")
+        ) from exc
+    click.echo(
+        f"{image}: firmware {header.version} for {header.target}, security counter "
+        f"{header.security_counter}, signed by key {header.key_id.hex()}: a board with this key "
+        "accepts it",
+        err=True,
+    )
+    return EXIT_OK
+
+
+@command.command("keygen")
+@click.argument("name", type=click.Path(dir_okay=False))
+@force_option
+def keygen_cmd(name: str, force: bool) -> int:
+    """Make a signing key pair: NAME.key (private, mode 0600: keep it off the robot) and
+    NAME.pub (the public key; build the boot stage with make FW_KEY=NAME.pub)."""
+    from spiel_edge.device.fwkeys import generate_key
+
+    private, public = Path(name + ".key"), Path(name + ".pub")
+    plan = FilePlan(force)
+    plan.output(private, "NAME.key")
+    plan.output(public, "NAME.pub")
+    if force:
+        private.unlink(missing_ok=True)  # written anew with O_EXCL and mode 0600
+    try:
+        key = generate_key(private, public)
+    except OSError as exc:
+        raise InputError(f"{name}: cannot write the key ({exc.strerror or exc})") from exc
+    click.echo(f"{private}: private key (mode 0600), key id {key.key_id}", err=True)
+    click.echo(
+        f"{public}: public key: make -C firmware_protocol/firmware FW_KEY={public}", err=True
+    )
     return EXIT_OK

@@ -17,9 +17,14 @@ from dataclasses import dataclass
 
 from crc32c import crc32c
 
-from firmware_protocol import MAX_PAYLOAD, Capability, Message
+from firmware_protocol import MAX_PAYLOAD, Capability, ErrorCode, Message
 from firmware_protocol.image import ImageError, ImageHeader, parse_image
-from firmware_protocol.messages import MAX_PROTOCOL_VERSION, MIN_PROTOCOL_VERSION
+from firmware_protocol.messages import (
+    MAX_PROTOCOL_VERSION,
+    MIN_PROTOCOL_VERSION,
+    Reboot,
+    RebootMode,
+)
 from firmware_protocol.v2_messages import (
     BootState,
     FwBegin,
@@ -33,11 +38,13 @@ from firmware_protocol.v2_messages import (
     FwVerifyResponse,
     FwWrite,
     FwWriteResponse,
+    SelfTest,
     SlotState,
     TimeSync,
     TimeSyncResponse,
 )
 from spiel_edge.errors import DeviceError, DeviceRequestError
+from spiel_edge.io.shown import escape
 
 log = logging.getLogger(__name__)
 
@@ -57,12 +64,24 @@ WRITE_OVERHEAD = 6  # FW_WRITE's fixed part
 
 @dataclass(frozen=True)
 class UpdateResult:
+    """What the board reports after the update (FW_INFO and HELLO of the same board)."""
+
     previous: str  # firmware version before
-    version: str  # the version now running
-    confirmed: bool  # the new image is permanent
-    rolled_back: bool  # the board came back with the old image
+    version: str  # the version the board runs now
+    confirmed: bool  # it runs the new image, confirmed (the state it reports)
+    rolled_back: bool  # it runs the old image again
     bytes_sent: int
     seconds: float
+    serial: str = ""  # the board (checked: the one the update started with)
+    slot: int = 0xFF  # the running slot it reports
+    boot_state: int = BootState.CONFIRMED
+    reason: str = ""  # why it rolled back, or why it is still on trial
+
+    @property
+    def outcome(self) -> str:
+        if self.confirmed:
+            return "confirmed"
+        return "rolled back" if self.rolled_back else "trial"
 
 
 def check_image(image: bytes) -> ImageHeader:
@@ -72,6 +91,11 @@ def check_image(image: bytes) -> ImageHeader:
         header = parse_image(image)
     except ImageError as exc:
         raise DeviceError(f"refused: {exc}") from exc
+    if not header.signed:
+        raise DeviceError(
+            "refused: the image is not signed; boards boot only signed images "
+            "(spiel-edge firmware pack --key KEY)"
+        )
     if not header.speaks(MIN_PROTOCOL_VERSION, MAX_PROTOCOL_VERSION):
         raise DeviceError(
             f"refused: firmware {header.version} speaks protocol {header.min_protocol}-"
@@ -131,8 +155,18 @@ def describe_info(info: FwInfo, hello=None) -> list[str]:
             f"crc32c {crc:08x}"
         )
     if info.boot_state == BootState.TRIAL:
+        tests = {
+            SelfTest.NONE: "no self-test reported",
+            SelfTest.PENDING: "self-test pending",
+            SelfTest.RUNNING: "self-test running",
+            SelfTest.PASSED: "self-test passed",
+            SelfTest.FAILED: "self-test FAILED: it resets and rolls back by itself",
+        }
         lines.append(
-            "  the running image is on trial: `spiel-edge firmware confirm` keeps it, a reset rolls back"
+            f"  the running image is on trial ({tests.get(info.selftest, info.selftest)}), left "
+            "by an update that did not finish: `spiel-edge firmware update` with the same image "
+            "finishes it, `spiel-edge firmware confirm` keeps it, a reset (or its watchdog, "
+            "when nobody confirms it) rolls back"
         )
     return lines
 
@@ -152,7 +186,11 @@ def update_firmware(
     test_delay_ms: int = 100,
 ) -> UpdateResult:
     """The whole update; DeviceError with a one-line reason when it is refused or fails.
-    ``progress(sent, total)`` after every chunk (tests interrupt the host there)."""
+    ``progress(sent, total)`` after every chunk (tests interrupt the host there).
+
+    The outcome is the state the same board (serial number and target checked after every
+    reconnection) reports at the end: slot, version, confirmed or trial. A trial left by a
+    host that died is resolved first: the same image is finished, another one rolled back."""
     header = check_image(image)
     if open_session is None:
         open_session = _default_open
@@ -163,11 +201,13 @@ def update_firmware(
     try:
         _need_update_support(session)
         hello = session.hello
-        previous, boot_id = hello.firmware_version, hello.boot_id
+        board = (hello.serial, "")
         info = firmware_info(session)
+        board = (hello.serial, info.target)
         if info.target != header.target:
             raise DeviceError(
-                f"refused: the image is for target {header.target!r}, the board runs {info.target!r}"
+                f"refused: the image is for target {escape(header.target)!r}, the board runs "
+                f"{escape(info.target)!r}"
             )
         if len(image) > info.slot_size:
             raise DeviceError(
@@ -175,37 +215,252 @@ def update_firmware(
                 f"{info.slot_size}-byte slot"
             )
         if info.boot_state == BootState.TRIAL:
-            raise DeviceError(
-                f"{url}: the running firmware {previous} is on trial: `spiel-edge firmware "
-                "confirm` it (or reset the board to roll back) before another update"
+            running = info.running_slot
+            # the version too: a whole image's CRC-32C depends on its body only (the header
+            # ends with its own CRC)
+            same = running in (0, 1) and (
+                hello.firmware_version == header.version
+                and getattr(info, f"slot{running}_version") == header.version
+                and getattr(info, f"slot{running}_crc") == crc
+                and getattr(info, f"slot{running}_size") == len(image)
             )
+            if same:  # an update whose host died after the test boot: finish it
+                log.warning(
+                    "%s: board %s runs this image on trial (an update that did not finish): "
+                    "finishing it",
+                    url,
+                    escape(hello.serial),
+                )
+                return _settle(
+                    session,
+                    url,
+                    header,
+                    board,
+                    running,
+                    hello.firmware_version,
+                    open_session,
+                    boot_wait_s,
+                    len(image),
+                    started,
+                )
+            session = _roll_back_trial(session, url, board, open_session, boot_wait_s)
+            hello = session.hello
+        previous, boot_id = hello.firmware_version, hello.boot_id
         session.stop_stream(retries=1) if getattr(session, "_stream_request", None) else None
         try:
             begin = _upload(session, url, image, crc, sha, progress)
             clock_at_test = _board_clock_us(session)
             session.request(FwTest(test_delay_ms))
-        except DeviceRequestError:
-            raise  # the board refused: the reason says why, running it again would not help
+        except DeviceRequestError as exc:  # refused: the reason says why, again would not help
+            raise _refusal(exc, url, header.version, previous) from exc
         except DeviceError as exc:  # the link failed; nothing switched: the running one stays
             raise DeviceError(
-                f"{exc}; the board keeps firmware {previous} (the new one was not started): "
-                "run the update again"
+                f"{exc}; the board keeps firmware {escape(previous)} (the new one was not "
+                "started): run the update again"
             ) from exc
         log.info(
             "%s: firmware %s written to slot %d; booting it once", url, header.version, begin.slot
         )
-    finally:
+    except BaseException:
         _close(session)
-    return _await_new_firmware(
+        raise
+    _close(session)
+    session = _wait_board(
+        url,
+        open_session,
+        board,
+        (boot_id, clock_at_test),
+        boot_wait_s,
+        f"firmware {escape(header.version)} is not confirmed",
+    )
+    return _settle(
+        session,
         url,
         header,
+        board,
+        begin.slot,
         previous,
-        (boot_id, clock_at_test),
         open_session,
         boot_wait_s,
         len(image),
         started,
     )
+
+
+def _other_board(url: str, board: tuple[str, str], hello, target: str | None) -> str | None:
+    serial, want_target = board
+    if hello.serial != serial:
+        return f"serial {escape(hello.serial)}"
+    if target is not None and want_target and target != want_target:
+        return f"target {escape(target)}"
+    return None
+
+
+def _wait_board(url, open_session, board, before, wait_s, what):
+    """The session of the same board once it rebooted (new boot_id, or its clock restarted);
+    DeviceError in one line when another board answers at ``url`` or none does in time."""
+    boot_id, clock_at_test = before
+    deadline = time.monotonic() + wait_s
+    last_error = "no answer"
+    time.sleep(0.05)
+    while time.monotonic() < deadline:
+        try:
+            session = open_session(url)
+        except DeviceError as exc:
+            last_error = str(exc)
+            time.sleep(RETRY_OPEN_S)
+            continue
+        try:
+            other = _other_board(url, board, session.hello, None)
+            if other is None and _rebooted(session, boot_id, clock_at_test):
+                info = firmware_info(session)
+                other = _other_board(url, board, session.hello, info.target)
+                if other is None:
+                    return session
+            if other is not None:
+                raise DeviceError(
+                    f"{url}: another board answers ({other}), not board {escape(board[0])} "
+                    f"(target {escape(board[1])}) that was updated: {what} and nothing was "
+                    f"confirmed; find board {escape(board[0])} and run `spiel-edge firmware "
+                    "info` on it"
+                )
+        except DeviceRequestError as exc:
+            last_error = str(exc)
+        except DeviceError:
+            _close(session)
+            raise
+        _close(session)
+        time.sleep(RETRY_OPEN_S)
+    raise DeviceError(
+        f"{url}: no board answered within {wait_s:g} s ({last_error}): {what}; board "
+        f"{escape(board[0])} rolls an unconfirmed trial back by itself (its watchdog), "
+        "`spiel-edge firmware info` shows where it stands"
+    )
+
+
+class _TrialReset(Exception):
+    """The trial resets itself (its self-test failed): wait for the board again."""
+
+
+def _await_selftest(session, deadline: float) -> tuple[FwInfo, int]:
+    """FW_INFO polled until the trial's self-test passed or failed (or ``deadline``)."""
+    while True:
+        info = firmware_info(session)
+        if info.selftest in (SelfTest.PASSED, SelfTest.FAILED, SelfTest.NONE):
+            return info, info.selftest
+        if time.monotonic() >= deadline:
+            return info, info.selftest
+        time.sleep(0.05)
+
+
+def _settle(session, url, header, board, slot, previous, open_session, wait_s, sent, started):
+    """After the test boot: wait for the trial's self-test, confirm it only when it passed,
+    and report the state the board reports afterwards."""
+    reason = ""
+    try:
+        info = firmware_info(session)
+        hello = session.hello
+        on_trial = (
+            info.running_slot == slot
+            and info.boot_state == BootState.TRIAL
+            and hello.firmware_version == header.version
+        )
+        if on_trial:
+            try:
+                info, test = _await_selftest(session, time.monotonic() + wait_s)
+                if test in (SelfTest.PASSED, SelfTest.NONE):  # NONE: a board without one
+                    try:
+                        confirm_firmware(session)
+                    except DeviceRequestError as exc:
+                        reason = f"FW_CONFIRM refused: {exc}"
+                elif test == SelfTest.FAILED:
+                    reason = (
+                        "its self-test failed (the sensor did not answer or no acquisition "
+                        "completed)"
+                    )
+                    raise _TrialReset
+                else:
+                    reason = f"its self-test did not finish within {wait_s:g} s"
+            except (_TrialReset, DeviceError) as exc:
+                if isinstance(exc, DeviceRequestError):
+                    raise
+                if not reason:  # the link went: the trial reset (crashed, or its watchdog)
+                    reason = "the trial image reset before it was confirmed"
+                boot_id = hello.boot_id
+                _close(session)
+                session = _wait_board(
+                    url,
+                    open_session,
+                    board,
+                    (boot_id, None),
+                    wait_s,
+                    f"firmware {escape(header.version)} is not confirmed",
+                )
+        elif hello.firmware_version != header.version or info.running_slot != slot:
+            reason = (
+                "the new firmware did not start or did not answer in time (its watchdog or a "
+                "reset rolled it back, or the power went before its confirmation was stored)"
+            )
+        info = firmware_info(session)
+        hello = session.hello
+    finally:
+        _close(session)
+    new = info.running_slot == slot and hello.firmware_version == header.version
+    confirmed = new and info.boot_state == BootState.CONFIRMED and info.confirmed_slot == slot
+    if new and not confirmed and not reason:
+        reason = "it runs unconfirmed"
+    result = UpdateResult(
+        previous,
+        hello.firmware_version,
+        confirmed,
+        not new,
+        sent,
+        time.monotonic() - started,
+        hello.serial,
+        info.running_slot,
+        info.boot_state,
+        reason,
+    )
+    log.info(
+        "%s: board %s reports firmware %s, %s",
+        url,
+        escape(hello.serial),
+        escape(hello.firmware_version),
+        result.outcome,
+    )
+    return result
+
+
+def _roll_back_trial(session, url, board, open_session, wait_s):
+    """A trial of another image (a host that died mid-update left it): reset the board so
+    that its boot stage rolls it back, and return the session of the same board after."""
+    hello = session.hello
+    info = firmware_info(session)
+    log.warning(
+        "%s: board %s runs firmware %s on trial (an update that did not finish): rolling it "
+        "back first",
+        url,
+        escape(hello.serial),
+        escape(hello.firmware_version),
+    )
+    clock = _board_clock_us(session)
+    try:
+        session.request(Reboot(RebootMode.NORMAL, 100))
+    finally:
+        _close(session)
+    session = _wait_board(
+        url,
+        open_session,
+        board,
+        (hello.boot_id, clock),
+        wait_s,
+        "the unfinished trial was not rolled back",
+    )
+    info = firmware_info(session)
+    if info.boot_state == BootState.TRIAL:
+        _close(session)
+        raise DeviceError(f"{url}: the board stays on its trial image after a reset")
+    return session
 
 
 def _upload(session, url: str, image: bytes, crc: int, sha: bytes, progress) -> FwBeginResponse:
@@ -263,46 +518,6 @@ def _rebooted(session, boot_id: int, clock_at_test: int | None) -> bool:
     return True
 
 
-def _await_new_firmware(url, header, previous, before, open_session, wait_s, sent, started):
-    boot_id, clock_at_test = before
-    deadline = time.monotonic() + wait_s
-    last_error = "no answer"
-    time.sleep(0.05)
-    while time.monotonic() < deadline:
-        try:
-            session = open_session(url)
-        except DeviceError as exc:
-            last_error = str(exc)
-            time.sleep(RETRY_OPEN_S)
-            continue
-        try:
-            hello = session.hello
-            if not _rebooted(session, boot_id, clock_at_test):  # not yet
-                _close(session)
-                time.sleep(RETRY_OPEN_S)
-                continue
-            if hello.firmware_version != header.version:
-                return UpdateResult(
-                    previous, hello.firmware_version, False, True, sent, time.monotonic() - started
-                )
-            info = firmware_info(session)
-            if info.boot_state == BootState.TRIAL:
-                confirm_firmware(session)
-            log.info("%s: firmware %s answers HELLO: confirmed", url, header.version)
-            return UpdateResult(
-                previous, header.version, True, False, sent, time.monotonic() - started
-            )
-        except DeviceError as exc:
-            last_error = str(exc)
-        finally:
-            _close(session)
-        time.sleep(RETRY_OPEN_S)
-    raise DeviceError(
-        f"{url}: the new firmware {header.version} did not answer HELLO within {wait_s:g} s "
-        f"({last_error}); it is not confirmed: the board rolls back to {previous} at its next reset"
-    )
-
-
 def _default_open(url: str):
     from spiel_edge.device import DeviceSession
 
@@ -316,3 +531,26 @@ def _close(session) -> None:
         session.close()
     except DeviceError as exc:
         log.debug("close: %s", exc)
+
+
+# the board's FW_VERIFY answers for an image it does not trust (PROTOCOL.md § 14.6)
+_AUTH_CODES = (
+    ErrorCode.FW_UNSIGNED,
+    ErrorCode.FW_BAD_SIGNATURE,
+    ErrorCode.FW_WRONG_KEY,
+    ErrorCode.FW_ROLLBACK,
+)
+
+
+def _refusal(exc: DeviceRequestError, url: str, version: str, previous: str) -> DeviceError:
+    """One line: why the board refused the image, and that it keeps what it runs."""
+    if exc.code not in _AUTH_CODES:
+        return exc
+    code = ErrorCode(exc.code)
+    detail = str(exc).split("): ", 1)[-1] if "): " in str(exc) else ""
+    return DeviceRequestError(
+        f"{url}: the board refused firmware {version}: {code.text} ({code.name}"
+        f"{': ' + detail if detail else ''}); it keeps firmware {previous}",
+        exc.code,
+        exc.request_type,
+    )

@@ -16,7 +16,7 @@ from crc32c import crc32c
 
 from firmware_protocol import Capability, ErrorCode, ErrorResponse, encode_message
 from firmware_protocol import messages as m
-from firmware_protocol.image import ImageError, parse_image
+from firmware_protocol.image import ImageError, ImageRefused, parse_image, verify_image
 from firmware_protocol.v2_messages import (
     KNOWN_ERROR_FLAGS,
     SHA256_SIZE,
@@ -24,6 +24,7 @@ from firmware_protocol.v2_messages import (
     BootState,
     ErrorFlag,
     LogLevel,
+    SelfTest,
 )
 from spiel_edge.sim.faults import Outgoing
 from spiel_edge.sim.firmware_slots import NO_SLOT, SILENT_MARK, TARGET, FirmwareFlash
@@ -94,6 +95,33 @@ class BoardV2Mixin:
         refused = self._need_v2(req) if handler is not None else None
         return handler if refused is None else (lambda req, now: refused)
 
+    no_sensor = False  # set by the link from its options
+    trial_window_s = 60.0
+    SELFTEST_S = 0.02  # one acquisition
+
+    def selftest(self, now: float) -> int:
+        """A trial's self-test (the C core's: one acquisition within 1 s), advanced to now: a
+        failure resets the board 2 s later and the boot stage rolls the trial back."""
+        if self.fw.boot_state != BootState.TRIAL:
+            return SelfTest.NONE
+        if self._selftest == SelfTest.RUNNING and now >= self._selftest_at:
+            if self.no_sensor:
+                self._selftest = SelfTest.FAILED
+                self.board_log(
+                    LogLevel.ERROR, "self-test failed: the sensor refused a trigger", now
+                )
+                self.reboot_at = now + 2.0
+            else:
+                self._selftest = SelfTest.PASSED
+                self.board_log(LogLevel.NOTICE, "self-test passed", now)
+        return self._selftest
+
+    def trial_expired(self, now: float) -> bool:
+        """The trial window passed unconfirmed: the watchdog is no longer kicked."""
+        return (
+            self.fw.boot_state == BootState.TRIAL and now - self._boot_time >= self.trial_window_s
+        )
+
     def _v2_boot(self, now: float) -> None:
         for _ in range(3):  # the bootloader's record writes may be cut too: boot again
             try:
@@ -122,6 +150,8 @@ class BoardV2Mixin:
         )
         self.firmware_version = image.version if image is not None else "recovery"
         self._image_max_protocol = image.max_protocol if image is not None else 2
+        self._selftest = SelfTest.RUNNING
+        self._selftest_at = now + self.SELFTEST_S
         trial = " (trial: FW_CONFIRM keeps it)" if self.fw.boot_state == BootState.TRIAL else ""
         self.board_log(
             LogLevel.NOTICE,
@@ -195,6 +225,8 @@ class BoardV2Mixin:
         flags = self.heartbeat_extra_flags
         if self.fw.boot_state == BootState.TRIAL:
             flags |= ErrorFlag.TRIAL_IMAGE
+            if getattr(self, "_selftest", None) == SelfTest.FAILED:
+                flags |= ErrorFlag.SENSOR
         if self._log_dropped:
             flags |= ErrorFlag.LOG_DROPPED
         if getattr(self, "flash", None) is not None and self.flash.active() is None:
@@ -272,7 +304,9 @@ class BoardV2Mixin:
         boot_state = fw.boot_state
         if rec.state == BootState.TEST_PENDING:
             boot_state = BootState.TEST_PENDING
-        return m.FwInfo(fw.running, boot_state, rec.confirmed, 0, fw.slot_size, TARGET, *slots)
+        return m.FwInfo(
+            fw.running, boot_state, rec.confirmed, self.selftest(now), fw.slot_size, TARGET, *slots
+        )
 
     def _fw_begin(self, req: m.FwBegin, now: float) -> m.Message:
         fw = self.fw
@@ -337,6 +371,9 @@ class BoardV2Mixin:
         else:
             try:
                 header = parse_image(image)
+                verify_image(image, self.fw.public_key, self.fw.record().security_counter)
+            except ImageRefused as exc:  # unsigned, another key, tampered, a downgrade
+                error = (exc.code, str(exc))
             except ImageError as exc:
                 error = (ErrorCode.INVALID, str(exc))
             else:
@@ -371,6 +408,14 @@ class BoardV2Mixin:
         if self.fw.running == NO_SLOT:
             return ErrorResponse(ErrorCode.BAD_STATE, req.MSG_TYPE, "no image is running")
         was_trial = self.fw.boot_state == BootState.TRIAL
+        test = self.selftest(now)
+        if was_trial and test != SelfTest.PASSED:
+            text = (
+                "the self-test failed: the trial rolls back"
+                if test == SelfTest.FAILED
+                else "the self-test has not passed yet"
+            )
+            return ErrorResponse(ErrorCode.BAD_STATE, req.MSG_TYPE, text)
         self.fw.confirm()
         if was_trial:
             self.board_log(LogLevel.NOTICE, f"firmware {self.firmware_version} confirmed", now)

@@ -149,6 +149,12 @@ class SimDevice:
         board = self.board
         while self._delayed and self._delayed[0][0] <= now:
             self._tx += self._delayed.pop(0)[1]
+        board.no_sensor = self.options.no_sensor
+        board.trial_window_s = self.options.trial_window_ms / 1000.0
+        if board.trial_expired(now):  # an unconfirmed trial stopped kicking its watchdog
+            log.info("%s: watchdog reset of an unconfirmed trial image", self.options.serial)
+            self.unplug(now, REBOOT_S)
+            return
         if board.silent and board.fw.boot_state != 0:  # a trial image that hangs
             if self._silent_since is None:
                 self._silent_since = now

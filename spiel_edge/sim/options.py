@@ -40,6 +40,8 @@ class SimOptions:
     heartbeat_flags: int = 0  # extra HEARTBEAT error_flags bits (unknown ones: 0x8000)
     log_flood: float = 0.0  # LOG lines per second past the board's own limit (a bad firmware)
     watchdog_ms: float = 3000.0  # a trial image that never answers is reset after this
+    trial_window_ms: float = 60000.0  # an unconfirmed trial stops kicking its watchdog after this
+    no_sensor: bool = False  # the front end never answers: a trial's self-test fails
     start_at: bool = True  # offers START_AT (False: a version-2 firmware from before it)
     # identity
     serial: str = "SIM0001"
@@ -115,6 +117,7 @@ class SimOptions:
         need(0 <= self.heartbeat_flags <= 0xFFFFFFFF, "heartbeat_flags must be a u32")
         need(0 <= self.log_flood <= 100000, f"log_flood must be in [0, 1e5], got {self.log_flood}")
         need(self.watchdog_ms > 0, "watchdog_ms must be > 0")
+        need(self.trial_window_ms > 0, "trial_window_ms must be > 0")
         need(0 <= self.vid <= 0xFFFF and 0 <= self.pid <= 0xFFFF, "vid and pid must be 16-bit")
 
 

@@ -47,26 +47,46 @@ def _compile(out: Path, sources: list[Path], includes: list[Path], defines: dict
     return out
 
 
+VENDOR = FIRMWARE / "vendor" / "monocypher"
+DEV_PUB = FIRMWARE / "keys" / "dev.pub"  # the key boards built here trust (FW_KEY)
+
+
 def core_sources() -> list[Path]:
-    return sorted((FIRMWARE / "core").glob("*.c")) + [PROTO / "spiel_proto.c"]
+    return (
+        sorted((FIRMWARE / "core").glob("*.c"))
+        + [PROTO / "spiel_proto.c"]
+        + [VENDOR / "monocypher.c", VENDOR / "monocypher-ed25519.c"]
+    )
 
 
-def build_posix(out_dir: Path, **defines) -> Path:
+def _key_define(defines: dict, key: Path | None) -> tuple[dict, str]:
+    """The public key built in (the Makefile's FW_KEY): a define, and a name suffix."""
+    key = DEV_PUB if key is None else Path(key)
+    return {
+        **defines,
+        "SPIEL_FW_KEY_FILE": f'"{key.resolve()}"',
+    }, "" if key == DEV_PUB else f"_{key.stem}"
+
+
+def build_posix(out_dir: Path, key: Path | None = None, **defines) -> Path:
     """The posix target, e.g. ``build_posix(d, SPIEL_MAX_PAYLOAD=256)``; with its firmware
     image slots (``--images DIR``) unless ``SPIEL_FW_UPDATE=0``, and I/Q streams (its recordings'
-    amplitude as i, q = 0) unless ``SPIEL_IQ_SAMPLES=0``."""
+    amplitude as i, q = 0) unless ``SPIEL_IQ_SAMPLES=0``. ``key``: the public key file it
+    trusts (default the development key)."""
     defines = {"SPIEL_FW_UPDATE": 1, "SPIEL_FW_EXEC_COPY": 1, "SPIEL_IQ_SAMPLES": 1, **defines}
     out_dir.mkdir(parents=True, exist_ok=True)
     name = "spiel_fw_posix" + "".join(f"_{k}{v}" for k, v in sorted(defines.items()))
+    defines, suffix = _key_define(defines, key)
     sources = core_sources() + sorted((FIRMWARE / "targets" / "posix").glob("*.c"))
     includes = [FIRMWARE / "include", FIRMWARE / "core", PROTO, FIRMWARE / "targets" / "posix"]
-    return _compile(out_dir / name, sources, includes, defines)
+    return _compile(out_dir / (name + suffix), sources, includes + [VENDOR], defines)
 
 
 def build_driver(out_dir: Path, **defines) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     name = "core_driver" + "".join(f"_{k}{v}" for k, v in sorted(defines.items()))
-    includes = [FIRMWARE / "include", FIRMWARE / "core", PROTO]
+    includes = [FIRMWARE / "include", FIRMWARE / "core", PROTO, VENDOR]
+    defines, _ = _key_define(defines, None)
     return _compile(out_dir / name, core_sources() + [DRIVER], includes, defines)
 
 

@@ -24,3 +24,17 @@ def sim_url():
     yield make
     for url in made:
         protocol_sim.forget(url)
+
+
+@pytest.fixture(scope="module")
+def posix(tmp_path_factory):
+    """The posix C firmware with firmware update (built once per module) and 20 recordings:
+    (executable, scans file)."""
+    from spiel_edge.data import load_subset
+    from tests.firmware.firmware import build_posix
+    from tools.release.firmware_scans import write_scans
+
+    d = tmp_path_factory.mktemp("fw-posix-v2")
+    exe = build_posix(d / "build")
+    scans = write_scans(d / "scans.spas", load_subset().frames[:20], 22000)
+    return exe, scans

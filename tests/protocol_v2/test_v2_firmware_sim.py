@@ -10,15 +10,15 @@ import time
 import pytest
 from crc32c import crc32c
 
-from firmware_protocol.image import pack_image
 from firmware_protocol.v2_messages import BootState, FwBegin, FwVerify
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError, DeviceRequestError
 from spiel_edge.sim.protocol_sim import device_for_url
+from tests.fwsign import signed_image
 
-NEW = pack_image(b"SIM:OK " + bytes(range(256)) * 12, version="sim-0.2.0", target="sim")
+NEW = signed_image(b"SIM:OK " + bytes(range(256)) * 12, version="sim-0.2.0", target="sim")
 
 
 class Killed(Exception):
@@ -63,6 +63,7 @@ def test_a_reboot_that_repeats_the_boot_id_is_seen_by_the_clock(sim_url, caplog)
     board = device_for_url(url).board
     board._rng.getrandbits = lambda bits: 0x5EED  # every boot draws the same id
     board.boot_id = 0x5EED
+    board._boot_time -= 5.0  # up for 5 s: its clock after the reboot is behind FW_TEST's
     with caplog.at_level("WARNING", logger="spiel_edge.device.firmware"):
         result = update_firmware(url, NEW, boot_wait_s=5)
     assert result.confirmed and result.version == "sim-0.2.0"
@@ -71,7 +72,7 @@ def test_a_reboot_that_repeats_the_boot_id_is_seen_by_the_clock(sim_url, caplog)
 
 def test_a_firmware_that_never_answers_is_rolled_back(sim_url) -> None:
     url = sim_url("watchdog_ms=500")
-    silent = pack_image(b"SIM:SILENT", version="sim-bad", target="sim")
+    silent = signed_image(b"SIM:SILENT", version="sim-bad", target="sim")
     result = update_firmware(url, silent, boot_wait_s=10)
     assert result.rolled_back and not result.confirmed and result.version == "sim-0.1.0"
     assert hello_version(url) == "sim-0.1.0"
@@ -154,11 +155,11 @@ def test_refused_before_the_switch(sim_url, tmp_path, capsys) -> None:
         "truncated": (NEW[:-10], "truncated"),
         "hash": (NEW[:200] + bytes([NEW[200] ^ 1]) + NEW[201:], "corrupt"),
         "protocol": (
-            pack_image(b"SIM:OK", version="v9", target="sim", min_protocol=3, max_protocol=4),
+            signed_image(b"SIM:OK", version="v9", target="sim", min_protocol=3, max_protocol=4),
             "protocol 3-4",
         ),
-        "target": (pack_image(b"SIM:OK", version="v9", target="mps2-an386"), "target"),
-        "large": (pack_image(b"SIM:OK" * 20000, version="big", target="sim"), "larger than"),
+        "target": (signed_image(b"SIM:OK", version="v9", target="mps2-an386"), "target"),
+        "large": (signed_image(b"SIM:OK" * 20000, version="big", target="sim"), "larger than"),
     }
     for name, (image, message) in cases.items():
         path = tmp_path / f"{name}.img"
@@ -174,7 +175,7 @@ def test_the_cli_says_what_a_failed_upload_leaves(sim_url, tmp_path, capsys) -> 
     the progress), saying the running firmware stays and to run the update again; a bad
     --wait is refused before the board is touched; pack names the value at fault."""
     path = tmp_path / "new.img"
-    path.write_bytes(pack_image(bytes(range(256)) * 200, version="sim-0.2.0", target="sim"))
+    path.write_bytes(signed_image(bytes(range(256)) * 200, version="sim-0.2.0", target="sim"))
     url = sim_url("max_payload=1024&fw_power_cut=3")
     capsys.readouterr()
     assert main(["firmware", "update", "--port", url, str(path)]) == 2
@@ -206,3 +207,65 @@ def test_firmware_info_and_a_version_1_board(sim_url, capsys) -> None:
     assert "target sim" in out and "slot 0: verified, version sim-0.1.0" in out
     assert main(["firmware", "info", "--port", sim_url("protocol=1")]) == 2
     assert "does not offer firmware update (protocol 1)" in capsys.readouterr().err
+
+
+def test_virtual_board_sensorless_trial_fails_its_self_test_and_rolls_back(sim_url) -> None:
+    """The virtual board runs the C core's self-test: with no sensor the trial refuses
+    FW_CONFIRM, resets itself and rolls back; the host reports the state it reports after."""
+    url = sim_url("no_sensor=1")
+    result = update_firmware(url, NEW, boot_wait_s=10)
+    assert (result.outcome, result.version) == ("rolled back", "sim-0.1.0")
+    assert "self-test failed" in result.reason
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert (info.boot_state, info.selftest, info.running_slot) == (0, 0, info.confirmed_slot)
+
+
+def test_virtual_board_trial_nobody_confirms_rolls_back_after_its_window(sim_url) -> None:
+    """A host killed after FW_TEST: the trial passes its self-test, FW_INFO says so, and with
+    nobody confirming it the watchdog resets it after the trial window: rolled back."""
+    from firmware_protocol.v2_messages import FwConfirm, FwTest, SelfTest
+
+    url = sim_url("trial_window_ms=1500")
+    with DeviceSession(url, reconnect=False) as dev:
+        dev.request(FwBegin(len(NEW), crc32c(NEW), hashlib.sha256(NEW).digest()))
+        from firmware_protocol.v2_messages import FwWrite
+
+        for off in range(0, len(NEW), 1000):
+            dev.request(FwWrite(off, NEW[off : off + 1000]))
+        dev.request(FwVerify())
+        dev.request(FwTest(50))
+    deadline = time.monotonic() + 5
+    while hello_version(url) != "sim-0.2.0":  # the test boot
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert info.boot_state == BootState.TRIAL
+        if info.selftest != SelfTest.PASSED:  # before the first acquisition: refused
+            with pytest.raises(DeviceRequestError, match="self-test"):
+                dev.request(FwConfirm())
+    deadline = time.monotonic() + 10
+    while hello_version(url) != "sim-0.1.0":
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+
+
+def test_a_silent_image_of_the_same_version_is_reported_rolled_back(sim_url) -> None:
+    """Issue 43: an image with the running image's own version that never answers: the
+    watchdog rolls it back, and the host must not take the old image's HELLO (same version)
+    for the new one: the outcome comes from the slot the board reports."""
+    from spiel_edge.sim.firmware_slots import FACTORY_VERSION, SILENT_MARK
+
+    url = sim_url("watchdog_ms=500")
+    same = signed_image(SILENT_MARK + bytes(300), version=FACTORY_VERSION, target="sim")
+    result = update_firmware(url, same, boot_wait_s=10)
+    assert (result.outcome, result.version, result.confirmed) == (
+        "rolled back",
+        FACTORY_VERSION,
+        False,
+    )
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert (info.running_slot, info.boot_state) == (result.slot, BootState.CONFIRMED)
+        assert info.running_slot == info.confirmed_slot != 1

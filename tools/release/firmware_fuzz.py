@@ -119,6 +119,19 @@ def update_records(image: bytes, chunk: int = 200, retry: bool = False) -> bytes
     return out + b"".join(writes) + record(FW_VERIFY) + record(FW_TEST, (0).to_bytes(2, "little"))
 
 
+def _dev_signer():
+    """The development key (the fuzz build's FW_KEY), so the seeds' uploads pass FW_VERIFY;
+    None (unsigned seeds, refused at FW_VERIFY) without the cryptography package."""
+    try:
+        from spiel_edge.device.fwkeys import load_private_key
+        from spiel_edge.errors import InputError
+
+        key = Path(__file__).resolve().parents[2] / "firmware_protocol/firmware/keys/dev.key"
+        return load_private_key(key)
+    except (ImportError, InputError):
+        return None
+
+
 def update_seeds() -> dict[str, bytes]:
     """Framed inputs that drive a whole firmware update, so the fuzzer starts deep: from the
     recovery loader (erased slots) and from a running image in slot 0, then after the reset
@@ -126,7 +139,9 @@ def update_seeds() -> dict[str, bytes]:
     a chunk already written (the device's retry path)."""
     from firmware_protocol.image import pack_image
 
-    image = pack_image(bytes(range(256)) + bytes(44), version="2.0.0+fuzz", target="posix")
+    image = pack_image(
+        bytes(range(256)) + bytes(44), version="2.0.0+fuzz", target="posix", signer=_dev_signer()
+    )
     after = record(HELLO, bytes([1, 2, 0, 0, 0, 0, 0, 0])) + record(FW_INFO)
     confirm = after + record(FW_CONFIRM) + record(FW_INFO)
     rollback = after + record(REBOOT, bytes(3)) + after

@@ -97,7 +97,8 @@ int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17])
         sp_crc32c(0, head, SP_IMAGE_HEADER_SIZE - 4u) != h.header_crc ||
         h.header_version != SP_IMAGE_HEADER_VERSION || h.header_size != SP_IMAGE_HEADER_SIZE ||
         /* in u64: a slot smaller than the header must not wrap the bound */
-        (uint64_t)h.body_size + SP_IMAGE_HEADER_SIZE > hal_image_slot_size()) {
+        (uint64_t)h.body_size + SP_IMAGE_HEADER_SIZE + image_trailer_size(&h) >
+            hal_image_slot_size()) {
         return -1;
     }
     all_crc = sp_crc32c(0, head, SP_IMAGE_HEADER_SIZE);
@@ -116,8 +117,15 @@ int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17])
     if (body_crc != h.body_crc || memcmp(sha, h.body_sha256, 32) != 0) {
         return -1;
     }
+    if (image_trailer_size(&h)) { /* the signature trailer: in the image's size and CRC */
+        if (hal_image_read(slot, SP_IMAGE_HEADER_SIZE + h.body_size, buf, SP_SIG_TRAILER_SIZE) !=
+            0) {
+            return -1;
+        }
+        all_crc = sp_crc32c(all_crc, buf, SP_SIG_TRAILER_SIZE);
+    }
     if (size) {
-        *size = SP_IMAGE_HEADER_SIZE + h.body_size;
+        *size = SP_IMAGE_HEADER_SIZE + h.body_size + image_trailer_size(&h);
     }
     if (crc) {
         *crc = all_crc;
@@ -140,7 +148,7 @@ int boot_choose(void)
     w.trial = BOOT_NO_SLOT;
     w.state = SP_BOOT_CONFIRMED;
     if (r.state == SP_BOOT_TEST_PENDING && r.trial <= 1u) {
-        if (image_check(r.trial, NULL, NULL, NULL) == 0) {
+        if (image_bootable(r.trial, r.security_counter)) { /* intact, signed, no downgrade */
             w.trial = r.trial;
             w.state = SP_BOOT_TRIAL; /* the record first, then the jump: a cut rolls back */
             choice = r.trial;
@@ -152,9 +160,9 @@ int boot_choose(void)
     if (choice < 0) {
         return -1;
     }
-    if (image_check(choice, NULL, NULL, NULL) != 0) {
+    if (!image_bootable(choice, r.security_counter)) {
         int other = 1 - choice;
-        if (image_check(other, NULL, NULL, NULL) != 0) {
+        if (!image_bootable(other, r.security_counter)) {
             return -1;
         }
         w.confirmed = (uint8_t)other;

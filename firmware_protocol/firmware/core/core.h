@@ -93,6 +93,18 @@ int boot_install(int slot); /* copy the slot into SPIEL_IMAGE_EXEC (idempotent):
  * install fails is rolled back), and the watchdog started (watchdog_ms) before a trial runs.
  * The slot to run, or -1: the built-in image / recovery loader. */
 int boot_start(uint32_t watchdog_ms);
+
+/* verify.c (PROTOCOL.md 14.6): bytes of the signature trailer an image's header announces. */
+uint32_t image_trailer_size(const sp_image_header_t *h);
+/* The slot's signature by the built-in key and its security counter (>= min_counter):
+ * SP_ERR_OK, or SP_ERR_FW_UNSIGNED / _FW_BAD_SIGNATURE / _FW_WRONG_KEY / _FW_ROLLBACK (or
+ * _FLASH_VERIFY_FAILED) with *why a short reason. Call after image_check() passed (it matches
+ * the body to the signed header). *counter: the image's counter, when the signature verifies. */
+uint16_t image_auth(int slot, uint32_t min_counter, uint32_t *counter, const char **why);
+/* 1: the slot may be started (image_check() and image_auth() pass with this floor). */
+int image_bootable(int slot, uint32_t floor);
+/* The floor a confirmation of the slot's image leaves: max(floor, its header's counter). */
+uint32_t image_counter_floor(int slot, uint32_t floor);
 #endif
 
 #endif

@@ -567,10 +567,25 @@ static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
         v2_log(SP_LOG_ERROR, "firmware verify failed: digest mismatch");
         return 0;
     }
-    if (image_check(slot, &size, NULL, version) != 0 || size != v2.expect_size) {
+    if (image_check(slot, &size, NULL, version) != 0) {
         *code = SP_ERR_INVALID, *text = "not a valid image (header, size or body digest)";
         v2_log(SP_LOG_ERROR, "firmware verify failed: image header");
         return 0;
+    }
+    { /* signed by the built-in key, not below the record's security counter (14.6); before
+       * the size check, so a truncated signature is named as such */
+        boot_record_t r;
+        boot_record_read(&r);
+        *code = image_auth(slot, r.security_counter, NULL, text);
+        if (*code == SP_ERR_OK && size > v2.expect_size) {
+            *code = SP_ERR_FW_BAD_SIGNATURE, *text = "signature trailer truncated";
+        } else if (*code == SP_ERR_OK && size < v2.expect_size) {
+            *code = SP_ERR_INVALID, *text = "bytes after the image's end";
+        }
+        if (*code != SP_ERR_OK) {
+            v2_log(SP_LOG_ERROR, "firmware verify failed: signature or security counter");
+            return 0;
+        }
     }
     {
         uint8_t head[SP_IMAGE_HEADER_SIZE];
@@ -640,6 +655,9 @@ static int fw_confirm(uint8_t *out, uint16_t *code, const char **text)
         r.confirmed = (uint8_t)v2.running;
         r.trial = BOOT_NO_SLOT;
         r.state = SP_BOOT_CONFIRMED;
+        /* anti-rollback: in the same record write as the confirmation (one power-cut-safe
+         * step), the floor rises to the confirmed image's counter */
+        r.security_counter = image_counter_floor(v2.running, r.security_counter);
         if (boot_record_write(&r) != 0) {
             spiel_stats.flash_errors++;
             *code = SP_ERR_FLASH_WRITE_FAILED, *text = "boot record write failed";

@@ -13,6 +13,6 @@ FUZZ_OUT := $(BUILD)/spiel_fuzz
 
 all: $(FUZZ_OUT)
 
-$(FUZZ_OUT): fuzz/fuzz_request.c $(CORE_SRC) $(wildcard include/*.h core/*.h $(PROTO)/*.h)
+$(FUZZ_OUT): fuzz/fuzz_request.c $(CORE_SRC) $(FW_KEY) $(wildcard include/*.h core/*.h $(PROTO)/*.h $(VENDOR)/*.h)
 	@mkdir -p $(BUILD)
 	$(FUZZ_CC) $(FUZZ_CFLAGS) fuzz/fuzz_request.c $(CORE_SRC) -o $@

@@ -1,9 +1,11 @@
 /*
  * fuzz_request.c - libFuzzer harness of the device's request decoder: the whole portable core
- * (core/ over ../c/spiel_proto.c, built with -DSPIEL_FW_UPDATE=1 -DSPIEL_IQ_SAMPLES=1) on an
- * in-memory HAL with config flash, two firmware image slots and a boot record area, fed one
- * input per power-on. A reset (REBOOT, FW_TEST) runs the core's boot stage (boot_choose) and
- * boots the core again on the same flash and slots; the input goes on (at most 8 resets).
+ * (core/ over ../c/spiel_proto.c, built with -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_EXEC_COPY=1
+ * -DSPIEL_IQ_SAMPLES=1) on an in-memory HAL with config flash, two firmware image slots, a boot
+ * record area and an execution region (NOR with ECC: 512-byte sectors, 8-byte program units),
+ * fed one input per power-on. A reset (REBOOT, FW_TEST) runs the core's boot stage (boot_start:
+ * the choice, the flash-to-flash install, the trial's watchdog) and boots the core again on the
+ * same flash and slots; the input goes on (at most 8 resets).
  *
  *   make TARGET=fuzz            clang -fsanitize=fuzzer,address,undefined
  *   python -m tools.release.firmware_fuzz --runs 10000000
@@ -20,14 +22,15 @@
  *   byte 1            bytes per transport read (0: all available)
  *   byte 2            0xFF: nothing fails; 0x00..0x7F: that erase or write (config flash and
  *                     image slots counted together, 0-based) fails (a failing slot write
- *                     programs half its bytes first, a failing boot record write leaves
- *                     that copy erased); 0x80..0xFE: image read (byte 2 & 0x7F) fails
+ *                     programs half its bytes first, a failing erase erases half the
+ *                     range); 0x80..0xFE: image read (byte 2 & 0x7F) fails
  * Between reads the core is polled and the clock moves on, so streams are scheduled, sent,
  * overrun and stopped. Oracles beyond the sanitizers:
  *   - everything the device writes decodes as valid frames (no CRC, COBS, length or flag error
  *     in the host's decoder);
- *   - the core never erases or writes the running slot, never reads or writes outside a slot,
- *     and never programs a slot byte back from 0 to 1 without an erase (NOR flash);
+ *   - the core never erases or writes the running slot, never reads or writes outside an
+ *     area, erases whole sectors only and programs whole units of erased bytes only (ECC NOR);
+ *   - a trial image is never started without the watchdog;
  *   - framed records: the answers to FW_* requests agree with the requests (a model of the
  *     upload): FW_BEGIN's size in [96, slot_size], never the running slot; FW_WRITE answered
  *     OK only within the size FW_BEGIN announced; FW_VERIFY's size, CRC-32C and SHA-256 are
@@ -363,7 +366,19 @@ int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len)
     return 0;
 }
 
-/* A valid image for slot 0 (target SPIEL_FW_TARGET, protocols 1-2, a 160-byte body). */
+/* Its signature trailer by the development key (keys/dev.key, the default FW_KEY; Ed25519 is
+ * deterministic: tests/protocol_v2/test_v2_signing_posix.py makes it again and compares). */
+static const uint8_t image0_trailer[SP_SIG_TRAILER_SIZE] = {
+    0x53, 0x50, 0x53, 0x47, 0x01, 0x00, 0x40, 0x00, 0x2e, 0xf2, 0x88, 0x43,
+    0x16, 0xb5, 0xbc, 0x8c, 0x26, 0x89, 0x18, 0x8d, 0x90, 0x26, 0xf1, 0xfe,
+    0x6e, 0x25, 0x6e, 0x60, 0xb0, 0xb1, 0x02, 0x8c, 0x3b, 0x67, 0xb1, 0x22,
+    0x6d, 0x35, 0x0c, 0x18, 0x67, 0xaf, 0xfa, 0xe4, 0x0b, 0x6b, 0x50, 0x7e,
+    0x30, 0x42, 0xb8, 0x03, 0xc6, 0x24, 0xab, 0x75, 0x8a, 0x09, 0x59, 0x73,
+    0x5e, 0xac, 0x12, 0xe8, 0x7d, 0xc1, 0xb6, 0xcf, 0xd4, 0xa0, 0x34, 0xd2,
+    0xbb, 0x11, 0xc6, 0x7f, 0xf8, 0x48, 0x3c, 0x0c};
+
+/* A valid image for slot 0 (target SPIEL_FW_TARGET, protocols 1-2, a 160-byte body, signed
+ * by the development key). */
 static void make_image0(void)
 {
     uint8_t body[160];
@@ -381,6 +396,7 @@ static void make_image0(void)
     memcpy(h.target, SPIEL_FW_TARGET, strlen(SPIEL_FW_TARGET));
     h.min_protocol = 1;
     h.max_protocol = 2;
+    h.flags = SP_IMAGE_FLAG_SIGNED;
     h.body_size = sizeof body;
     h.body_crc = sp_crc32c(0, body, sizeof body);
     sha256_init(&s);
@@ -391,6 +407,7 @@ static void make_image0(void)
     h.header_crc = sp_crc32c(0, image0, SP_IMAGE_HEADER_SIZE - 4u);
     sp_image_header_pack(&h, image0);
     memcpy(image0 + SP_IMAGE_HEADER_SIZE, body, sizeof body);
+    memcpy(image0 + SP_IMAGE_HEADER_SIZE + sizeof body, image0_trailer, sizeof image0_trailer);
 }
 
 /* ---- the oracle's model of the host side: the request being fed, the device's retry cache,

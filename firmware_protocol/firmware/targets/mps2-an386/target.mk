@@ -5,7 +5,8 @@
 # TARGET=mps2 builds three things (docs/firmware.md, "Firmware update with rollback"):
 #   app.elf, app.bin  the firmware (core + frame layer + this HAL), linked for EXEC_BASE; app.bin
 #                     is the body `spiel-edge firmware pack --target mps2-an386` wraps
-#   boot.elf          the boot stage alone (boot_mps2.c, the core's boot.c and sha256.c)
+#   boot.elf          the boot stage alone (boot_mps2.c, the core's boot.c, sha256.c, verify.c
+#                     and the vendored Ed25519 verifier)
 #   firmware.elf      the boot stage at 0 plus app.bin at EXEC_BASE as the built-in image
 # `make TARGET=mps2 sizes`: flash and RAM of the core and the frame layer (docs/firmware.md),
 # the sample and staging buffers named apart, and the boot stage.
@@ -27,7 +28,7 @@ MPS2_LDFLAGS := $(MPS2_ARCH) -nostartfiles --specs=nano.specs -L$(MPS2_DIR) -Wl,
 MPS2_SRCS := $(MPS2_DIR)/startup.c $(MPS2_DIR)/hal_mps2.c $(MPS2_DIR)/nor_mps2.c \
 	$(MPS2_DIR)/syscalls.c $(BUILD)/ascans.c
 BOOT_SRCS := $(MPS2_DIR)/boot_mps2.c $(MPS2_DIR)/image_mps2.c $(MPS2_DIR)/nor_mps2.c \
-	core/boot.c core/sha256.c $(PROTO)/spiel_proto.c
+	core/boot.c core/sha256.c core/verify.c $(PROTO)/spiel_proto.c $(VENDOR_SRC)
 ifeq ($(TARGET),mps2-bringup)
 MPS2_SRCS += $(MPS2_DIR)/bringup.c $(PROTO)/spiel_proto.c
 else
@@ -35,7 +36,7 @@ MPS2_SRCS += $(MPS2_DIR)/main.c $(MPS2_DIR)/image_mps2.c $(CORE_SRC)
 endif
 MPS2_OBJS := $(patsubst %.c,$(BUILD)/obj/%.o,$(notdir $(MPS2_SRCS)))
 BOOT_OBJS := $(patsubst %.c,$(BUILD)/obj/%.o,$(notdir $(BOOT_SRCS)))
-vpath %.c $(MPS2_DIR) core $(PROTO) $(BUILD)
+vpath %.c $(MPS2_DIR) core $(PROTO) $(VENDOR) $(BUILD)
 
 all: $(BUILD)/firmware.elf
 
@@ -45,7 +46,7 @@ $(BUILD)/ascans.c: $(MPS2_DIR)/gen_ascans.py $(SUBSET)
 
 $(BUILD)/ascans.h: $(BUILD)/ascans.c
 
-$(BUILD)/obj/%.o: %.c $(BUILD)/ascans.h $(wildcard include/*.h core/*.h $(PROTO)/*.h $(MPS2_DIR)/*.h)
+$(BUILD)/obj/%.o: %.c $(BUILD)/ascans.h $(FW_KEY) $(wildcard include/*.h core/*.h $(PROTO)/*.h $(MPS2_DIR)/*.h $(VENDOR)/*.h)
 	@mkdir -p $(@D)
 	$(ARM_CC) $(MPS2_CFLAGS) -c $< -o $@
 
@@ -82,6 +83,8 @@ sizes: $(BUILD)/firmware.elf
 	@$(ARM_SIZE) -t $(CORE_OBJS)
 	@echo "protocol version 2 in the core (time sync, telemetry, firmware update):"
 	@$(ARM_SIZE) -t $(V2_OBJS)
+	@echo "signed images (core/verify.c and the vendored Ed25519 verifier, vendor/monocypher):"
+	@$(ARM_SIZE) -t $(filter $(BUILD)/obj/verify.o $(BUILD)/obj/monocypher.o $(BUILD)/obj/monocypher-ed25519.o,$(MPS2_OBJS))
 	@echo "their largest RAM buffers (bytes):"
 	@$(ARM_NM) -S --size-sort -t d $(CORE_OBJS) $(V2_OBJS) | awk '$$3 ~ /^[bBdD]$$/ && $$2 + 0 >= 64 {print "  " $$4, $$2 + 0}'
 	@echo "library routines linked into the application (bytes; entry points that share code, once):"
@@ -91,3 +94,7 @@ sizes: $(BUILD)/firmware.elf
 	@$(ARM_SIZE) $(BUILD)/boot.elf $(BUILD)/app.elf
 
 .PHONY: sizes
+
+# The Ed25519 check (vendor/monocypher) takes 1.2 KiB of stack in one frame (its point tables):
+# the boot stage has 4 KiB, the application 8 KiB; its files get a bound of their own.
+$(BUILD)/obj/monocypher.o $(BUILD)/obj/monocypher-ed25519.o: MPS2_CFLAGS += -Wstack-usage=1536

@@ -93,6 +93,15 @@ static int operation(void)
     return ops - 1 == image_cut;
 }
 
+/* --image-cut: the board loses power: the whole board, the watchdog's parent included */
+static void power_cut(void)
+{
+    if (wdt_fd >= 0) {
+        kill(getppid(), SIGKILL);
+    }
+    raise(SIGKILL);
+}
+
 static int put(int slot, uint32_t offset, const uint8_t *data, uint32_t len)
 {
     char path[PATH_MAX];
@@ -164,7 +173,7 @@ int hal_image_erase(int slot, uint32_t offset, uint32_t len)
     memset(ff, 0xFF, sizeof ff);
     if (operation()) { /* half of the first sector erased */
         put(slot, offset, ff, SECTOR / 2u);
-        raise(SIGKILL);
+        power_cut();
     }
     for (at = offset; at < offset + len; at += SECTOR) {
         if (put(slot, at, ff, SECTOR) != 0) {
@@ -216,7 +225,7 @@ int hal_image_write(int slot, uint32_t offset, const uint8_t *data, uint32_t len
     }
     if (operation()) {
         put(slot, offset, data, len / 2u);
-        raise(SIGKILL);
+        power_cut();
     }
     return put(slot, offset, data, len);
 }
@@ -273,13 +282,15 @@ static void watch(pid_t child, int rfd, uint32_t timeout_ms)
         }
         waitpid(child, &status, 0);
         close(rfd);
-        if (n == 1 && c == 'R') { /* hal_reset in the image */
-            reexec_loader();
+        if (WIFEXITED(status) && WEXITSTATUS(status) == 3 && !(n == 1 && c == 'R')) {
+            exit(3); /* REBOOT to the bootloader: this target has none */
         }
-        if (WIFSIGNALED(status)) { /* the image died: so does the board */
-            raise(WTERMSIG(status));
+        /* hal_reset in the image, or the image crashed or ended: a reset, as a fault handler
+         * (or the watchdog) resets a board */
+        if (!(n == 1 && c == 'R')) {
+            fprintf(stderr, "spiel_fw_posix: the image ended (status %d): reset\n", status);
         }
-        exit(WIFEXITED(status) ? WEXITSTATUS(status) : 1);
+        reexec_loader();
     }
 }
 
