@@ -33,7 +33,12 @@ def test_warmup_command_reports(monkeypatch, capsys):
     assert json.loads(capsys.readouterr().out) == report
 
 
-def test_service_install_warms_the_units_cache(tmp_path, capsys):
+def test_service_install_warms_the_units_cache(tmp_path, capsys, monkeypatch):
+    from spiel_edge.service import sandbox
+
+    # the fake program lives under /tmp, which the unit's PrivateTmp hides (tests/security
+    # checks that refusal); here only the warm-up is under test
+    monkeypatch.setattr(sandbox, "TMP_DIRS", ())
     fake = tmp_path / "spiel-edge"
     fake.write_text(
         "#!/bin/sh\n"

@@ -21,7 +21,7 @@ GEOMETRY = {
         "channels 1 and 2 coincide",
     ),
     "all-same": ({"channels_mm": [[5, 5, 5]] * 4}, "coincide"),
-    "two-channels": ({"channels_mm": GOOD[:2], "delay_samples": [0, 0]}, "at least 3"),
+    "no-channels": ({"channels_mm": [], "delay_samples": []}, "channels_mm"),
     "facing-in-plane": ({"facing": [1.0, 0.0, 0.0]}, "geometry.facing"),
     "facing-zero": ({"facing": [0.0, 0.0, 0.0]}, "geometry.facing"),
     "delay-absurd": ({"delay_samples": [0, 0, 1e6, 0]}, "geometry.delay_samples"),
