@@ -205,7 +205,7 @@ def test_calibrate_captures_from_the_board(tmp_path_factory, tmp_path, subset):
     try:
         ran = cli(
             "calibrate", "--port", b.port, "--positions", positions, "--captures", 4,
-            "--no-prompt", "-o", out,
+            "--no-prompt", "--force", "-o", out,  # capture under test, not the fit
         )  # fmt: skip
     finally:
         b.kill()
