@@ -24,6 +24,16 @@ does not change with a reset, so the first exchange after it is already good to 
 ``map(board_us)`` gives the host time and its uncertainty (about 95 %): with fewer than
 ``MIN_FIT`` exchanges the hard bound of the best exchange (half its round trip plus the
 drift bound times the time since), then the fit's prediction error.
+
+Drift: RC oscillators run 1-2 % off (crystals 20-100 ppm), so the rate is searched within
++-3 %. Absurd answers (negative, beyond 2**53 us -- 285 years -- u64::MAX, not finite) are
+dropped before anything else. ``trusted`` says whether the answers agree with each other:
+two or more rejected in a row, or more than a third of the last 16 rejected (an answer that
+alternates between two clocks, a clock that wraps or runs backwards), and the board's clock
+is not to be trusted until the estimator restarts or its answers agree again; the stamps
+then fall back to the host's arrival time (:class:`spiel_edge.device.stamp_guard.StampGuard`).
+Each kind of message is said once and then at most every ``SAY_EVERY_US`` with the count of
+those not said: a boot-id storm or a garbage-spewing board cannot flood the log.
 """
 
 from __future__ import annotations
@@ -36,7 +46,11 @@ import numpy as np
 
 __all__ = ["ClockEstimate", "SyncCounters", "SyncSample", "TimeSyncEstimator"]
 
-MAX_DRIFT = 500e-6  # |board rate / host rate - 1| assumed at most (crystals: +-100 ppm each)
+MAX_DRIFT = 0.03  # |board rate / host rate - 1| at most: RC oscillators 1-2 %, crystals 1e-4
+MAX_BOARD_US = float(2**53)  # a board time beyond this (285 years; u64::MAX) is garbage
+HISTORY = 16  # the last answers' fates, for ``trusted``
+MAX_REJECTED = 1 / 3  # more of the last HISTORY rejected than this: the answers disagree
+SAY_EVERY_US = 30e6  # a kind of message said again at most this often (with a count)
 MAX_RTT_US = 200_000.0  # a round trip longer than this tells nothing useful
 WINDOW = 512  # exchanges kept for the fit
 MIN_FIT = 8  # exchanges before the fit replaces the best single exchange
@@ -89,6 +103,7 @@ class SyncCounters:
     long_rtt: int = 0  # dropped: round trip too long (or negative)
     backwards: int = 0  # dropped: the board's clock went backwards
     outliers: int = 0  # dropped: far from the current estimate
+    absurd: int = 0  # dropped: a board time no clock can read (garbage, u64::MAX)
     steps: int = 0  # the board's clock was stepped: estimator restarted
     resets: int = 0  # the board rebooted (new boot id): estimator restarted
     messages: list[str] = field(default_factory=list)  # what happened, for the caller to log
@@ -109,6 +124,9 @@ class TimeSyncEstimator:
         self._prior: tuple[float, float] | None = None  # (rate, sd) measured before a reset
         self._bound: ClockEstimate | None = None  # the best exchange's hard bound
         self._fitted: ClockEstimate | None = None  # the line through the window
+        self._history: deque[bool] = deque(maxlen=HISTORY)  # recent answers: kept or not
+        self._said: dict[str, tuple[float, int]] = {}  # message kind -> (said at, not said)
+        self.consistent = True  # False: the last fit found no line within every round trip
 
     # --- input -------------------------------------------------------------------------
 
@@ -119,27 +137,40 @@ class TimeSyncEstimator:
         self.boot_id = boot_id
         self._samples.clear()
         self._suspects.clear()
+        self._history.clear()
         self.estimate = self._bound = self._fitted = None
 
     def add(self, sent_us: float, received_us: float, board_us: float, boot_id: int) -> bool:
         """One exchange; False (and a counter, and a message) when it was not used."""
         c = self.counters
         c.exchanges += 1
+        now = float(received_us)
         if self.boot_id is not None and boot_id != self.boot_id:
             c.resets += 1
-            c.messages.append(f"the board rebooted (boot id {boot_id:08x}): clock sync restarted")
+            self._say(
+                "reset", f"the board rebooted (boot id {boot_id:08x}): clock sync restarted", now
+            )
             self.reset(boot_id)
         self.boot_id = boot_id
         s = SyncSample(float(sent_us), float(received_us), float(board_us))
-        if not 0.0 <= s.rtt_us <= MAX_RTT_US or not math.isfinite(s.board_us):
+        if not 0.0 <= s.rtt_us <= MAX_RTT_US:
             c.long_rtt += 1
+            return False
+        if not (math.isfinite(s.board_us) and 0.0 <= s.board_us <= MAX_BOARD_US):
+            c.absurd += 1
+            self._history.append(False)
+            self._say(
+                "absurd", f"TIME_SYNC answer with an absurd board time ({board_us!r}): ignored", now
+            )
             return False
         last = self._samples[-1] if self._samples else None
         if last is not None and s.board_us < last.board_us - last.rtt_us - s.rtt_us:
             c.backwards += 1
-            c.messages.append(
+            self._say(
+                "backwards",
                 f"TIME_SYNC answer goes backwards ({(last.board_us - s.board_us) / 1e6:.6f} s "
-                "before the previous one): ignored"
+                "before the previous one): ignored",
+                now,
             )
             return self._suspect(s)
         if self.estimate is not None:
@@ -147,16 +178,38 @@ class TimeSyncEstimator:
             off = abs(s.mid_us - host)
             if off > max(8.0 * u, OUTLIER_FLOOR_US) + 0.5 * s.rtt_us:
                 c.outliers += 1
-                c.messages.append(
+                self._say(
+                    "outlier",
                     f"TIME_SYNC answer {(host - s.mid_us) / 1e6:+.6f} s off the board's clock "
-                    "estimate: ignored"
+                    "estimate: ignored",
+                    now,
                 )
                 return self._suspect(s)
         self._suspects.clear()
         self._samples.append(s)
+        self._history.append(True)
         c.used += 1
         self._refit()
         return True
+
+    @property
+    def trusted(self) -> bool:
+        """An estimate exists and the recent answers agree with it (see the module's text)."""
+        if self.estimate is None or len(self._suspects) >= 2:
+            return False
+        h = self._history
+        return len(h) < 8 or h.count(False) <= MAX_REJECTED * len(h)
+
+    def _say(self, kind: str, text: str, now_us: float) -> None:
+        """A message once, then at most every SAY_EVERY_US per kind, with how many were not."""
+        at, quiet = self._said.get(kind, (-math.inf, 0))
+        if now_us - at < SAY_EVERY_US:
+            self._said[kind] = (at, quiet + 1)
+            return
+        if quiet:
+            text += f" ({quiet} more like it not shown)"
+        self._said[kind] = (now_us, 0)
+        self.counters.messages.append(text)
 
     def _suspect(self, s: SyncSample) -> bool:
         """Outliers in a row that agree with each other: the board's clock was stepped."""
@@ -169,16 +222,21 @@ class TimeSyncEstimator:
             ):
                 suspects.clear()
         suspects.append(s)
+        self._history.append(False)
         if len(suspects) < STEP_AFTER:
             return False
         self.counters.steps += 1
-        self.counters.messages.append(
+        self._say(
+            "step",
             f"the board's clock was stepped ({STEP_AFTER} answers in a row agree on a new "
-            "offset): clock sync restarted"
+            "offset): clock sync restarted",
+            s.received_us,
         )
         kept = list(suspects)
         self._samples.clear()
         self._suspects.clear()
+        self._history.clear()
+        self._history.extend([True] * len(kept))
         self._samples.extend(kept)
         self.counters.used += len(kept)
         self._refit()
@@ -188,8 +246,10 @@ class TimeSyncEstimator:
 
     def _refit(self) -> None:
         self._least_squares()
+        self.consistent = True
         if self._fitted is not None:
             corridor = _corridor(list(self._samples), self._prior)
+            self.consistent = corridor is not None
             if corridor is not None:
                 self.estimate = self._fitted = corridor
                 self._rate = corridor.rate
@@ -234,7 +294,11 @@ class TimeSyncEstimator:
         # about 95 %: SIGMAS standard errors of the line's prediction at its centre, growing
         # with the rate's standard error away from it
         small = 1.0 + 4.0 / n  # few exchanges: a wider interval (Student's t, roughly)
-        base = small * SIGMAS * sd / math.sqrt(n) + 1.0
+        # No line passes within every round trip here (the corridor was empty): the answers
+        # contradict each other (a wandering clock, or a board answering from two clocks), so
+        # the line's own standard error would claim what the answers cannot tell. The spread
+        # of the answers themselves is stated instead.
+        base = small * SIGMAS * sd + 1.0
         fitted = ClockEstimate(xm, ym, rate, base, small * SIGMAS * self._rate_sd, True)
         self.estimate = self._fitted = fitted
 
@@ -296,7 +360,12 @@ def _corridor(samples: list[SyncSample], prior: tuple[float, float] | None) -> C
     r_hi = _root(width, hi, rate) if width(hi) < 0.0 else hi
     offset = 0.5 * (np.min(read - rate * board) + np.max(sent - rate * board))
     growth = max(rate - r_lo, r_hi - rate)
-    return ClockEstimate(b0, h0 + float(offset), rate, 0.5 * w + RESOLUTION_US, growth, True)
+    # Every feasible line's offset at the centre lies within half the width plus the rate's
+    # play times the window's half-length (the corridor's walls turn with the rate), so the
+    # stated bound holds for every line the exchanges allow, not only the centre one's.
+    reach = float(np.max(np.abs(board))) * growth
+    base = 0.5 * w + reach + RESOLUTION_US
+    return ClockEstimate(b0, h0 + float(offset), rate, base, growth, True)
 
 
 def _widest(f, lo: float, hi: float) -> float:
