@@ -18,6 +18,7 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import FilePlan, atomic_write
+from spiel_edge.io.shown import escape
 from spiel_edge.profile.schema import resolve_profile
 
 
@@ -144,10 +145,10 @@ def command(
     if output:
         with atomic_write(output) as fh:
             fh.write(calibration_toml(cal, str(source)))
-        click.echo(f"calibration written to {output}", err=True)
+        click.echo(f"calibration written to {escape(output)}", err=True)
     if plot:
         plot_calibration(cal, plot)
-        click.echo(f"plot written to {plot}", err=True)
+        click.echo(f"plot written to {escape(plot)}", err=True)
     return EXIT_OK
 
 

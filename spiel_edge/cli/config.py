@@ -13,6 +13,7 @@ from spiel_edge.cli import EXIT_OK
 from spiel_edge.cli._options import board_port, force_option, port_option, profile_option
 from spiel_edge.errors import ConfigError, DeviceError
 from spiel_edge.io.guard import FilePlan, atomic_write
+from spiel_edge.io.shown import escape
 from spiel_edge.profile.schema import load_profile
 
 
@@ -66,7 +67,10 @@ def pull_cmd(port: str, file: str | None, force: bool) -> int:
     if file and file != "-":
         with atomic_write(file) as fh:
             fh.write(text)
-        click.echo(f"config of {config['board']['name']!r} written to {file}", err=True)
+        click.echo(
+            f"config of {escape(repr(config['board']['name']))} written to {escape(file)}",
+            err=True,
+        )
     else:
         click.echo(text, nl=False)
     return EXIT_OK

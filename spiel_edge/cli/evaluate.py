@@ -18,6 +18,7 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import InputError
+from spiel_edge.io.shown import escape
 from spiel_edge.measure.evaluate import evaluate_folder, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.measure.track_eval import evaluate_tracked
@@ -134,7 +135,7 @@ def command(
         _print_table(summary)
         print_scene_table(summary["by_targets"])
     for message in ev.failed:
-        click.echo(f"failed: {message}", err=True)
+        click.echo(f"failed: {escape(message)}", err=True)
     if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result
         raise InputError(f"{folder}: no usable labelled acquisitions ({len(ev.failed)} failed)")
     return EXIT_PARTIAL if ev.failed else EXIT_OK

@@ -11,6 +11,7 @@ from spiel_edge.cli import EXIT_ERROR, EXIT_OK
 from spiel_edge.cli._options import board_port, force_option, port_option
 from spiel_edge.errors import DeviceError, InputError
 from spiel_edge.io.guard import FilePlan, atomic_write
+from spiel_edge.io.shown import escape  # a board's or an image's strings: never raw
 
 MAX_IMAGE_BYTES = 64 * 1024 * 1024  # an image file larger than this is refused unread
 
@@ -49,7 +50,7 @@ def info_cmd(port: str) -> int:
     try:
         info = firmware_info(session)
         for line in describe_info(info, session.hello):
-            click.echo(line)
+            click.echo(escape(line))
     finally:
         with contextlib.suppress(DeviceError):
             session.close()
@@ -76,7 +77,9 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
     header = check_image(data)  # refused before the port is opened
     url = board_port(port)
     click.echo(
-        f"{image}: firmware {header.version} for {header.target}, {len(data)} bytes", err=True
+        f"{escape(image)}: firmware {escape(header.version)} for {escape(header.target)}, "
+        f"{len(data)} bytes",
+        err=True,
     )
 
     line_open = [False]
@@ -92,14 +95,16 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
             click.echo("", err=True)
     if result.rolled_back:
         click.echo(
-            f"the board came back with {result.version}: firmware {header.version} was rolled "
+            f"the board came back with {escape(result.version)}: firmware "
+            f"{escape(header.version)} was rolled "
             "back (it did not answer in time, or the board lost power before its confirmation "
             "was stored)",
             err=True,
         )
         return EXIT_ERROR
     click.echo(
-        f"firmware {result.previous} -> {result.version}, confirmed ({result.seconds:.1f} s)",
+        f"firmware {escape(result.previous)} -> {escape(result.version)}, confirmed "
+        f"({result.seconds:.1f} s)",
         err=True,
     )
     return EXIT_OK
@@ -152,5 +157,7 @@ def pack_cmd(body: str, version: str, target: str, protocol: str, output: str, f
         raise InputError(str(exc)) from exc
     with atomic_write(output, "wb") as fh:
         fh.write(image)
-    click.echo(f"{output}: {version} for {target}, {len(image)} bytes", err=True)
+    click.echo(
+        f"{escape(output)}: {escape(version)} for {escape(target)}, {len(image)} bytes", err=True
+    )
     return EXIT_OK
