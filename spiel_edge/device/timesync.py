@@ -39,6 +39,7 @@ those not said: a boot-id storm or a garbage-spewing board cannot flood the log.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -124,6 +125,7 @@ class TimeSyncEstimator:
         self._prior: tuple[float, float] | None = None  # (rate, sd) measured before a reset
         self._bound: ClockEstimate | None = None  # the best exchange's hard bound
         self._fitted: ClockEstimate | None = None  # the line through the window
+        self._envelope: _Envelope | None = None  # every line the window allows
         self._history: deque[bool] = deque(maxlen=HISTORY)  # recent answers: kept or not
         self._said: dict[str, tuple[float, int]] = {}  # message kind -> (said at, not said)
         self.consistent = True  # False: the last fit found no line within every round trip
@@ -139,6 +141,7 @@ class TimeSyncEstimator:
         self._suspects.clear()
         self._history.clear()
         self.estimate = self._bound = self._fitted = None
+        self._envelope = None
 
     def add(self, sent_us: float, received_us: float, board_us: float, boot_id: int) -> bool:
         """One exchange; False (and a counter, and a message) when it was not used."""
@@ -247,8 +250,9 @@ class TimeSyncEstimator:
     def _refit(self) -> None:
         self._least_squares()
         self.consistent = True
+        self._envelope = None
         if self._fitted is not None:
-            corridor = _corridor(list(self._samples), self._prior)
+            corridor, self._envelope = _corridor(list(self._samples), self._prior)
             self.consistent = corridor is not None
             if corridor is not None:
                 self.estimate = self._fitted = corridor
@@ -314,6 +318,9 @@ class TimeSyncEstimator:
         if fitted is None or bound is None:
             return self.estimate.map(board_us)
         value, u_fit = fitted.map(board_us)
+        if self._envelope is not None:  # the exact range of the lines that fit: its middle
+            lo, hi = self._envelope.bounds(board_us)
+            value, u_fit = 0.5 * (lo + hi), 0.5 * (hi - lo)
         hard, u_bound = bound.map(board_us)
         return value, min(u_fit, u_bound + abs(value - hard))
 
@@ -334,8 +341,11 @@ class TimeSyncEstimator:
         return out
 
 
-def _corridor(samples: list[SyncSample], prior: tuple[float, float] | None) -> ClockEstimate | None:
-    """The centre line of the lines above every send and below every read, or None."""
+def _corridor(
+    samples: list[SyncSample], prior: tuple[float, float] | None
+) -> tuple[ClockEstimate | None, _Envelope | None]:
+    """The centre line of the lines above every send and below every read, and the envelope of
+    all those lines; (None, None) when no line fits."""
     board = np.array([x.board_us for x in samples])
     sent = np.array([x.sent_us for x in samples]) - RESOLUTION_US
     read = np.array([x.received_us for x in samples]) + RESOLUTION_US
@@ -354,18 +364,85 @@ def _corridor(samples: list[SyncSample], prior: tuple[float, float] | None) -> C
         rate = _widest(width, lo, hi)
     w = width(rate)
     if w < 0.0:
-        return None
+        return None, None
     # the rates with a corridor at all: how far the rate may be off
     r_lo = _root(width, lo, rate) if width(lo) < 0.0 else lo
     r_hi = _root(width, hi, rate) if width(hi) < 0.0 else hi
     offset = 0.5 * (np.min(read - rate * board) + np.max(sent - rate * board))
     growth = max(rate - r_lo, r_hi - rate)
     # Every feasible line's offset at the centre lies within half the width plus the rate's
-    # play times the window's half-length (the corridor's walls turn with the rate), so the
-    # stated bound holds for every line the exchanges allow, not only the centre one's.
+    # play times the window's half-length (the corridor's walls turn with the rate): a bound
+    # for every line the exchanges allow, used to judge answers; stamps use the envelope.
     reach = float(np.max(np.abs(board))) * growth
     base = 0.5 * w + reach + RESOLUTION_US
-    return ClockEstimate(b0, h0 + float(offset), rate, base, growth, True)
+    line = ClockEstimate(b0, h0 + float(offset), rate, base, growth, True)
+    return line, _Envelope(b0, h0, board, sent, read, r_lo, r_hi)
+
+
+class _Envelope:
+    """The host times that the lines allowed by the exchanges give a board time: no higher
+    than the lower convex hull of the reads, no lower than the upper hull of the sends, with
+    rates within [r_lo, r_hi] (a relaxation of the corridor, so the range holds whatever line
+    is true; within the window it is about the corridor's width, not its width plus the rate's
+    play times the window). Beyond the window (or where the hull's slope leaves the rates), the
+    extreme rate's line through the hull bounds it."""
+
+    def __init__(self, b0, h0, board, sent, read, r_lo: float, r_hi: float) -> None:
+        order = np.argsort(board, kind="stable")
+        b, lo, hi = board[order], sent[order], read[order]
+        self.b0, self.h0, self.r_lo, self.r_hi = b0, h0, r_lo, r_hi
+        self.top = _hull(b.tolist(), hi.tolist(), lower=True)
+        self.bottom = _hull(b.tolist(), lo.tolist(), lower=False)
+        # the extreme rates' lines under every read / over every send (offsets at 0)
+        self.top_at = {r: float(np.min(hi - r * b)) for r in (r_lo, r_hi)}
+        self.bottom_at = {r: float(np.max(lo - r * b)) for r in (r_lo, r_hi)}
+
+    def bounds(self, board_us: float) -> tuple[float, float]:
+        x = board_us - self.b0
+        high = _along(self.top, x, self.r_lo, self.r_hi, self.top_at)
+        low = _along(self.bottom, x, self.r_hi, self.r_lo, self.bottom_at)
+        return self.h0 + min(low, high), self.h0 + max(low, high)
+
+
+def _hull(xs: list[float], ys: list[float], *, lower: bool) -> tuple[list[float], list[float]]:
+    """The lower (or upper) convex hull of points sorted by x (monotone chain)."""
+    hx: list[float] = []
+    hy: list[float] = []
+    for x, y in zip(xs, ys, strict=True):
+        if hx and x == hx[-1]:  # the same board time: keep the tighter point
+            if (y < hy[-1]) if lower else (y > hy[-1]):
+                hx.pop(), hy.pop()
+            else:
+                continue
+        while len(hx) >= 2:
+            cross = (hx[-1] - hx[-2]) * (y - hy[-2]) - (hy[-1] - hy[-2]) * (x - hx[-2])
+            if (cross <= 0.0) if lower else (cross >= 0.0):
+                hx.pop(), hy.pop()
+            else:
+                break
+        hx.append(x)
+        hy.append(y)
+    return hx, hy
+
+
+def _along(hull, x: float, left_rate: float, right_rate: float, at: dict) -> float:
+    """The hull's value at ``x`` where its slope is a rate the exchanges allow; else the line of
+    the nearest allowed rate through the hull (``left_rate`` left of the points)."""
+    hx, hy = hull
+    i = bisect_right(hx, x)
+    if i == 0:
+        rate = left_rate
+    elif i == len(hx):
+        rate = right_rate if x > hx[-1] else None
+        if rate is None:  # exactly the last point
+            return hy[-1]
+    else:
+        slope = (hy[i] - hy[i - 1]) / (hx[i] - hx[i - 1])
+        lo, hi = min(left_rate, right_rate), max(left_rate, right_rate)
+        if lo <= slope <= hi:
+            return hy[i - 1] + slope * (x - hx[i - 1])
+        rate = lo if slope < lo else hi
+    return at[rate] + rate * x
 
 
 def _widest(f, lo: float, hi: float) -> float:

@@ -13,7 +13,9 @@ clock jumps), ``wrap2s`` (it wraps every 2 s, from the start), ``backwards`` (it
 backwards), ``stuck`` (it stops), ``garbage`` / ``u64max`` (every 7th answer a random u64 /
 u64::MAX), ``ahead1s`` (every answer 1 s ahead of the clock that stamps the acquisitions),
 ``alternating30ms`` (every other answer 30 ms ahead), ``bootstorm`` (6 s of reboots every
-0.13 s: new boot id, clock from 0), ``answer-ahead1s-first`` (only the first answer 1 s ahead).
+0.13 s: new boot id, clock from 0), ``answer-ahead1s-first`` (only the first answer 1 s ahead),
+``backlog`` (not the board: the host stops reading for 2.5 s, then drains the queue at 1 ms a
+frame, as a loaded machine did).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ FAULTS = (
     "answer-ahead1s-first",
     "alternating30ms",
     "bootstorm",
+    "backlog",
 )
 SPAN_US = 64 / 22_000 * 1e6  # one acquisition: 64 samples at 22 kHz
 T0 = 1000e6  # the host's clock at the start (us)
@@ -121,9 +124,13 @@ def run(
         read = sent + up
         answer = board.answer(read, k, rng)
         events.append((read + down, 0, (sent, answer, 0x1000 + board.boot(read))))
-    t = T0 + 1e6 / rate_hz
+    t, last = T0 + 1e6 / rate_hz, 0.0
     while t < T0 + duration_us:
         arrival = t + SPAN_US + rng.uniform(0.0, jitter_us)
+        stall_end = board.fault_at + 2.5e6
+        if fault == "backlog" and t >= board.fault_at:  # read in order, 1 ms apart, from then
+            arrival = max(arrival, stall_end, last + 1e3)
+        arrival = last = max(arrival, last + 1.0)  # the link and the host's queue are FIFO
         events.append((arrival, 1, (t, board.clock(t))))
         t += 1e6 / rate_hz
     heapq.heapify(events)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import ConfigError, InputError
-from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
+from spiel_edge.robot.clock import Disagreement, StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, record_targets, stamp_latency
@@ -73,6 +73,7 @@ class RecordFuse:
         self.clocks = {b.name: StampClock() for b in robot.boards}
         self.synced: dict[str, bool] = {}  # per board: its records carry stamp_host
         self.bad = dict.fromkeys(self.clocks, 0)
+        self.disagree = {name: Disagreement() for name in self.clocks}  # computers' clocks
         self.dropped: dict[str, str] = {}
         self.absent: set[str] = set()  # boards of the robot not in a replay
         self.records = 0
@@ -104,7 +105,7 @@ class RecordFuse:
             return None
         self.bad[name] = 0
         stamp, remote = fields["stamp"], fields["remote"]
-        if abs(arrived - remote) > MAX_DISAGREEMENT_S:
+        if self.disagree[name].observe(arrived - remote, arrived):
             self._drop(
                 name,
                 f"its computer's clock is {remote - arrived:+.2f} s off this one's "

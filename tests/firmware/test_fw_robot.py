@@ -4,8 +4,12 @@ lands in its slot and stays there."""
 from __future__ import annotations
 
 import json
+import math
 
 from spiel_edge.cli import main
+from spiel_edge.robot.description import load_robot
+from spiel_edge.robot.schedule import Schedule
+from tests.load import HostTiming
 
 
 def _robot(tmp_path, ports):
@@ -35,17 +39,25 @@ def test_run_robot_keeps_c_firmware_boards_in_their_slots(posix_board, tmp_path,
     three were restarted 14-20 times in 200 cycles."""
     ports = [posix_board(flash=tmp_path / f"flash{i}.bin").port for i in range(3)]
     out = tmp_path / "fused.ndjson"
-    status = main(
-        ["run", "--robot", str(_robot(tmp_path, ports)), "--frames", "200", "-o", str(out)]
-    )
+    robot = _robot(tmp_path, ports)
+    with HostTiming() as host:  # the firmwares are processes here: they fire as late as they wake
+        status = main(["run", "--robot", str(robot), "--frames", "200", "-o", str(out)])
     said = capsys.readouterr().err
     assert status == 0, said
-    assert "does not start at the time of its clock" not in said, said
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(records) == 200
     restarts = [
         int(p.split(" restarts")[0].rsplit(" ", 1)[1]) for p in said.split(";") if " restarts" in p
     ]
-    assert len(restarts) == 3 and sum(restarts) <= 2, said
-    records = [json.loads(line) for line in out.read_text().splitlines()]
-    assert len(records) == 200
+    assert len(restarts) == 3, said
+    # Idle: at most 2 restarts and 3 marks in 600 acquisitions. A loaded machine wakes the
+    # firmware processes late now and then, each such pulse possibly outside its slot: one
+    # restart and at most four marks (its own window and a neighbour's, before and after the
+    # restart) for each wake-up of this process later than the slot margin, measured meanwhile.
+    margin = Schedule.from_robot(load_robot(robot)).margin_s
+    late = math.ceil(host.late_share(margin) * len(records) * 3)
     marked = sum(bool(b["crosstalk"]) for r in records for b in r["boards"].values())
-    assert marked <= 3, marked
+    assert sum(restarts) <= 2 + late, (host.why(margin), said)
+    assert marked <= 3 + 4 * late, (marked, host.why(margin))
+    if late == 0:  # a host that kept time: the boards were trusted with their own clocks
+        assert "does not start at the time of its clock" not in said, said

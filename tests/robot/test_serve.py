@@ -260,8 +260,12 @@ def test_a_board_that_ignores_its_start_time_is_started_by_the_host(tmp_path, ca
 
 
 def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_path):
+    import math
+
     from spiel_edge.robot.description import load_robot
+    from spiel_edge.robot.schedule import Schedule
     from spiel_edge.robot.serve import RobotRunner
+    from tests.load import HostTiming
 
     class Keep:
         records: list = []
@@ -274,20 +278,26 @@ def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_pat
 
     robot = load_robot(_robot(tmp_path, {"left": "&lie=start-at-ignored"}))
     runner = RobotRunner(robot, Keep())
-    runner.run(frames=120)
+    with HostTiming() as host:
+        runner.run(frames=120)
     trusted = {w.board.name: w.trust.usable for w in runner.workers}
     on_clock = {w.board.name: w.on_its_clock for w in runner.workers}
     assert trusted == {"front": True, "left": False}
     assert on_clock == {"front": True, "left": False}
     # started by the host from then on, it keeps its slot: a few restarts while the request's
-    # latency is learned (lead_s), then none, and nobody's window reached
+    # latency is learned (lead_s), then none, and nobody's window reached. The host's start
+    # lands as late as this process wakes: each wake-up later than the slot margin (measured
+    # meanwhile) may cost one more restart and two marks (its window and the neighbour's).
+    margin = Schedule.from_robot(robot).margin_s
+    slack = math.ceil(host.late_share(margin) * 120)
     restarts = {w.board.name: w.stats.restarts for w in runner.workers}
-    assert restarts["front"] == 0 and restarts["left"] <= 8, restarts
+    assert restarts["front"] == 0, restarts  # on its own clock: the host's timing is not its
+    assert restarts["left"] <= 8 + slack, (restarts, host.why(margin))
     late = Keep.records[60:]
-    assert {r["boards"]["left"]["restarts"] for r in late if "left" in r["boards"]} == {
-        restarts["left"]
-    }
-    assert not any(b["crosstalk"] for r in late for b in r["boards"].values())
+    settled = {r["boards"]["left"]["restarts"] for r in late if "left" in r["boards"]}
+    assert len(settled) <= 1 + slack, (settled, host.why(margin))
+    marked = sum(bool(b["crosstalk"]) for r in late for b in r["boards"].values())
+    assert marked <= 2 * slack, (marked, host.why(margin))
 
 
 @pytest.mark.parametrize(

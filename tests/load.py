@@ -1,0 +1,58 @@
+"""How well this machine keeps time while a timing test runs: the margins its asserts derive.
+
+A test that asserts on time (a board's pulse inside its slot, no cross-talk mark) depends on
+how late the processes wake: on a 2-core machine at load 8 (other test runs, compiles) a
+thread that sleeps 2 ms wakes several milliseconds late at times, and a board emulated by a
+process on the same machine fires as late as it wakes. :class:`HostTiming` samples its own
+wake-ups beside the test (a thread that sleeps 2 ms at a time: negligible work) and says what
+fraction of them came later than a given margin: the test allows that many more misses, or
+skips its timing asserts and says why.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numpy as np
+
+TICK_S = 0.002
+
+
+class HostTiming:
+    """``with HostTiming() as host: ...``; then ``host.late_share(margin_s)``, ``host.why()``."""
+
+    def __init__(self) -> None:
+        self.late_s: list[float] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, name="host-timing", daemon=True)
+
+    def __enter__(self) -> HostTiming:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            t0 = time.perf_counter()
+            time.sleep(TICK_S)
+            self.late_s.append(time.perf_counter() - t0 - TICK_S)
+
+    def late_share(self, margin_s: float) -> float:
+        """The fraction of wake-ups later than ``margin_s``."""
+        late = np.array(self.late_s or [0.0])
+        return float(np.mean(late > margin_s))
+
+    def p99_ms(self) -> float:
+        return float(np.percentile(np.array(self.late_s or [0.0]), 99)) * 1e3
+
+    def why(self, margin_s: float) -> str:
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+        return (
+            f"load {load:.1f}: {self.late_share(margin_s):.1%} of {len(self.late_s)} wake-ups "
+            f"later than {margin_s * 1e3:g} ms (p99 {self.p99_ms():.1f} ms)"
+        )
