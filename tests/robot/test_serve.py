@@ -291,7 +291,8 @@ def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_pat
     margin = Schedule.from_robot(robot).margin_s
     slack = math.ceil(host.late_share(margin) * 120)
     restarts = {w.board.name: w.stats.restarts for w in runner.workers}
-    assert restarts["front"] == 0, restarts  # on its own clock: the host's timing is not its
+    # on its own clock; but the virtual board runs in this process, as late as it wakes
+    assert restarts["front"] <= slack, (restarts, host.why(margin))
     assert restarts["left"] <= 8 + slack, (restarts, host.why(margin))
     late = Keep.records[60:]
     settled = {r["boards"]["left"]["restarts"] for r in late if "left" in r["boards"]}
