@@ -82,10 +82,6 @@ class StampClock:
         if not self._minima:
             self._offset = delay if self._offset is None else min(self._offset, delay)
         late = delay - (self._offset + self._drift * board_s)
-        if late < -MAX_DISAGREEMENT_S:  # the envelope was learnt while the host was behind
-            self.resets += 1  # (a loaded machine's backlog): learnt afresh from here
-            self._reset()
-            return self.observe(board_s, arrival_s)
         self._block.append((board_s, delay))
         if len(self._block) >= BLOCK:
             self._minima.append(min(self._block, key=lambda p: p[1]))

@@ -442,3 +442,18 @@ def test_wait_until_returns_at_the_time_and_not_when_stopped(monkeypatch):
     assert 1.0 <= now[0] < 1.0 + 2e-4  # at the time, not a spin later
     stop.set()
     assert not clock_mod.wait_until(5.0, stop) and now[0] < 1.0 + 2e-4
+
+
+def test_stamp_clock_learnt_during_a_backlog_is_learnt_afresh_not_called_off():
+    """The first acquisitions queued 1.5 s while the host was busy, then it caught up, 1 ms a
+    frame: later arrivals come earlier and earlier against that envelope, gradually. The
+    estimate follows (or starts again): no disagreement; a sudden jump of the stamps is still
+    flagged (the test above)."""
+    clock = StampClock()
+    arrival = 101.5
+    for k in range(70):
+        board = k * 0.025
+        arrival = max(100.0 + board + 0.003, arrival + 0.001)  # queued, then drained in order
+        late = clock.observe(board, arrival)
+        assert late > -1.0, (k, late)
+    assert clock.to_host(2.0) == pytest.approx(102.003, abs=1e-3)

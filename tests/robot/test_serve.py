@@ -248,14 +248,21 @@ def test_a_board_that_ignores_its_start_time_is_started_by_the_host(tmp_path, ca
     process stops naming times and starts the board itself; its pulses end in the slot."""
     import numpy as np
 
+    from tests.load import HostTiming
+
     port = "sim://liar?scene=robot&robot=virtual-4&board=left&movers=2&lie=start-at-ignored"
     out = tmp_path / "left.ndjson"
-    status = main(["run", "--port", port, "--slot", "virtual-4:left", "--frames", "200", "-o", out])
+    with HostTiming() as host:
+        status = main(
+            ["run", "--port", port, "--slot", "virtual-4:left", "--frames", "200", "-o", out]
+        )
     err = capsys.readouterr().err
     assert status == 0, err
     assert "does not start at the time of its clock it is given" in err, err
     assert "started by the host)" in err
     records = _records(out)
+    if host.late_share(0.0005) > 0.01:  # a start by the host lands as late as the host wakes
+        pytest.skip(f"the slot's phase needs a host that keeps time: {host.why(0.0005)}")
     phases = [_phase_ms(r["stamp_host"], 0.025, 0.00566) for r in records if r.get("stamp_host")]
     assert np.median(np.abs(phases[-40:])) <= 0.5
 
