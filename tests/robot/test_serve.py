@@ -33,8 +33,6 @@ def _records(path):
 
 
 def test_every_board_in_one_process_fused(tmp_path, capsys):
-    import math
-
     from spiel_edge.robot.description import load_robot
     from spiel_edge.robot.schedule import Schedule
     from tests.load import HostTiming
@@ -45,15 +43,16 @@ def test_every_board_in_one_process_fused(tmp_path, capsys):
         status = main(
             ["run", "--robot", str(robot), "--frames", "40", "--max-targets", "4", "-o", str(out)]
         )
-    margin = Schedule.from_robot(load_robot(robot)).margin_s
-    slack = math.ceil(host.late_share(margin) * 40 * 2)  # late wake-ups of 2 boards x 40
     err = capsys.readouterr().err
     assert status == 0, err
+    assert "40 fused records" in err
     records = _records(out)
     assert len(records) == 40
     assert records[-1]["frame_id"] == "base_link"
     complete = [r for r in records if set(r["boards"]) == {"front", "left"}]
     assert len(complete) >= 20  # a loaded machine may cost a few cycles at the start
+    margin = Schedule.from_robot(load_robot(robot)).margin_s
+    slack = host.allowance(margin, 40 * 2)  # late wake-ups of 2 boards x 40 acquisitions
     # in their slots: the pulses 1 slot apart, nobody's window reached by the other
     gaps = [
         r["boards"]["left"]["host_time"] - r["boards"]["front"]["host_time"] for r in complete[10:]
@@ -61,7 +60,6 @@ def test_every_board_in_one_process_fused(tmp_path, capsys):
     assert sum(not 0.003 < g < 0.009 for g in gaps) <= slack, (gaps, host.why(margin))
     marked = sum(bool(b["crosstalk"]) for r in complete[10:] for b in r["boards"].values())
     assert marked <= 2 * slack, (marked, host.why(margin))
-    assert "40 fused records" in err
 
 
 @pytest.mark.parametrize(
@@ -261,14 +259,12 @@ def test_a_board_that_ignores_its_start_time_is_started_by_the_host(tmp_path, ca
     assert "does not start at the time of its clock it is given" in err, err
     assert "started by the host)" in err
     records = _records(out)
-    if host.late_share(0.0005) > 0.01:  # a start by the host lands as late as the host wakes
-        pytest.skip(f"the slot's phase needs a host that keeps time: {host.why(0.0005)}")
+    host.allowance(0.0005, 200, most=0.01)  # a start by the host lands as late as it wakes
     phases = [_phase_ms(r["stamp_host"], 0.025, 0.00566) for r in records if r.get("stamp_host")]
     assert np.median(np.abs(phases[-40:])) <= 0.5
 
 
 def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_path):
-    import math
 
     from spiel_edge.robot.description import load_robot
     from spiel_edge.robot.schedule import Schedule
@@ -297,7 +293,7 @@ def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_pat
     # lands as late as this process wakes: each wake-up later than the slot margin (measured
     # meanwhile) may cost one more restart and two marks (its window and the neighbour's).
     margin = Schedule.from_robot(robot).margin_s
-    slack = math.ceil(host.late_share(margin) * 120)
+    slack = host.allowance(margin, 120)
     restarts = {w.board.name: w.stats.restarts for w in runner.workers}
     # on its own clock; but the virtual board runs in this process, as late as it wakes
     assert restarts["front"] <= slack, (restarts, host.why(margin))
