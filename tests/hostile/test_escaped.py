@@ -4,7 +4,6 @@ through the one escaping function, spiel_edge.io.shown.escape."""
 
 from __future__ import annotations
 
-import itertools
 import logging
 import re
 
@@ -13,12 +12,11 @@ import pytest
 from firmware_protocol.image import pack_image
 from spiel_edge.cli import _shorten_record, main
 from spiel_edge.io.shown import escape
-from spiel_edge.sim import protocol_sim
+from tests.protocol_v2.conftest import sim_url  # noqa: F401  # a fixture: fresh boards
 
 # ESC + CSI (clear screen), BEL, OSC (window title), a newline, C1 CSI, a byte that was not UTF-8
 HOSTILE = ["\x1b[2J", "\x07", "\x1b]0;pwned\x07", "a\nb", "\x9b31m", "\udcff"]
 RAW = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\ud800-\udfff]")  # what must never get out
-_names = itertools.count()
 
 
 def _raw_in(text: str) -> list[str]:
@@ -34,21 +32,7 @@ def test_escape_shows_every_control_character(text) -> None:
     assert escape(text.encode("utf-8", "surrogateescape")) == shown  # bytes alike
 
 
-@pytest.fixture
-def board():
-    made: list[str] = []
-
-    def make(query: str = "") -> str:
-        url = f"sim://escaped{next(_names)}" + (f"?{query}" if query else "")
-        made.append(url)
-        return url
-
-    yield make
-    for url in made:
-        protocol_sim.forget(url)
-
-
-def test_firmware_pack_update_and_info_escape_the_image_strings(board, tmp_path, capsys):
+def test_firmware_pack_update_and_info_escape_the_image_strings(sim_url, tmp_path, capsys):  # noqa: F811 (the fixture)
     body = tmp_path / "body.bin"
     body.write_bytes(b"SIM:OK " + bytes(range(256)) * 4)
     hostile_version = "1\x1b[2J\x07"  # 6 bytes: fits the 16 of the header
@@ -68,7 +52,7 @@ def test_firmware_pack_update_and_info_escape_the_image_strings(board, tmp_path,
     )
     out, err = capsys.readouterr()
     assert status == 0 and not _raw_in(out + err) and "\\x1b[2J\\x07" in err, err
-    url = board("max_payload=512")
+    url = sim_url("max_payload=512")
     status = main(["firmware", "update", "--port", url, "--wait", "10", str(image)])
     out, err = capsys.readouterr()
     assert not _raw_in(out + err), (out, err)
@@ -78,14 +62,14 @@ def test_firmware_pack_update_and_info_escape_the_image_strings(board, tmp_path,
     assert not _raw_in(out + err) and "\\x1b[2J\\x07" in out, (out, err)
 
 
-def test_a_hostile_target_and_a_non_utf8_file_name_in_errors(board, tmp_path, capsys):
+def test_a_hostile_target_and_a_non_utf8_file_name_in_errors(sim_url, tmp_path, capsys):  # noqa: F811 (the fixture)
     image = tmp_path / "fw.img"
     image.write_bytes(pack_image(b"SIM:OK " + bytes(256), version="2.0", target="e\x1b[31mvil"))
-    assert main(["firmware", "update", "--port", board(), str(image)]) == 2
+    assert main(["firmware", "update", "--port", sim_url(), str(image)]) == 2
     out, err = capsys.readouterr()
     assert not _raw_in(out + err) and "\\x1b[31m" in err, err
     missing = str(tmp_path) + "/no\udcff\x1b[2Jsuch\n.img"
-    assert main(["firmware", "update", "--port", board(), missing]) == 2
+    assert main(["firmware", "update", "--port", sim_url(), missing]) == 2
     out, err = capsys.readouterr()
     assert not _raw_in(out + err) and err.count("\n") == 1 and "\\xff" in err, err
 
@@ -102,7 +86,7 @@ def test_every_log_record_is_one_escaped_line() -> None:
     assert "robot/\\x1b[2J/targets" in message and "board\\nFAKE LINE \\x07" in message
 
 
-def test_last_rounds_unclear_messages_are_one_clear_line(tmp_path, capsys):
+def test_last_rounds_unclear_messages_are_one_clear_line(sim_url, tmp_path, capsys):  # noqa: F811 (the fixture)
     """A newline in a missing input's name, a non-UTF-8 folder for an MCAP output, an endless
     board config read: each one line naming what and where, status 2, quickly."""
     assert main(["replay", str(tmp_path / "no\nsuch.csv")]) == 2
@@ -120,10 +104,6 @@ def test_last_rounds_unclear_messages_are_one_clear_line(tmp_path, capsys):
     out = str(good) + "/out.mcap"
     assert main(["run", "--port", port, "--frames", "3", "--record", out, "-o", "/dev/null"]) == 0
     capsys.readouterr()
-    url = f"sim://endless{next(_names)}?lie=endless-config"
-    try:
-        assert main(["config", "pull", "--port", url]) == 2
-    finally:
-        protocol_sim.forget(url)
+    assert main(["config", "pull", "--port", sim_url("lie=endless-config")]) == 2
     err = capsys.readouterr().err
     assert "config goes on beyond" in err and err.count("\n") == 1, err
