@@ -293,7 +293,8 @@ def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_pat
     # lands as late as this process wakes: each wake-up later than the slot margin (measured
     # meanwhile) may cost one more restart and two marks (its window and the neighbour's).
     margin = Schedule.from_robot(robot).margin_s
-    slack = host.allowance(margin, 120)
+    # a start by the host passes three wake-ups (its timer, its write, the board's read)
+    slack = host.allowance(margin, 3 * 120)
     restarts = {w.board.name: w.stats.restarts for w in runner.workers}
     # on its own clock; but the virtual board runs in this process, as late as it wakes
     assert restarts["front"] <= slack, (restarts, host.why(margin))
