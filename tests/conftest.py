@@ -49,6 +49,8 @@ def _descendants() -> dict[int, str]:
         state, ppid = rest.split()[:2]
         if state not in ("Z", "X"):  # a zombie is gone already (its parent reaps it)
             parent[pid], names[pid] = int(ppid), name
+            if int(ppid) == os.getpid() and _interpreter_helper(pid):
+                names.pop(pid)  # the helper itself; what it forks (pool workers) still counts
     me, out = os.getpid(), {}
     for pid in names:
         p, hops = parent.get(pid), 0
@@ -57,6 +59,16 @@ def _descendants() -> dict[int, str]:
         if p == me:
             out[pid] = names[pid]
     return out
+
+
+def _interpreter_helper(pid: int) -> bool:
+    """multiprocessing's forkserver and resource tracker: started once, kept for the process's
+    life and reused (the parallel replay's workers come from the forkserver), not a leak."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            return b"multiprocessing" in fh.read()
+    except OSError:
+        return False
 
 
 @pytest.fixture(scope="module", autouse=True)
