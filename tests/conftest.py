@@ -27,3 +27,69 @@ def _model_cache(tmp_path_factory):
     import os
 
     os.environ["SPIEL_EDGE_MODEL_CACHE"] = str(tmp_path_factory.mktemp("verified-models"))
+
+
+def _descendants() -> dict[int, str]:
+    """This process's living descendants (pid -> command name), from /proc; {} without it."""
+    import os
+
+    parent: dict[int, int] = {}
+    names: dict[int, str] = {}
+    try:
+        pids = [int(p) for p in os.listdir("/proc") if p.isdigit()]
+    except OSError:
+        return {}
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/stat") as fh:
+                stat = fh.read()
+        except OSError:
+            continue
+        name, rest = stat[stat.index("(") + 1 : stat.rindex(")")], stat[stat.rindex(")") + 2 :]
+        state, ppid = rest.split()[:2]
+        if state not in ("Z", "X"):  # a zombie is gone already (its parent reaps it)
+            parent[pid], names[pid] = int(ppid), name
+            if int(ppid) == os.getpid() and _interpreter_helper(pid):
+                names.pop(pid)  # the helper itself; what it forks (pool workers) still counts
+    me, out = os.getpid(), {}
+    for pid in names:
+        p, hops = parent.get(pid), 0
+        while p is not None and p != me and hops < 64:
+            p, hops = parent.get(p), hops + 1
+        if p == me:
+            out[pid] = names[pid]
+    return out
+
+
+def _interpreter_helper(pid: int) -> bool:
+    """multiprocessing's forkserver and resource tracker: started once, kept for the process's
+    life and reused (the parallel replay's workers come from the forkserver), not a leak."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            return b"multiprocessing" in fh.read()
+    except OSError:
+        return False
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _no_process_outlives_its_module():
+    """Emulators and child processes never outlive their test module: any descendant started
+    while the module ran and still alive after its fixtures were torn down is killed (by its
+    pid: a process this run started) and named in a warning. A left-over emulator busy-looping a
+    core once made three later tests fail."""
+    import contextlib
+    import os
+    import signal
+    import warnings
+
+    before = _descendants()
+    yield
+    left = {pid: name for pid, name in _descendants().items() if pid not in before}
+    for pid in left:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+    if left:
+        warnings.warn(
+            f"processes outlived their test module and were killed: {sorted(left.items())}",
+            stacklevel=1,
+        )

@@ -21,6 +21,7 @@ import warnings
 import click
 
 from spiel_edge import __version__
+from spiel_edge.cli._signals import Terminated, deferred_in_import, interrupted
 from spiel_edge.errors import SpielError
 from spiel_edge.io.guard import escape, release_claims, shorten, shorten_tokens
 
@@ -56,9 +57,11 @@ def setup_logging(verbosity: int) -> None:
 
 
 def _shorten_record(record: logging.LogRecord) -> bool:
-    """No log line carries a huge token (a 10 MB argument echoed by some message)."""
+    """No log line carries a huge token (a 10 MB argument echoed by some message) nor a raw
+    control character (a board's string, a file name, a Zenoh key): a record is one line,
+    its newlines shown as ``\\n``, escape sequences as ``\\x1b`` (io/shown.py)."""
     message = record.getMessage()
-    short = shorten_tokens(message)
+    short = shorten_tokens(escape(message))
     if short != message:
         record.msg, record.args = short, None
     return True
@@ -211,13 +214,11 @@ class _SignalPhase:
 
     @classmethod
     def handler(cls, signum: int, frame: object) -> None:
-        if cls.ending:
+        if cls.ending or deferred_in_import(signum, frame):
             return
         _end_if_stuck()
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
-        from spiel_edge.cli._signals import Terminated
-
         raise Terminated(f"signal {signum}")
 
 
@@ -314,6 +315,8 @@ def _main(args: list[str]) -> int:
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except SpielError as exc:
+        if interrupted(exc):
+            return 130
         _error(f"error: {exc}", args, exc)
         return EXIT_ERROR
     except KeyboardInterrupt:
@@ -322,6 +325,8 @@ def _main(args: list[str]) -> int:
         _silence_stdout()
         return EXIT_OK
     except OSError as exc:  # a disk that filled up, a folder that went away, ...
+        if interrupted(exc):
+            return 130
         where = f": {shorten(exc.filename)}" if getattr(exc, "filename", None) else ""
         _error(f"error: {exc.strerror or exc}{where}", args, exc)
         return EXIT_ERROR
@@ -329,6 +334,8 @@ def _main(args: list[str]) -> int:
         _error("error: out of memory (an input too large for this machine?)", args, exc)
         return EXIT_ERROR
     except Exception as exc:  # the last resort: a bug, or a library's error we know
+        if interrupted(exc):  # a library turned the signal's interrupt into its own error
+            return 130
         known = _library_error(exc)
         if known:
             _error(f"error: {known}", args, exc)

@@ -14,6 +14,7 @@ import numpy as np
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.io.guard import FilePlan
+from spiel_edge.io.shown import shorten_tokens
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.robot.description import RobotSpec, load_robot
@@ -180,6 +181,6 @@ def run_robot(
             with contextlib.suppress(BrokenPipeError, ValueError):
                 sink.close()
             with contextlib.suppress(OSError):
-                click.echo(runner.summary(), err=True)
+                click.echo(shorten_tokens(runner.summary()), err=True)
     dropped = any(w.stats.dropped for w in runner.workers)
     return EXIT_PARTIAL if sink.failed or dropped else EXIT_OK

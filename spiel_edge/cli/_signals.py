@@ -56,6 +56,42 @@ class Terminated(KeyboardInterrupt):
     """TERM or HUP, raised like Ctrl-C so the same clean-up (finally, context managers) runs."""
 
 
+REDELIVER_S = 0.02  # a signal that came during an import is handled again this much later
+
+
+def deferred_in_import(signum: int, frame: object) -> bool:
+    """True when the signal came while the main thread was importing a module: raising there
+    breaks the import (numba's C extension reported ``ImportError: numba._devicearray failed
+    to import`` with the interrupt's traceback, status 2), so the signal is sent again
+    ``REDELIVER_S`` later, until it lands outside the import system."""
+    while frame is not None:
+        if getattr(frame, "f_code", None) and frame.f_code.co_filename.startswith(  # type: ignore[attr-defined]
+            "<frozen importlib"
+        ):
+            timer = threading.Timer(REDELIVER_S, _resend, args=(signum,))
+            timer.daemon = True
+            timer.start()
+            return True
+        frame = frame.f_back  # type: ignore[attr-defined]
+    return False
+
+
+def _resend(signum: int) -> None:
+    with suppress(OSError):
+        os.kill(os.getpid(), signum)
+
+
+def interrupted(exc: BaseException) -> bool:
+    """An exception raised because of a signal: a KeyboardInterrupt anywhere in its chain (a
+    library that wrapped the interrupt in its own error)."""
+    seen = 0
+    while exc is not None and seen < 50:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
+
+
 @contextmanager
 def stop_on_signals(
     stop: threading.Event, finalizers: Finalizers | None = None
@@ -68,6 +104,8 @@ def stop_on_signals(
 
     def handler(signum: int, frame: object) -> None:
         if stop.is_set() and signum == signal.SIGINT:
+            if deferred_in_import(signum, frame):
+                return
             raise KeyboardInterrupt
         if not stop.is_set() and finalizers is not None:
             threading.Thread(

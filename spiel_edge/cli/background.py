@@ -11,6 +11,7 @@ from spiel_edge.cli._options import board_port, force_option, port_option
 from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
 from spiel_edge.io.guard import FilePlan
+from spiel_edge.io.shown import escape
 from spiel_edge.runtime.background import median_background, save_background
 
 
@@ -64,5 +65,7 @@ def command(port, count, rate, n_samples, output, force) -> int:
             background = median_background(counted(), count, stop)
         session.stop_stream()
     path = save_background(output, background)
-    click.echo(f"{path}: background of {count} acquisitions, shape {background.shape}", err=True)
+    click.echo(
+        f"{escape(path)}: background of {count} acquisitions, shape {background.shape}", err=True
+    )
     return 0

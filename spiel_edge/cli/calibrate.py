@@ -33,6 +33,7 @@ from spiel_edge.cli._options import (
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import FilePlan, atomic_write
+from spiel_edge.io.shown import escape
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.view import require_matplotlib
@@ -217,10 +218,10 @@ def command(
     if output and not refused:
         with atomic_write(output) as fh:
             fh.write(calibration_toml(cal, str(source), validation))
-        click.echo(f"calibration written to {output}", err=True)
+        click.echo(f"calibration written to {escape(output)}", err=True)
     if plot:
         plot_calibration(cal, plot, validation)
-        click.echo(f"plot written to {plot}", err=True)
+        click.echo(f"plot written to {escape(plot)}", err=True)
     return EXIT_PARTIAL if refused else EXIT_OK
 
 

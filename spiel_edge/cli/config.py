@@ -13,6 +13,7 @@ from spiel_edge.cli import EXIT_OK
 from spiel_edge.cli._options import board_port, force_option, port_option, profile_option
 from spiel_edge.errors import ConfigError, DeviceError
 from spiel_edge.io.guard import FilePlan, atomic_write
+from spiel_edge.io.shown import escape
 from spiel_edge.profile.schema import load_profile
 
 
@@ -63,7 +64,7 @@ def pull_cmd(port: str, file: str | None, force: bool) -> int:
         config = pull(session)
     if config is None:
         raise DeviceError("the board holds no config yet: `spiel-edge config push` one")
-    _write_or_print(file, bc.to_toml(config), f"config of {config['board']['name']!r}")
+    _write_or_print(file, bc.to_toml(config), f"config of {escape(repr(config['board']['name']))}")
     return EXIT_OK
 
 
@@ -81,7 +82,7 @@ def template_cmd(profile_name: str, name: str, file: str | None, force: bool) ->
     config = bc.from_profile(load_profile(profile_name), name)
     text = f"# a starting board config from profile {profile_name!r}\n{bc.to_toml(config)}"
     text += "" if text.endswith("\n") else "\n"
-    _write_or_print(file, text, f"board config {name!r}")
+    _write_or_print(file, text, f"board config {escape(repr(name))}")
     return EXIT_OK
 
 
@@ -90,7 +91,7 @@ def _write_or_print(file: str | None, text: str, what: str) -> None:
     if file and file != "-":
         with atomic_write(file) as fh:
             fh.write(text)
-        click.echo(f"{what} written to {file}", err=True)
+        click.echo(f"{what} written to {escape(file)}", err=True)
     else:
         click.echo(text, nl=False)
 

@@ -21,6 +21,7 @@ from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import ConfigError, InputError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
+from spiel_edge.io.shown import escape
 from spiel_edge.measure.evaluate import evaluate_folder, evaluate_labelled, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.measure.track_eval import evaluate_tracked
@@ -188,7 +189,7 @@ def command(
         draw_error_by_position(ev.by_position, plot)
         click.echo(f"plot written to {plot}", err=True)
     for message in ev.failed:
-        click.echo(f"failed: {message}", err=True)
+        click.echo(f"failed: {escape(message)}", err=True)
     if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result
         raise InputError(f"{folder}: no usable labelled acquisitions ({len(ev.failed)} failed)")
     return EXIT_PARTIAL if ev.failed else EXIT_OK
@@ -229,6 +230,8 @@ def _evaluate_ranging(folder, profile_name, calibration, as_json) -> int:
         f"{fmt(summary.get('over_1mm'), '.2%')}, 95 % coverage {fmt(summary.get('coverage95'), '.1%')}"
     )
     return EXIT_OK
+
+
 SCENE_COLUMNS = (
     "targets: true targets per acquisition; recall: true targets found within 30 mm; all: "
     "acquisitions with every one found; prec: reported targets that are true; mean: their "

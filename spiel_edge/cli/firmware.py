@@ -11,6 +11,7 @@ from spiel_edge.cli import EXIT_ERROR, EXIT_OK
 from spiel_edge.cli._options import board_port, force_option, port_option
 from spiel_edge.errors import DeviceError, InputError
 from spiel_edge.io.guard import FilePlan, atomic_write
+from spiel_edge.io.shown import escape  # a board's or an image's strings: never raw
 
 MAX_IMAGE_BYTES = 64 * 1024 * 1024  # an image file larger than this is refused unread
 
@@ -49,7 +50,7 @@ def info_cmd(port: str) -> int:
     try:
         info = firmware_info(session)
         for line in describe_info(info, session.hello):
-            click.echo(line)
+            click.echo(escape(line))
     finally:
         with contextlib.suppress(DeviceError):
             session.close()
@@ -78,7 +79,9 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
     header = check_image(data)  # refused before the port is opened
     url = board_port(port)
     click.echo(
-        f"{image}: firmware {header.version} for {header.target}, {len(data)} bytes", err=True
+        f"{escape(image)}: firmware {escape(header.version)} for {escape(header.target)}, "
+        f"{len(data)} bytes",
+        err=True,
     )
 
     line_open = [False]
@@ -224,7 +227,7 @@ def pack_cmd(
     else:
         how = f"signed with key {signer.key_id}"
     click.echo(
-        f"{output}: {version} for {target}, security counter {security_counter}, "
+        f"{escape(output)}: {escape(version)} for {escape(target)}, security counter {security_counter}, "
         f"{len(image)} bytes, {how}",
         err=True,
     )
@@ -259,16 +262,17 @@ def check_cmd(image: str, pub_path: str, min_counter: int) -> int:
     try:
         public = parse_public_key_text(Path(pub_path).read_text(errors="replace"))
     except (OSError, ValueError) as exc:
-        raise InputError(f"--pub {pub_path}: {exc}") from exc
+        raise InputError(f"--pub {escape(pub_path)}: {exc}") from exc
     try:
         header = verify_image(_read_image(image), public, min_counter)
     except ImageError as exc:
         code = getattr(exc, "code", None)
         raise InputError(
-            f"{image}: {exc}" + (f" ({code.name})" if code is not None else "")
+            f"{escape(image)}: {exc}" + (f" ({code.name})" if code is not None else "")
         ) from exc
     click.echo(
-        f"{image}: firmware {header.version} for {header.target}, security counter "
+        f"{escape(image)}: firmware {escape(header.version)} for {escape(header.target)}, "
+        f"security counter "
         f"{header.security_counter}, signed by key {header.key_id.hex()}: a board with this key "
         "accepts it",
         err=True,
@@ -293,9 +297,10 @@ def keygen_cmd(name: str, force: bool) -> int:
     try:
         key = generate_key(private, public)
     except OSError as exc:
-        raise InputError(f"{name}: cannot write the key ({exc.strerror or exc})") from exc
-    click.echo(f"{private}: private key (mode 0600), key id {key.key_id}", err=True)
+        raise InputError(f"{escape(name)}: cannot write the key ({exc.strerror or exc})") from exc
+    click.echo(f"{escape(private)}: private key (mode 0600), key id {key.key_id}", err=True)
     click.echo(
-        f"{public}: public key: make -C firmware_protocol/firmware FW_KEY={public}", err=True
+        f"{escape(public)}: public key: make -C firmware_protocol/firmware FW_KEY={escape(public)}",
+        err=True,
     )
     return EXIT_OK

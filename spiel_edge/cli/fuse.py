@@ -11,6 +11,7 @@ import click
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import force_option, realtime_option
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
+from spiel_edge.io.shown import shorten_tokens
 
 
 @click.command("fuse")
@@ -231,7 +232,7 @@ def _close_and_summarise(sink, fuse) -> None:
         sink.close()
     if fuse is not None:
         with contextlib.suppress(OSError):
-            click.echo(fuse.summary(), err=True)
+            click.echo(shorten_tokens(fuse.summary()), err=True)
 
 
 def _status(sink, fuse) -> int:

@@ -7,6 +7,7 @@ import click
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import force_option
 from spiel_edge.io.guard import FilePlan
+from spiel_edge.io.shown import escape
 
 
 @click.command("recover")
@@ -27,5 +28,5 @@ def command(file: str, output: str, force: bool) -> int:
     plan.input_file(file, "FILE")
     plan.output(output, "--output")
     result = recover(file, output)
-    click.echo(f"{output}: {result.summary()}", err=True)
+    click.echo(f"{escape(output)}: {result.summary()}", err=True)
     return EXIT_PARTIAL if result.lost_data else EXIT_OK

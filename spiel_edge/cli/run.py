@@ -27,6 +27,7 @@ from spiel_edge.cli._status_line import StatusLine
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
 from spiel_edge.io.guard import FilePlan
+from spiel_edge.io.shown import escape, shorten_tokens
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.profile.schema import resolve_profile
@@ -297,7 +298,7 @@ def command(
             else:
                 slotted = start_in_slot(session, keeper, stop, stream)
                 runner.on_acquisition = slotted.on_acquisition
-                finalizers.add(lambda: click.echo(slotted.summary(), err=True))
+                finalizers.add(lambda: click.echo(shorten_tokens(slotted.summary()), err=True))
             check_stream_shape(session, pipeline)
             notifier.ready(f"streaming from {port}")
             runner.run(stop, frames=frames, status=_reporter(show_status, notifier))
@@ -309,7 +310,7 @@ def command(
             _close(runner, session, sink, show_status)
     failed = sink is not None and sink.failed
     if failed:
-        click.echo(f"outputs that failed: {'; '.join(sink.failed)}", err=True)
+        click.echo(f"outputs that failed: {escape('; '.join(sink.failed))}", err=True)
     return EXIT_PARTIAL if failed or (runner is not None and runner.stats.errors) else EXIT_OK
 
 
@@ -361,7 +362,7 @@ def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status:
         if show_status:
             STATUS.close()
         if runner is not None and (runner.stats.records or streamed):
-            click.echo(runner.summary(), err=True)
+            click.echo(shorten_tokens(runner.summary()), err=True)
 
 
 # one board's options: with --robot each board's come from the robot file

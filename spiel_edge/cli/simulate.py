@@ -8,6 +8,7 @@ import click
 
 from spiel_edge.cli import EXIT_OK
 from spiel_edge.cli._signals import stop_on_signals
+from spiel_edge.io.shown import escape
 from spiel_edge.sim.pty import serve_pty
 
 
@@ -50,7 +51,7 @@ def command(url: str, use_pty: bool, link: str | None) -> int:
         device = serve_pty(url, link=link, stop=stop, announce=click.echo)
     stats, faults = device.board.stats, device.faults.stats
     click.echo(
-        f"virtual board {device.options.serial}: {stats.acquisitions_sent} acquisitions sent, "
+        f"virtual board {escape(device.options.serial)}: {stats.acquisitions_sent} acquisitions sent, "
         f"{stats.overruns} overruns, {device.unplugs} unplugs, {faults.damaged_frames} frames damaged",
         err=True,
     )

@@ -118,7 +118,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         self._rx_errors_before = 0
         self._last_data = time.monotonic()
         self._v2_init()
-        self.tracker.stamp = self.stamp  # board time -> host time, once synced
+        self.tracker.stamp = self.stamp_acquisition  # board time -> host time, once synced
 
     # --- connection ----------------------------------------------------------------------
 

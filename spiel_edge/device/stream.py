@@ -47,6 +47,9 @@ class LiveAcquisition:
     stamp_host: float | None = None
     stamp_uncertainty_us: float | None = None
     iq: np.ndarray | None = None  # I/Q streams: the raw (channels, 2 x samples) int16 q, i
+    # "board": stamp_host is the board's clock mapped by TIME_SYNC; "arrival": the board's
+    # clock could not be trusted and stamp_host is the host's arrival time (wider uncertainty)
+    stamp_source: str | None = None
 
     @property
     def phase(self) -> np.ndarray | None:
@@ -71,8 +74,11 @@ class StreamTracker:
         self._rows: dict[int, np.ndarray] = {}
         self._rows_for = -1
         self._first_delivered: int | None = None
-        # board time (us) -> (Unix s, uncertainty us) or None; set by the session
-        self.stamp: Callable[[int], tuple[float, float] | None] = lambda board_us: None
+        # (board time us, arrival perf ns, span us) -> (Unix s, uncertainty us, source) or
+        # None; set by the session
+        self.stamp: Callable[[int, int, float], tuple[float, float, str] | None] = (
+            lambda board_us, received_ns, span_us: None
+        )
         self.sanity = StreamSanity()  # a lying firmware: checked frame by frame
         self.progress_at = time.monotonic()  # the last acquisition assembled (or stream begun)
         self.frame_at = time.monotonic()  # the last stream frame
@@ -157,7 +163,8 @@ class StreamTracker:
         samples, iq = acq.samples, None
         if acq.sample_format == SampleFormat.I16_IQ:
             samples, iq = iq_amplitude(acq.samples), acq.samples
-        stamped = self.stamp(acq.timestamp_us)
+        span_us = acq.samples.shape[-1] / max(acq.sample_rate_hz, 1) * 1e6
+        stamped = self.stamp(acq.timestamp_us, received_ns, span_us)
         self.ready.append(
             LiveAcquisition(
                 acq.index,
@@ -172,6 +179,7 @@ class StreamTracker:
                 None if stamped is None else stamped[0],
                 None if stamped is None else stamped[1],
                 iq,
+                None if stamped is None else stamped[2],
             )
         )
         if len(self._truth_targets) > MAX_PENDING_TRUTH:

@@ -19,6 +19,7 @@ from firmware_protocol.v2_messages import (
     Heartbeat,
     LogMessage,
 )
+from spiel_edge.io.shown import escape
 
 __all__ = ["BoardTelemetry", "TelemetryCounters"]
 
@@ -44,7 +45,7 @@ def _level(severity: int) -> int:
 
 
 def _printable(text: str) -> str:
-    clean = "".join(ch if ch.isprintable() else "?" for ch in text[: TEXT_MAX + 1])
+    clean = escape(text[: TEXT_MAX + 1])  # the one escaping function (io/shown.py)
     return clean if len(clean) <= TEXT_MAX else clean[:TEXT_MAX] + "..."
 
 

@@ -24,11 +24,22 @@ does not change with a reset, so the first exchange after it is already good to 
 ``map(board_us)`` gives the host time and its uncertainty (about 95 %): with fewer than
 ``MIN_FIT`` exchanges the hard bound of the best exchange (half its round trip plus the
 drift bound times the time since), then the fit's prediction error.
+
+Drift: RC oscillators run 1-2 % off (crystals 20-100 ppm), so the rate is searched within
++-3 %. Absurd answers (negative, beyond 2**53 us -- 285 years -- u64::MAX, not finite) are
+dropped before anything else. ``trusted`` says whether the answers agree with each other:
+two or more rejected in a row, or more than a third of the last 16 rejected (an answer that
+alternates between two clocks, a clock that wraps or runs backwards), and the board's clock
+is not to be trusted until the estimator restarts or its answers agree again; the stamps
+then fall back to the host's arrival time (:class:`spiel_edge.device.stamp_guard.StampGuard`).
+Each kind of message is said once and then at most every ``SAY_EVERY_US`` with the count of
+those not said: a boot-id storm or a garbage-spewing board cannot flood the log.
 """
 
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -36,7 +47,11 @@ import numpy as np
 
 __all__ = ["ClockEstimate", "SyncCounters", "SyncSample", "TimeSyncEstimator"]
 
-MAX_DRIFT = 500e-6  # |board rate / host rate - 1| assumed at most (crystals: +-100 ppm each)
+MAX_DRIFT = 0.03  # |board rate / host rate - 1| at most: RC oscillators 1-2 %, crystals 1e-4
+MAX_BOARD_US = float(2**53)  # a board time beyond this (285 years; u64::MAX) is garbage
+HISTORY = 16  # the last answers' fates, for ``trusted``
+MAX_REJECTED = 1 / 3  # more of the last HISTORY rejected than this: the answers disagree
+SAY_EVERY_US = 30e6  # a kind of message said again at most this often (with a count)
 MAX_RTT_US = 200_000.0  # a round trip longer than this tells nothing useful
 WINDOW = 512  # exchanges kept for the fit
 MIN_FIT = 8  # exchanges before the fit replaces the best single exchange
@@ -89,6 +104,7 @@ class SyncCounters:
     long_rtt: int = 0  # dropped: round trip too long (or negative)
     backwards: int = 0  # dropped: the board's clock went backwards
     outliers: int = 0  # dropped: far from the current estimate
+    absurd: int = 0  # dropped: a board time no clock can read (garbage, u64::MAX)
     steps: int = 0  # the board's clock was stepped: estimator restarted
     resets: int = 0  # the board rebooted (new boot id): estimator restarted
     messages: list[str] = field(default_factory=list)  # what happened, for the caller to log
@@ -109,6 +125,10 @@ class TimeSyncEstimator:
         self._prior: tuple[float, float] | None = None  # (rate, sd) measured before a reset
         self._bound: ClockEstimate | None = None  # the best exchange's hard bound
         self._fitted: ClockEstimate | None = None  # the line through the window
+        self._envelope: _Envelope | None = None  # every line the window allows
+        self._history: deque[bool] = deque(maxlen=HISTORY)  # recent answers: kept or not
+        self._said: dict[str, tuple[float, int]] = {}  # message kind -> (said at, not said)
+        self.consistent = True  # False: the last fit found no line within every round trip
 
     # --- input -------------------------------------------------------------------------
 
@@ -119,27 +139,41 @@ class TimeSyncEstimator:
         self.boot_id = boot_id
         self._samples.clear()
         self._suspects.clear()
+        self._history.clear()
         self.estimate = self._bound = self._fitted = None
+        self._envelope = None
 
     def add(self, sent_us: float, received_us: float, board_us: float, boot_id: int) -> bool:
         """One exchange; False (and a counter, and a message) when it was not used."""
         c = self.counters
         c.exchanges += 1
+        now = float(received_us)
         if self.boot_id is not None and boot_id != self.boot_id:
             c.resets += 1
-            c.messages.append(f"the board rebooted (boot id {boot_id:08x}): clock sync restarted")
+            self._say(
+                "reset", f"the board rebooted (boot id {boot_id:08x}): clock sync restarted", now
+            )
             self.reset(boot_id)
         self.boot_id = boot_id
         s = SyncSample(float(sent_us), float(received_us), float(board_us))
-        if not 0.0 <= s.rtt_us <= MAX_RTT_US or not math.isfinite(s.board_us):
+        if not 0.0 <= s.rtt_us <= MAX_RTT_US:
             c.long_rtt += 1
+            return False
+        if not (math.isfinite(s.board_us) and 0.0 <= s.board_us <= MAX_BOARD_US):
+            c.absurd += 1
+            self._history.append(False)
+            self._say(
+                "absurd", f"TIME_SYNC answer with an absurd board time ({board_us!r}): ignored", now
+            )
             return False
         last = self._samples[-1] if self._samples else None
         if last is not None and s.board_us < last.board_us - last.rtt_us - s.rtt_us:
             c.backwards += 1
-            c.messages.append(
+            self._say(
+                "backwards",
                 f"TIME_SYNC answer goes backwards ({(last.board_us - s.board_us) / 1e6:.6f} s "
-                "before the previous one): ignored"
+                "before the previous one): ignored",
+                now,
             )
             return self._suspect(s)
         if self.estimate is not None:
@@ -147,16 +181,38 @@ class TimeSyncEstimator:
             off = abs(s.mid_us - host)
             if off > max(8.0 * u, OUTLIER_FLOOR_US) + 0.5 * s.rtt_us:
                 c.outliers += 1
-                c.messages.append(
+                self._say(
+                    "outlier",
                     f"TIME_SYNC answer {(host - s.mid_us) / 1e6:+.6f} s off the board's clock "
-                    "estimate: ignored"
+                    "estimate: ignored",
+                    now,
                 )
                 return self._suspect(s)
         self._suspects.clear()
         self._samples.append(s)
+        self._history.append(True)
         c.used += 1
         self._refit()
         return True
+
+    @property
+    def trusted(self) -> bool:
+        """An estimate exists and the recent answers agree with it (see the module's text)."""
+        if self.estimate is None or len(self._suspects) >= 2:
+            return False
+        h = self._history
+        return len(h) < 8 or h.count(False) <= MAX_REJECTED * len(h)
+
+    def _say(self, kind: str, text: str, now_us: float) -> None:
+        """A message once, then at most every SAY_EVERY_US per kind, with how many were not."""
+        at, quiet = self._said.get(kind, (-math.inf, 0))
+        if now_us - at < SAY_EVERY_US:
+            self._said[kind] = (at, quiet + 1)
+            return
+        if quiet:
+            text += f" ({quiet} more like it not shown)"
+        self._said[kind] = (now_us, 0)
+        self.counters.messages.append(text)
 
     def _suspect(self, s: SyncSample) -> bool:
         """Outliers in a row that agree with each other: the board's clock was stepped."""
@@ -169,16 +225,21 @@ class TimeSyncEstimator:
             ):
                 suspects.clear()
         suspects.append(s)
+        self._history.append(False)
         if len(suspects) < STEP_AFTER:
             return False
         self.counters.steps += 1
-        self.counters.messages.append(
+        self._say(
+            "step",
             f"the board's clock was stepped ({STEP_AFTER} answers in a row agree on a new "
-            "offset): clock sync restarted"
+            "offset): clock sync restarted",
+            s.received_us,
         )
         kept = list(suspects)
         self._samples.clear()
         self._suspects.clear()
+        self._history.clear()
+        self._history.extend([True] * len(kept))
         self._samples.extend(kept)
         self.counters.used += len(kept)
         self._refit()
@@ -188,8 +249,11 @@ class TimeSyncEstimator:
 
     def _refit(self) -> None:
         self._least_squares()
+        self.consistent = True
+        self._envelope = None
         if self._fitted is not None:
-            corridor = _corridor(list(self._samples), self._prior)
+            corridor, self._envelope = _corridor(list(self._samples), self._prior)
+            self.consistent = corridor is not None
             if corridor is not None:
                 self.estimate = self._fitted = corridor
                 self._rate = corridor.rate
@@ -234,7 +298,11 @@ class TimeSyncEstimator:
         # about 95 %: SIGMAS standard errors of the line's prediction at its centre, growing
         # with the rate's standard error away from it
         small = 1.0 + 4.0 / n  # few exchanges: a wider interval (Student's t, roughly)
-        base = small * SIGMAS * sd / math.sqrt(n) + 1.0
+        # No line passes within every round trip here (the corridor was empty): the answers
+        # contradict each other (a wandering clock, or a board answering from two clocks), so
+        # the line's own standard error would claim what the answers cannot tell. The spread
+        # of the answers themselves is stated instead.
+        base = small * SIGMAS * sd + 1.0
         fitted = ClockEstimate(xm, ym, rate, base, small * SIGMAS * self._rate_sd, True)
         self.estimate = self._fitted = fitted
 
@@ -250,6 +318,9 @@ class TimeSyncEstimator:
         if fitted is None or bound is None:
             return self.estimate.map(board_us)
         value, u_fit = fitted.map(board_us)
+        if self._envelope is not None:  # the exact range of the lines that fit: its middle
+            lo, hi = self._envelope.bounds(board_us)
+            value, u_fit = 0.5 * (lo + hi), 0.5 * (hi - lo)
         hard, u_bound = bound.map(board_us)
         return value, min(u_fit, u_bound + abs(value - hard))
 
@@ -270,8 +341,11 @@ class TimeSyncEstimator:
         return out
 
 
-def _corridor(samples: list[SyncSample], prior: tuple[float, float] | None) -> ClockEstimate | None:
-    """The centre line of the lines above every send and below every read, or None."""
+def _corridor(
+    samples: list[SyncSample], prior: tuple[float, float] | None
+) -> tuple[ClockEstimate | None, _Envelope | None]:
+    """The centre line of the lines above every send and below every read, and the envelope of
+    all those lines; (None, None) when no line fits."""
     board = np.array([x.board_us for x in samples])
     sent = np.array([x.sent_us for x in samples]) - RESOLUTION_US
     read = np.array([x.received_us for x in samples]) + RESOLUTION_US
@@ -290,13 +364,85 @@ def _corridor(samples: list[SyncSample], prior: tuple[float, float] | None) -> C
         rate = _widest(width, lo, hi)
     w = width(rate)
     if w < 0.0:
-        return None
+        return None, None
     # the rates with a corridor at all: how far the rate may be off
     r_lo = _root(width, lo, rate) if width(lo) < 0.0 else lo
     r_hi = _root(width, hi, rate) if width(hi) < 0.0 else hi
     offset = 0.5 * (np.min(read - rate * board) + np.max(sent - rate * board))
     growth = max(rate - r_lo, r_hi - rate)
-    return ClockEstimate(b0, h0 + float(offset), rate, 0.5 * w + RESOLUTION_US, growth, True)
+    # Every feasible line's offset at the centre lies within half the width plus the rate's
+    # play times the window's half-length (the corridor's walls turn with the rate): a bound
+    # for every line the exchanges allow, used to judge answers; stamps use the envelope.
+    reach = float(np.max(np.abs(board))) * growth
+    base = 0.5 * w + reach + RESOLUTION_US
+    line = ClockEstimate(b0, h0 + float(offset), rate, base, growth, True)
+    return line, _Envelope(b0, h0, board, sent, read, r_lo, r_hi)
+
+
+class _Envelope:
+    """The host times that the lines allowed by the exchanges give a board time: no higher
+    than the lower convex hull of the reads, no lower than the upper hull of the sends, with
+    rates within [r_lo, r_hi] (a relaxation of the corridor, so the range holds whatever line
+    is true; within the window it is about the corridor's width, not its width plus the rate's
+    play times the window). Beyond the window (or where the hull's slope leaves the rates), the
+    extreme rate's line through the hull bounds it."""
+
+    def __init__(self, b0, h0, board, sent, read, r_lo: float, r_hi: float) -> None:
+        order = np.argsort(board, kind="stable")
+        b, lo, hi = board[order], sent[order], read[order]
+        self.b0, self.h0, self.r_lo, self.r_hi = b0, h0, r_lo, r_hi
+        self.top = _hull(b.tolist(), hi.tolist(), lower=True)
+        self.bottom = _hull(b.tolist(), lo.tolist(), lower=False)
+        # the extreme rates' lines under every read / over every send (offsets at 0)
+        self.top_at = {r: float(np.min(hi - r * b)) for r in (r_lo, r_hi)}
+        self.bottom_at = {r: float(np.max(lo - r * b)) for r in (r_lo, r_hi)}
+
+    def bounds(self, board_us: float) -> tuple[float, float]:
+        x = board_us - self.b0
+        high = _along(self.top, x, self.r_lo, self.r_hi, self.top_at)
+        low = _along(self.bottom, x, self.r_hi, self.r_lo, self.bottom_at)
+        return self.h0 + min(low, high), self.h0 + max(low, high)
+
+
+def _hull(xs: list[float], ys: list[float], *, lower: bool) -> tuple[list[float], list[float]]:
+    """The lower (or upper) convex hull of points sorted by x (monotone chain)."""
+    hx: list[float] = []
+    hy: list[float] = []
+    for x, y in zip(xs, ys, strict=True):
+        if hx and x == hx[-1]:  # the same board time: keep the tighter point
+            if (y < hy[-1]) if lower else (y > hy[-1]):
+                hx.pop(), hy.pop()
+            else:
+                continue
+        while len(hx) >= 2:
+            cross = (hx[-1] - hx[-2]) * (y - hy[-2]) - (hy[-1] - hy[-2]) * (x - hx[-2])
+            if (cross <= 0.0) if lower else (cross >= 0.0):
+                hx.pop(), hy.pop()
+            else:
+                break
+        hx.append(x)
+        hy.append(y)
+    return hx, hy
+
+
+def _along(hull, x: float, left_rate: float, right_rate: float, at: dict) -> float:
+    """The hull's value at ``x`` where its slope is a rate the exchanges allow; else the line of
+    the nearest allowed rate through the hull (``left_rate`` left of the points)."""
+    hx, hy = hull
+    i = bisect_right(hx, x)
+    if i == 0:
+        rate = left_rate
+    elif i == len(hx):
+        rate = right_rate if x > hx[-1] else None
+        if rate is None:  # exactly the last point
+            return hy[-1]
+    else:
+        slope = (hy[i] - hy[i - 1]) / (hx[i] - hx[i - 1])
+        lo, hi = min(left_rate, right_rate), max(left_rate, right_rate)
+        if lo <= slope <= hi:
+            return hy[i - 1] + slope * (x - hx[i - 1])
+        rate = lo if slope < lo else hi
+    return at[rate] + rate * x
 
 
 def _widest(f, lo: float, hi: float) -> float:

@@ -27,6 +27,7 @@ from firmware_protocol.v2_messages import (
     TimeSync,
     TimeSyncResponse,
 )
+from spiel_edge.device.stamp_guard import StampGuard
 from spiel_edge.device.telemetry import BoardTelemetry
 from spiel_edge.device.timesync import TimeSyncEstimator
 from spiel_edge.errors import DeviceError, DeviceTimeoutError
@@ -47,6 +48,9 @@ class SessionV2Mixin:
         self.sync_period_s = SYNC_PERIOD_S
         self.heartbeat_ms = HEARTBEAT_MS
         self.clock = TimeSyncEstimator()
+        self.stamps = StampGuard(self.clock)
+        self._fallback_said: str | None = None
+        self._last_unix = 0.0
         self.telemetry = BoardTelemetry(self.url)
         self._next_sync = 0.0
         self._wall_minus_perf_ns = time.time_ns() - time.perf_counter_ns()
@@ -109,6 +113,33 @@ class SessionV2Mixin:
             return None
         host_us, uncertainty = mapped
         return (host_us * 1000.0 + self._wall_minus_perf_ns) / 1e9, uncertainty
+
+    def stamp_acquisition(
+        self, board_us: int, received_ns: int, span_us: float
+    ) -> tuple[float, float, str] | None:
+        """An acquisition's (Unix s, uncertainty us, source): the board's clock mapped, or,
+        where that contradicts the acquisition, its arrival (device/stamp_guard.py); None
+        while unsynced."""
+        got = self.stamps.stamp(board_us, received_ns / 1000.0, span_us)
+        if got is None:
+            return None
+        if got.source == "arrival" and self.stamps.reason != self._fallback_said:
+            self._fallback_said = self.stamps.reason  # said once per reason, not per record
+            log.warning(
+                "%s: %s: stamps from the host's arrival time (+-%.1f ms) until it agrees again",
+                self.telemetry.name,
+                self.stamps.reason,
+                got.uncertainty_us / 1000.0,
+            )
+        elif got.source == "board" and self._fallback_said is not None:
+            self._fallback_said = None
+            log.info("%s: stamps from the board's clock again", self.telemetry.name)
+        unix, u = (got.host_us * 1000.0 + self._wall_minus_perf_ns) / 1e9, got.uncertainty_us
+        if unix < self._last_unix:  # the wall clock's offset re-read since: never backwards
+            u += (self._last_unix - unix) * 1e6
+            unix = self._last_unix
+        self._last_unix = unix
+        return unix, u, got.source
 
     def board_time_at(self, unix_s: float) -> int | None:
         """The board's clock (us since boot) when the Unix clock reads ``unix_s``, or None

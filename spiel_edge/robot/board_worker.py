@@ -21,7 +21,7 @@ import numpy as np
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError, SpielError
 from spiel_edge.robot.clock import (
-    MAX_DISAGREEMENT_S,
+    Disagreement,
     StampClock,
     synced_pulse,
     unix_minus_perf_s,
@@ -33,8 +33,6 @@ from spiel_edge.robot.schedule import Schedule
 from spiel_edge.robot.slot_keeper import SlotPhase, StartAtTrust
 
 log = logging.getLogger(__name__)
-
-DISAGREE_LIMIT = 3  # acquisitions in a row seconds off the clock estimate: the board is dropped
 
 
 @dataclass
@@ -85,7 +83,7 @@ class BoardWorker(threading.Thread):
         self.on_its_clock = False  # its last start was named in its clock (START_AT)
         self.trust = StartAtTrust(schedule.margin_s)  # does it keep the time it is named?
         self._named: tuple[float, float] | None = None  # (when, period) of such a start
-        self._disagree = 0
+        self._disagree = Disagreement()  # seconds off the clock estimate: the board is dropped
 
     @property
     def t0(self) -> float:
@@ -176,15 +174,11 @@ class BoardWorker(threading.Thread):
             arrival = acq.received_ns / 1e9
             stamp = acq.timestamp_us / 1e6
             late = self.clock.observe(stamp, arrival)
-            if self.clock.ready and abs(late) > MAX_DISAGREEMENT_S:
-                self._disagree += 1
-                if self._disagree >= DISAGREE_LIMIT:
-                    raise DeviceError(
-                        f"its clock disagrees with the host's by {late:+.1f} s "
-                        f"(stamps not in microseconds, or a clock that jumps)"
-                    )
-            else:
-                self._disagree = 0
+            if self.clock.ready and self._disagree.observe(late, arrival):
+                raise DeviceError(
+                    f"its clock disagrees with the host's by {late:+.1f} s "
+                    f"(stamps not in microseconds, or a clock that jumps)"
+                )
             pulse = self._measured_pulse(acq)  # protocol 2: TIME_SYNC's, when it is tight
             if (pulse is not None) != self.synced:  # another time axis: learn the bias afresh
                 self.synced = pulse is not None

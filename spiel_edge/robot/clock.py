@@ -30,6 +30,8 @@ BLOCKS = 64  # lower-envelope points in the fit
 MIN_DRIFT_SPAN_S = 10.0  # the drift is fitted once the minima span this long (else 0)
 MAX_DRIFT = 1e-3  # a crystal drifts by ppm, never by 0.1 %
 MAX_DISAGREEMENT_S = 1.0  # a mapped time this far from arrival: the clock is not believable
+DISAGREE_LIMIT = 3  # times in a row from the future: the clocks disagree
+BEHIND_FOR_S = 5.0  # times this long all seconds in the past: the clocks disagree
 
 
 class BoardClock(Protocol):
@@ -108,6 +110,32 @@ class StampClock:
         if self._offset is None:
             raise ValueError("no acquisition observed yet")
         return board_s + self._offset + self._drift * board_s
+
+
+class Disagreement:
+    """Whether two clocks disagree, from how late each time arrives against the other clock
+    (``late_s``: arrival minus the time; delivery only ever delays). A time from the future by
+    more than ``MAX_DISAGREEMENT_S``, ``DISAGREE_LIMIT`` in a row, is an offset no delay explains.
+    A time from the past may be a host or a network behind (on a loaded machine a reader ran
+    1.3-1.7 s behind for a while and a board was dropped for it): only when every time for
+    ``BEHIND_FOR_S`` of arrivals is that late do the clocks disagree."""
+
+    def __init__(self) -> None:
+        self._ahead = 0
+        self._behind_since: float | None = None
+
+    def observe(self, late_s: float, arrival_s: float) -> bool:
+        if late_s < -MAX_DISAGREEMENT_S:
+            self._ahead += 1
+            self._behind_since = None
+            return self._ahead >= DISAGREE_LIMIT
+        self._ahead = 0
+        if late_s <= MAX_DISAGREEMENT_S:
+            self._behind_since = None
+            return False
+        if self._behind_since is None:
+            self._behind_since = arrival_s
+        return arrival_s - self._behind_since >= BEHIND_FOR_S
 
 
 def synced_pulse(acq) -> float | None:

@@ -29,7 +29,7 @@ import numpy as np
 
 from spiel_edge.errors import ConfigError, InputError
 from spiel_edge.robot import record_check
-from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, StampClock
+from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, Disagreement, StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, stamp_latency
@@ -83,6 +83,7 @@ class RecordFuse:
         self.refused: dict[str, dict[str, int]] = {}  # per board: reason -> messages refused
         self._count_lock = threading.Lock()
         self.off_clock: dict[str, list[float]] = {}
+        self.disagree = {name: Disagreement() for name in self.clocks}  # computers' clocks
         self.dropped: dict[str, str] = {}
         self.absent: set[str] = set()  # boards of the robot not in a replay
         self.records = 0
@@ -118,9 +119,12 @@ class RecordFuse:
     def _report(self, name: str, payload: bytes, arrived: float) -> BoardReport:
         fields = record_check.fields(record_check.parse(payload))
         stamp, remote = fields["stamp"], fields["remote"]
-        if abs(arrived - remote) > MAX_DISAGREEMENT_S:
+        late = arrived - remote  # delivery only delays: a time from the future is absurd
+        if self.disagree[name].observe(late, arrived) or late < -MAX_DISAGREEMENT_S:
             raise Refused(
-                "clock", f"its computer's clock is {remote - arrived:+.2f} s off this one's"
+                "clock",
+                f"its computer's clock is {remote - arrived:+.2f} s off this one's "
+                "(synchronise them: chrony or PTP)",
             )
         synced = fields["synced"]  # protocol 2: the board's time on its host's clock
         if synced:

@@ -170,6 +170,7 @@ def _stamp_fields(acq: LiveAcquisition) -> dict:
     return {
         "stamp_host": round(stamp, 6),
         "stamp_uncertainty_us": round(acq.stamp_uncertainty_us, 1),
+        "stamp_source": getattr(acq, "stamp_source", None) or "board",
     }
 
 

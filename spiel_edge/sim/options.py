@@ -107,7 +107,8 @@ class SimOptions:
         need(self.lie in ("", *LIES), f"lie must be one of {', '.join(LIES)}, got {self.lie!r}")
         need(0 < len(self.serial.encode()) <= 16, "serial must be 1 to 16 bytes")
         need(
-            abs(self.drift_ppm) <= 1000, f"drift_ppm must be in [-1000, 1000], got {self.drift_ppm}"
+            abs(self.drift_ppm) <= 30_000,
+            f"drift_ppm must be in [-30000, 30000] (RC oscillators: 1-2 %), got {self.drift_ppm}",
         )
         need(0 <= self.jitter_us <= 1e6, f"jitter_us must be in [0, 1e6], got {self.jitter_us}")
         need(

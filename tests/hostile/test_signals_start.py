@@ -18,6 +18,9 @@ CLI = [sys.executable, "-m", "spiel_edge.cli"]
 RUN = [*CLI, "run", "--port", "sim://?scene=model", "--frames", "100000", "-o", "/dev/null"]
 DELAYS = (0.0, 0.05, 0.3, 1.0)  # seconds after spiel-edge's first line ran
 CASES = [(sig, delay) for sig in ("TERM", "HUP", "INT", "INT-INT") for delay in DELAYS]
+# issue 43: INT landing inside numba's import (0.15-0.6 s in) broke it: "internal error:
+# ImportError: numba._devicearray failed to import", status 2, with the interrupt's traceback
+CASES += [(sig, delay) for sig in ("INT", "INT-INT", "TERM") for delay in (0.15, 0.45, 0.6)]
 
 
 def _first_line_ran(pid: int, timeout_s: float = 30.0) -> float:
@@ -172,3 +175,39 @@ print("went on")
     assert done.returncode == 0 and done.stdout.strip() == "went on"
     assert "KeyboardInterrupt" not in done.stderr
     assert "ValueError: a real bug" in done.stderr
+
+
+def test_a_signal_inside_an_import_is_handled_after_it(tmp_path, monkeypatch):
+    """The handler defers a signal that lands in the import system (sent again 20 ms later)
+    instead of breaking the import; outside an import it is handled at once."""
+    import signal as sig
+    import sys as system
+
+    from spiel_edge.cli._signals import deferred_in_import, interrupted
+
+    got: list[int] = []
+    previous = sig.signal(sig.SIGUSR1, lambda signum, frame: got.append(signum))
+    try:
+        (tmp_path / "h43_importing.py").write_text(
+            "import sys\nfrom spiel_edge.cli._signals import deferred_in_import\n"
+            f"DEFERRED = deferred_in_import({int(sig.SIGUSR1)}, sys._getframe())\n"
+        )
+        monkeypatch.syspath_prepend(str(tmp_path))
+        import h43_importing  # noqa: F401
+
+        assert h43_importing.DEFERRED is True
+        assert deferred_in_import(sig.SIGUSR1, system._getframe()) is False
+        deadline = time.monotonic() + 10
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert got == [sig.SIGUSR1]  # the deferred one (signal 10) came back
+    finally:
+        sig.signal(sig.SIGUSR1, previous)
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("numba._devicearray failed to import") from exc
+    except ImportError as wrapped:
+        assert interrupted(wrapped)
+    assert not interrupted(ValueError("a real bug"))

@@ -442,3 +442,32 @@ def test_wait_until_returns_at_the_time_and_not_when_stopped(monkeypatch):
     assert 1.0 <= now[0] < 1.0 + 2e-4  # at the time, not a spin later
     stop.set()
     assert not clock_mod.wait_until(5.0, stop) and now[0] < 1.0 + 2e-4
+
+
+def test_stamp_clock_learnt_during_a_backlog_is_learnt_afresh_not_called_off():
+    """The first acquisitions queued 1.5 s while the host was busy, then it caught up, 1 ms a
+    frame: later arrivals come earlier and earlier against that envelope, gradually. The
+    estimate follows (or starts again): no disagreement; a sudden jump of the stamps is still
+    flagged (the test above)."""
+    clock = StampClock()
+    arrival = 101.5
+    for k in range(70):
+        board = k * 0.025
+        arrival = max(100.0 + board + 0.003, arrival + 0.001)  # queued, then drained in order
+        late = clock.observe(board, arrival)
+        assert late > -1.0, (k, late)
+    assert clock.to_host(2.0) == pytest.approx(102.003, abs=1e-3)
+
+
+def test_a_reader_behind_is_not_a_clock_off_but_a_time_from_the_future_is():
+    """Delivery only delays: times 1.7 s in the past for 4 s (a loaded machine's backlog) are
+    no disagreement, 5 s of them are; three times from 2 s in the future are at once."""
+    from spiel_edge.robot.clock import Disagreement
+
+    behind = Disagreement()
+    assert not any(behind.observe(1.7, 100.0 + k * 0.025) for k in range(160))  # 4 s
+    assert not behind.observe(0.01, 104.1)  # caught up: the count starts again
+    assert not any(behind.observe(1.7, 105.0 + k * 0.025) for k in range(200))  # 4.975 s
+    assert behind.observe(1.7, 110.0)  # 5 s behind, all the time
+    ahead = Disagreement()
+    assert [ahead.observe(-2.0, 100.0 + k) for k in range(3)] == [False, False, True]

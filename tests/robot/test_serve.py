@@ -33,34 +33,33 @@ def _records(path):
 
 
 def test_every_board_in_one_process_fused(tmp_path, capsys):
+    from spiel_edge.robot.description import load_robot
+    from spiel_edge.robot.schedule import Schedule
+    from tests.load import HostTiming
+
     out = tmp_path / "fused.ndjson"
-    status = main(
-        [
-            "run",
-            "--robot",
-            str(_robot(tmp_path)),
-            "--frames",
-            "40",
-            "--max-targets",
-            "4",
-            "-o",
-            str(out),
-        ]
-    )
+    robot = _robot(tmp_path)
+    with HostTiming() as host:  # the virtual boards run in this process: as late as it wakes
+        status = main(
+            ["run", "--robot", str(robot), "--frames", "40", "--max-targets", "4", "-o", str(out)]
+        )
     err = capsys.readouterr().err
     assert status == 0, err
+    assert "40 fused records" in err
     records = _records(out)
     assert len(records) == 40
     assert records[-1]["frame_id"] == "base_link"
     complete = [r for r in records if set(r["boards"]) == {"front", "left"}]
     assert len(complete) >= 20  # a loaded machine may cost a few cycles at the start
+    margin = Schedule.from_robot(load_robot(robot)).margin_s
+    slack = host.allowance(margin, 40 * 2)  # late wake-ups of 2 boards x 40 acquisitions
     # in their slots: the pulses 1 slot apart, nobody's window reached by the other
     gaps = [
         r["boards"]["left"]["host_time"] - r["boards"]["front"]["host_time"] for r in complete[10:]
     ]
-    assert all(0.003 < g < 0.009 for g in gaps), gaps
-    assert not any(b["crosstalk"] for r in complete[10:] for b in r["boards"].values())
-    assert "40 fused records" in err
+    assert sum(not 0.003 < g < 0.009 for g in gaps) <= slack, (gaps, host.why(margin))
+    marked = sum(bool(b["crosstalk"]) for r in complete[10:] for b in r["boards"].values())
+    assert marked <= 2 * slack, (marked, host.why(margin))
 
 
 @pytest.mark.parametrize(
@@ -247,21 +246,30 @@ def test_a_board_that_ignores_its_start_time_is_started_by_the_host(tmp_path, ca
     process stops naming times and starts the board itself; its pulses end in the slot."""
     import numpy as np
 
+    from tests.load import HostTiming
+
     port = "sim://liar?scene=robot&robot=virtual-4&board=left&movers=2&lie=start-at-ignored"
     out = tmp_path / "left.ndjson"
-    status = main(["run", "--port", port, "--slot", "virtual-4:left", "--frames", "200", "-o", out])
+    with HostTiming() as host:
+        status = main(
+            ["run", "--port", port, "--slot", "virtual-4:left", "--frames", "200", "-o", out]
+        )
     err = capsys.readouterr().err
     assert status == 0, err
     assert "does not start at the time of its clock it is given" in err, err
     assert "started by the host)" in err
     records = _records(out)
+    host.allowance(0.0005, 200, most=0.01)  # a start by the host lands as late as it wakes
     phases = [_phase_ms(r["stamp_host"], 0.025, 0.00566) for r in records if r.get("stamp_host")]
     assert np.median(np.abs(phases[-40:])) <= 0.5
 
 
 def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_path):
+
     from spiel_edge.robot.description import load_robot
+    from spiel_edge.robot.schedule import Schedule
     from spiel_edge.robot.serve import RobotRunner
+    from tests.load import HostTiming
 
     class Keep:
         records: list = []
@@ -274,20 +282,28 @@ def test_run_robot_stops_naming_start_times_to_a_board_that_ignores_them(tmp_pat
 
     robot = load_robot(_robot(tmp_path, {"left": "&lie=start-at-ignored"}))
     runner = RobotRunner(robot, Keep())
-    runner.run(frames=120)
+    with HostTiming() as host:
+        runner.run(frames=120)
     trusted = {w.board.name: w.trust.usable for w in runner.workers}
     on_clock = {w.board.name: w.on_its_clock for w in runner.workers}
     assert trusted == {"front": True, "left": False}
     assert on_clock == {"front": True, "left": False}
     # started by the host from then on, it keeps its slot: a few restarts while the request's
-    # latency is learned (lead_s), then none, and nobody's window reached
+    # latency is learned (lead_s), then none, and nobody's window reached. The host's start
+    # lands as late as this process wakes: each wake-up later than the slot margin (measured
+    # meanwhile) may cost one more restart and two marks (its window and the neighbour's).
+    margin = Schedule.from_robot(robot).margin_s
+    # a start by the host passes three wake-ups (its timer, its write, the board's read)
+    slack = host.allowance(margin, 3 * 120)
     restarts = {w.board.name: w.stats.restarts for w in runner.workers}
-    assert restarts["front"] == 0 and restarts["left"] <= 8, restarts
+    # on its own clock; but the virtual board runs in this process, as late as it wakes
+    assert restarts["front"] <= slack, (restarts, host.why(margin))
+    assert restarts["left"] <= 8 + slack, (restarts, host.why(margin))
     late = Keep.records[60:]
-    assert {r["boards"]["left"]["restarts"] for r in late if "left" in r["boards"]} == {
-        restarts["left"]
-    }
-    assert not any(b["crosstalk"] for r in late for b in r["boards"].values())
+    settled = {r["boards"]["left"]["restarts"] for r in late if "left" in r["boards"]}
+    assert len(settled) <= 1 + slack, (settled, host.why(margin))
+    marked = sum(bool(b["crosstalk"]) for r in late for b in r["boards"].values())
+    assert marked <= 2 * slack, (marked, host.why(margin))
 
 
 @pytest.mark.parametrize(
