@@ -39,6 +39,7 @@ from spiel_edge.robot.record_check import Refused
 log = logging.getLogger(__name__)
 
 MAX_RECORD_BYTES = record_check.MAX_RECORD_BYTES
+MAX_BACKLOG_S = 10.0  # a record older than this on arrival is refused, not waited for
 BAD_RECORDS_LIMIT = 20  # this many of its own bad records in a row: the board is reported dropped
 RESET_AGREE = 4  # stamps off a board's clock, agreeing with each other: it restarted
 NOT_THE_BOARDS = ("forged", "replayed")  # refused: not the board's own messages
@@ -119,8 +120,10 @@ class RecordFuse:
     def _report(self, name: str, payload: bytes, arrived: float) -> BoardReport:
         fields = record_check.fields(record_check.parse(payload))
         stamp, remote = fields["stamp"], fields["remote"]
-        late = arrived - remote  # delivery only delays: a time from the future is absurd
-        if self.disagree[name].observe(late, arrived) or late < -MAX_DISAGREEMENT_S:
+        late = arrived - remote  # delivery only delays: a time from the future is absurd,
+        # and so is one older than any backlog a loaded reader runs (1.3-1.7 s were seen)
+        absurd = late < -MAX_DISAGREEMENT_S or late > MAX_BACKLOG_S
+        if absurd or self.disagree[name].observe(late, arrived):
             raise Refused(
                 "clock",
                 f"its computer's clock is {remote - arrived:+.2f} s off this one's "

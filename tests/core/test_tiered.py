@@ -111,6 +111,7 @@ def test_twins_call_twins_and_the_dispatchers_come_back(tmp_path, monkeypatch):
 def _record_key(record: dict) -> dict:
     """What replay computes again: everything but the live stream's own fields."""
     live = {"seq", "host_time", "source", "stamp_host", "stamp_uncertainty_us", "tier", "truth_mm"}
+    live |= {"stamp_source"}  # how the live stamp was made (board clock or arrival)
     live |= {"truth_targets_mm", "acquisition", "device_time_us"}
     return {k: v for k, v in record.items() if k not in live}
 

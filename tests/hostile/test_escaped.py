@@ -9,9 +9,9 @@ import re
 
 import pytest
 
-from firmware_protocol.image import pack_image
 from spiel_edge.cli import _shorten_record, main
 from spiel_edge.io.shown import escape
+from tests.fwsign import DEV_KEY, signed_image
 from tests.protocol_v2.conftest import sim_url  # noqa: F401  # a fixture: fresh boards
 
 # ESC + CSI (clear screen), BEL, OSC (window title), a newline, C1 CSI, a byte that was not UTF-8
@@ -46,6 +46,8 @@ def test_firmware_pack_update_and_info_escape_the_image_strings(sim_url, tmp_pat
             hostile_version,
             "--target",
             "sim",
+            "--key",
+            str(DEV_KEY),
             "-o",
             str(image),
         ]
@@ -64,7 +66,7 @@ def test_firmware_pack_update_and_info_escape_the_image_strings(sim_url, tmp_pat
 
 def test_a_hostile_target_and_a_non_utf8_file_name_in_errors(sim_url, tmp_path, capsys):  # noqa: F811 (the fixture)
     image = tmp_path / "fw.img"
-    image.write_bytes(pack_image(b"SIM:OK " + bytes(256), version="2.0", target="e\x1b[31mvil"))
+    image.write_bytes(signed_image(b"SIM:OK " + bytes(256), version="2.0", target="e\x1b[31mvil"))
     assert main(["firmware", "update", "--port", sim_url(), str(image)]) == 2
     out, err = capsys.readouterr()
     assert not _raw_in(out + err) and "\\x1b[31m" in err, err

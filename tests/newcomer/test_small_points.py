@@ -32,13 +32,13 @@ def test_a_log_record_never_joins_the_status_line(capsys, monkeypatch):
 
 
 def test_firmware_update_progress_in_a_log_is_a_few_lines(tmp_path, capsys):
-    from firmware_protocol.image import pack_image
     from spiel_edge.cli import main
     from spiel_edge.sim import protocol_sim
+    from tests.fwsign import signed_image
 
     image = tmp_path / "new.img"
     image.write_bytes(
-        pack_image(b"SIM:OK " + bytes(range(256)) * 40, version="sim-0.2.0", target="sim")
+        signed_image(b"SIM:OK " + bytes(range(256)) * 40, version="sim-0.2.0", target="sim")
     )
     url = "sim://newcomer-fw?max_payload=256"
     try:
@@ -49,7 +49,8 @@ def test_firmware_update_progress_in_a_log_is_a_few_lines(tmp_path, capsys):
     assert "\r" not in err
     progress = [line.split() for line in err.splitlines() if line.startswith("  ")]
     assert 1 <= len(progress) <= 4, err  # a line per quarter, not one per chunk
-    assert progress[-1] == ["10343/10343", "bytes"]
+    size = len(image.read_bytes())  # header, body and signature: every byte is uploaded
+    assert progress[-1] == [f"{size}/{size}", "bytes"]
 
 
 def test_run_robot_records_are_in_unix_time_as_run_records(tmp_path):

@@ -26,8 +26,19 @@ def crc32c(data: bytes) -> int:
 
 def pack(body: bytes, version: str, target: str) -> bytes:
     head = HEADER.pack(
-        b"SPFW", 1, HEADER.size, version.encode(), target.encode(), 1, 2, 0,
-        len(body), crc32c(body), hashlib.sha256(body).digest(), bytes(8), 0,
+        b"SPFW",
+        1,
+        HEADER.size,
+        version.encode(),
+        target.encode(),
+        1,
+        2,
+        0,
+        len(body),
+        crc32c(body),
+        hashlib.sha256(body).digest(),
+        bytes(8),
+        0,
     )
     return head[:-4] + struct.pack("<I", crc32c(head[:-4])) + body
 

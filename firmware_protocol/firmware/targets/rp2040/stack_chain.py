@@ -10,14 +10,19 @@ indirect calls this firmware is known to make are added by hand (INDIRECT)."""
 import re
 import subprocess
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
-
 
 # calls through pointers: the USB interrupt's handler (usb_rp2040.c), TinyUSB's CDC driver
 INDIRECT = {
     "isr_irq5": {"dcd_rp2040_irq"},
-    "tud_task_ext": {"cdcd_init", "cdcd_reset", "cdcd_open", "cdcd_control_xfer_cb", "cdcd_xfer_cb"},
+    "tud_task_ext": {
+        "cdcd_init",
+        "cdcd_reset",
+        "cdcd_open",
+        "cdcd_control_xfer_cb",
+        "cdcd_xfer_cb",
+    },
     "process_control_request": {"cdcd_control_xfer_cb"},
 }
 
@@ -62,7 +67,7 @@ def main(argv: list[str]) -> int:
     size, graph = frames(objdir), calls(elf)
     missing: set[str] = set()
 
-    @lru_cache(maxsize=None)
+    @cache
     def worst(fn: str, depth: int = 0) -> tuple[int, tuple[str, ...]]:
         if fn not in size:
             missing.add(fn)
