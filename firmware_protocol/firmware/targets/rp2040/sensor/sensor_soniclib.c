@@ -21,6 +21,7 @@
 #include <stddef.h>
 
 #include "chbsp_rp2040.h"
+#include "hardware/sync.h"
 #include "invn/soniclib/soniclib.h"
 #include "invn/soniclib/chirp_bsp.h"
 #include "invn/soniclib/sensor_fw/ch101/ch101_gpr.h"
@@ -112,6 +113,11 @@ int hal_acq_ready(void)
     uint8_t s = state;
     if ((s == LISTEN || s == READING) && hal_time_us() > acq_deadline_us) {
         uint8_t c;
+        uint32_t irq = save_and_disable_interrupts(); /* no callback between check and give-up */
+        if (state == DONE) {
+            restore_interrupts(irq);
+            return 1;
+        }
         state = FAILED;
         /* a read still under way is abandoned with its bus, and SonicLib's non-blocking queue
          * emptied (chdrv_queue_t, ch_driver.h), or the next ch_io_start_nb would find it busy */
@@ -123,6 +129,7 @@ int hal_acq_ready(void)
             group.queue[c].idx = 0;
             group.queue[c].running = 0;
         }
+        restore_interrupts(irq);
         return 1;
     }
     return s == DONE || s == FAILED;
