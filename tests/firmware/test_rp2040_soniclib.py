@@ -4,6 +4,8 @@ What runs without hardware:
 - the pure logic (iq_plan.c, built on the host): I/Q to envelope samples (round(sqrt(q^2+i^2)),
   checked against numpy), I/Q to the protocol's I16_IQ words, and the I2C time budget showing
   4 x 64 I/Q at >= 50 acquisitions/s on two 400 kHz buses (and not on one);
+- the acquisition flow of sensor_soniclib.c through SonicLib's own non-blocking queue, on the
+  host with a fake two-bus board (soniclib_host/harness.c; needs SPIEL_SONICLIB_DIR);
 - the build: ``make TARGET=rp2040 SONICLIB_DIR=...`` against a SonicLib checkout given by
   SPIEL_SONICLIB_DIR (skipped without it or without arm-none-eabi-gcc; SonicLib is never
   vendored: its licence restricts it to TDK sensors), our files with every warning an error,
