@@ -46,11 +46,15 @@ static ch_group_t *group;
 
 /* ---- pins ------------------------------------------------------------------------------ */
 
+/* The pad: input on, output allowed; with pull_up the pull-up instead of the reset's pull-down
+ * (both on would make a bus keeper); drive strength and slew as reset leaves them. */
 static void pin_function(uint32_t pin, uint32_t func, uint32_t pull_up)
 {
-    pads_bank0_hw->io[pin] = PADS_BANK0_GPIO0_IE_BITS | (pull_up ? PADS_BANK0_GPIO0_PUE_BITS : 0u) |
-                             (pads_bank0_hw->io[pin] & ~(PADS_BANK0_GPIO0_OD_BITS |
-                                                         PADS_BANK0_GPIO0_PUE_BITS));
+    uint32_t pad = pads_bank0_hw->io[pin] & ~PADS_BANK0_GPIO0_OD_BITS;
+    if (pull_up) {
+        pad = (pad & ~PADS_BANK0_GPIO0_PDE_BITS) | PADS_BANK0_GPIO0_PUE_BITS;
+    }
+    pads_bank0_hw->io[pin] = pad | PADS_BANK0_GPIO0_IE_BITS;
     io_bank0_hw->io[pin].ctrl = func;
 }
 
