@@ -10,7 +10,8 @@
  * clock      the RP2040 timer (1 MHz from the watchdog tick, 64 bits).
  * A-scans    the vendored recordings as constant data (ascans.c, generated as for mps2), in
  *            order and looped, one per measurement that was read; ready after the listening
- *            time n_samples / sample rate. The CH101 sensor layer is not part of this build.
+ *            time n_samples / sample rate. Built with SONICLIB_DIR (RP2040_SONICLIB=1), four
+ *            CH101 over TDK SonicLib instead: sensor/sensor_soniclib.c.
  * flash      the config store's 64 KiB at the end of the 2 MiB flash (flash_rp2040.c); the
  *            image areas and the watchdog are image_rp2040.c's.
  * reset      the watchdog (a reboot), or the ROM's USB boot mode (BOOTSEL) for the bootloader.
@@ -100,6 +101,7 @@ int16_t hal_temperature_cdeg(void)
     return 0; /* the recordings carry none */
 }
 
+#if !RP2040_SONICLIB
 static uint32_t acq_frame;
 static uint32_t acq_mask;
 static uint64_t acq_done_us;
@@ -146,6 +148,13 @@ int hal_acq_read(uint8_t channel, uint16_t *samples, uint16_t n_samples)
     acq_read = 1;
     return 0;
 }
+#else
+void hal_apply_settings(const hal_settings_t *settings)
+{
+    (void)settings; /* the CH101 samples at its own rate (its frequency / 8); n_samples comes
+                     * with every trigger */
+}
+#endif
 
 /* ---- flash: the config store ------------------------------------------------------------- */
 
@@ -253,6 +262,9 @@ void rp2040_hal_init(void)
         board.firmware_version = version;
     }
     board.serial = rp2040_serial();
+#if RP2040_SONICLIB
+    (void)rp2040_sensor_init(&board); /* on failure every trigger is refused; USB still answers */
+#endif
     timer_hw->intr = 1u;
     irq_set_enabled(TIMER_IRQ_0, true); /* rp2040_wait's wake-up (usb_rp2040.c: the NVIC) */
     tusb_init();

@@ -58,6 +58,14 @@ void rp2040_clocks_start(void);
 void rp2040_hal_init(void);
 void rp2040_wait(uint32_t us); /* sleep until USB activity or us microseconds */
 void isr_timer0(void);
+#ifndef RP2040_SONICLIB
+#define RP2040_SONICLIB 0
+#endif
+#if RP2040_SONICLIB
+/* sensor/sensor_soniclib.c: start the CH101 group, fill the board info. 0 ok, -1 none. */
+#include "spiel_hal.h"
+int rp2040_sensor_init(hal_board_info_t *board);
+#endif
 /* usb_rp2040.c */
 void isr_usbctrl(void);
 

@@ -45,6 +45,12 @@ static void unused_irq(void)
     }
 }
 
+/* The sensor layer's interrupts (sensor/chbsp_rp2040.c, built with SONICLIB_DIR): the GPIO
+ * bank (the sensors' INT lines) and the two I2C blocks; without it they are never enabled. */
+void isr_io_bank0(void) __attribute__((weak, alias("unused_irq")));
+void isr_i2c0(void) __attribute__((weak, alias("unused_irq")));
+void isr_i2c1(void) __attribute__((weak, alias("unused_irq")));
+
 typedef void (*vector_t)(void);
 
 /* 16 system exceptions, then the RP2040's 32 interrupts (TIMER_IRQ_0 is 0, USBCTRL_IRQ 5). */
@@ -56,9 +62,10 @@ __attribute__((section(".vectors"), used)) const vector_t vectors[48] = {
     fault, /* SVCall */
     0, 0,
     fault, fault, /* PendSV, SysTick */
-    isr_timer0, unused_irq, unused_irq, unused_irq, unused_irq, isr_usbctrl,
+    isr_timer0, unused_irq, unused_irq, unused_irq, unused_irq, isr_usbctrl,     /* 0-5 */
     unused_irq, unused_irq, unused_irq, unused_irq, unused_irq, unused_irq, unused_irq,
+    isr_io_bank0,                                                                  /* 13 */
     unused_irq, unused_irq, unused_irq, unused_irq, unused_irq, unused_irq, unused_irq,
+    unused_irq, unused_irq, isr_i2c0, isr_i2c1,                                    /* 23, 24 */
     unused_irq, unused_irq, unused_irq, unused_irq, unused_irq, unused_irq, unused_irq,
-    unused_irq, unused_irq, unused_irq, unused_irq, unused_irq,
 };

@@ -11,12 +11,22 @@
 #                     run-emulated.sh runs in rp2040js (firmware-emu.uf2); never for a board
 #   obj/*.su          -fstack-usage of every file (make TARGET=rp2040 stack)
 RP_DIR := targets/rp2040
-# The CH101/CH201 sensor layer over TDK SonicLib (built against the user's checkout, never
-# vendored: its licence restricts it to TDK sensors) is issue 37 part 5, not written yet.
+# The CH101/CH201 sensor layer over TDK SonicLib (sensor/): built against the user's checkout
+# of github.com/tdk-invn-oss/ultrasonic.soniclib, never vendored (its licence restricts it to
+# TDK sensors): make TARGET=rp2040 SONICLIB_DIR=/path/to/ultrasonic.soniclib. Its images go
+# to build/rp2040-soniclib (firmware.uf2, app.bin; no emulator image: rp2040js has no sensor).
 ifdef SONICLIB_DIR
-$(error rp2040: the SonicLib sensor layer is not written yet (issue 37 part 5): build without SONICLIB_DIR, the firmware then streams its embedded recordings)
+ifeq ($(wildcard $(SONICLIB_DIR)/invn/soniclib/soniclib.h),)
+$(error rp2040: SONICLIB_DIR=$(SONICLIB_DIR) holds no invn/soniclib/soniclib.h: point it at a checkout of github.com/tdk-invn-oss/ultrasonic.soniclib)
+endif
+$(info rp2040: the CH101 sensor layer over SonicLib in $(SONICLIB_DIR))
+ifeq ($(origin BUILD),file)
+BUILD := build/rp2040-soniclib
+endif
+RP_SONICLIB := 1
 else
 $(info rp2040: no SONICLIB_DIR: no sensor layer, the firmware streams its embedded recordings)
+RP_SONICLIB := 0
 endif
 SDK := $(RP_DIR)/vendor/pico-sdk/src
 TUSB := $(RP_DIR)/vendor/tinyusb/src
@@ -26,7 +36,15 @@ ARM_OBJCOPY ?= arm-none-eabi-objcopy
 PYTHON ?= python3
 SUBSET ?= ../../spiel_edge/data/spiel_icra23_subset.npz
 RP_ARCH := -mcpu=cortex-m0plus -mthumb
-RP_FW := -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_EXEC_COPY=1 -DSPIEL_FW_TARGET=\"rp2040\"
+RP_FW := -DSPIEL_FW_UPDATE=1 -DSPIEL_FW_EXEC_COPY=1 -DSPIEL_FW_TARGET=\"rp2040\" \
+	-DRP2040_SONICLIB=$(RP_SONICLIB)
+# samples a channel's buffer holds: I/Q (SonicLib) takes two values a sample, 4 x 64 I/Q
+ifeq ($(RP_SONICLIB),1)
+RP_FW += -DSPIEL_IQ_SAMPLES=1
+RP_MAX_SAMPLES := 128
+else
+RP_MAX_SAMPLES := 64
+endif
 RP_VERSION ?= 1.0.0+rp2040
 RP_DEFS := -DPICO_RP2040=1 -DPICO_ON_DEVICE=1 -DPICO_NO_HARDWARE=0 -DPICO_BUILD=1 \
 	-DPICO_32BIT=1 -DPICO_NO_FLASH=0 -DPICO_COPY_TO_RAM=0 -DPICO_USE_BLOCKED_RAM=0 \
@@ -48,10 +66,10 @@ RP_SYSINC := -I$(RP_DIR)/sdk_config $(addprefix -isystem $(SDK)/,$(addsuffix /in
 RP_INC := $(INC) -I$(RP_DIR) -I$(BUILD) $(RP_SYSINC)
 # the core: C99 and every warning, as on every target
 RP_CORE_CFLAGS := $(RP_ARCH) $(WARN) -Os -g -ffunction-sections -fdata-sections -ffreestanding \
-	-fstack-usage -DSPIEL_MAX_SAMPLES=64 $(RP_FW) $(CFLAGS_EXTRA)
+	-fstack-usage -DSPIEL_MAX_SAMPLES=$(RP_MAX_SAMPLES) $(RP_FW) $(CFLAGS_EXTRA)
 # the port's own files: gnu11 (the SDK headers use static_assert and GNU extensions)
 RP_PORT_CFLAGS := $(RP_ARCH) -MD $(filter-out -std=c99 -pedantic,$(WARN)) -std=gnu11 -Os -g \
-	-ffunction-sections -fdata-sections -fstack-usage -DSPIEL_MAX_SAMPLES=64 $(RP_FW) $(RP_DEFS) \
+	-ffunction-sections -fdata-sections -fstack-usage -DSPIEL_MAX_SAMPLES=$(RP_MAX_SAMPLES) $(RP_FW) $(RP_DEFS) \
 	$(CFLAGS_EXTRA)
 # the vendored SDK and TinyUSB files: as upstream builds them, warnings shown, not errors
 RP_VENDOR_CFLAGS := $(RP_ARCH) -MD -std=gnu11 -Os -g -ffunction-sections -fdata-sections \
@@ -77,7 +95,33 @@ RP_HDRS := $(wildcard include/*.h core/*.h $(PROTO)/*.h $(RP_DIR)/*.h) $(BUILD)/
 vpath %.c $(RP_DIR) core $(PROTO) $(BUILD) $(addprefix $(SDK)/,$(dir $(RP_SDK_SRC))) \
 	$(addprefix $(TUSB)/,$(dir $(RP_TUSB_SRC)))
 
+all:
+ifeq ($(RP_SONICLIB),1)
+# The sensor layer: our files with the port's flags (every warning an error), SonicLib's own
+# files as upstream builds them (C99, warnings shown, not errors), its headers as system headers.
+SL := $(SONICLIB_DIR)/invn/soniclib
+SL_SRC := $(addprefix $(SL)/,ch_api.c ch_common.c ch_driver.c ch_math_utils.c ch_rangefinder.c \
+	chbsp_dummy.c sensor_fw/ch101/ch101_gpr.c sensor_fw/ch101/ch101_gpr_fw.c)
+SL_DEFS := -DINCLUDE_WHITNEY_SUPPORT -DCH_LOG_MODULE_LEVEL=6
+SL_INC := -I$(RP_DIR)/sensor -isystem $(SONICLIB_DIR)
+SL_OBJS := $(addprefix $(O)/sl_,$(addsuffix .o,$(basename $(notdir $(SL_SRC)))))
+RP_SENSOR_OBJS := $(O)/iq_plan.o $(O)/chbsp_rp2040.o $(O)/sensor_soniclib.o
+RP_APP_OBJS += $(RP_SENSOR_OBJS) $(SL_OBJS)
+RP_SENSOR_HDRS := $(wildcard $(RP_DIR)/sensor/*.h)
+$(O)/iq_plan.o: $(RP_DIR)/sensor/iq_plan.c $(RP_SENSOR_HDRS)
+	@mkdir -p $(@D)
+	$(ARM_CC) $(RP_CORE_CFLAGS) -I$(RP_DIR)/sensor -c $< -o $@
+$(O)/chbsp_rp2040.o $(O)/sensor_soniclib.o: $(O)/%.o: $(RP_DIR)/sensor/%.c $(RP_HDRS) $(RP_SENSOR_HDRS)
+	@mkdir -p $(@D)
+	$(ARM_CC) $(RP_PORT_CFLAGS) $(SL_DEFS) $(RP_INC) $(SL_INC) -c $< -o $@
+$(SL_OBJS): $(O)/sl_%.o: $(RP_DIR)/sensor/chirp_board_config.h
+	@mkdir -p $(@D)
+	$(ARM_CC) $(RP_ARCH) -MD -std=gnu99 -Os -g -ffunction-sections -fdata-sections -fstack-usage \
+		-Wall $(SL_DEFS) $(SL_INC) -c $(filter %/$*.c,$(SL_SRC)) -o $@
+all: $(BUILD)/firmware.uf2
+else
 all: $(BUILD)/firmware.uf2 $(BUILD)/firmware-emu.uf2
+endif
 .PRECIOUS: $(BUILD)/%.bin $(BUILD)/%.elf $(BUILD)/%.img
 
 $(BUILD)/ascans.c: targets/mps2-an386/gen_ascans.py $(SUBSET)
