@@ -207,8 +207,8 @@ def _is_stof(folder) -> bool:
 
 def _evaluate_ranging(folder, profile_name, calibration, as_json) -> int:
     """Range metrics over the labelled SToF-Chirp sequences in ``folder``."""
+    from spiel_edge.cli._recording_profile import recording_profile
     from spiel_edge.measure.ranging_eval import range_errors, summarize
-    from spiel_edge.profile.recording_profile import recording_profile
 
     profile = recording_profile(folder, "stof-chirp", profile_name, calibration)
     summary = {"profile": profile.name, **summarize(range_errors(build_pipeline(profile), folder))}
@@ -229,6 +229,8 @@ def _evaluate_ranging(folder, profile_name, calibration, as_json) -> int:
         f"{fmt(summary.get('over_1mm'), '.2%')}, 95 % coverage {fmt(summary.get('coverage95'), '.1%')}"
     )
     return EXIT_OK
+
+
 SCENE_COLUMNS = (
     "targets: true targets per acquisition; recall: true targets found within 30 mm; all: "
     "acquisitions with every one found; prec: reported targets that are true; mean: their "

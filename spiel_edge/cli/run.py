@@ -30,6 +30,7 @@ from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.robot.slotted_stream import slot_keeper_of, start_in_slot
 from spiel_edge.runtime.loop import (
     LiveRunner,
     check_stream_shape,
@@ -39,7 +40,6 @@ from spiel_edge.runtime.loop import (
 )
 from spiel_edge.runtime.realtime import apply_realtime
 from spiel_edge.runtime.replay import chosen_toa_correction
-from spiel_edge.runtime.slotted_stream import slot_keeper_of, start_in_slot
 from spiel_edge.runtime.tiered import start_tiered
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier

@@ -1,7 +1,7 @@
 """Live view through the Foxglove SDK's WebSocket server (extra ``foxglove``), laid out as a
 ros2 recording: the same ROS 2 CDR channels as ``--record-profile ros2`` (``/spiel/point``,
 ``/spiel/targets``, ``/spiel/tracks``, ``/spiel/range``, ``/diagnostics``, ``/tf_static``,
-schemas ``ros2msg``; outputs/ros2_messages.py), plus
+schemas ``ros2msg``; messages/ros2_messages.py), plus
 
 * ``/tf``: foxglove.FrameTransforms, the same transforms as /tf_static (mount and optical
   frame), sent at start and every TF_PERIOD_S so a client that connects later has them;
@@ -82,8 +82,8 @@ class FoxgloveSink(Sink):
         receivers_mm: Sequence[Sequence[float]] | None = None,
         ros2=None,
     ):
-        from spiel_edge.outputs import ros2_messages as rm
-        from spiel_edge.outputs import ros2_types
+        from spiel_edge.messages import ros2_messages as rm
+        from spiel_edge.messages import ros2_types
         from spiel_edge.recordings.ros2_mcap import qos_yaml, topic_name
 
         foxglove, self._m = _import_foxglove()

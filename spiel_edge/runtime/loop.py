@@ -135,7 +135,7 @@ def live_toa_correction(url: str, requested: str | None) -> str | None:
     profile's)."""
     if requested is not None or not url.lower().startswith("sim:"):
         return requested  # a real board: the virtual board's modules are not even imported
-    from spiel_edge.sim.options import modelled_envelope
+    from spiel_edge.link.sim_options import modelled_envelope
 
     if modelled_envelope(url):
         log.info("virtual board with a modelled envelope: no learned ToA correction")

@@ -26,8 +26,8 @@ import time
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.robot.description import load_robot
-from spiel_edge.robot.virtual_run import run_virtual_robot
 from spiel_edge.sim.robot import RobotWorld
+from tools.bench.virtual_robot import run_virtual_robot
 
 
 def main(argv: list[str] | None = None) -> None:

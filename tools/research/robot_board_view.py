@@ -27,9 +27,9 @@ from spiel_edge.profile.schema import load_profile
 from spiel_edge.robot import score
 from spiel_edge.robot.description import load_robot
 from spiel_edge.robot.fusion import reports_targets
-from spiel_edge.robot.virtual_run import run_virtual_robot
 from spiel_edge.sim.robot import RobotWorld
 from spiel_edge.sim.robot_offline import simulate
+from tools.bench.virtual_robot import run_virtual_robot
 
 RANGE_MM = 15.0  # two echoes closer than about two samples (7.8 mm each) merge
 

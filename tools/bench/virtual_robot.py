@@ -1,7 +1,8 @@
 """The virtual robot end to end, offline: simulated acquisitions (sim/robot.py) -> each
 board's pipeline -> host side (clocks, cross-talk marking) -> fusion -> scores.
 
-Used by tools/bench/robot_eval.py (the issue's figures) and tests/robot/ (a short run)."""
+Used by tools/bench/robot_eval.py and tools/research/robot_board_view.py only (moved out of
+the wheel from spiel_edge/robot/virtual_run.py)."""
 
 from __future__ import annotations
 

@@ -39,10 +39,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cache
 
-from spiel_edge.outputs import ros2_types
-from spiel_edge.outputs.ros2_limits import FIELD_OF_VIEW_RAD, SensorLimits  # noqa: F401
+from spiel_edge.messages import cdr, ros2_types
+from spiel_edge.messages.ros2_limits import FIELD_OF_VIEW_RAD, SensorLimits  # noqa: F401
 from spiel_edge.profile.frame_section import DEFAULT_FRAME_ID
-from spiel_edge.recordings import cdr
 
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
