@@ -326,10 +326,9 @@ def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
 
 def _say_live_views(sink) -> None:
     """Where to look, said at start without -v: the Foxglove server's address and layout."""
-    for out in getattr(sink, "sinks", [sink]):
-        line = getattr(out, "view_line", None)
-        if line:
-            click.echo(f"{line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
+    for out in sink.parts():
+        if out.view_line:
+            click.echo(f"{out.view_line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
 
 
 STATUS = StatusLine()

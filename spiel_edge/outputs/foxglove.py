@@ -25,7 +25,7 @@ from collections.abc import Sequence
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.outputs.scene_view import Trails, ellipsoid
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import ACQUISITIONS, STATUS, VIEW, Sink
 from spiel_edge.outputs.udp import parse_host_port
 from spiel_edge.recordings.mcap_writer import POSITION_SCHEMA
 
@@ -73,7 +73,7 @@ def _import_foxglove():
 class FoxgloveSink(Sink):
     """Serve records on a Foxglove WebSocket at ``[HOST:]PORT`` (port 0 picks a free one)."""
 
-    wants_acquisitions = True  # the echogram draws the raw samples
+    capabilities = frozenset({ACQUISITIONS, STATUS, VIEW})  # the echogram draws the raw samples
 
     def __init__(
         self,

@@ -23,7 +23,7 @@ from typing import Any
 from spiel_edge.messages import ros2_messages as rm
 from spiel_edge.messages import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import STATUS, Sink
 from spiel_edge.outputs.zenoh import _import_zenoh, open_publishers
 
 log = logging.getLogger(__name__)
@@ -33,6 +33,8 @@ PUB_CACHE_PREFIX = "@ros2_pub_cache"  # zenoh-bridge-ros2dds's publication cache
 
 class ZenohRos2Sink(Sink):
     """Publish the ROS 2 messages of each record under the key prefix ``key_expr``."""
+
+    capabilities = frozenset({STATUS})  # /diagnostics
 
     def __init__(
         self,

@@ -113,7 +113,17 @@ class McapSink:
     An output (outputs/sink.py's contract, kept without importing it: recordings sit below
     outputs): it keeps the acquisitions and owns its file."""
 
+    capabilities = frozenset({"acquisitions", "file"})  # outputs.sink.ACQUISITIONS, FILE
     hold = False  # every write goes straight to the MCAP writer; nothing to flush
+    view_line = ""
+    owns_file = True
+    wants_acquisitions = True
+
+    def batch(self) -> None:
+        """Not HOLD: nothing to hold."""
+
+    def parts(self) -> list:
+        return [self]
 
     def set_status_provider(self, provider) -> None:
         """No /diagnostics in a recording."""
@@ -151,8 +161,6 @@ class McapSink:
         self._background_crc = 0
         self._background_chunk = -1
         self._lock = threading.RLock()  # close() may come from the signal watchdog
-        self.owns_file = True
-        self.wants_acquisitions = True
         self._since_background = 0
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}

@@ -64,6 +64,8 @@ def qos_yaml(latched: bool) -> str:
 class Ros2McapSink(McapSink):
     """An McapSink whose channels are ROS 2 messages in CDR (profile ``ros2``)."""
 
+    capabilities = frozenset({"acquisitions", "file", "status"})  # /diagnostics too
+
     profile = "ros2"
 
     def __init__(

@@ -28,7 +28,7 @@ from spiel_edge.errors import ConfigError
 from spiel_edge.messages import ros2_messages as rm
 from spiel_edge.messages import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import STATUS, Sink
 from spiel_edge.outputs.zenoh import _import_zenoh, session_config, zenoh_reason
 
 log = logging.getLogger(__name__)
@@ -54,6 +54,8 @@ def topics_of(prefix: str) -> dict[str, str]:
 
 class RmwZenohSink(Sink):
     """Publish each record's ROS 2 messages as rmw_zenoh does."""
+
+    capabilities = frozenset({STATUS})  # /diagnostics
 
     def __init__(
         self,
