@@ -241,7 +241,14 @@ class ZenohSink(Sink):
                     "Zenoh put on %s failed (%d so far): %s", self.key_expr, self.failed, exc
                 )
 
+    _closed = False
+
     def close(self) -> None:
+        """Undeclare and close the session; safe to call again (zenoh refuses a second
+        undeclare)."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             self._publisher.undeclare()
         finally:

@@ -118,7 +118,13 @@ class ZenohRos2Sink(Sink):
         for name, payload in self.messages.of_record(record):
             self._put(name, payload)
 
+    _closed = False
+
     def close(self) -> None:
+        """Undeclare and close the session; safe to call again."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             self._queryable.undeclare()
             for entity in [*self._declared, *self._publishers.values()]:
