@@ -337,10 +337,6 @@ class Ros2Messages:
         )
 
 
-def type_of(topic: str) -> str:
-    return TOPICS[topic]
-
-
 def definitions() -> dict[str, str]:
     """type -> rosbag2 definition for every type the ROS 2 outputs write."""
     return {t: ros2_types.rosbag2_definition(t) for t in set(TOPICS.values())}
