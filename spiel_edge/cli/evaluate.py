@@ -229,8 +229,6 @@ def _evaluate_ranging(folder, profile_name, calibration, as_json) -> int:
         f"{fmt(summary.get('over_1mm'), '.2%')}, 95 % coverage {fmt(summary.get('coverage95'), '.1%')}"
     )
     return EXIT_OK
-
-
 SCENE_COLUMNS = (
     "targets: true targets per acquisition; recall: true targets found within 30 mm; all: "
     "acquisitions with every one found; prec: reported targets that are true; mean: their "
