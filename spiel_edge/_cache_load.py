@@ -98,10 +98,6 @@ def unsupported() -> str:
     return _numba_gate.problem()
 
 
-def _versions(pairs) -> str:
-    return ", ".join(f"{a}.{b}" for a, b in pairs)
-
-
 def _defer_linking_bitcode() -> None:
     """A cached kernel's library holds machine code and the LLVM bitcode other functions
     would link; numba parses that bitcode at every load (tens of ms and MiB per kernel) though

@@ -19,7 +19,8 @@ import time
 
 import numpy as np
 
-from spiel_edge.robot import record_auth, record_check
+from spiel_edge.outputs import record_auth
+from spiel_edge.robot import record_check
 from spiel_edge.robot.fusion import record_targets
 
 

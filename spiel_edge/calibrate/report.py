@@ -125,10 +125,6 @@ def _largest_moves(cal: Calibration, count: int = 3) -> list[str]:
     return [text for size, text in rows[:count] if size >= 0.5]
 
 
-def write_calibration(cal: Calibration, path: str | Path, source: str = "") -> None:
-    Path(path).write_text(calibration_toml(cal, source))
-
-
 def plot_calibration(cal: Calibration, path: str | Path, validation=None) -> None:
     """PNG: top view of the start and calibrated geometry with targets, residuals per channel,
     and (with ``validation``) the 3-D error before and after on the held-out positions."""

@@ -28,8 +28,8 @@ def robot_ros2(robot: RobotSpec, frame_id: str | None = None):
     when the fusion tracks in odom) in its own REP 103 axes, every board's mount on
     /tf_static; published targets limited by the boards' reach only (each board's field of
     view was applied by the fusion)."""
+    from spiel_edge.messages.ros2_limits import SensorLimits
     from spiel_edge.outputs.ros2 import Ros2Settings, StaticTransform
-    from spiel_edge.outputs.ros2_limits import SensorLimits
 
     transforms = tuple(
         StaticTransform(

@@ -139,7 +139,7 @@ def ros2_record_options(command):
 def ros2_settings(values: dict, profile) -> Ros2Settings:
     """The frame id and static transforms: the profile's [frame] with the options over it
     (ConfigError naming the option or key that is wrong)."""
-    from spiel_edge.outputs.ros2_limits import SensorLimits
+    from spiel_edge.messages.ros2_limits import SensorLimits
 
     return frame_settings(
         profile.frame,
@@ -180,7 +180,7 @@ def zenoh_settings(values: dict) -> ZenohSettings:
     auth_key = None
     if values.get("zenoh_auth_key"):
         from spiel_edge.errors import ConfigError
-        from spiel_edge.robot.record_auth import load_key
+        from spiel_edge.outputs.record_auth import load_key
 
         if values.get("zenoh_encoding", "json") != "json":
             raise ConfigError(

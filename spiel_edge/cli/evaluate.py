@@ -208,8 +208,8 @@ def _is_stof(folder) -> bool:
 
 def _evaluate_ranging(folder, profile_name, calibration, as_json) -> int:
     """Range metrics over the labelled SToF-Chirp sequences in ``folder``."""
+    from spiel_edge.cli._recording_profile import recording_profile
     from spiel_edge.measure.ranging_eval import range_errors, summarize
-    from spiel_edge.profile.recording_profile import recording_profile
 
     profile = recording_profile(folder, "stof-chirp", profile_name, calibration)
     summary = {"profile": profile.name, **summarize(range_errors(build_pipeline(profile), folder))}

@@ -19,14 +19,13 @@ from spiel_edge.cli._options import (
     profile_option,
     toa_correction_option,
 )
+from spiel_edge.cli._recording_profile import recording_profile
 from spiel_edge.cli._ros2 import ros2_record_options, ros2_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.errors import ConfigError, OutputError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.outputs.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.pipeline.factory import build_pipeline
-from spiel_edge.profile.recording_profile import recording_profile
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
 from spiel_edge.runtime.replay import (
@@ -38,6 +37,7 @@ from spiel_edge.runtime.replay import (
     recorded_toa_correction,
     replay,
 )
+from spiel_edge.runtime.replay_output import is_mcap_output, open_replay_output
 from spiel_edge.runtime.tiered import start_tiered
 from spiel_edge.runtime.tracking import replay_tracked
 

@@ -31,6 +31,7 @@ from spiel_edge.io.shown import escape, shorten_tokens
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.robot.slotted_stream import slot_keeper_of, start_in_slot
 from spiel_edge.runtime.loop import (
     LiveRunner,
     check_stream_shape,
@@ -40,7 +41,6 @@ from spiel_edge.runtime.loop import (
 )
 from spiel_edge.runtime.realtime import apply_realtime
 from spiel_edge.runtime.replay import chosen_toa_correction
-from spiel_edge.runtime.slotted_stream import slot_keeper_of, start_in_slot
 from spiel_edge.runtime.tiered import start_tiered
 from spiel_edge.runtime.tracking import ResultTracker
 from spiel_edge.service.systemd import Notifier
@@ -327,10 +327,9 @@ def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
 
 def _say_live_views(sink) -> None:
     """Where to look, said at start without -v: the Foxglove server's address and layout."""
-    for out in getattr(sink, "sinks", [sink]):
-        line = getattr(out, "view_line", None)
-        if line:
-            click.echo(f"{line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
+    for out in sink.parts():
+        if out.view_line:
+            click.echo(f"{out.view_line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
 
 
 STATUS = StatusLine()

@@ -38,7 +38,7 @@ def command(url: str, use_pty: bool, link: str | None) -> int:
         )
     if not url.lower().startswith("sim://"):
         raise click.UsageError(f"URL must start with sim://, got {url!r}")
-    from spiel_edge.sim.options import modelled_envelope
+    from spiel_edge.link.sim_options import modelled_envelope
 
     if modelled_envelope(url):  # over a pty the host cannot tell it from a real board
         click.echo(

@@ -132,10 +132,6 @@ MAX_NPZ_MEMBERS = 64
 NUMERIC_KINDS = "biuf"  # bool, signed, unsigned, float: no objects, strings or records
 
 
-def input_limit(kind: str) -> int:
-    return INPUT_LIMITS[kind]
-
-
 def read_input_text(path: str | Path, kind: str, error: type[Exception] = InputError) -> str:
     """The UTF-8 text of an input of ``kind`` (INPUT_LIMITS), read only when small enough."""
     path = Path(path)

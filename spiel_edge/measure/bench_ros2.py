@@ -23,8 +23,8 @@ import time
 
 import numpy as np
 
+from spiel_edge.messages.ros2_messages import Ros2Messages
 from spiel_edge.outputs.ros2 import frame_settings
-from spiel_edge.outputs.ros2_messages import Ros2Messages
 from spiel_edge.profile.frame_section import FrameSpec
 
 RATE_HZ = 50.0  # `run --rate`'s default

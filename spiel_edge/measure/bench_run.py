@@ -42,31 +42,6 @@ def _serve_pty(timeout_s: float = 60.0) -> tuple[subprocess.Popen, str]:
     return server, server.stdout.readline().strip()
 
 
-def _timed_run(args: list[str], env: dict | None = None, timeout_s: float = 600.0) -> dict:
-    """Run ``spiel-edge ARGS``: CPU seconds, wall seconds, its summary line (stderr)."""
-    with tempfile.TemporaryFile() as err:
-        t0 = time.perf_counter()
-        proc = subprocess.Popen([*CLI, *args], stdout=subprocess.DEVNULL, stderr=err, env=env)
-        deadline = t0 + timeout_s
-        while True:
-            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.perf_counter() > deadline:
-                proc.kill()
-                raise RuntimeError(f"spiel-edge {' '.join(args)} ran longer than {timeout_s} s")
-            time.sleep(0.02)
-        proc.returncode = os.waitstatus_to_exitcode(status)
-        wall = time.perf_counter() - t0
-        err.seek(0)
-        text = err.read().decode(errors="replace")
-    if proc.returncode not in (0, 3):
-        raise RuntimeError(
-            f"spiel-edge {' '.join(args)} exited with {proc.returncode}: {text[-300:]}"
-        )
-    return {"cpu_s": usage.ru_utime + usage.ru_stime, "wall_s": wall, "stderr": text}
-
-
 def _cpu_s(pid: int) -> float:
     """User + system CPU seconds of a running process (/proc/PID/stat)."""
     with open(f"/proc/{pid}/stat") as fh:

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -32,8 +34,11 @@ class MultiSink(Sink):
         return bool(self.sinks)
 
     @property
-    def wants_acquisitions(self) -> bool:
-        return any(sink.wants_acquisitions for sink in self.sinks)
+    def capabilities(self) -> frozenset[str]:  # what one of its sinks can do
+        return frozenset().union(*(sink.capabilities for sink in self.sinks))
+
+    def parts(self) -> list[Sink]:
+        return list(self.sinks)
 
     def write(self, record: dict) -> None:
         for sink in list(self.sinks):
@@ -52,7 +57,7 @@ class MultiSink(Sink):
         calls :meth:`flush` when it has caught up with its input (a live run: no acquisition
         waiting), so a burst costs one flush, and a record never waits for a later one."""
         for sink in self.sinks:
-            sink.hold = True
+            sink.batch()
 
     def flush(self) -> None:
         for sink in list(self.sinks):
@@ -141,6 +146,35 @@ def check_outputs(plan, output: str | None, record: str | Path | None) -> Path |
     return path
 
 
+@dataclass(frozen=True)
+class SinkOptions:
+    """What the sinks of one command share (open_outputs' keyword options)."""
+
+    metadata: dict[str, Any] | None = None
+    receivers_mm: Any = None
+    exclusive: bool = False  # no --force: never replace a file
+    record_profile: str = "json"
+    zenoh_encoding: str = "json"
+    ros2: Any = None
+    zenoh_settings: Any = None
+
+
+def _ndjson_sink(target: str, o: SinkOptions) -> Sink:
+    from spiel_edge.outputs.ndjson import NdjsonSink
+
+    return NdjsonSink(target, exclusive=o.exclusive)
+
+
+# every output a command can ask for, by its option, in the order they are opened
+SINKS: tuple[tuple[str, Callable[[Any, SinkOptions], Sink]], ...] = (
+    ("output", _ndjson_sink),
+    ("record", lambda path, o: _mcap_sink(path, o.metadata, o.record_profile, o.ros2, o.exclusive)),
+    ("udp", lambda target, o: _udp_sink(target)),
+    ("foxglove", lambda bind, o: _foxglove_sink(bind, o.receivers_mm, o.ros2)),
+    ("zenoh", lambda key, o: _zenoh_sink(key, o.zenoh_encoding, o.ros2, o.zenoh_settings)),
+)
+
+
 def open_outputs(
     output: str | None = "-",
     record: str | Path | None = None,
@@ -161,22 +195,19 @@ def open_outputs(
 
     ``record_profile`` "ros2" and ``zenoh_encoding`` "cdr" write ROS 2 messages in CDR with the
     frame id and static transforms of ``ros2`` (outputs.ros2.Ros2Settings)."""
-    from spiel_edge.outputs.ndjson import NdjsonSink
-
-    factories: list = []
-    if output is not None:
-        factories.append(lambda: NdjsonSink(output, exclusive=not force))
-    if record is not None:
-        path = recording_path(record)
-        factories.append(
-            lambda: _mcap_sink(path, metadata, record_profile, ros2, exclusive=not force)
-        )
-    for target in [udp] if isinstance(udp, str) else list(udp or []):
-        factories.append(lambda target=target: _udp_sink(target))
-    if foxglove is not None:
-        factories.append(lambda: _foxglove_sink(foxglove, receivers_mm, ros2))
-    if zenoh is not None:
-        factories.append(lambda: _zenoh_sink(zenoh, zenoh_encoding, ros2, zenoh_settings))
+    options = SinkOptions(
+        metadata, receivers_mm, not force, record_profile, zenoh_encoding, ros2, zenoh_settings
+    )
+    values = {  # option -> the sinks it asks for (--udp may name several targets)
+        "output": [] if output is None else [output],
+        "record": [] if record is None else [recording_path(record)],
+        "udp": [udp] if isinstance(udp, str) else list(udp or []),
+        "foxglove": [] if foxglove is None else [foxglove],
+        "zenoh": [] if zenoh is None else [zenoh],
+    }
+    factories = [
+        partial(make, value, options) for option, make in SINKS for value in values[option]
+    ]
     sinks: list[Sink] = []
     try:
         for make in factories:

@@ -1,7 +1,7 @@
 """Live view through the Foxglove SDK's WebSocket server (extra ``foxglove``), laid out as a
 ros2 recording: the same ROS 2 CDR channels as ``--record-profile ros2`` (``/spiel/point``,
 ``/spiel/targets``, ``/spiel/tracks``, ``/spiel/range``, ``/diagnostics``, ``/tf_static``,
-schemas ``ros2msg``; outputs/ros2_messages.py), plus
+schemas ``ros2msg``; messages/ros2_messages.py), plus
 
 * ``/tf``: foxglove.FrameTransforms, the same transforms as /tf_static (mount and optical
   frame), sent at start and every TF_PERIOD_S so a client that connects later has them;
@@ -25,7 +25,7 @@ from collections.abc import Sequence
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.outputs.scene_view import Trails, ellipsoid
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import ACQUISITIONS, STATUS, VIEW, Sink
 from spiel_edge.outputs.udp import parse_host_port
 from spiel_edge.recordings.mcap_writer import POSITION_SCHEMA
 
@@ -73,7 +73,7 @@ def _import_foxglove():
 class FoxgloveSink(Sink):
     """Serve records on a Foxglove WebSocket at ``[HOST:]PORT`` (port 0 picks a free one)."""
 
-    wants_acquisitions = True  # the echogram draws the raw samples
+    capabilities = frozenset({ACQUISITIONS, STATUS, VIEW})  # the echogram draws the raw samples
 
     def __init__(
         self,
@@ -82,8 +82,8 @@ class FoxgloveSink(Sink):
         receivers_mm: Sequence[Sequence[float]] | None = None,
         ros2=None,
     ):
-        from spiel_edge.outputs import ros2_messages as rm
-        from spiel_edge.outputs import ros2_types
+        from spiel_edge.messages import ros2_messages as rm
+        from spiel_edge.messages import ros2_types
         from spiel_edge.recordings.ros2_mcap import qos_yaml, topic_name
 
         foxglove, self._m = _import_foxglove()

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TextIO
 
 from spiel_edge.io.guard import AtomicTextFile, open_exclusive
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import FILE, HOLD, Sink
 
 # one encoder for every record (json.dumps with options builds one per call); same text
 _ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
@@ -21,7 +21,7 @@ class NdjsonSink(Sink):
     target untouched, unless :meth:`commit` is called)."""
 
     def __init__(self, target: str | Path = "-", *, exclusive: bool = False, atomic: bool = False):
-        self.owns_file = str(target) != "-"
+        self.capabilities = frozenset({HOLD, FILE} if str(target) != "-" else {HOLD})
         self._atomic: AtomicTextFile | None = None
         if not self.owns_file:
             self._fh: TextIO = sys.stdout
@@ -32,8 +32,6 @@ class NdjsonSink(Sink):
             self._fh = open_exclusive(target, force=False, text=True)
         else:
             self._fh = open_exclusive(target, force=True, text=True)
-
-    hold = False  # True: write() leaves flushing to flush() (a live run flushes when caught up)
 
     def write(self, record: dict) -> None:
         self._fh.write(_ENCODER.encode(record) + "\n")

@@ -14,7 +14,8 @@ import math
 from dataclasses import dataclass, field
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.outputs.ros2_limits import SensorLimits
+from spiel_edge.messages.cdr import StaticTransform
+from spiel_edge.messages.settings import Ros2Settings, _default_limits  # noqa: F401 (re-exported)
 from spiel_edge.profile.frame_section import (
     DEFAULT_FRAME_ID,
     FrameSpec,
@@ -25,25 +26,10 @@ from spiel_edge.profile.frame_section import (
     with_overrides,
 )
 from spiel_edge.profile.ranges import RANGES, in_range
-from spiel_edge.recordings.cdr import StaticTransform
 
 RECORD_PROFILES = ("json", "ros2")
 ZENOH_ENCODINGS = ("json", "cdr", "rmw_zenoh")
 ZENOH_MODES = ("peer", "client")
-
-
-def _default_limits():
-    return SensorLimits()
-
-
-@dataclass(frozen=True)
-class Ros2Settings:
-    frame_id: str = DEFAULT_FRAME_ID  # the sensor's REP 103 frame; messages: <frame_id>_optical
-    transforms: tuple[StaticTransform, ...] = ()  # the mount: parent -> frame_id
-    limits: object = field(default_factory=_default_limits)  # ros2_messages.SensorLimits
-    # False: the records are already in frame_id's own REP 103 axes (a robot's fused scene in
-    # base_link or odom): messages stamped frame_id itself, no optical frame, no Range
-    optical: bool = True
 
 
 @dataclass(frozen=True)

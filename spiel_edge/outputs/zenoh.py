@@ -210,7 +210,7 @@ def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, set
 
 class ZenohSink(Sink):
     """Publish each record on ``key_expr`` (e.g. ``robots/r1/spiel/position``), tagged when
-    the settings carry a board's key (robot/record_auth.py)."""
+    the settings carry a board's key (outputs/record_auth.py)."""
 
     _auth_key: bytes | None = None
 
@@ -230,7 +230,7 @@ class ZenohSink(Sink):
             if self._auth_key is None:
                 self._publisher.put(payload)
             else:
-                from spiel_edge.robot.record_auth import attachment
+                from spiel_edge.outputs.record_auth import attachment
 
                 tag = attachment(self._auth_key, self.key_expr, payload)
                 self._publisher.put(payload, attachment=tag)
@@ -241,7 +241,14 @@ class ZenohSink(Sink):
                     "Zenoh put on %s failed (%d so far): %s", self.key_expr, self.failed, exc
                 )
 
+    _closed = False
+
     def close(self) -> None:
+        """Undeclare and close the session; safe to call again (zenoh refuses a second
+        undeclare)."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             self._publisher.undeclare()
         finally:

@@ -1,6 +1,6 @@
 """ROS 2 messages over Zenoh for zenoh-bridge-ros2dds (``--zenoh KEY --zenoh-encoding cdr``).
 
-The messages of outputs/ros2_messages.py (CDR with its encapsulation header, as a DDS writer
+The messages of messages/ros2_messages.py (CDR with its encapsulation header, as a DDS writer
 sends it) on the plain keys the bridge maps to ROS 2 topics (the topic without its leading
 slash): ``KEY/point``, ``KEY/targets``, ``KEY/tracks``, ``KEY/range``, ``diagnostics`` and
 ``tf_static``. Each publisher is announced with the bridge's own liveliness token
@@ -20,10 +20,10 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from spiel_edge.outputs import ros2_messages as rm
-from spiel_edge.outputs import ros2_types
+from spiel_edge.messages import ros2_messages as rm
+from spiel_edge.messages import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import STATUS, Sink
 from spiel_edge.outputs.zenoh import _import_zenoh, open_publishers
 
 log = logging.getLogger(__name__)
@@ -33,6 +33,8 @@ PUB_CACHE_PREFIX = "@ros2_pub_cache"  # zenoh-bridge-ros2dds's publication cache
 
 class ZenohRos2Sink(Sink):
     """Publish the ROS 2 messages of each record under the key prefix ``key_expr``."""
+
+    capabilities = frozenset({STATUS})  # /diagnostics
 
     def __init__(
         self,
@@ -116,7 +118,13 @@ class ZenohRos2Sink(Sink):
         for name, payload in self.messages.of_record(record):
             self._put(name, payload)
 
+    _closed = False
+
     def close(self) -> None:
+        """Undeclare and close the session; safe to call again."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             self._queryable.undeclare()
             for entity in [*self._declared, *self._publishers.values()]:

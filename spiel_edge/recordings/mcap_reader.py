@@ -23,7 +23,7 @@ import numpy as np
 from spiel_edge.errors import InputError
 from spiel_edge.io.guard import shorten
 from spiel_edge.io.limits import InputLimits
-from spiel_edge.recordings.cdr import ENCAPSULATION, decode_acquisition
+from spiel_edge.messages.cdr import ENCAPSULATION, decode_acquisition
 from spiel_edge.recordings.mcap_scan import (
     MAGIC,
     OP_HEADER,

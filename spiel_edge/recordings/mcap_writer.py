@@ -31,7 +31,6 @@ from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
 from spiel_edge.io.guard import open_exclusive
-from spiel_edge.outputs.sink import Sink
 from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
 
 log = logging.getLogger(__name__)
@@ -108,8 +107,33 @@ POSITION_SCHEMA = {
 }
 
 
-class McapSink(Sink):
-    """Record acquisitions and records to ``path`` (overwritten); always call close()."""
+class McapSink:
+    """Record acquisitions and records to ``path`` (overwritten); always call close().
+
+    An output (outputs/sink.py's contract, kept without importing it: recordings sit below
+    outputs): it keeps the acquisitions and owns its file."""
+
+    capabilities = frozenset({"acquisitions", "file"})  # outputs.sink.ACQUISITIONS, FILE
+    hold = False  # every write goes straight to the MCAP writer; nothing to flush
+    view_line = ""
+    owns_file = True
+    wants_acquisitions = True
+
+    def batch(self) -> None:
+        """Not HOLD: nothing to hold."""
+
+    def parts(self) -> list:
+        return [self]
+
+    def set_status_provider(self, provider) -> None:
+        """No /diagnostics in a recording."""
+
+    def flush(self) -> None:
+        """Nothing held."""
+
+    @property
+    def alive(self) -> bool:
+        return not self.closed
 
     def __init__(
         self,
@@ -137,8 +161,6 @@ class McapSink(Sink):
         self._background_crc = 0
         self._background_chunk = -1
         self._lock = threading.RLock()  # close() may come from the signal watchdog
-        self.owns_file = True
-        self.wants_acquisitions = True
         self._since_background = 0
         self.closed = False
         self.counts = {"acquisitions": 0, "records": 0}

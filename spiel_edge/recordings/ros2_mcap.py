@@ -1,7 +1,7 @@
 """MCAP recordings with the ROS 2 profile (``--record-profile ros2``): CDR messages that
 ``rosbags``, ``mcap-ros2-support`` and ``ros2 bag`` read, and ``spiel-edge replay`` replays.
 
-Topics: the messages of outputs/ros2_messages.py under ``/spiel`` (``/spiel/point``,
+Topics: the messages of messages/ros2_messages.py under ``/spiel`` (``/spiel/point``,
 ``/spiel/targets``, ``/spiel/tracks``, ``/spiel/range``), ``/diagnostics`` and ``/tf_static``
 (the mount and the optical frame, once at the start), plus
 
@@ -23,9 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from spiel_edge.outputs import ros2_messages as rm
-from spiel_edge.outputs import ros2_types
-from spiel_edge.recordings import cdr
+from spiel_edge.messages import cdr, ros2_types
+from spiel_edge.messages import ros2_messages as rm
 from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
 from spiel_edge.recordings.mcap_writer import McapSink, _default, _stamp
 
@@ -65,6 +64,8 @@ def qos_yaml(latched: bool) -> str:
 class Ros2McapSink(McapSink):
     """An McapSink whose channels are ROS 2 messages in CDR (profile ``ros2``)."""
 
+    capabilities = frozenset({"acquisitions", "file", "status"})  # /diagnostics too
+
     profile = "ros2"
 
     def __init__(
@@ -78,7 +79,7 @@ class Ros2McapSink(McapSink):
         transforms_now: bool = True,
         **options: Any,
     ):
-        from spiel_edge.outputs.ros2 import Ros2Settings
+        from spiel_edge.messages.settings import Ros2Settings
 
         if ros2 is None:
             ros2 = Ros2Settings(frame_id, tuple(transforms))

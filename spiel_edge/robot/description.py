@@ -99,7 +99,7 @@ class BoardSpec:
     # half-angle within which it reliably sees a target: a fused track predicted outside every
     # board's is charged no miss (it coasts; robot/coast.py)
     detection_deg: float = DETECTION_DEG
-    # `fuse` accepts only records tagged with this secret (robot/record_auth.py); a path
+    # `fuse` accepts only records tagged with this secret (outputs/record_auth.py); a path
     # relative to the robot file's folder; "" accepts any record on the key
     auth_key_file: str = ""
 

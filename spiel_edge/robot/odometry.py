@@ -91,7 +91,7 @@ class OdometryBuffer:
 def parse_odometry(payload: bytes) -> tuple[float | None, float, float, float]:
     """(stamp s or None, x m, y m, yaw rad) of one odometry message: JSON (``stamp``
     optional) or a nav_msgs/msg/Odometry in CDR; InputError when it is neither."""
-    from spiel_edge.recordings.cdr import decode_odometry
+    from spiel_edge.messages.cdr import decode_odometry
 
     data = bytes(payload)
     if data[:2] in (b"\x00\x01", b"\x00\x00"):

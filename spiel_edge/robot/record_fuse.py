@@ -323,7 +323,7 @@ def _record_lines(path: Path) -> Iterator[bytes]:
             f.seek(0)
             yield from f
             return
-        from spiel_edge.recordings.cdr import ENCAPSULATION, decode_string
+        from spiel_edge.messages.cdr import ENCAPSULATION, decode_string
         from spiel_edge.recordings.mcap_reader import POSITION_TOPIC
         from spiel_edge.recordings.mcap_scan import McapScanner
 

@@ -53,7 +53,7 @@ def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | N
 def verifiers(robot: RobotSpec) -> dict:
     """Per board with an ``auth_key_file``: its record_auth.Verifier (ConfigError in one line
     when a key file is missing, unreadable, readable by every user, or not a key)."""
-    from spiel_edge.robot.record_auth import Verifier, load_key
+    from spiel_edge.outputs.record_auth import Verifier, load_key
 
     out = {}
     for b in robot.boards:

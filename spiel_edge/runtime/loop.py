@@ -22,6 +22,7 @@ from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
 from spiel_edge.io.limits import load_npy_bounded
 from spiel_edge.outputs import Sink
+from spiel_edge.outputs.sink import HOLD
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.runtime.once import OncePerProblem
@@ -135,7 +136,7 @@ def live_toa_correction(url: str, requested: str | None) -> str | None:
     profile's)."""
     if requested is not None or not url.lower().startswith("sim:"):
         return requested  # a real board: the virtual board's modules are not even imported
-    from spiel_edge.sim.options import modelled_envelope
+    from spiel_edge.link.sim_options import modelled_envelope
 
     if modelled_envelope(url):
         log.info("virtual board with a modelled envelope: no learned ToA correction")
@@ -222,9 +223,9 @@ class LiveRunner:
     ) -> LiveStats:
         """Process acquisitions until ``stop`` is set or ``frames`` records were written."""
         next_status = time.monotonic() + status_every_s
-        batch = getattr(self.sink, "batch", None)
-        if batch is not None:
-            batch()  # NDJSON flushed once the acquisitions read so far are all handled
+        holding = HOLD in self.sink.capabilities
+        if holding:
+            self.sink.batch()  # NDJSON flushed once the acquisitions read so far are all handled
         waiting = getattr(getattr(self.session, "tracker", None), "ready", ())
         for acq in self.session.acquisitions(stop):
             self.handle(acq)
@@ -232,7 +233,7 @@ class LiveRunner:
                 self._between_tiers()
             if self.on_acquisition is not None:
                 self.on_acquisition(acq)
-            if batch is not None and not waiting:
+            if holding and not waiting:
                 self.sink.flush()
             if frames is not None and self.stats.records >= frames:
                 break
@@ -243,7 +244,7 @@ class LiveRunner:
                 self.refresh_device_counters()
                 status(self)
                 next_status = time.monotonic() + status_every_s
-        if batch is not None:
+        if holding:
             self.sink.flush()  # what is held, before the caller closes: a failure shows here
         return self.stats
 

@@ -11,7 +11,7 @@ are in, the stand-in of the profile (``[scene] static_model``, pipeline/stages/s
 nothing is used, and the samples of those acquisitions at a track are that stand-in too.
 
 A captured background always wins: callers use :meth:`RunningBackground.background` only when
-there is none. Usage (runtime/tracking.py, measure/track_scene.py)::
+there is none. Usage (runtime/tracking.py, tools/bench/track_scene.py)::
 
     running = RunningBackground.from_profile(profile)      # None when off
     result = pipeline.process(frames, running.background())

@@ -66,10 +66,15 @@ def run_options(env: dict[str, str]) -> tuple[str, str | None]:
 
 
 def check_config(
-    profile: str | None = None, calibration: str | None = None, config_dir: str | Path = CONFIG_DIR
+    profile: str | None = None,
+    calibration: str | None = None,
+    config_dir: str | Path = CONFIG_DIR,
+    rejects: Callable[[dict[str, str]], str | None] | None = None,
 ) -> Check:
     """The profile and calibration the service would use (from config_dir's env file unless
-    given), loaded and validated."""
+    given), loaded and validated; ``rejects`` (cli/doctor.py's ``service_rejects``: run's own
+    option parser, passed in because the command line sits above this package) judges the env
+    file's run options."""
     from spiel_edge.profile.schema import resolve_profile
 
     env_file = Path(config_dir) / "spiel-edge.env"
@@ -97,8 +102,8 @@ def check_config(
             "spiel_edge/profile/builtin/ for comparison",
         )
     extra = f" + calibration {calibration}" if calibration else ""
-    if origin != "defaults":
-        problem = service_rejects(read_env_file(env_file))
+    if origin != "defaults" and rejects is not None:
+        problem = rejects(read_env_file(env_file))
         if problem:
             return Check(
                 "config",
@@ -107,44 +112,6 @@ def check_config(
                 "fix SPIEL_RUN_OPTIONS / SPIEL_PORT; `spiel-edge run --help` lists the options",
             )
     return Check("config", True, f"profile {loaded.name!r}{extra} is valid ({origin})")
-
-
-def service_rejects(env: dict[str, str]) -> str | None:
-    """Why `spiel-edge run` would refuse SPIEL_RUN_OPTIONS or SPIEL_PORT (parsed by run's own
-    option parser, ranges included), or None."""
-    import click
-
-    from spiel_edge.cli import cli
-    from spiel_edge.link import LINK_SCHEMES, scheme_of
-
-    port = env.get("SPIEL_PORT", "")
-    if port and scheme_of(port) not in LINK_SCHEMES:
-        return f"SPIEL_PORT {port!r}: unknown URL scheme {scheme_of(port)!r}"
-    try:
-        args = shlex.split(env.get("SPIEL_RUN_OPTIONS", ""))
-    except ValueError as exc:
-        return f"SPIEL_RUN_OPTIONS: {exc}"
-    run = cli.get_command(click.Context(cli), "run")
-    try:
-        ctx = run.make_context("run", list(args), resilient_parsing=False)
-    except click.ClickException as exc:
-        return f"SPIEL_RUN_OPTIONS: {exc.format_message()}"
-    except click.exceptions.Exit:
-        return "SPIEL_RUN_OPTIONS: --help or --version ends the service at once"
-    from spiel_edge.outputs.udp import parse_host_port
-
-    try:
-        for target in ctx.params.get("udp") or ():
-            parse_host_port(target, what="--udp")
-        if ctx.params.get("foxglove"):
-            parse_host_port(ctx.params["foxglove"], default_host="127.0.0.1", what="--foxglove")
-        if ctx.params.get("slot"):  # the robot file and its board, as run checks them
-            from spiel_edge.runtime.slotted_stream import slot_keeper_of
-
-            slot_keeper_of(ctx.params["slot"])
-    except SpielError as exc:
-        return f"SPIEL_RUN_OPTIONS: {exc}"
-    return None
 
 
 # -- model ---------------------------------------------------------------------------------
@@ -338,6 +305,7 @@ def run_checks(
     config_dir: str | Path = CONFIG_DIR,
     skip_numba: bool = False,
     port: str | None = None,
+    rejects: Callable[[dict[str, str]], str | None] | None = None,
 ) -> list[Check]:
     from spiel_edge.link.discover import find_boards
     from spiel_edge.link.usb_ids import board_usb_ids
@@ -351,7 +319,7 @@ def run_checks(
         check_symlinks("/dev"),
         check_groups(*user_groups()),
         check_modemmanager(modemmanager_running(), installed_udev_rule(ids)),
-        check_config(profile, calibration, config_dir),
+        check_config(profile, calibration, config_dir, rejects),
         check_model(),
         check_unit(),  # the installed unit would start (sandbox.py)
     ]

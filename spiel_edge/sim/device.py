@@ -15,12 +15,12 @@ import random
 import time
 from collections.abc import Callable
 
+from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.faults import LineFaults
 from spiel_edge.sim.firmware_slots import FirmwareFlash
 from spiel_edge.sim.flash import Flash, PowerCut
 from spiel_edge.sim.lies import install as install_lie
-from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
 
 log = logging.getLogger(__name__)

@@ -30,25 +30,9 @@ import dataclasses
 
 from firmware_protocol import Flags, FrameDecoder, SampleFormat, StreamData, encode_message
 from firmware_protocol import messages as m
+from spiel_edge.link.sim_options import LIES  # the names lie= takes
 from spiel_edge.sim.faults import Outgoing
 
-LIES = (
-    "channels",
-    "fewer-channels",
-    "samples",
-    "format",
-    "channel-index",
-    "counter-restart",
-    "index-repeat",
-    "incomplete",
-    "mute-stream",
-    "endless-config",
-    "oversized-config",
-    "mute-config",
-    "start-channels",
-    "hello-control",
-    "start-at-ignored",
-)
 HOSTILE_SERIAL = "SIM\x1b[2J\x07\n"  # clear screen, bell, newline: 9 bytes (fits 16)
 HOSTILE_FIRMWARE = "evil\r\x1b]0;x\x07"
 

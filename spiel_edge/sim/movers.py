@@ -36,7 +36,3 @@ class MoverPaths:
     def positions(self, time_s: float) -> np.ndarray:
         wave = self.amplitude * np.sin(self.rate * time_s + self.phase)
         return CENTER_MM + wave.sum(axis=2)
-
-    def velocities(self, time_s: float) -> np.ndarray:
-        wave = self.amplitude * self.rate * np.cos(self.rate * time_s + self.phase)
-        return wave.sum(axis=2)

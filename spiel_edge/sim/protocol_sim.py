@@ -18,8 +18,8 @@ from numpy.typing import ArrayLike
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from spiel_edge.errors import ConfigError
+from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.sim.device import DeviceGone, SimDevice
-from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import EchoModelScene
 
 _DEVICES: dict[str, SimDevice] = {}

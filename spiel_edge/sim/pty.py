@@ -24,8 +24,8 @@ from pathlib import Path
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.io.guard import shorten
+from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.sim.device import DeviceGone, SimDevice
-from spiel_edge.sim.options import SimOptions
 
 log = logging.getLogger(__name__)
 

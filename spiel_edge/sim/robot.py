@@ -17,7 +17,7 @@ board in its own frame.
 
 Reached as ``sim://NAME?scene=robot&robot=FILE&board=NAME&movers=N&seed=S`` (one shared world
 per robot file, movers and seed in a process, so several boards' URLs see one scene), or
-offline through sim/robot_offline.py's ``simulate`` (tools/bench/robot_eval.py, tests/robot/):
+offline through tools/bench/robot_offline.py's ``simulate`` (tools/bench/robot_eval.py, tests/robot/):
 pulses in virtual time, each board with its own clock (offset and drift) and a link latency.
 """
 

@@ -12,8 +12,8 @@ import pytest
 from scipy.special import erf
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.outputs import ros2_messages as rm
-from spiel_edge.outputs.ros2_limits import SensorLimits
+from spiel_edge.messages import ros2_messages as rm
+from spiel_edge.messages.ros2_limits import SensorLimits
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.ranging import (
     REASON_NO_ECHO,

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from spiel_edge.cli import main
+from spiel_edge.cli.doctor import service_rejects
 from spiel_edge.service import doctor
 from spiel_edge.service.doctor import Check
 
@@ -88,7 +89,10 @@ def test_config_from_env_file(tmp_path):
     bad = doctor.check_config(config_dir=tmp_path)
     assert not bad.ok and "delay_samples" in bad.detail
     env.write_text("SPIEL_RUN_OPTIONS=--profile=no-such-profile\n")
-    assert "unknown profile" in doctor.check_config(config_dir=tmp_path).detail
+    assert (
+        "unknown profile"
+        in doctor.check_config(config_dir=tmp_path, rejects=service_rejects).detail
+    )
 
 
 def test_explicit_profile_wins_over_env_file(tmp_path):

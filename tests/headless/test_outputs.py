@@ -10,13 +10,13 @@ import pytest
 from spiel_edge.errors import ConfigError
 from spiel_edge.outputs import MultiSink, open_outputs, recording_path
 from spiel_edge.outputs.ndjson import NdjsonSink
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import ACQUISITIONS, Sink
 from spiel_edge.outputs.udp import UdpSink
 from spiel_edge.recordings.mcap_writer import McapSink
 
 
 class Collect(Sink):
-    wants_acquisitions = True
+    capabilities = frozenset({ACQUISITIONS})
 
     def __init__(self, fail_with: Exception | None = None):
         self.records, self.acquisitions, self.closed, self.fail_with = [], [], 0, fail_with

@@ -195,7 +195,7 @@ def test_a_signal_finalizes_the_recording(recorded, tmp_path, monkeypatch, capsy
 
 def test_a_file_that_appears_during_the_replay_is_not_replaced(tmp_path):
     from spiel_edge.errors import ConfigError
-    from spiel_edge.outputs.replay_output import ReplayMcap
+    from spiel_edge.runtime.replay_output import ReplayMcap
 
     target = tmp_path / "late.mcap"
     out = ReplayMcap(target, force=False)

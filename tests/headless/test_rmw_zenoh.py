@@ -20,8 +20,8 @@ from rosbags.typesys.msg import get_types_from_msg  # noqa: E402
 
 from spiel_edge.cli import main  # noqa: E402
 from spiel_edge.errors import ConfigError  # noqa: E402
-from spiel_edge.outputs import ros2_messages as rm  # noqa: E402
-from spiel_edge.outputs import ros2_types  # noqa: E402
+from spiel_edge.messages import ros2_messages as rm  # noqa: E402
+from spiel_edge.messages import ros2_types  # noqa: E402
 from spiel_edge.outputs.rmw_zenoh import wire  # noqa: E402
 from spiel_edge.outputs.ros2 import Ros2Settings, ZenohSettings, frame_settings  # noqa: E402
 from spiel_edge.profile.frame_section import FrameSpec  # noqa: E402

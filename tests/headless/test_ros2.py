@@ -15,9 +15,8 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from spiel_edge.cli import main  # noqa: E402
 from spiel_edge.data import load_subset  # noqa: E402
 from spiel_edge.errors import ConfigError  # noqa: E402
-from spiel_edge.outputs import ros2_types  # noqa: E402
+from spiel_edge.messages import cdr, ros2_types  # noqa: E402
 from spiel_edge.outputs.ros2 import parse_static_tf, settings  # noqa: E402
-from spiel_edge.recordings import cdr  # noqa: E402
 from spiel_edge.recordings.mcap_reader import iter_mcap_recordings  # noqa: E402
 from spiel_edge.recordings.ros2_mcap import Ros2McapSink  # noqa: E402
 

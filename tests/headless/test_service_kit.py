@@ -59,7 +59,9 @@ def test_env_file_is_what_doctor_and_run_read(tmp_path):
     values = doctor.read_env_file(env)
     assert values["SPIEL_PORT"] == "/dev/spiel-0"
     assert doctor.run_options(values) == ("spiel-icra23", None)
-    assert doctor.check_config(config_dir=tmp_path).ok
+    from spiel_edge.cli.doctor import service_rejects
+
+    assert doctor.check_config(config_dir=tmp_path, rejects=service_rejects).ok
 
 
 def test_dry_run_writes_nothing(tmp_path, capsys):

@@ -6,8 +6,8 @@ import pytest
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.link import discover, usb_ids
+from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.service import kit
-from spiel_edge.sim.options import SimOptions
 
 
 def test_every_consumer_reads_the_same_ids():

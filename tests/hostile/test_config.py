@@ -7,9 +7,9 @@ from __future__ import annotations
 import pytest
 
 from spiel_edge.board import schema as bc
+from spiel_edge.cli.doctor import service_rejects
 from spiel_edge.errors import ConfigError
 from spiel_edge.profile.schema import apply_calibration, load_profile, profile_to_dict
-from spiel_edge.service.doctor import service_rejects
 from spiel_edge.service.kit import render_unit
 
 GOOD = [[0.0, 0.0, 0.0], [-37.5, -64.95, 0.0], [75.0, 0.0, 0.0], [-37.5, 64.95, 0.0]]

@@ -133,7 +133,7 @@ def test_every_lie_is_covered_here():
 
 def test_an_unknown_lie_is_a_usage_error():
     from spiel_edge.errors import ConfigError
-    from spiel_edge.sim.options import SimOptions
+    from spiel_edge.link.sim_options import SimOptions
 
     with pytest.raises(ConfigError, match="lie must be one of"):
         SimOptions.from_url("sim://?lie=everything")

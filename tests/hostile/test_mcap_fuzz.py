@@ -10,8 +10,8 @@ import struct
 import pytest
 from mcap.reader import make_reader
 
-from spiel_edge.recordings.damage import count_intact, sample_offsets
 from spiel_edge.recordings.recover import recover
+from tools.bench.damage import count_intact, sample_offsets
 
 TOTAL = 300
 FLIPS, CUTS = 64, 32

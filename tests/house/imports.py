@@ -84,3 +84,27 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         if v not in index:
             visit(v)
     return found
+
+
+def package_of(module: str) -> str | None:
+    """spiel_edge.X.Y -> "X" (a top-level module is its own package; the root is "__init__");
+    None outside spiel_edge."""
+    parts = module.split(".")
+    if parts[0] != "spiel_edge":
+        return None
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[str, dict[str, set[tuple[str, str]]]]:
+    """package -> {package it imports: the (module, module) imports that make the arrow}."""
+    found: dict[str, dict[str, set[tuple[str, str]]]] = {}
+    for module, targets in graph.items():
+        a = package_of(module)
+        if a is None:
+            continue
+        arrows = found.setdefault(a, {})
+        for target in targets:
+            b = package_of(target)
+            if b is not None and b != a:
+                arrows.setdefault(b, set()).add((module, target))
+    return found

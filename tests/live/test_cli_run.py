@@ -99,7 +99,7 @@ def test_run_reports_bad_ports_and_backgrounds(sim_url, tmp_path, capsys):
 
 
 def test_run_with_a_fixed_background_file(sim_url, tmp_path):
-    from spiel_edge.sim.options import SimOptions
+    from spiel_edge.link.sim_options import SimOptions
     from spiel_edge.sim.scenes import build_scene
 
     port = sim_url("scene=model&targets=20,10,140")

@@ -6,9 +6,9 @@ import pytest
 
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
+from spiel_edge.link.sim_options import modelled_envelope
 from spiel_edge.recordings.mcap_reader import recording_metadata
 from spiel_edge.runtime.loop import live_toa_correction, open_pipeline
-from spiel_edge.sim.options import modelled_envelope
 
 
 @pytest.mark.parametrize(

@@ -12,8 +12,8 @@ from spiel_edge.cli import main
 from spiel_edge.device.annotation import TARGETS_TYPE, TruthTargets, encode_truth_targets
 from spiel_edge.device.stream import StreamTracker
 from spiel_edge.errors import ConfigError
+from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.sim.movers import HALF_RANGE_MM, MAX_TOP_SPEED_MM_S, MoverPaths
-from spiel_edge.sim.options import SimOptions
 
 
 def _records(path) -> list[dict]:

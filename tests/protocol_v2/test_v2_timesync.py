@@ -1,6 +1,6 @@
 """Time sync against the virtual board's drifting clock over a jittered link.
 
-The 10-minute target runs on a simulated clock (spiel_edge/measure/clock_sync.py: ten minutes
+The 10-minute target runs on a simulated clock (tools/bench/clock_model.py: ten minutes
 of board time in about ten seconds, through the real codec, board and estimator); a short run
 in real time checks the session's own path end to end."""
 
@@ -14,8 +14,8 @@ import pytest
 
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.timesync import TimeSyncEstimator
-from spiel_edge.measure.clock_sync import simulate
 from spiel_edge.sim.protocol_sim import device_for_url
+from tools.bench.clock_model import simulate
 
 
 @pytest.mark.parametrize("drift_ppm, seed", [(200.0, 0), (-200.0, 1)])

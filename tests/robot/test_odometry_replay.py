@@ -14,7 +14,7 @@ from mcap.writer import Writer
 
 from spiel_edge.cli import main
 from spiel_edge.errors import InputError
-from spiel_edge.recordings.cdr import decode_odometry
+from spiel_edge.messages.cdr import decode_odometry
 from spiel_edge.robot.description import load_robot
 from spiel_edge.robot.odometry import parse_odometry
 from spiel_edge.robot.odometry_sources import read_odometry_file
@@ -197,7 +197,7 @@ def test_fuse_replay_takes_a_boards_mcap_recording_as_its_ndjson(tmp_path, capsy
 
 
 def test_a_string_message_decodes_or_says_why():
-    from spiel_edge.recordings.cdr import decode_string, string_message
+    from spiel_edge.messages.cdr import decode_string, string_message
 
     assert decode_string(string_message('{"x": "é"}')) == '{"x": "é"}'
     good = string_message("abc")

@@ -1,10 +1,10 @@
-"""The virtual robot's scoring (robot/score.py): crossings by cause, like-for-like errors."""
+"""The virtual robot's scoring (tools/bench/robot_score.py): crossings by cause, like-for-like errors."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from spiel_edge.robot import score
+from tools.bench import robot_score as score
 
 
 def test_crossings_are_counted_and_failures_split_by_cause():

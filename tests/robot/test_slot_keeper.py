@@ -89,7 +89,7 @@ def test_a_stream_the_session_restarted_goes_back_into_its_slot():
     import threading
     import types
 
-    from spiel_edge.runtime.slotted_stream import SlottedStream
+    from spiel_edge.robot.slotted_stream import SlottedStream
 
     class Session:
         def __init__(self):
@@ -129,7 +129,7 @@ def test_a_board_with_start_at_is_given_its_slot_in_its_own_clock():
     import time
     import types
 
-    from spiel_edge.runtime.slotted_stream import SlottedStream
+    from spiel_edge.robot.slotted_stream import SlottedStream
 
     class Session:
         stream = None
@@ -157,7 +157,7 @@ def test_a_start_on_the_boards_clock_that_is_refused_is_made_by_the_host(caplog)
     import time
 
     from spiel_edge.device import DeviceSession
-    from spiel_edge.runtime.slotted_stream import SlottedStream
+    from spiel_edge.robot.slotted_stream import SlottedStream
     from spiel_edge.sim import protocol_sim
 
     keeper = SlotKeeper(0.05, 0.01, 0.0005)

@@ -9,7 +9,7 @@ import pytest
 from spiel_edge.robot.description import load_robot
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
 from spiel_edge.sim.robot import AUDIBLE_COUNTS, RobotWorld
-from spiel_edge.sim.robot_offline import simulate
+from tools.bench.robot_offline import simulate
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.robot import record_auth
+from spiel_edge.outputs import record_auth
 from spiel_edge.robot.description import load_robot
 
 SECRET = "5e" * 32

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from spiel_edge.cli import main
-from spiel_edge.measure.track_scene import MoverScore
 from spiel_edge.outputs.scene_view import CHI2_3DOF_95, Trails, ellipsoid
 from spiel_edge.recordings.spiel_csv import Recording
 from spiel_edge.runtime.tracking import NOMINAL_PERIOD_S, time_ordered
 from spiel_edge.track import Track
 from tests.core.spiel_csv_fixture import write_spiel_csv
+from tools.bench.track_scene import MoverScore
 
 
 @pytest.fixture(scope="module")
@@ -121,8 +121,8 @@ def test_mover_score_counts_coverage_and_id_switches():
 
 
 def test_movers_tracked_with_oracle_targets(profile):
-    from spiel_edge.measure.track_scene import run_movers
     from spiel_edge.pipeline.factory import build_pipeline
+    from tools.bench.track_scene import run_movers
 
     pipeline = build_pipeline(profile, "geometric")
     out = run_movers(pipeline, "sim://?scene=model&movers=2&seed=2", 80, oracle_sigma_mm=5.0)

@@ -23,9 +23,9 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=200, help="acquisitions")
     args = parser.parse_args()
     from spiel_edge.device.iq import iq_amplitude
+    from spiel_edge.link.sim_options import SimOptions
     from spiel_edge.pipeline.factory import build_pipeline
     from spiel_edge.profile.schema import load_profile
-    from spiel_edge.sim.options import SimOptions
     from spiel_edge.sim.scenes import build_scene
 
     scene = build_scene(SimOptions(scene="model", seed=1))

@@ -5,7 +5,7 @@
     python tools/bench/clock_sync.py --real-time 60        # a live session against sim:// in real time
 
 The simulated run drives the virtual board on a virtual clock through the real codec and
-estimator (spiel_edge/measure/clock_sync.py): ten minutes of board time in about ten seconds.
+estimator (tools/bench/clock_model.py): ten minutes of board time in about ten seconds.
 The real-time run opens a DeviceSession on ``sim://?drift_ppm=..&jitter_us=..``, streams, and
 compares every acquisition's ``stamp_host`` with the host time the board really sampled it at.
 Prints one JSON object per run.
@@ -67,7 +67,7 @@ def main() -> None:
     if args.real_time:
         print(json.dumps(real_time(args.real_time, args.drift_ppm, args.jitter_us, args.rate_hz)))
         return
-    from spiel_edge.measure.clock_sync import simulate
+    from tools.bench.clock_model import simulate
 
     for seed in range(args.seeds):
         drift = args.drift_ppm if seed % 2 == 0 else -args.drift_ppm

@@ -23,9 +23,9 @@ import numpy as np
 from spiel_edge.data import load_subset
 from spiel_edge.io.limits import InputLimits
 from spiel_edge.profile.schema import load_profile
-from spiel_edge.recordings.damage import count_intact, damage_sweep, sample_offsets
 from spiel_edge.recordings.mcap_reader import iter_mcap_recordings
 from spiel_edge.recordings.mcap_writer import McapSink
+from tools.bench.damage import count_intact, damage_sweep, sample_offsets
 
 
 def record(path: Path, n: int) -> Path:

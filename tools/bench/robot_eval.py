@@ -9,7 +9,7 @@ Offline in virtual time (sim/robot.py's simulate: each board's clock with offset
 learned ToA correction: the echo model's envelope), then the host side and the fusion of
 spiel_edge/robot. ``--oracle`` adds ``oracle_association``: the same fused targets associated
 to the movers by the truth, one track per mover with the same filter and coasting (what a
-perfect association would keep; robot/score.py). Prints one JSON object per seed and mode;
+perfect association would keep; tools/bench/robot_score.py). Prints one JSON object per seed and mode;
 with ``--seeds``, then one ``pooled`` object per mode: the crossings kept over every seed with
 Wilson's 95 % interval, the like-for-like tracked errors weighted by their pairs, and the
 ranges of the marked and ghost shares.
@@ -26,8 +26,8 @@ import time
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.robot.description import load_robot
-from spiel_edge.robot.virtual_run import run_virtual_robot
 from spiel_edge.sim.robot import RobotWorld
+from tools.bench.virtual_robot import run_virtual_robot
 
 
 def main(argv: list[str] | None = None) -> None:

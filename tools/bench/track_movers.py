@@ -12,9 +12,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from spiel_edge.measure.track_scene import run_movers
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
+from tools.bench.track_scene import run_movers
 
 
 def add_toa_correction(parser: argparse.ArgumentParser) -> None:

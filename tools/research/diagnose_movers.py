@@ -16,12 +16,12 @@ import json
 
 import numpy as np
 
-from spiel_edge.measure.track_scene import match
+from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
-from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
 from tools.bench.track_movers import add_toa_correction
+from tools.bench.track_scene import match
 
 
 def diagnose(

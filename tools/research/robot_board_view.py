@@ -10,7 +10,7 @@ other mover's range difference (two reflectors at one range from a board echo to
 every channel), and the board's targets (range, distance from the mover). One line each.
 
 ``--crossings SEEDS``: over whole runs (2000 cycles) of those seeds, the crossings tracked before
-(robot/score.py) split by whether another mover stood within ``RANGE_MM`` in range of the mover,
+(tools/bench/robot_score.py) split by whether another mover stood within ``RANGE_MM`` in range of the mover,
 seen from the board it enters, for at least half of the ``LOOK`` cycles after it; kept and
 failed in each group. One JSON object.
 """
@@ -24,12 +24,12 @@ import numpy as np
 
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
-from spiel_edge.robot import score
 from spiel_edge.robot.description import load_robot
 from spiel_edge.robot.fusion import reports_targets
-from spiel_edge.robot.virtual_run import run_virtual_robot
 from spiel_edge.sim.robot import RobotWorld
-from spiel_edge.sim.robot_offline import simulate
+from tools.bench import robot_score as score
+from tools.bench.robot_offline import simulate
+from tools.bench.virtual_robot import run_virtual_robot
 
 RANGE_MM = 15.0  # two echoes closer than about two samples (7.8 mm each) merge
 

@@ -24,9 +24,9 @@ import math
 
 import numpy as np
 
+from spiel_edge.cli._recording_profile import recording_profile
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.ranging import CONFIDENCE_COLUMN, echo_phase, iq_refine, toa_sigma
-from spiel_edge.profile.recording_profile import recording_profile
 from spiel_edge.recordings.stof_chirp import (
     find_specs,
     iter_stof_recordings,

@@ -1,6 +1,6 @@
 """A ROS 2 node on Zenoh without ROS: what an rmw_zenoh node (Jazzy, Kilted, Rolling) sees as
 node ``/spiel_edge`` publishing ``/KEY/point``, ``/KEY/targets``, ``/KEY/tracks``,
-``/KEY/range``, ``/diagnostics`` and ``/tf_static`` (outputs/ros2_messages.py).
+``/KEY/range``, ``/diagnostics`` and ``/tf_static`` (messages/ros2_messages.py).
 
 Per publisher: a Zenoh publisher on the topic's key (wire.topic_key), a liveliness token
 announcing it (type, type hash, QoS) and the rmw_zenoh attachment on every sample (sequence
@@ -25,10 +25,10 @@ from dataclasses import replace
 from typing import Any
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.outputs import ros2_messages as rm
-from spiel_edge.outputs import ros2_types
+from spiel_edge.messages import ros2_messages as rm
+from spiel_edge.messages import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
-from spiel_edge.outputs.sink import Sink
+from spiel_edge.outputs.sink import STATUS, Sink
 from spiel_edge.outputs.zenoh import _import_zenoh, session_config, zenoh_reason
 
 log = logging.getLogger(__name__)
@@ -54,6 +54,8 @@ def topics_of(prefix: str) -> dict[str, str]:
 
 class RmwZenohSink(Sink):
     """Publish each record's ROS 2 messages as rmw_zenoh does."""
+
+    capabilities = frozenset({STATUS})  # /diagnostics
 
     def __init__(
         self,

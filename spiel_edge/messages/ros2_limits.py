@@ -1,5 +1,5 @@
 """The board's field of view and range limits as ROS 2 messages state them (sensor_msgs/Range,
-the target filter of outputs/ros2_messages.py), from a profile."""
+the target filter of messages/ros2_messages.py), from a profile."""
 
 from __future__ import annotations
 

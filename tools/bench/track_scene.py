@@ -13,10 +13,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.pipeline.staged import Pipeline, Target
 from spiel_edge.runtime.running_background import RunningBackground
 from spiel_edge.runtime.tracking import ResultTracker
-from spiel_edge.sim.options import SimOptions
 from spiel_edge.sim.scenes import build_scene
 from spiel_edge.track.assign import INFEASIBLE, assign
 

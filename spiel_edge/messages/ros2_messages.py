@@ -39,10 +39,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cache
 
-from spiel_edge.outputs import ros2_types
-from spiel_edge.outputs.ros2_limits import FIELD_OF_VIEW_RAD, SensorLimits  # noqa: F401
+from spiel_edge.messages import cdr, ros2_types
+from spiel_edge.messages.ros2_limits import FIELD_OF_VIEW_RAD, SensorLimits  # noqa: F401
 from spiel_edge.profile.frame_section import DEFAULT_FRAME_ID
-from spiel_edge.recordings import cdr
 
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
@@ -336,10 +335,6 @@ class Ros2Messages:
         return self.encoder.cdr.tf_message(
             self.transforms, time.time() if stamp_s is None else stamp_s
         )
-
-
-def type_of(topic: str) -> str:
-    return TOPICS[topic]
 
 
 def definitions() -> dict[str, str]:

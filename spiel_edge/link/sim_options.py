@@ -2,6 +2,9 @@
 
 The NAME tells boards apart within one process (two URLs with different names are two
 boards); the query selects the scene and injects faults. Unknown keys are rejected.
+
+Here in ``link`` (what a port URL means), below ``runtime`` and ``sim``: the live loop asks
+whether a URL is a virtual board with a modelled envelope without importing the board.
 """
 
 from __future__ import annotations
@@ -15,6 +18,24 @@ from spiel_edge.errors import ConfigError
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 
 SCENES = ("replay", "model", "robot")
+# the hostile firmware modes of lie= (each acted out by sim/lies.py)
+LIES = (
+    "channels",
+    "fewer-channels",
+    "samples",
+    "format",
+    "channel-index",
+    "counter-restart",
+    "index-repeat",
+    "incomplete",
+    "mute-stream",
+    "endless-config",
+    "oversized-config",
+    "mute-config",
+    "start-channels",
+    "hello-control",
+    "start-at-ignored",
+)
 
 
 @dataclass(frozen=True)
@@ -102,8 +123,6 @@ class SimOptions:
             "noise >= 0, speed in [200, 2000]",
         )
         need(0 <= self.movers <= 8, f"movers must be in [0, 8], got {self.movers}")
-        from spiel_edge.sim.lies import LIES
-
         need(self.lie in ("", *LIES), f"lie must be one of {', '.join(LIES)}, got {self.lie!r}")
         need(0 < len(self.serial.encode()) <= 16, "serial must be 1 to 16 bytes")
         need(

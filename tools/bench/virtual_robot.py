@@ -1,7 +1,8 @@
 """The virtual robot end to end, offline: simulated acquisitions (sim/robot.py) -> each
 board's pipeline -> host side (clocks, cross-talk marking) -> fusion -> scores.
 
-Used by tools/bench/robot_eval.py (the issue's figures) and tests/robot/ (a short run)."""
+Used by tools/bench/robot_eval.py and tools/research/robot_board_view.py only (moved out of
+the wheel from spiel_edge/robot/virtual_run.py)."""
 
 from __future__ import annotations
 
@@ -12,11 +13,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spiel_edge.profile.schema import load_profile
-from spiel_edge.robot import score
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.fusion import BaseTarget, BoardReport, Fuser, reports_targets
 from spiel_edge.robot.schedule import CrosstalkMarker, Schedule
 from spiel_edge.track import Tracker
+from tools.bench import robot_score as score
 
 GHOST_NEW_MM = 30.0  # a target this far from every target of the clean frame ...
 GHOST_TRUTH_MM = 40.0  # ... and from every object is one the other board's pulse made
@@ -100,7 +101,7 @@ def run_virtual_robot(
 ) -> tuple[RunFigures, list[dict]]:
     """``coast``: the fuser's coasting policy; "robot": the robot file's (robot/coast.py).
     ``oracle``: also score the same fused targets associated by the truth (``figs.oracle``)."""
-    from spiel_edge.sim.robot_offline import simulate
+    from tools.bench.robot_offline import simulate
 
     figs = RunFigures()
     acqs, figs.restarts, _ = simulate(

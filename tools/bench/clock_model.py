@@ -70,8 +70,8 @@ def simulate(
     sync_fault: str = "",
     seed: int = 0,
 ) -> ClockSyncResult:
+    from spiel_edge.link.sim_options import SimOptions
     from spiel_edge.sim.device import SimDevice
-    from spiel_edge.sim.options import SimOptions
 
     clock = [1000.0]  # host seconds (arbitrary epoch)
     options = SimOptions(

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.outputs.ros2_types import rosbag2_definition
+from spiel_edge.messages.ros2_types import rosbag2_definition
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR_LE
 
