@@ -21,6 +21,7 @@ both tiers, and the records are the same (tests/core/test_tiered.py).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 ENV_TIERED = "SPIEL_EDGE_TIERED"  # "0": compile before the first record (the old way)
 ENV_AFTER = "SPIEL_EDGE_COMPILE_AFTER_EXIT"  # "0": stop the compile when the command ends
 MAX_ROUNDS = 3  # compile rounds (a later one for calls first seen on the live stream)
+POLL_S = 0.05  # switch_at_kernel_calls: the switch looked at at most this often
 REPORT_EVERY = 0.25  # without a status line: a progress line every quarter of the kernels
 
 
@@ -65,6 +67,7 @@ class TieredStart:
         self._said = 0.0
         self._waiting_on_other = False
         self.stopped = False  # the command stopped the compile (close)
+        self._polled = 0.0  # switch_at_kernel_calls: when the switch was last looked at
 
     # --- the two tiers -------------------------------------------------------------------
 
@@ -78,17 +81,40 @@ class TieredStart:
         if self.tier != "interpreted":
             return False
         self.records_interpreted += 1
+        return self._switch_if_ready()
+
+    def switch_at_kernel_calls(self) -> None:
+        """For a command whose loops are not its own (evaluate, calibrate): the switch comes
+        at the next call from Python into a kernel once the compiled ones are loaded (between
+        two kernel calls: the values are the same on both tiers, so a unit of work may end on
+        the compiled tier)."""
+        if self.interpreted is not None and self.tier == "interpreted":
+            self.interpreted.on_call = self._at_kernel_call
+
+    def _at_kernel_call(self) -> bool:
+        if self.tier != "interpreted":
+            return True
+        now = time.monotonic()
+        if now - self._polled < POLL_S:  # a flag and a clock per kernel call, no more
+            return False
+        self._polled = now
+        return self._switch_if_ready()
+
+    def _switch_if_ready(self) -> bool:
         if self._waiting_on_other and self.proc is None:
             self._poll_other()
         if not self._ready.is_set():
             return False
+        self.interpreted.on_call = None
         self.interpreted.leave()
         self.tier = "compiled"
         self.switched_after = time.monotonic() - self.t0
-        line = (
-            f"spiel-edge: compiled kernels in use after {self.switched_after:.0f} s "
-            f"({self.records_interpreted} records on the interpreted ones)"
+        on = (
+            f"{self.records_interpreted} records on the interpreted ones"
+            if self.records_interpreted
+            else "the work so far on the interpreted ones"
         )
+        line = f"spiel-edge: compiled kernels in use after {self.switched_after:.0f} s ({on})"
         self._say(line)
         if self.notifier is not None:
             self.notifier.status(line)
@@ -347,3 +373,35 @@ def start_tiered(
         notifier.status("interpreted kernels; compiling in the background")
     tiers.launch(plan, folder)
     return tiers
+
+
+@contextlib.contextmanager
+def tiered_work(
+    profile,
+    association=None,
+    max_targets=None,
+    track=True,
+    toa_correction=None,
+    what: str = "evaluate",
+):
+    """A tiered start for a command whose loops are not its own (``evaluate``, ``calibrate``):
+    within, missing kernels run interpreted while they compile in the background, and the
+    switch comes at a kernel call once they are loaded (:meth:`TieredStart.
+    switch_at_kernel_calls`). Yields the :class:`TieredStart` (None when off: kernels compile
+    first, as before). A normal end leaves the compile running (later starts use it); an
+    exception or a signal stops it; either way one line says so."""
+    tiers = start_tiered(profile, association, max_targets, track, toa_correction, what=what)
+    if tiers is not None:
+        tiers.switch_at_kernel_calls()
+    stop = True
+    try:
+        yield tiers
+        stop = False
+    finally:
+        if tiers is not None:
+            if tiers.is_interpreted and tiers.interpreted is not None:
+                tiers.interpreted.on_call = None
+                tiers.interpreted.leave()  # the dispatchers back (a command run in-process)
+            line = tiers.close(stop_compile=stop)
+            if line:
+                tiers._say(line)

@@ -15,12 +15,15 @@ import signal
 import subprocess
 import sys
 import time
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from spiel_edge import _jit, _tiers
+
+SUBSET = str(resources.files("spiel_edge") / "data" / "spiel_icra23_subset.npz")
 
 
 def _records(pipeline_factory, pairs, tracker_factory):
@@ -377,3 +380,47 @@ def test_status_line_summary_and_diagnostics_say_the_tier():
     tiers.rounds = 1
     assert runner.status_line().endswith("kernels compiled")
     assert "7 skipped (interpreted kernels behind the board); kernels compiled" in runner.summary()
+
+
+def test_a_command_without_its_own_loop_switches_at_a_kernel_call(monkeypatch):
+    """evaluate and calibrate (runtime.tiered.tiered_work): interpreted at once, the compiled
+    kernels from the first kernel call after they are loaded, the same results throughout."""
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.profile.schema import resolve_profile
+    from spiel_edge.recordings.labelled import load_labelled
+    from spiel_edge.runtime import tiered
+
+    monkeypatch.setenv("SPIEL_EDGE_TIERED", "force")
+    monkeypatch.setenv("SPIEL_EDGE_COMPILE_AFTER_EXIT", "0")
+    monkeypatch.setattr(tiered, "POLL_S", 0.0)
+    monkeypatch.setattr(tiered.TieredStart, "_load", lambda self: None)  # loaded: when we say
+    profile = resolve_profile("spiel-icra23")
+    recs = list(load_labelled(SUBSET).recordings())[:24]
+    plain = build_pipeline(profile)
+    expected = [json.dumps(plain.process(r.frames, r.background).record()) for r in recs]
+    got = []
+    with tiered.tiered_work(profile, what="evaluate") as tiers:
+        assert tiers is not None and tiers.is_interpreted
+        pipeline = build_pipeline(profile)
+        for r in recs[:12]:
+            got.append(json.dumps(pipeline.process(r.frames, r.background).record()))
+        assert tiers.is_interpreted and tiers.interpreted.active  # the twins ran them
+        tiers._ready.set()  # the compiled kernels are loaded (the cache is warm)
+        for r in recs[12:]:
+            got.append(json.dumps(pipeline.process(r.frames, r.background).record()))
+        assert tiers.tier == "compiled" and not tiers.interpreted.active
+    assert got == expected
+    fused = vars(sys.modules["spiel_edge.pipeline.compiled.fused"]).values()
+    assert not any(hasattr(v, "dispatcher") for v in fused)  # the dispatchers are back
+
+
+def test_evaluate_starts_tiered_and_gives_the_same_summary():
+    path = SUBSET
+    env = {"SPIEL_EDGE_TIERED": "force", "SPIEL_EDGE_COMPILE_AFTER_EXIT": "0"}
+    tiered = _cli("evaluate", path, "--json", env=env)
+    assert tiered.returncode == 0, tiered.stderr
+    assert "starting on the interpreted kernels" in tiered.stderr
+    plain = _cli("evaluate", path, "--json", env={"SPIEL_EDGE_TIERED": "0"})
+    assert plain.returncode == 0, plain.stderr
+    assert "interpreted" not in plain.stderr
+    assert json.loads(tiered.stdout) == json.loads(plain.stdout)
