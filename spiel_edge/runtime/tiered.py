@@ -371,7 +371,11 @@ def start_tiered(
     )
     if notifier is not None:
         notifier.status("interpreted kernels; compiling in the background")
-    tiers.launch(plan, folder)
+    try:
+        tiers.launch(plan, folder)
+    except BaseException:  # a signal right then: no compile left behind in its own session
+        tiers.close(stop_compile=True)
+        raise
     return tiers
 
 

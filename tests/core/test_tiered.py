@@ -424,3 +424,35 @@ def test_evaluate_starts_tiered_and_gives_the_same_summary():
     assert plain.returncode == 0, plain.stderr
     assert "interpreted" not in plain.stderr
     assert json.loads(tiered.stdout) == json.loads(plain.stdout)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_during_evaluate_stops_its_compile_with_one_line(tmp_path, signum):
+    marker = f"SPIEL_EDGE_TEST_MARK={tmp_path.name}"
+    env = {**os.environ, "SPIEL_EDGE_TIERED": "force", "SPIEL_EDGE_TEST_MARK": tmp_path.name}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "spiel_edge.cli", "evaluate", SUBSET, "--json"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    seen = ""
+    while "starting on the interpreted kernels" not in seen:
+        line = proc.stderr.readline()
+        assert line, "evaluate ended before its tiered start"
+        seen += line
+    time.sleep(0.3)  # the compile launched, the evaluation under way on the twins
+    proc.send_signal(signum)
+    out, err = proc.communicate(timeout=60)
+    err = seen + err
+    assert "Traceback" not in err
+    stopped = [line for line in err.splitlines() if line.startswith("spiel-edge: compile stopped")]
+    assert len(stopped) <= 1, err
+    if proc.returncode != 0:  # stopped by the signal (not finished before it came)
+        assert stopped or "compiled kernels in use" in err, err
+    for _ in range(50):
+        if not _processes_with(marker):
+            break
+        time.sleep(0.1)
+    assert _processes_with(marker) == []  # no compile left running after a signal
