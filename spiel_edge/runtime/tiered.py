@@ -319,6 +319,7 @@ def start_tiered(
     stream=None,
     notifier=None,
     what: str = "run",
+    exercise=None,
 ) -> TieredStart | None:
     """Before a command opens its board: the compiled tier when every kernel it needs is
     cached; else the interpreted tier with its compile started in the background. None when
@@ -339,7 +340,10 @@ def start_tiered(
     try:
         if os.environ.get(ENV_TIERED) != "force":  # force: tests, bench (as if none cached)
             with _kernel_cache.no_compile():
-                _exercise_run(profile, association, max_targets, track, toa_correction)
+                if exercise is not None:  # a command of its own kernels (fuse: the tracker)
+                    exercise()
+                else:
+                    _exercise_run(profile, association, max_targets, track, toa_correction)
             return tiers  # all cached: the compiled tier
     except _kernel_cache.CompileNeeded as exc:
         if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
@@ -350,9 +354,14 @@ def start_tiered(
         return tiers
     folder = cache_dir()
     if not enabled() or not cache_writable() or folder is None or not _tiers.KERNELS:
-        prepare_for_run(profile, association, max_targets, track, toa_correction, stream, notifier)
+        if exercise is None:  # (a command of its own kernels compiles them in place)
+            prepare_for_run(
+                profile, association, max_targets, track, toa_correction, stream, notifier
+            )
         return None
-    interpreted, plan, units = make_plan(profile, association, max_targets, track, toa_correction)
+    interpreted, plan, units = make_plan(
+        profile, association, max_targets, track, toa_correction, exercise
+    )
     tiers.interpreted, tiers.tier, tiers._folder = interpreted, "interpreted", folder
     tiers.planned = set(units)
     tiers.total = len(tiers.planned)
@@ -387,20 +396,29 @@ def tiered_work(
     track=True,
     toa_correction=None,
     what: str = "evaluate",
+    exercise=None,
+    stopped=None,
 ):
     """A tiered start for a command whose loops are not its own (``evaluate``, ``calibrate``):
     within, missing kernels run interpreted while they compile in the background, and the
     switch comes at a kernel call once they are loaded (:meth:`TieredStart.
     switch_at_kernel_calls`). Yields the :class:`TieredStart` (None when off: kernels compile
     first, as before). A normal end leaves the compile running (later starts use it); an
-    exception or a signal stops it; either way one line says so."""
-    tiers = start_tiered(profile, association, max_targets, track, toa_correction, what=what)
+    exception or a signal stops it (``stopped()`` true: a command that stops on a signal
+    without an exception); either way one line says so. ``exercise``: the plan's work when it
+    is not ``run``'s (``fuse``: the tracker alone)."""
+    if profile is None and exercise is None:  # nothing of run's and none of its own
+        yield None
+        return
+    tiers = start_tiered(
+        profile, association, max_targets, track, toa_correction, what=what, exercise=exercise
+    )
     if tiers is not None:
         tiers.switch_at_kernel_calls()
     stop = True
     try:
         yield tiers
-        stop = False
+        stop = bool(stopped is not None and stopped())
     finally:
         if tiers is not None:
             if tiers.is_interpreted and tiers.interpreted is not None:

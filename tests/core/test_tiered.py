@@ -456,3 +456,44 @@ def test_a_signal_during_evaluate_stops_its_compile_with_one_line(tmp_path, sign
             break
         time.sleep(0.1)
     assert _processes_with(marker) == []  # no compile left running after a signal
+
+
+def _board_records(tmp_path, robot, n: int = 60) -> list[str]:
+    """--replay arguments: each board's records as `run -o` writes them, a post 600 mm ahead
+    that the front board sees while the robot drives along x."""
+    args = []
+    for j, b in enumerate(robot.boards):
+        lines = []
+        for k in range(n):
+            t = 1000.0 + k * 0.025 + j * 0.005
+            p_base = np.array([600.0 - 200.0 * (t - 1000.0), 0.0, 0.0])
+            targets = []
+            if b.name == "front":
+                cov = (np.eye(3) * 16).tolist()
+                targets = [{"position_mm": list(b.mount.to_board(p_base)), "covariance_mm2": cov}]
+            record = {"acquisition": k, "device_time_us": int((5.0 + t - 1000) * 1e6)}
+            lines.append(json.dumps({**record, "host_time": t, "targets": targets}))
+        path = tmp_path / f"{b.name}.ndjson"
+        path.write_text("\n".join(lines) + "\n")
+        args += ["--replay", f"{b.name}={path}"]
+    return args
+
+
+def test_fuse_starts_tiered_on_the_tracker_alone_and_fuses_the_same(tmp_path):
+    from spiel_edge.robot.description import load_robot
+
+    replay = _board_records(tmp_path, load_robot("virtual-4"))
+    env = {"SPIEL_EDGE_TIERED": "force", "SPIEL_EDGE_COMPILE_AFTER_EXIT": "0"}
+    tiered = _cli("fuse", "--robot", "virtual-4", *replay, env=env)
+    assert tiered.returncode == 0, tiered.stderr
+    assert "starting on the interpreted kernels" in tiered.stderr
+    counted = re.search(r"compiles the (\d+) kernels|loads the compiled kernels", tiered.stderr)
+    assert counted, tiered.stderr
+    if counted.group(1):  # the tracker's tree only, not run's pipeline (90 kernels)
+        assert int(counted.group(1)) <= 25, tiered.stderr
+    plain = _cli("fuse", "--robot", "virtual-4", *replay, env={"SPIEL_EDGE_TIERED": "0"})
+    assert plain.returncode == 0, plain.stderr
+    assert "interpreted" not in plain.stderr
+    fused = [json.loads(line) for line in tiered.stdout.splitlines()]
+    assert len(fused) == 60 and any(r["tracks"] for r in fused)
+    assert tiered.stdout == plain.stdout
