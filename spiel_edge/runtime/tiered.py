@@ -83,6 +83,13 @@ class TieredStart:
         self.records_interpreted += 1
         return self._switch_if_ready()
 
+    def leave(self) -> None:
+        """The command is over: the dispatchers back where the twins were (for a command
+        run in-process; the records are written by then)."""
+        if self.interpreted is not None:
+            self.interpreted.on_call = None
+            self.interpreted.leave()
+
     def switch_at_kernel_calls(self) -> None:
         """For a command whose loops are not its own (evaluate, calibrate): the switch comes
         at the next call from Python into a kernel once the compiled ones are loaded (between
@@ -421,9 +428,7 @@ def tiered_work(
         stop = bool(stopped is not None and stopped())
     finally:
         if tiers is not None:
-            if tiers.is_interpreted and tiers.interpreted is not None:
-                tiers.interpreted.on_call = None
-                tiers.interpreted.leave()  # the dispatchers back (a command run in-process)
+            tiers.leave()  # the dispatchers back (a command run in-process)
             line = tiers.close(stop_compile=stop)
             if line:
                 tiers._say(line)
