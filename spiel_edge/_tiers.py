@@ -140,6 +140,9 @@ class Interpreted:
         self.outer = {id(k): self._outer(k) for k in self.kernels}
         self._swapped: list[tuple[dict, str, object]] = []
         self.active = False
+        # on_call() before each call from Python, for a command whose loop has no between():
+        # True when the compiled tier is in place (then the call goes to the dispatcher)
+        self.on_call: Callable[[], bool] | None = None
 
     def _build(self) -> None:
         namespaces: dict[str, dict] = {}
@@ -179,6 +182,9 @@ class Interpreted:
         recorder_of = self  # the recorder may be replaced (a new plan)
 
         def outer(*args, **kwargs):
+            hook = recorder_of.on_call
+            if hook is not None and hook():
+                return dispatcher(*args, **kwargs)  # switched to the compiled tier
             recorder_of.recorder.note(dispatcher, pysig, args, kwargs)
             return twin(*args, **kwargs)
 
@@ -191,7 +197,8 @@ class Interpreted:
     @property
     def calls(self) -> list[tuple[object, tuple]]:
         """(dispatcher, argument types) of each distinct call from Python noted so far."""
-        return [(k, key[1]) for key, k in self.recorder.calls.items()]
+        noted = dict(self.recorder.calls)  # one copy (atomic): the loader thread reads it
+        return [(k, key[1]) for key, k in noted.items()]
 
     def enter(self, pure_cobs: bool = True) -> None:
         """The twins in place of the dispatchers, wherever Python code finds a kernel

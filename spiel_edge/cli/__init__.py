@@ -93,7 +93,7 @@ class ReaderGone(Exception):
     """The reader of stdout went away (``| head``): a normal end, status 0."""
 
 
-SPEAK_WHEN_COLD = ("run", "replay")  # commands that compile kernels before they start
+SPEAK_WHEN_COLD = ("run", "replay", "evaluate", "calibrate")  # commands that compile kernels
 
 
 class LazyGroup(click.Group):

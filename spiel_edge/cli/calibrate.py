@@ -36,6 +36,7 @@ from spiel_edge.io.guard import FilePlan, atomic_write
 from spiel_edge.io.shown import escape
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
+from spiel_edge.runtime.tiered import tiered_work
 from spiel_edge.view import require_matplotlib
 
 
@@ -173,56 +174,59 @@ def command(
             "give either --recordings DIR (offline) or --positions FILE (live, on --port or "
             "the one attached board)"
         )
-    if recordings is not None:
-        data = load_recordings(recordings, background, exclude_z=exclude_z or EXCLUDED_Z_MM)
-        frames, backgrounds, truth, source = (
-            data.frames,
-            data.backgrounds,
-            data.truth_mm,
-            recordings,
-        )
-    else:
-        port = board_port(port)
-        frames, backgrounds, truth = _capture_live(
-            port, profile, read_positions(positions), captures, not no_prompt
-        )
-        source = port
-        from spiel_edge.runtime.loop import live_toa_correction  # the pipeline `run` builds
+    # missing kernels: the interpreted ones run (and a live capture goes on) while a
+    # background process compiles them; the compiled ones from a kernel call once loaded
+    with tiered_work(profile, association, None, False, toa_correction, "calibrate"):
+        if recordings is not None:
+            data = load_recordings(recordings, background, exclude_z=exclude_z or EXCLUDED_Z_MM)
+            frames, backgrounds, truth, source = (
+                data.frames,
+                data.backgrounds,
+                data.truth_mm,
+                recordings,
+            )
+        else:
+            port = board_port(port)
+            frames, backgrounds, truth = _capture_live(
+                port, profile, read_positions(positions), captures, not no_prompt
+            )
+            source = port
+            from spiel_edge.runtime.loop import live_toa_correction  # the pipeline `run` builds
 
-        toa_correction = live_toa_correction(port, toa_correction)
-    candidates = extract_echoes(profile, frames, backgrounds)
+            toa_correction = live_toa_correction(port, toa_correction)
+        candidates = extract_echoes(profile, frames, backgrounds)
 
-    def solve_on(mask):
-        return calibrate_echoes(
-            candidates[mask], truth[mask], profile, fix=set(fix), reject_sigma=reject_sigma
+        def solve_on(mask):
+            return calibrate_echoes(
+                candidates[mask], truth[mask], profile, fix=set(fix), reject_sigma=reject_sigma
+            )
+
+        cal = solve_on(np.ones(len(truth), dtype=bool))
+        for line in summary_lines(cal):
+            click.echo(line, err=True)
+        validation = cross_validate(
+            profile,
+            cal.geometry,
+            frames,
+            backgrounds,
+            truth,
+            solve=lambda mask: solve_on(mask).geometry,
+            build=lambda p: build_pipeline(p, association, toa_correction),
         )
-
-    cal = solve_on(np.ones(len(truth), dtype=bool))
-    for line in summary_lines(cal):
-        click.echo(line, err=True)
-    validation = cross_validate(
-        profile,
-        cal.geometry,
-        frames,
-        backgrounds,
-        truth,
-        solve=lambda mask: solve_on(mask).geometry,
-        build=lambda p: build_pipeline(p, association, toa_correction),
-    )
-    refused = validation.worse and not force and output is not None
-    report = report_text(cal, validation, str(source), output, refused)
-    click.echo(report, err=True, nl=False)
-    if report_path:
-        with atomic_write(report_path) as fh:
-            fh.write(report)
-    if output and not refused:
-        with atomic_write(output) as fh:
-            fh.write(calibration_toml(cal, str(source), validation))
-        click.echo(f"calibration written to {escape(output)}", err=True)
-    if plot:
-        plot_calibration(cal, plot, validation)
-        click.echo(f"plot written to {escape(plot)}", err=True)
-    return EXIT_PARTIAL if refused else EXIT_OK
+        refused = validation.worse and not force and output is not None
+        report = report_text(cal, validation, str(source), output, refused)
+        click.echo(report, err=True, nl=False)
+        if report_path:
+            with atomic_write(report_path) as fh:
+                fh.write(report)
+        if output and not refused:
+            with atomic_write(output) as fh:
+                fh.write(calibration_toml(cal, str(source), validation))
+            click.echo(f"calibration written to {escape(output)}", err=True)
+        if plot:
+            plot_calibration(cal, plot, validation)
+            click.echo(f"plot written to {escape(plot)}", err=True)
+        return EXIT_PARTIAL if refused else EXIT_OK
 
 
 def open_session(port: str):

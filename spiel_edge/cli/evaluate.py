@@ -31,6 +31,7 @@ from spiel_edge.recordings.kinds import recording_kind
 from spiel_edge.recordings.labelled import load_labelled
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
+from spiel_edge.runtime.tiered import tiered_work
 from spiel_edge.view import require_matplotlib
 
 
@@ -128,9 +129,51 @@ def command(
         FilePlan(force).output(plot, "--plot")
     if fmt == "stof-chirp" or (fmt is None and _is_stof(folder)):
         return _evaluate_ranging(folder, profile_name, calibration, as_json)
-    pipeline = build_pipeline(
-        resolve_profile(profile_name, calibration), association, toa_correction
-    )
+    profile = resolve_profile(profile_name, calibration)
+    # missing kernels: the interpreted ones run while a background process compiles them;
+    # the compiled ones from a kernel call once loaded (docs/first-start.md)
+    with tiered_work(profile, association, max_targets, track, toa_correction, "evaluate") as t:
+        if t is not None and t.is_interpreted and jobs != 1:
+            click.echo(f"--jobs {jobs}: 1 while the kernels compile (interpreted)", err=True)
+            jobs = 1
+        return _evaluate(
+            profile,
+            folder,
+            background,
+            association,
+            max_targets,
+            toa_correction,
+            split,
+            val_fraction,
+            exclude_z,
+            max_z,
+            as_json,
+            track,
+            jobs,
+            plot,
+            (profile_name, calibration),
+        )
+
+
+def _evaluate(
+    profile,
+    folder,
+    background,
+    association,
+    max_targets,
+    toa_correction,
+    split,
+    val_fraction,
+    exclude_z,
+    max_z,
+    as_json,
+    track,
+    jobs,
+    plot,
+    named,
+) -> int:
+    profile_name, calibration = named
+    pipeline = build_pipeline(profile, association, toa_correction)
     if max_targets:
         pipeline.set_max_targets(max_targets)
     kind = recording_kind(folder, ("spiel-csv", "labelled", "scenes"))

@@ -12,6 +12,7 @@ from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import force_option, realtime_option
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.io.shown import shorten_tokens
+from spiel_edge.runtime.tiered import tiered_work
 
 
 @click.command("fuse")
@@ -180,7 +181,13 @@ def command(
     finalizers = Finalizers()
     finalizers.add(sink.close_files)
     fuse = None
-    with stop_on_signals(stop, finalizers):
+    # the tracker's kernels missing: it runs interpreted while they compile in the background
+    # (not with --realtime: its threads are set up after they are compiled, above)
+    exercise = _tracker_exercise(robot) if track and realtime is None else None
+    with (
+        tiered_work(None, what="fuse", exercise=exercise, stopped=stop.is_set),
+        stop_on_signals(stop, finalizers),
+    ):
         try:
             fuse = ZenohFuse(robot, sink, config=config, track=track, odom_key=odom_key)
             fuse.run(stop, frames=frames, idle_s=idle)
@@ -218,13 +225,26 @@ def _replay(robot, items, odom_file, odom_topic, track, plan, outputs) -> int:
     meta = {"robot": robot.name, "fused_over": "replay", "replayed": ",".join(sorted(files))}
     sink = open_fused_outputs(robot, plan.force, outputs, meta, odom=odometry is not None)
     fuse = None
+    exercise = _tracker_exercise(robot) if track else None
     try:
-        fuse = fuse_replay(robot, sink, streams, track=track, odometry=odometry, boards=files)
+        with tiered_work(None, what="fuse", exercise=exercise):
+            fuse = fuse_replay(robot, sink, streams, track=track, odometry=odometry, boards=files)
     except BrokenPipeError:
         sys.stdout = None  # type: ignore[assignment]
     finally:
         _close_and_summarise(sink, fuse)
     return _status(sink, fuse)
+
+
+def _tracker_exercise(robot):
+    """What fuse compiles: the tracker's step (``FusedCycle`` runs it once at its start)."""
+
+    def exercise() -> None:
+        from spiel_edge.track import Tracker
+
+        Tracker(robot.track_spec()).update([], 0.0)
+
+    return exercise
 
 
 def _close_and_summarise(sink, fuse) -> None:

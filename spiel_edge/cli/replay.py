@@ -148,6 +148,7 @@ def command(
         finalizers.add(sink.close)
     if tiers is not None:  # a signal stops the background compile; a normal end leaves it
         finalizers.add(lambda: _say(tiers.close(stop_compile=stop.is_set())))
+        finalizers.add(tiers.leave)  # the dispatchers back (a replay run in-process)
     try:
         with stop_on_signals(stop, finalizers):
             if files is not None:
@@ -185,6 +186,8 @@ def command(
                 failed += 1
     except BaseException:
         sink.discard()
+        if tiers is not None:  # (the finalizers do not run on this path)
+            tiers.leave()
         raise
     if not finalizers.run_all():  # closes the file, unless the watchdog already did
         raise OutputError(f"--output {output}: could not be completed (see the log above)")

@@ -308,6 +308,8 @@ def command(
             notifier.stopping()
             finalizers.run_all()  # the files first: closing the session can take a while
             _close(runner, session, sink, show_status)
+    if tiers is not None:  # the dispatchers back, once nothing runs (a run in-process)
+        tiers.leave()
     failed = sink is not None and sink.failed
     if failed:
         click.echo(f"outputs that failed: {escape('; '.join(sink.failed))}", err=True)

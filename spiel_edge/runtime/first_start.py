@@ -187,10 +187,13 @@ def cache_writable() -> bool:
     return bool(getattr(_cobs_numba.decode._cache, "writable", True))
 
 
-def make_plan(profile, association=None, max_targets=None, track=True, toa_correction=None):
+def make_plan(
+    profile, association=None, max_targets=None, track=True, toa_correction=None, exercise=None
+):
     """What a command with this configuration compiles: the interpreted tier (entered: the
     caller leaves it, or runs on it), the plan ([(module, attribute, argument types)] of
-    each call from Python) and the kernels that compile with it and have no compiled copy."""
+    each call from Python) and the kernels that compile with it and have no compiled copy.
+    ``exercise``: what the command runs instead of ``run``'s pipeline and tracker (``fuse``)."""
     from numba.core.registry import cpu_target
 
     from firmware_protocol import cobs
@@ -203,7 +206,10 @@ def make_plan(profile, association=None, max_targets=None, track=True, toa_corre
     interpreted.enter(pure_cobs=False)
     cobs._warm = False  # a try with compiling forbidden may have marked it warm: in the plan
     try:
-        _exercise_run(profile, association, max_targets, track, toa_correction)
+        if exercise is not None:
+            exercise()
+        else:
+            _exercise_run(profile, association, max_targets, track, toa_correction)
     except SpielError as exc:
         log.debug("interpreted plan: %s", exc)
     interpreted.use_pure_cobs()

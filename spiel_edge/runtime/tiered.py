@@ -21,6 +21,7 @@ both tiers, and the records are the same (tests/core/test_tiered.py).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 ENV_TIERED = "SPIEL_EDGE_TIERED"  # "0": compile before the first record (the old way)
 ENV_AFTER = "SPIEL_EDGE_COMPILE_AFTER_EXIT"  # "0": stop the compile when the command ends
 MAX_ROUNDS = 3  # compile rounds (a later one for calls first seen on the live stream)
+POLL_S = 0.05  # switch_at_kernel_calls: the switch looked at at most this often
 REPORT_EVERY = 0.25  # without a status line: a progress line every quarter of the kernels
 
 
@@ -65,6 +67,7 @@ class TieredStart:
         self._said = 0.0
         self._waiting_on_other = False
         self.stopped = False  # the command stopped the compile (close)
+        self._polled = 0.0  # switch_at_kernel_calls: when the switch was last looked at
 
     # --- the two tiers -------------------------------------------------------------------
 
@@ -78,17 +81,47 @@ class TieredStart:
         if self.tier != "interpreted":
             return False
         self.records_interpreted += 1
+        return self._switch_if_ready()
+
+    def leave(self) -> None:
+        """The command is over: the dispatchers back where the twins were (for a command
+        run in-process; the records are written by then)."""
+        if self.interpreted is not None:
+            self.interpreted.on_call = None
+            self.interpreted.leave()
+
+    def switch_at_kernel_calls(self) -> None:
+        """For a command whose loops are not its own (evaluate, calibrate): the switch comes
+        at the next call from Python into a kernel once the compiled ones are loaded (between
+        two kernel calls: the values are the same on both tiers, so a unit of work may end on
+        the compiled tier)."""
+        if self.interpreted is not None and self.tier == "interpreted":
+            self.interpreted.on_call = self._at_kernel_call
+
+    def _at_kernel_call(self) -> bool:
+        if self.tier != "interpreted":
+            return True
+        now = time.monotonic()
+        if now - self._polled < POLL_S:  # a flag and a clock per kernel call, no more
+            return False
+        self._polled = now
+        return self._switch_if_ready()
+
+    def _switch_if_ready(self) -> bool:
         if self._waiting_on_other and self.proc is None:
             self._poll_other()
         if not self._ready.is_set():
             return False
+        self.interpreted.on_call = None
         self.interpreted.leave()
         self.tier = "compiled"
         self.switched_after = time.monotonic() - self.t0
-        line = (
-            f"spiel-edge: compiled kernels in use after {self.switched_after:.0f} s "
-            f"({self.records_interpreted} records on the interpreted ones)"
+        on = (
+            f"{self.records_interpreted} records on the interpreted ones"
+            if self.records_interpreted
+            else "the work so far on the interpreted ones"
         )
+        line = f"spiel-edge: compiled kernels in use after {self.switched_after:.0f} s ({on})"
         self._say(line)
         if self.notifier is not None:
             self.notifier.status(line)
@@ -293,6 +326,7 @@ def start_tiered(
     stream=None,
     notifier=None,
     what: str = "run",
+    exercise=None,
 ) -> TieredStart | None:
     """Before a command opens its board: the compiled tier when every kernel it needs is
     cached; else the interpreted tier with its compile started in the background. None when
@@ -313,7 +347,10 @@ def start_tiered(
     try:
         if os.environ.get(ENV_TIERED) != "force":  # force: tests, bench (as if none cached)
             with _kernel_cache.no_compile():
-                _exercise_run(profile, association, max_targets, track, toa_correction)
+                if exercise is not None:  # a command of its own kernels (fuse: the tracker)
+                    exercise()
+                else:
+                    _exercise_run(profile, association, max_targets, track, toa_correction)
             return tiers  # all cached: the compiled tier
     except _kernel_cache.CompileNeeded as exc:
         if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
@@ -324,9 +361,14 @@ def start_tiered(
         return tiers
     folder = cache_dir()
     if not enabled() or not cache_writable() or folder is None or not _tiers.KERNELS:
-        prepare_for_run(profile, association, max_targets, track, toa_correction, stream, notifier)
+        if exercise is None:  # (a command of its own kernels compiles them in place)
+            prepare_for_run(
+                profile, association, max_targets, track, toa_correction, stream, notifier
+            )
         return None
-    interpreted, plan, units = make_plan(profile, association, max_targets, track, toa_correction)
+    interpreted, plan, units = make_plan(
+        profile, association, max_targets, track, toa_correction, exercise
+    )
     tiers.interpreted, tiers.tier, tiers._folder = interpreted, "interpreted", folder
     tiers.planned = set(units)
     tiers.total = len(tiers.planned)
@@ -345,5 +387,48 @@ def start_tiered(
     )
     if notifier is not None:
         notifier.status("interpreted kernels; compiling in the background")
-    tiers.launch(plan, folder)
+    try:
+        tiers.launch(plan, folder)
+    except BaseException:  # a signal right then: no compile left behind in its own session
+        tiers.close(stop_compile=True)
+        raise
     return tiers
+
+
+@contextlib.contextmanager
+def tiered_work(
+    profile,
+    association=None,
+    max_targets=None,
+    track=True,
+    toa_correction=None,
+    what: str = "evaluate",
+    exercise=None,
+    stopped=None,
+):
+    """A tiered start for a command whose loops are not its own (``evaluate``, ``calibrate``):
+    within, missing kernels run interpreted while they compile in the background, and the
+    switch comes at a kernel call once they are loaded (:meth:`TieredStart.
+    switch_at_kernel_calls`). Yields the :class:`TieredStart` (None when off: kernels compile
+    first, as before). A normal end leaves the compile running (later starts use it); an
+    exception or a signal stops it (``stopped()`` true: a command that stops on a signal
+    without an exception); either way one line says so. ``exercise``: the plan's work when it
+    is not ``run``'s (``fuse``: the tracker alone)."""
+    if profile is None and exercise is None:  # nothing of run's and none of its own
+        yield None
+        return
+    tiers = start_tiered(
+        profile, association, max_targets, track, toa_correction, what=what, exercise=exercise
+    )
+    if tiers is not None:
+        tiers.switch_at_kernel_calls()
+    stop = True
+    try:
+        yield tiers
+        stop = bool(stopped is not None and stopped())
+    finally:
+        if tiers is not None:
+            tiers.leave()  # the dispatchers back (a command run in-process)
+            line = tiers.close(stop_compile=stop)
+            if line:
+                tiers._say(line)

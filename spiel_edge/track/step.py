@@ -80,7 +80,7 @@ def _match(x, p, meta, kind, z, r, usable, gated, gate, views) -> int:
     """Global assignment of the slots of status ``kind`` to the usable targets: fills
     ``slots`` and per slot ``chosen`` (a target or -1); returns how many slots."""
     cost, slots, chosen, fwork, owner, way, cols, used = views
-    n = 0
+    n = int(0)  # noqa: UP018 (an int64, not Literal[int]: one compiled signature)
     for s in range(meta.shape[1]):
         if meta[STATUS, s] == kind:
             slots[n] = s

@@ -15,12 +15,15 @@ import signal
 import subprocess
 import sys
 import time
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from spiel_edge import _jit, _tiers
+
+SUBSET = str(resources.files("spiel_edge") / "data" / "spiel_icra23_subset.npz")
 
 
 def _records(pipeline_factory, pairs, tracker_factory):
@@ -378,3 +381,120 @@ def test_status_line_summary_and_diagnostics_say_the_tier():
     tiers.rounds = 1
     assert runner.status_line().endswith("kernels compiled")
     assert "7 skipped (interpreted kernels behind the board); kernels compiled" in runner.summary()
+
+
+def test_a_command_without_its_own_loop_switches_at_a_kernel_call(monkeypatch):
+    """evaluate and calibrate (runtime.tiered.tiered_work): interpreted at once, the compiled
+    kernels from the first kernel call after they are loaded, the same results throughout."""
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.profile.schema import resolve_profile
+    from spiel_edge.recordings.labelled import load_labelled
+    from spiel_edge.runtime import tiered
+
+    monkeypatch.setenv("SPIEL_EDGE_TIERED", "force")
+    monkeypatch.setenv("SPIEL_EDGE_COMPILE_AFTER_EXIT", "0")
+    monkeypatch.setattr(tiered, "POLL_S", 0.0)
+    monkeypatch.setattr(tiered.TieredStart, "_load", lambda self: None)  # loaded: when we say
+    profile = resolve_profile("spiel-icra23")
+    recs = list(load_labelled(SUBSET).recordings())[:24]
+    plain = build_pipeline(profile)
+    expected = [json.dumps(plain.process(r.frames, r.background).record()) for r in recs]
+    got = []
+    with tiered.tiered_work(profile, what="evaluate") as tiers:
+        assert tiers is not None and tiers.is_interpreted
+        pipeline = build_pipeline(profile)
+        for r in recs[:12]:
+            got.append(json.dumps(pipeline.process(r.frames, r.background).record()))
+        assert tiers.is_interpreted and tiers.interpreted.active  # the twins ran them
+        tiers._ready.set()  # the compiled kernels are loaded (the cache is warm)
+        for r in recs[12:]:
+            got.append(json.dumps(pipeline.process(r.frames, r.background).record()))
+        assert tiers.tier == "compiled" and not tiers.interpreted.active
+    assert got == expected
+    fused = vars(sys.modules["spiel_edge.pipeline.compiled.fused"]).values()
+    assert not any(hasattr(v, "dispatcher") for v in fused)  # the dispatchers are back
+
+
+def test_evaluate_starts_tiered_and_gives_the_same_summary():
+    path = SUBSET
+    env = {"SPIEL_EDGE_TIERED": "force", "SPIEL_EDGE_COMPILE_AFTER_EXIT": "0"}
+    tiered = _cli("evaluate", path, "--json", env=env)
+    assert tiered.returncode == 0, tiered.stderr
+    assert "starting on the interpreted kernels" in tiered.stderr
+    plain = _cli("evaluate", path, "--json", env={"SPIEL_EDGE_TIERED": "0"})
+    assert plain.returncode == 0, plain.stderr
+    assert "interpreted" not in plain.stderr
+    assert json.loads(tiered.stdout) == json.loads(plain.stdout)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_during_evaluate_stops_its_compile_with_one_line(tmp_path, signum):
+    marker = f"SPIEL_EDGE_TEST_MARK={tmp_path.name}"
+    env = {**os.environ, "SPIEL_EDGE_TIERED": "force", "SPIEL_EDGE_TEST_MARK": tmp_path.name}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "spiel_edge.cli", "evaluate", SUBSET, "--json"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    seen = ""
+    while "starting on the interpreted kernels" not in seen:
+        line = proc.stderr.readline()
+        assert line, "evaluate ended before its tiered start"
+        seen += line
+    time.sleep(0.3)  # the compile launched, the evaluation under way on the twins
+    proc.send_signal(signum)
+    out, err = proc.communicate(timeout=60)
+    err = seen + err
+    assert "Traceback" not in err
+    stopped = [line for line in err.splitlines() if line.startswith("spiel-edge: compile stopped")]
+    assert len(stopped) <= 1, err
+    if proc.returncode != 0:  # stopped by the signal (not finished before it came)
+        assert stopped or "compiled kernels in use" in err, err
+    for _ in range(50):
+        if not _processes_with(marker):
+            break
+        time.sleep(0.1)
+    assert _processes_with(marker) == []  # no compile left running after a signal
+
+
+def _board_records(tmp_path, robot, n: int = 60) -> list[str]:
+    """--replay arguments: each board's records as `run -o` writes them, a post 600 mm ahead
+    that the front board sees while the robot drives along x."""
+    args = []
+    for j, b in enumerate(robot.boards):
+        lines = []
+        for k in range(n):
+            t = 1000.0 + k * 0.025 + j * 0.005
+            p_base = np.array([600.0 - 200.0 * (t - 1000.0), 0.0, 0.0])
+            targets = []
+            if b.name == "front":
+                cov = (np.eye(3) * 16).tolist()
+                targets = [{"position_mm": list(b.mount.to_board(p_base)), "covariance_mm2": cov}]
+            record = {"acquisition": k, "device_time_us": int((5.0 + t - 1000) * 1e6)}
+            lines.append(json.dumps({**record, "host_time": t, "targets": targets}))
+        path = tmp_path / f"{b.name}.ndjson"
+        path.write_text("\n".join(lines) + "\n")
+        args += ["--replay", f"{b.name}={path}"]
+    return args
+
+
+def test_fuse_starts_tiered_on_the_tracker_alone_and_fuses_the_same(tmp_path):
+    from spiel_edge.robot.description import load_robot
+
+    replay = _board_records(tmp_path, load_robot("virtual-4"))
+    env = {"SPIEL_EDGE_TIERED": "force", "SPIEL_EDGE_COMPILE_AFTER_EXIT": "0"}
+    tiered = _cli("fuse", "--robot", "virtual-4", *replay, env=env)
+    assert tiered.returncode == 0, tiered.stderr
+    assert "starting on the interpreted kernels" in tiered.stderr
+    counted = re.search(r"compiles the (\d+) kernels|loads the compiled kernels", tiered.stderr)
+    assert counted, tiered.stderr
+    if counted.group(1):  # the tracker's tree only, not run's pipeline (90 kernels)
+        assert int(counted.group(1)) <= 25, tiered.stderr
+    plain = _cli("fuse", "--robot", "virtual-4", *replay, env={"SPIEL_EDGE_TIERED": "0"})
+    assert plain.returncode == 0, plain.stderr
+    assert "interpreted" not in plain.stderr
+    fused = [json.loads(line) for line in tiered.stdout.splitlines()]
+    assert len(fused) == 60 and any(r["tracks"] for r in fused)
+    assert tiered.stdout == plain.stdout

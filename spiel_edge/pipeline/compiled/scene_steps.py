@@ -77,7 +77,7 @@ def _hypotheses(choices, costs, n_echoes, scene_ints, scene_floats, out_matched,
         gains,
         scene_ints[S_MAX_TARGETS],
         scene_floats[S_SHARE_PENALTY],
-        MAX_NODES,
+        int(MAX_NODES),  # an int64, not Literal[int]: one compiled signature
         n_echoes,
         chosen,
     )

@@ -58,6 +58,8 @@ from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.pipeline.stages.locate import locate_kernel
 from spiel_edge.pipeline.stages.uncertainty import _covariance_kernel
 
+LOCATE_ITER = 30  # Gauss-Newton iterations of the final position (passed as int(): one signature)
+
 
 @jit
 def _one_target(
@@ -90,7 +92,9 @@ def _one_target(
         paths[c] = (timed[c] + s - delays[c]) * mm
     for c in range(n_ch):
         mask[c] = matched[c] >= 0 and math.isfinite(paths[c])
-    ok, rms = locate_kernel(paths, mask, weights, emitter, channels, facing, 30, position)
+    ok, rms = locate_kernel(
+        paths, mask, weights, emitter, channels, facing, int(LOCATE_ITER), position
+    )
     if not ok:
         return False, rms
     sigma = np.empty(n_ch)
@@ -152,7 +156,7 @@ def _score_bonus(
     n_ch, k_max, n_f = features.shape
     x = np.empty((n_ch * k_max, n_f), dtype=np.float32)
     at = np.empty(n_ch * k_max, dtype=np.int64)
-    n = 0
+    n = int(0)  # noqa: UP018 (an int64, not Literal[int]: one compiled signature)
     for c in range(n_ch):
         for k in range(k_max):
             bonus[c, k] = 0.0

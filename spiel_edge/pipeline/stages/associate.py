@@ -36,6 +36,7 @@ EXHAUSTIVE_MAX_CHANNELS = 6
 MAX_SOLVES = 4096  # bound on located combinations per acquisition: time stays bounded in clutter
 MAX_ANCHOR_TRIPLES = 3
 MAX_POOL = 48  # echo combinations the scene's joint choice keeps (stages/joint.py)
+LOCATE_ITER = 20  # Gauss-Newton iterations per candidate (passed as int(): one signature)
 
 
 def anchor_triples(channels: np.ndarray, emitter: np.ndarray, listening: np.ndarray) -> np.ndarray:
@@ -202,7 +203,7 @@ def _score(choice, paths, strength, use, d, unit, e, ch, facing, weights, pos):
         if use[j]:
             n_used += 1
             mean_strength += strength[j, choice[j]]
-    ok, rms = locate_kernel(d, use, unit, e, ch, facing, 20, pos)
+    ok, rms = locate_kernel(d, use, unit, e, ch, facing, int(LOCATE_ITER), pos)
     if not ok or rms > max_res:
         return math.inf
     distance = math.sqrt((pos[0] - e[0]) ** 2 + (pos[1] - e[1]) ** 2 + (pos[2] - e[2]) ** 2)
@@ -266,7 +267,7 @@ def _search_kernel(
     kept = 0
     solves = 0
     # iterative depth-first search: choice[c] runs over -1 (no echo), 0 .. counts[c] - 1
-    c = 0
+    c = int(0)  # noqa: UP018 (an int64, not Literal[int]: one compiled signature)
     choice[0] = -2
     while c >= 0 and solves < MAX_SOLVES:
         choice[c] += 1
@@ -375,7 +376,7 @@ def _hypothesis_kernel(
                     use[:] = False
                     use[a] = use[b] = use[c] = True
                     d[a], d[b], d[c] = paths[a, ka], paths[b, kb], paths[c, kc]
-                    ok, rms = locate_kernel(d, use, unit, e, ch, facing, 20, pos)
+                    ok, rms = locate_kernel(d, use, unit, e, ch, facing, int(LOCATE_ITER), pos)
                     if not ok:
                         continue
                     if (

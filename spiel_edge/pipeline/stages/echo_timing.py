@@ -256,7 +256,7 @@ def _fused_kernel(
     refined = toa.copy()
     _refine_kernel(clean, toa, half_window, log_domain, refined)
     feats = np.full((n_ch, 3 * N_WINDOW + N_SCALARS + n_ch), np.nan)
-    _features_kernel(y, bg, clean, refined, FEATURE_HALF_WIDTH, feats)
+    _features_kernel(y, bg, clean, refined, int(FEATURE_HALF_WIDTH), feats)
     pred = np.empty(n_ch)
     _predict_kernel(feature, threshold, value, base, feats, pred)
     for c in range(n_ch):

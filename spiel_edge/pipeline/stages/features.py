@@ -172,7 +172,7 @@ def _features_kernel(y, params, peaks, toa_code, out):
     n_ch, n_t = y.shape
     model = np.zeros((LANES, n_t))
     args = np.empty((2, n_t))
-    c0 = 0
+    c0 = int(0)  # noqa: UP018 (an int64, not Literal[int]: one compiled signature)
     while c0 < n_ch:
         lanes = min(LANES, n_ch - c0)
         for i in range(lanes):

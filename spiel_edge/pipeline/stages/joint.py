@@ -35,6 +35,7 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.stages.associate import MAX_POOL
 
 MAX_NODES = 20000  # subset-search nodes per acquisition
+ADD, REMOVE = 1, -1  # _apply's step, passed as int(): numba compiles int64, not Literal[int]
 
 
 def combination_pool(associator, features, counts, bonus_mm=None, max_pool: int = MAX_POOL):
@@ -132,7 +133,7 @@ def _select_kernel(choices, gains, max_k, share_penalty, max_nodes, n_echoes, be
     values = np.zeros(max_k + 1)  # values[n]: objective of the first n on the stack
     best_value = 0.0
     n_best = 0
-    n = 0
+    n = int(0)  # noqa: UP018 (an int64, not Literal[int]: one compiled signature)
     start = 0
     nodes = 0
     while True:
@@ -150,9 +151,9 @@ def _select_kernel(choices, gains, max_k, share_penalty, max_nodes, n_echoes, be
                 # (later additions only raise its penalty): skip it
                 if pen < 0 or gains[j] - pen <= 0:
                     continue
-                _apply(choices, j, uses, 1)
+                _apply(choices, j, uses, int(ADD))
                 if _covers_one(choices, stack, n, uses):
-                    _apply(choices, j, uses, -1)  # j would make a chosen one a ghost
+                    _apply(choices, j, uses, int(REMOVE))  # j would make a chosen one a ghost
                     continue
                 stack[n] = j
                 values[n + 1] = values[n] + gains[j] - pen
@@ -169,5 +170,5 @@ def _select_kernel(choices, gains, max_k, share_penalty, max_nodes, n_echoes, be
         if n == 0:
             return n_best
         n -= 1
-        _apply(choices, stack[n], uses, -1)
+        _apply(choices, stack[n], uses, int(REMOVE))
         start = stack[n] + 1

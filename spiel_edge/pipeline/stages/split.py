@@ -30,6 +30,7 @@ from spiel_edge.pipeline.stages.memg import (
 
 SPLIT_OFFSET = 2  # samples either side of the detection where the two components start
 MIN_SHARE = 0.15  # the weaker component's amplitude over the stronger's: below, a skew fit
+ONE_COMPONENT, TWO_COMPONENTS = 1, 2  # passed as int(...): numba compiles int64, not Literal[int]
 N_PAR_2 = 8
 
 
@@ -124,7 +125,7 @@ def _split_kernel(y, peaks, counts, params, iterations, min_sigma, max_ratio, mu
     p = np.empty(N_PAR_2)
     one = np.empty(4)
     starts = np.empty(2, dtype=np.int64)
-    work = np.empty(work_size(2))
+    work = np.empty(work_size(int(TWO_COMPONENTS)))
     alone = np.empty(k_max, dtype=np.bool_)
     for c in range(n_ch):
         n0 = counts[c]
@@ -147,9 +148,11 @@ def _split_kernel(y, peaks, counts, params, iterations, min_sigma, max_ratio, mu
             hi = min(n_t, starts[1] + WINDOW_AFTER + 1)
             for i in range(4):
                 one[i] = params[c, k, i]
-            cost1 = _window_cost(y[c], lo, hi, one, 1)
-            used = _fit_cluster(y[c], lo, hi, starts, 2, mu_window, max_iter, p, work)
-            cost2 = _window_cost(y[c], lo, hi, p, 2)
+            cost1 = _window_cost(y[c], lo, hi, one, int(ONE_COMPONENT))
+            used = _fit_cluster(
+                y[c], lo, hi, starts, int(TWO_COMPONENTS), mu_window, max_iter, p, work
+            )
+            cost2 = _window_cost(y[c], lo, hi, p, int(TWO_COMPONENTS))
             weak, strong = min(p[0], p[4]), max(p[0], p[4])
             if cost2 <= max_ratio * cost1 and weak >= MIN_SHARE * strong:
                 for i in range(4):
