@@ -34,12 +34,23 @@ static struct {
     uint32_t unit_fill;
     uint8_t selftest;     /* SP_SELFTEST_*: a trial's self-test (FW_INFO byte 3) */
     uint64_t selftest_deadline, trial_end;
+    /* FW_VERIFY with SP_FW_VERIFY_ASYNC: answered BUSY, checked in v2_tick once the answer
+     * is out (a slow part hashes and checks a signature for seconds), the result kept for the
+     * next FW_VERIFY until the upload changes */
+    uint8_t verify_job; /* VERIFY_NONE, VERIFY_PENDING, VERIFY_DONE */
+    uint64_t verify_at;
+    uint16_t verify_code, verify_len;
+    const char *verify_text;
+    uint8_t verify_out[43];
 #endif
 } v2;
 
 #if SPIEL_FW_UPDATE
 static uint32_t trial_window_ms = SPIEL_FW_TRIAL_WINDOW_MS;
 #define SELFTEST_TIMEOUT_US 1000000u /* the first acquisition must complete within 1 s */
+enum { VERIFY_NONE, VERIFY_PENDING, VERIFY_DONE };
+#define VERIFY_DEFER_US 20000u /* the BUSY answer leaves before the check blocks the loop */
+static int fw_verify(uint8_t *out, uint16_t *code, const char **text);
 #endif
 
 void spiel_device_set_trial_window_ms(uint32_t ms)
@@ -129,6 +140,12 @@ static void selftest_step(uint64_t now)
 void v2_tick(uint64_t now)
 {
 #if SPIEL_FW_UPDATE
+    if (v2.verify_job == VERIFY_PENDING && now >= v2.verify_at) {
+        int n = fw_verify(v2.verify_out, &v2.verify_code, &v2.verify_text);
+        v2.verify_len = (uint16_t)n;
+        v2.verify_job = VERIFY_DONE;
+        now = hal_time_us(); /* the check took time: the trial window is judged after it */
+    }
     if (v2.boot_state == SP_BOOT_TRIAL) {
         selftest_step(now);
         /* an unconfirmed trial stops kicking once its self-test failed or its window passed:
@@ -300,6 +317,11 @@ uint64_t v2_next_us(uint64_t now)
     if (v2.count && v2.log_per_s && now + 1000000u / v2.log_per_s < wake) {
         wake = now + 1000000u / v2.log_per_s;
     }
+#if SPIEL_FW_UPDATE
+    if (v2.verify_job == VERIFY_PENDING && v2.verify_at < wake) {
+        wake = v2.verify_at;
+    }
+#endif
     return wake;
 }
 
@@ -408,6 +430,7 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
     }
     v2.upload_slot = -1;
     v2.verified = 0;
+    v2.verify_job = VERIFY_NONE;
     /* only the header's sector now (the old image is gone at once); the rest as the upload
      * reaches it, one sector per FW_WRITE at most: no request waits for a whole slot erase */
     if (hal_image_erase(slot, 0, hal_image_sector_size()) != 0) {
@@ -527,6 +550,7 @@ static int fw_write(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
         return 0;
     }
     v2.verified = 0;
+    v2.verify_job = VERIFY_NONE;
     if (upload_bytes(p + 6, n) != 0) {
         v2.upload_slot = -1; /* the bytes buffered are lost: FW_BEGIN again */
         spiel_stats.flash_errors++;
@@ -611,6 +635,29 @@ static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
     sp_le_put_u16(out + 9, 32);
     memcpy(out + 11, sha, 32);
     return 43;
+}
+
+/* FW_VERIFY: checked within the request, or (SP_FW_VERIFY_ASYNC) BUSY until v2_tick has
+ * checked, then the result, as often as asked, until FW_BEGIN or new FW_WRITE bytes */
+static int fw_verify_request(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
+                             const char **text)
+{
+    if (len == 0 || !(p[0] & SP_FW_VERIFY_ASYNC)) {
+        v2.verify_job = VERIFY_NONE;
+        return fw_verify(out, code, text);
+    }
+    if (v2.verify_job == VERIFY_DONE) {
+        *code = v2.verify_code;
+        *text = v2.verify_text;
+        memcpy(out, v2.verify_out, v2.verify_len);
+        return v2.verify_len;
+    }
+    if (v2.verify_job == VERIFY_NONE) {
+        v2.verify_job = VERIFY_PENDING;
+        v2.verify_at = hal_time_us() + VERIFY_DEFER_US;
+    }
+    *code = SP_ERR_BUSY, *text = "checking the image: ask again";
+    return 0;
 }
 
 static int fw_test(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
@@ -698,7 +745,7 @@ int v2_request(uint16_t msg_type, const uint8_t *p, uint16_t len, uint8_t *out,
         n = msg_type == SP_MSG_FW_INFO     ? fw_info(out)
             : msg_type == SP_MSG_FW_BEGIN  ? fw_begin(p, len, out, code, text)
             : msg_type == SP_MSG_FW_WRITE  ? fw_write(p, len, out, code, text)
-            : msg_type == SP_MSG_FW_VERIFY ? fw_verify(out, code, text)
+            : msg_type == SP_MSG_FW_VERIFY ? fw_verify_request(p, len, out, code, text)
             : msg_type == SP_MSG_FW_TEST   ? fw_test(p, len, out, code, text)
                                            : fw_confirm(out, code, text);
         break;
