@@ -42,6 +42,13 @@ static struct {
     uint16_t verify_code, verify_len;
     const char *verify_text;
     uint8_t verify_out[43];
+    /* FW_INFO's image_check of each slot (a hash of the whole slot), kept until the upload
+     * writes that slot: nothing else changes a slot while the application runs */
+    struct {
+        uint8_t known, ok;
+        uint32_t size, crc;
+        char version[17];
+    } memo[2];
 #endif
 } v2;
 
@@ -333,7 +340,15 @@ static void put_slot(uint8_t *p, int slot)
     uint32_t size = 0, crc = 0;
     char version[17] = {0};
     uint8_t state = SP_SLOT_EMPTY;
-    if (image_check(slot, &size, &crc, version) == 0) {
+    if (!v2.memo[slot].known) {
+        v2.memo[slot].ok = image_check(slot, &v2.memo[slot].size, &v2.memo[slot].crc,
+                                       v2.memo[slot].version) == 0;
+        v2.memo[slot].known = 1;
+    }
+    if (v2.memo[slot].ok) {
+        size = v2.memo[slot].size;
+        crc = v2.memo[slot].crc;
+        memcpy(version, v2.memo[slot].version, sizeof version);
         state = SP_SLOT_VERIFIED;
     } else if (slot == v2.upload_slot && v2.written) {
         state = SP_SLOT_PARTIAL;
@@ -431,6 +446,7 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
     v2.upload_slot = -1;
     v2.verified = 0;
     v2.verify_job = VERIFY_NONE;
+    v2.memo[slot].known = 0;
     /* only the header's sector now (the old image is gone at once); the rest as the upload
      * reaches it, one sector per FW_WRITE at most: no request waits for a whole slot erase */
     if (hal_image_erase(slot, 0, hal_image_sector_size()) != 0) {
@@ -456,6 +472,7 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
 static int program(uint32_t at, const uint8_t *data, uint32_t len)
 {
     uint32_t sector = hal_image_sector_size();
+    v2.memo[v2.upload_slot].known = 0;
     while ((uint64_t)at + len > v2.erased_to) {
         if (v2.erased_to >= hal_image_slot_size() ||
             hal_image_erase(v2.upload_slot, v2.erased_to, sector) != 0) {
