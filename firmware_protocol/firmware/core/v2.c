@@ -151,6 +151,7 @@ void v2_tick(uint64_t now)
         int n = fw_verify(v2.verify_out, &v2.verify_code, &v2.verify_text);
         v2.verify_len = (uint16_t)n;
         v2.verify_job = VERIFY_DONE;
+        v2.verified = 0; /* FW_TEST only after the host has been told (fw_verify_request) */
         now = hal_time_us(); /* the check took time: the trial window is judged after it */
     }
     if (v2.boot_state == SP_BOOT_TRIAL) {
@@ -664,6 +665,7 @@ static int fw_verify_request(const uint8_t *p, uint16_t len, uint8_t *out, uint1
         return fw_verify(out, code, text);
     }
     if (v2.verify_job == VERIFY_DONE) {
+        v2.verified = v2.verify_code == SP_ERR_OK;
         *code = v2.verify_code;
         *text = v2.verify_text;
         memcpy(out, v2.verify_out, v2.verify_len);
@@ -697,6 +699,7 @@ static int fw_test(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
     }
     out[0] = (uint8_t)v2.upload_slot;
     v2.upload_slot = -1;
+    v2.verify_job = VERIFY_NONE; /* no result for an upload that ended */
     core_reboot_after_ms(sp_le_get_u16(in));
     return 1;
 }
