@@ -10,9 +10,8 @@ indirect calls this firmware is known to make are added by hand (INDIRECT)."""
 import re
 import subprocess
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
-
 
 # calls through pointers: the USB interrupt's handler (usb_rp2040.c), TinyUSB's CDC driver
 INDIRECT = {
@@ -62,7 +61,7 @@ def main(argv: list[str]) -> int:
     size, graph = frames(objdir), calls(elf)
     missing: set[str] = set()
 
-    @lru_cache(maxsize=None)
+    @cache
     def worst(fn: str, depth: int = 0) -> tuple[int, tuple[str, ...]]:
         if fn not in size:
             missing.add(fn)
