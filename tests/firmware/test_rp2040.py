@@ -132,6 +132,31 @@ def test_the_build_makes_a_uf2_for_bootsel(rp2040_image):
     assert parse_image(packed).target == "rp2040"
 
 
+def test_a_release_build_signs_with_its_own_key(rp2040_image, tmp_path):
+    """make TARGET=rp2040 FW_KEY=k.pub RELEASE=1: the slot-0 image of firmware.uf2 is signed by
+    k.key (FW_SIGN_KEY's default) and verifies with k.pub only; without the private half, or
+    with a private key of another pair, the build stops in one line naming FW_SIGN_KEY."""
+    from firmware_protocol.image import ImageRefused, verify_image
+    from firmware_protocol.signing import DEV_PUBLIC_KEY, parse_public_key_text
+    from spiel_edge.device.fwkeys import generate_key
+
+    generate_key(tmp_path / "k.key", tmp_path / "k.pub")
+    generate_key(tmp_path / "other.key", tmp_path / "other.pub")
+    key = parse_public_key_text((tmp_path / "k.pub").read_text())
+    build = build_rp2040(tmp_path / "rel", extra=(f"FW_KEY={tmp_path / 'k.pub'}", "RELEASE=1"))
+    image = build.with_name("app.img").read_bytes()
+    assert verify_image(image, key).signed
+    with pytest.raises(ImageRefused):
+        verify_image(image, DEV_PUBLIC_KEY)
+    (tmp_path / "k.key").unlink()
+    for extra, why in (
+        ((), "no " + str(tmp_path / "k.key")),
+        ((f"FW_SIGN_KEY={tmp_path / 'other.key'}",), "not the private half"),
+    ):
+        with pytest.raises(RuntimeError, match=why):
+            build_rp2040(tmp_path / "no-key", extra=(f"FW_KEY={tmp_path / 'k.pub'}", *extra))
+
+
 def test_enumerates_and_answers_hello(pico):
     started = time.monotonic()
     with DeviceSession(pico.port, reconnect=False) as session:
