@@ -44,6 +44,7 @@ def v2_part(_enum, _defines, _layout, _c_string) -> list[str]:
         *_enum("SP_SLOT_", v2.SlotState),
         *_enum("SP_BOOT_", v2.BootState),
         *_enum("SP_SELFTEST_", v2.SelfTest),
+        *_enum("SP_FW_VERIFY_", v2.FwVerifyFlag),
         *_defines([("SP_SHA256_SIZE", f"{v2.SHA256_SIZE}u", "")]),
         "",
     ]

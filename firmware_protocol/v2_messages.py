@@ -19,6 +19,7 @@ __all__ = [
     "V2_LAYOUTS",
     "BoardState",
     "BootState",
+    "FwVerifyFlag",
     "SelfTest",
     "ErrorFlag",
     "FwBegin",
@@ -110,6 +111,12 @@ class BootState(IntEnum):
     CONFIRMED = 0  # the running image is the permanent one
     TRIAL = 1  # running a test image once: FW_CONFIRM keeps it, a reset rolls back
     TEST_PENDING = 2  # FW_TEST accepted: the other slot boots once at the next reset
+
+
+class FwVerifyFlag(IntEnum):
+    """FW_VERIFY request ``flags``."""
+
+    ASYNC = 0x01  # answer BUSY while checking; the result to the FW_VERIFY after it is done
 
 
 class SelfTest(IntEnum):
@@ -282,9 +289,14 @@ class FwWriteResponse(Message):
 @register
 @dataclass(frozen=True)
 class FwVerify(Message):
-    """Check the uploaded image: length, CRC-32C, SHA-256 and its header."""
+    """Check the uploaded image: length, CRC-32C, SHA-256, its header and signature.
+    ``flags`` ``FwVerifyFlag.ASYNC``: the board answers BUSY while it checks, in its main loop
+    after the answer went out, and the host asks again until the result (PROTOCOL.md § 14.3);
+    0 (what hosts before it sent: an empty payload) checks within the request."""
 
     MSG_TYPE: ClassVar[int] = FW_VERIFY
+    _STRUCT: ClassVar[struct.Struct] = struct.Struct("<B")
+    flags: int = 0
 
 
 @register

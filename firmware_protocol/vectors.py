@@ -164,7 +164,7 @@ def _v2_messages() -> list[m.Message]:
         m.FwBeginResponse(1, 65536),
         m.FwWrite(1024, bytes(range(16))),
         m.FwWriteResponse(1040),
-        m.FwVerify(),
+        m.FwVerify(1),  # FwVerifyFlag.ASYNC
         m.FwVerifyResponse(1, 2048, 0x11111111, sha),
         m.FwTest(100),
         m.FwTestResponse(1),

@@ -15,7 +15,7 @@
 #define SP_PROTOCOL_VERSION_MIN 1u /* message-layer versions, negotiated by HELLO */
 #define SP_PROTOCOL_VERSION_MAX 2u
 #define SP_MIN_PAYLOAD 64u /* the smallest max_payload a HELLO may state */
-#define SP_SCHEMA_HASH 0x8E6B381Fu /* CRC-32C of every message layout */
+#define SP_SCHEMA_HASH 0x8C532091u /* CRC-32C of every message layout */
 #define SP_HEADER_SIZE 12u
 #define SP_CRC_SIZE 4u
 #define SP_MAX_PAYLOAD 8256u
@@ -392,6 +392,7 @@ static inline void sp_config_header_unpack(const uint8_t in[SP_CONFIG_HEADER_SIZ
 #define SP_SELFTEST_RUNNING 2u
 #define SP_SELFTEST_PASSED  3u
 #define SP_SELFTEST_FAILED  4u
+#define SP_FW_VERIFY_ASYNC 1u
 #define SP_SHA256_SIZE 32u
 
 /* TimeSync: msg_type 0x0006, request or device-originated frame, fixed part (8 bytes, little-endian, no padding) */

@@ -35,6 +35,7 @@ from firmware_protocol.v2_messages import (
     FwInfoRequest,
     FwTest,
     FwVerify,
+    FwVerifyFlag,
     FwVerifyResponse,
     FwWrite,
     FwWriteResponse,
@@ -43,7 +44,7 @@ from firmware_protocol.v2_messages import (
     TimeSync,
     TimeSyncResponse,
 )
-from spiel_edge.errors import DeviceError, DeviceRequestError
+from spiel_edge.errors import DeviceError, DeviceRequestError, DeviceTimeoutError
 from spiel_edge.io.shown import escape
 
 log = logging.getLogger(__name__)
@@ -55,6 +56,7 @@ __all__ = [
     "describe_info",
     "firmware_info",
     "update_firmware",
+    "verify_upload",
 ]
 
 BOOT_WAIT_S = 20.0  # how long the host waits for the test image to answer HELLO
@@ -480,11 +482,36 @@ def _upload(session, url: str, image: bytes, crc: int, sha: bytes, progress) -> 
         offset += len(piece)
         if progress is not None:
             progress(offset, len(image))
-    verify = _ask(session, FwVerify(), FwVerifyResponse)
-    assert isinstance(verify, FwVerifyResponse)
+    verify = verify_upload(session)
     if verify.sha256 != sha or verify.image_size != len(image):
         raise DeviceError(f"{url}: the board's copy differs from the image (SHA-256)")
     return begin
+
+
+# how long a board may take to check an image (hash the slot, verify the Ed25519 signature): a
+# Cortex-M0+ at 125 MHz takes ~0.2-0.3 s for 170 KB, its emulator 10 to 20 times that
+VERIFY_WAIT_S = 60.0
+VERIFY_POLL_S = 0.1
+
+
+def verify_upload(session) -> FwVerifyResponse:
+    """FW_VERIFY with the ASYNC flag (PROTOCOL.md § 14.3): the board answers BUSY and checks in
+    its main loop, and is asked again until it gives the result. While it checks it may answer
+    nothing for longer than a request waits (one signature check is a single step): once it
+    said BUSY, that silence is waited through, up to VERIFY_WAIT_S. A board from before the
+    flag ignores it and answers within the request."""
+    deadline, checking = time.monotonic() + VERIFY_WAIT_S, False
+    while True:
+        try:
+            return _ask(session, FwVerify(FwVerifyFlag.ASYNC), FwVerifyResponse)  # type: ignore[return-value]
+        except DeviceRequestError as exc:
+            if exc.code != ErrorCode.BUSY or time.monotonic() > deadline:
+                raise
+            checking = True
+        except DeviceTimeoutError:
+            if not checking or time.monotonic() > deadline:
+                raise
+        time.sleep(VERIFY_POLL_S)
 
 
 def _board_clock_us(session) -> int | None:

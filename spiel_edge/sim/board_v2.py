@@ -23,6 +23,7 @@ from firmware_protocol.v2_messages import (
     BoardState,
     BootState,
     ErrorFlag,
+    FwVerifyFlag,
     LogLevel,
     SelfTest,
 )
@@ -142,6 +143,7 @@ class BoardV2Mixin:
         self._fw_expect: tuple[int, int, bytes] | None = None  # size, crc, sha of an upload
         self._fw_slot: int | None = None
         self._fw_verified = False
+        self._fw_verify_at: float | None = None  # an asynchronous FW_VERIFY's result is due
         self._flags_seen = 0
         image = self.fw.header(self.fw.running) if self.fw.running != NO_SLOT else None
         self.silent = bool(
@@ -330,6 +332,7 @@ class BoardV2Mixin:
         if fw.record().state == BootState.TEST_PENDING:
             fw.test_cancel()
         self._fw_expect, self._fw_slot, self._fw_verified = None, None, False
+        self._fw_verify_at = None
         fw.erase(slot)
         self._fw_expect = (req.image_size, req.image_crc, bytes(req.sha256))
         self._fw_slot = slot
@@ -351,11 +354,25 @@ class BoardV2Mixin:
             return ErrorResponse(
                 ErrorCode.INVALID, req.MSG_TYPE, f"offset {req.offset}, expected {written}"
             )
-        self._fw_verified = False
+        self._fw_verified, self._fw_verify_at = False, None
         self.fw.program(slot, req.offset, req.data)
         return m.FwWriteResponse(self.fw.lengths[slot])
 
-    def _fw_verify(self, req: m.Message, now: float) -> m.Message:
+    verify_s = 0.0  # how long an asynchronous FW_VERIFY's check takes (answered BUSY meanwhile)
+
+    def _fw_verify(self, req: m.FwVerify, now: float) -> m.Message:
+        """FW_VERIFY: checked at once, or (the ASYNC flag, as the C core does) BUSY first and
+        until ``verify_s`` passed, then the result, until the upload changes."""
+        if not req.flags & FwVerifyFlag.ASYNC:
+            self._fw_verify_at = None
+            return self._fw_check(req, now)
+        if self._fw_verify_at is None:
+            self._fw_verify_at = now + self.verify_s
+        elif now >= self._fw_verify_at:
+            return self._fw_check(req, now)
+        return ErrorResponse(ErrorCode.BUSY, req.MSG_TYPE, "checking the image: ask again")
+
+    def _fw_check(self, req: m.Message, now: float) -> m.Message:
         if self._fw_expect is None or self._fw_slot is None:
             return ErrorResponse(ErrorCode.BAD_STATE, req.MSG_TYPE, "no upload: send FW_BEGIN")
         size, crc, sha = self._fw_expect

@@ -3,7 +3,9 @@ the Pico SDK's hardware layers) in the rp2040js emulator, its USB CDC host bridg
 run-emulated.sh: USB enumeration and HELLO, ``run`` giving the records the posix target gives
 for the same recordings, config push/commit/pull kept across a REBOOT through the watchdog, a
 firmware update through the boot stage (flash to flash install) and a hung trial image rolled
-back by the watchdog the boot stage armed, with no power cycle.
+back by the watchdog the boot stage armed, with no power cycle; signed images (PROTOCOL.md
+14.6): the boot stage and FW_VERIFY take only images signed by the development key (the build's
+FW_KEY), a forged, an unsigned and an older (lower security counter) image are refused.
 
 Few and short on purpose: the emulator keeps a core busy while it runs, so each test starts
 one and stops it the moment it ends. Skipped, naming what is missing, without make,
@@ -22,7 +24,7 @@ import pytest
 import serial
 
 from firmware_protocol import Reboot, encode_message
-from firmware_protocol.image import pack_image, parse_image
+from firmware_protocol.image import parse_image
 from firmware_protocol.v2_messages import BootState
 from spiel_edge.board import schema as bc
 from spiel_edge.compat import tomllib
@@ -32,6 +34,8 @@ from spiel_edge.errors import DeviceError
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.profile.schema import load_profile
 from tests.firmware.rp2040_board import Rp2040Board, Unavailable, build_rp2040, missing_tools
+from tests.fwsign import DEV_KEY, signed_image
+from tests.protocol_v2.signing_cases import forged_images, other_signer, raw_upload
 
 SPIEL_EDGE = [sys.executable, "-m", "spiel_edge.cli"]
 N_FRAMES = 30
@@ -83,7 +87,8 @@ def test_the_build_makes_a_uf2_for_bootsel(rp2040_image):
     boot2 with the CRC-32 the bootrom checks (pad_checksum's, over its first 252 bytes), then
     the boot stage's vector table; slot 0 holds app.bin packed as pack_image packs it (the
     build's own packer agrees with the host's) and the execution region the same image
-    installed (its header, then the body at 0x10011000, where the application is linked)."""
+    installed (its header, then the body at 0x10011000, where the application is linked);
+    the image is signed by the development key (Ed25519 is deterministic: the same bytes)."""
     build = rp2040_image.parent
     data = (build / "firmware.uf2").read_bytes()
     assert len(data) % 512 == 0 and len(data) > 0
@@ -120,11 +125,36 @@ def test_the_build_makes_a_uf2_for_bootsel(rp2040_image):
     assert sp == 0x2004_2000 and reset & 1 and 0x1000_0100 < reset < 0x1001_0000
 
     body = (build / "app.bin").read_bytes()
-    packed = pack_image(body, version="1.0.0+rp2040", target="rp2040")
+    packed = signed_image(body, version="1.0.0+rp2040", target="rp2040")
     assert read(0x1009_0000, len(packed)) == packed  # slot 0
     assert read(0x1001_0000, 96) == packed[:96]  # installed: the header ...
     assert read(0x1001_1000, len(body)) == body  # ... and the body where it is linked
     assert parse_image(packed).target == "rp2040"
+
+
+def test_a_release_build_signs_with_its_own_key(rp2040_image, tmp_path):
+    """make TARGET=rp2040 FW_KEY=k.pub RELEASE=1: the slot-0 image of firmware.uf2 is signed by
+    k.key (FW_SIGN_KEY's default) and verifies with k.pub only; without the private half, or
+    with a private key of another pair, the build stops in one line naming FW_SIGN_KEY."""
+    from firmware_protocol.image import ImageRefused, verify_image
+    from firmware_protocol.signing import DEV_PUBLIC_KEY, parse_public_key_text
+    from spiel_edge.device.fwkeys import generate_key
+
+    generate_key(tmp_path / "k.key", tmp_path / "k.pub")
+    generate_key(tmp_path / "other.key", tmp_path / "other.pub")
+    key = parse_public_key_text((tmp_path / "k.pub").read_text())
+    build = build_rp2040(tmp_path / "rel", extra=(f"FW_KEY={tmp_path / 'k.pub'}", "RELEASE=1"))
+    image = build.with_name("app.img").read_bytes()
+    assert verify_image(image, key).signed
+    with pytest.raises(ImageRefused):
+        verify_image(image, DEV_PUBLIC_KEY)
+    (tmp_path / "k.key").unlink()
+    for extra, why in (
+        ((), "no " + str(tmp_path / "k.key")),
+        ((f"FW_SIGN_KEY={tmp_path / 'other.key'}",), "not the private half"),
+    ):
+        with pytest.raises(RuntimeError, match=why):
+            build_rp2040(tmp_path / "no-key", extra=(f"FW_KEY={tmp_path / 'k.pub'}", *extra))
 
 
 def test_enumerates_and_answers_hello(pico):
@@ -224,11 +254,16 @@ def hello_when_up(port: str, timeout_s: float = 30.0):
             time.sleep(0.2)
 
 
-def test_update_confirms_and_a_hung_trial_rolls_back_by_the_watchdog(small_image, tmp_path):
-    """firmware pack + update: the boot stage installs slot 1 into the execution region (flash
-    to flash) and runs it as a trial; the host confirms it. Then an image that hangs (its reset
-    handler is `b .`): it never kicks the watchdog the boot stage armed, the watchdog resets the
-    chip and the boot stage rolls back to the confirmed image, with no power cycle."""
+def test_update_refusals_and_a_hung_trial_rolled_back_by_the_watchdog(small_image, tmp_path):
+    """firmware pack --key + update: the board checks the signature (FW_VERIFY answers BUSY and
+    the host asks again: one Ed25519 check is seconds of the emulated M0+), the boot stage
+    installs slot 1 into the execution region (flash to flash) and runs it as a trial; the host
+    confirms it, which raises the board's security counter to the image's 2. Then a forged
+    (a body byte changed, its digests recomputed), an unsigned and an older image (counter 1),
+    uploaded past the host's own checks, are refused by FW_VERIFY, and `firmware update` says
+    in one line why. Then an image that hangs (its reset handler is `b .`): it never kicks the
+    watchdog the boot stage armed, the watchdog resets the chip and the boot stage rolls back
+    to the confirmed image, with no power cycle."""
     with Rp2040Board(small_image, tmp_path / "emulator.log") as pico:
         update_and_roll_back(pico.start(), small_image.with_name("app-emu.bin"), tmp_path)
 
@@ -237,8 +272,10 @@ def update_and_roll_back(pico: Rp2040Board, app: Path, tmp_path: Path) -> None:
     h, info = hello_when_up(pico.port)
     assert (h.firmware_version, info.running_slot, info.confirmed_slot) == ("1.0.0+rp2040", 0, 0)
     body = app.read_bytes()
-    assert body.count(b"RP2040-EMU-0001") == 1
-    (tmp_path / "app.bin").write_bytes(body.replace(b"RP2040-EMU-0001", b"RP2040-EMU-0002"))
+    # the same body under another version: the host confirms only the board it started with
+    # (its serial, which is in the body, must stay); the version HELLO gives is the installed
+    # header's (image_rp2040.c)
+    (tmp_path / "app.bin").write_bytes(body)
     packed = tmp_path / "fw.img"
     ran = cli(
         "firmware",
@@ -247,6 +284,10 @@ def update_and_roll_back(pico: Rp2040Board, app: Path, tmp_path: Path) -> None:
         "rp2040-1.1.0",
         "--target",
         "rp2040",
+        "--key",
+        DEV_KEY,
+        "--security-counter",
+        2,
         "-o",
         packed,
         tmp_path / "app.bin",
@@ -257,20 +298,47 @@ def update_and_roll_back(pico: Rp2040Board, app: Path, tmp_path: Path) -> None:
     took = time.monotonic() - started
     assert ran.returncode == 0, ran.stderr + ran.stdout
     h, info = hello_when_up(pico.port)
-    assert (h.firmware_version, h.serial) == ("rp2040-1.1.0", "RP2040-EMU-0002")
+    assert (h.firmware_version, h.serial) == ("rp2040-1.1.0", "RP2040-EMU-0001")
     assert (info.running_slot, info.confirmed_slot, info.boot_state) == (1, 1, BootState.CONFIRMED)
     print(f"update of {packed.stat().st_size} bytes: {took:.1f} s")
 
+    refused(pico, packed.read_bytes(), tmp_path)
     hang = struct.pack("<II", 0x2004_2000, 0x1001_1009) + b"\xfe\xe7" + bytes(6)
     boots = pico.messages().count("rp2040js: boot ")
     result = update_firmware(
         pico.port,
-        pack_image(hang, version="rp2040-hang", target="rp2040"),
+        signed_image(hang, version="rp2040-hang", target="rp2040", security_counter=2),
         boot_wait_s=60,
     )
     assert result.rolled_back and not result.confirmed
     assert (result.previous, result.version) == ("rp2040-1.1.0", "rp2040-1.1.0")
     pico.wait_message("rp2040js: boot ", count=boots + 2)  # the trial, then the watchdog's
     h, info = hello_when_up(pico.port)
-    assert (h.firmware_version, h.serial) == ("rp2040-1.1.0", "RP2040-EMU-0002")
+    assert (h.firmware_version, h.serial) == ("rp2040-1.1.0", "RP2040-EMU-0001")
     assert (info.running_slot, info.confirmed_slot) == (1, 1)
+
+
+def refused(pico: Rp2040Board, good: bytes, tmp_path: Path) -> None:
+    """FW_VERIFY of the emulated Pico refuses a forged, an unsigned and an older image (three
+    uploads of the 38 KB image: the emulator's CPU is dear); the board keeps what it runs."""
+    forged = forged_images(good, other_signer(tmp_path))
+    for name in ("tampered body", "unsigned"):
+        image, code = forged[name]
+        started = time.monotonic()
+        assert raw_upload(pico.port, image) == code, name
+        print(f"{name}: refused ({code}) in {time.monotonic() - started:.1f} s")
+    body = good[96 : 96 + parse_image(good).body_size]
+    older = tmp_path / "older.img"
+    older.write_bytes(
+        signed_image(body, version="rp2040-1.0.9", target="rp2040", security_counter=1)
+    )
+    ran = cli("firmware", "update", "--port", pico.port, older, timeout=300)
+    assert ran.returncode != 0
+    line = ran.stderr.strip().splitlines()[-1]
+    assert "FW_ROLLBACK" in line and "keeps firmware rp2040-1.1.0" in line, ran.stderr
+    h, info = hello_when_up(pico.port)
+    assert (h.firmware_version, info.running_slot, info.boot_state) == (
+        "rp2040-1.1.0",
+        1,
+        BootState.CONFIRMED,
+    )

@@ -10,8 +10,9 @@ from pathlib import Path
 from crc32c import crc32c
 
 from firmware_protocol.image import IMAGE_HEADER, IMAGE_HEADER_FIELDS, IMAGE_HEADER_SIZE, pack_image
-from firmware_protocol.v2_messages import FwBegin, FwVerify, FwWrite
+from firmware_protocol.v2_messages import FwBegin, FwWrite
 from spiel_edge.device import DeviceSession
+from spiel_edge.device.firmware import verify_upload
 from spiel_edge.errors import DeviceRequestError
 from tests.fwsign import signed_image
 
@@ -63,15 +64,15 @@ def other_signer(tmp_path: Path):
 
 
 def raw_upload(port: str, image: bytes) -> str | None:
-    """FW_BEGIN, FW_WRITE, FW_VERIFY with no host check: None if the board accepted it, else
-    the name of the error code it answered."""
+    """FW_BEGIN, FW_WRITE, FW_VERIFY (asynchronous, as the host asks it) with no host check:
+    None if the board accepted it, else the name of the error code it answered."""
     with DeviceSession(port, reconnect=False) as dev:
         try:
             dev.request(FwBegin(len(image), crc32c(image), hashlib.sha256(image).digest()))
             step = min(dev.max_payload, 1024) - 6
             for off in range(0, len(image), step):
                 dev.request(FwWrite(off, image[off : off + step]))
-            dev.request(FwVerify())
+            verify_upload(dev)
         except DeviceRequestError as exc:
             from firmware_protocol import ErrorCode
 

@@ -4,7 +4,11 @@ boot stage's flash-to-flash install, self-test, confirm), the upload alone, the 
 FW_WRITE (where a sector erase falls), the first chunk with FW_BEGIN and the image operations
 (erases and writes, the boot stage's included) the update took.
 
-    python -m tools.bench.fw_update_time [--json] [--no-qemu]
+    python -m tools.bench.fw_update_time [--json] [--no-qemu] [--rp2040]
+
+--rp2040 adds the full RP2040 application in the rp2040js emulator (opt-in: the emulator keeps a
+core busy for about a minute): FW_VERIFY alone (BUSY, then the result; the board hashes the slot
+and checks the Ed25519 signature), then the whole update.
 
 Run from the repository's root (it uses the tests' board helpers). Prints one line per case.
 """
@@ -95,15 +99,52 @@ def qemu_cases(tmp: Path) -> list[dict]:
     return rows
 
 
+def rp2040_case(tmp: Path) -> dict:
+    import hashlib
+
+    from crc32c import crc32c
+
+    from firmware_protocol.v2_messages import FwBegin, FwWrite
+    from spiel_edge.device import DeviceSession
+    from spiel_edge.device.firmware import verify_upload
+    from tests.firmware.rp2040_board import Rp2040Board, build_rp2040, missing_tools
+
+    why = missing_tools()
+    if why:
+        return {"case": "rp2040", "skipped": why}
+    uf2 = build_rp2040(tmp)
+    body = uf2.with_name("app-emu.bin").read_bytes()
+    image = _signed(body, version="r-1.1", target="rp2040")
+    with Rp2040Board(uf2, tmp / "emulator.log") as pico:
+        pico.start()
+        with DeviceSession(pico.port, reconnect=False) as dev:
+            dev.request(FwBegin(len(image), crc32c(image), hashlib.sha256(image).digest()))
+            step = min(dev.max_payload, 1024) - 6
+            for off in range(0, len(image), step):
+                dev.request(FwWrite(off, image[off : off + step]))
+            t0 = time.monotonic()
+            verify_upload(dev)
+            verify_s = time.monotonic() - t0
+        row = _timed(pico.port, image)
+    return {
+        "case": "rp2040 (rp2040js): the full application, slot 0 -> 1",
+        "verify_s": round(verify_s, 2),
+        **row,
+    }
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--no-qemu", action="store_true")
+    ap.add_argument("--rp2040", action="store_true")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         rows = [posix_case(Path(d) / "posix")]
         if not args.no_qemu:
             rows += qemu_cases(Path(d) / "qemu")
+        if args.rp2040:
+            rows.append(rp2040_case(Path(d) / "rp2040"))
     for row in rows:
         print(json.dumps(row) if args.json else "  ".join(f"{k}={v}" for k, v in row.items()))
     return 0

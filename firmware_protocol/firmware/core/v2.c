@@ -34,12 +34,30 @@ static struct {
     uint32_t unit_fill;
     uint8_t selftest;     /* SP_SELFTEST_*: a trial's self-test (FW_INFO byte 3) */
     uint64_t selftest_deadline, trial_end;
+    /* FW_VERIFY with SP_FW_VERIFY_ASYNC: answered BUSY, checked in v2_tick once the answer
+     * is out (a slow part hashes and checks a signature for seconds), the result kept for the
+     * next FW_VERIFY until the upload changes */
+    uint8_t verify_job; /* VERIFY_NONE, VERIFY_PENDING, VERIFY_DONE */
+    uint64_t verify_at;
+    uint16_t verify_code, verify_len;
+    const char *verify_text;
+    uint8_t verify_out[43];
+    /* FW_INFO's image_check of each slot (a hash of the whole slot), kept until the upload
+     * writes that slot: nothing else changes a slot while the application runs */
+    struct {
+        uint8_t known, ok;
+        uint32_t size, crc;
+        char version[17];
+    } memo[2];
 #endif
 } v2;
 
 #if SPIEL_FW_UPDATE
 static uint32_t trial_window_ms = SPIEL_FW_TRIAL_WINDOW_MS;
 #define SELFTEST_TIMEOUT_US 1000000u /* the first acquisition must complete within 1 s */
+enum { VERIFY_NONE, VERIFY_PENDING, VERIFY_DONE };
+#define VERIFY_DEFER_US 20000u /* the BUSY answer leaves before the check blocks the loop */
+static int fw_verify(uint8_t *out, uint16_t *code, const char **text);
 #endif
 
 void spiel_device_set_trial_window_ms(uint32_t ms)
@@ -129,6 +147,13 @@ static void selftest_step(uint64_t now)
 void v2_tick(uint64_t now)
 {
 #if SPIEL_FW_UPDATE
+    if (v2.verify_job == VERIFY_PENDING && now >= v2.verify_at) {
+        int n = fw_verify(v2.verify_out, &v2.verify_code, &v2.verify_text);
+        v2.verify_len = (uint16_t)n;
+        v2.verify_job = VERIFY_DONE;
+        v2.verified = 0; /* FW_TEST only after the host has been told (fw_verify_request) */
+        now = hal_time_us(); /* the check took time: the trial window is judged after it */
+    }
     if (v2.boot_state == SP_BOOT_TRIAL) {
         selftest_step(now);
         /* an unconfirmed trial stops kicking once its self-test failed or its window passed:
@@ -300,6 +325,11 @@ uint64_t v2_next_us(uint64_t now)
     if (v2.count && v2.log_per_s && now + 1000000u / v2.log_per_s < wake) {
         wake = now + 1000000u / v2.log_per_s;
     }
+#if SPIEL_FW_UPDATE
+    if (v2.verify_job == VERIFY_PENDING && v2.verify_at < wake) {
+        wake = v2.verify_at;
+    }
+#endif
     return wake;
 }
 
@@ -311,7 +341,15 @@ static void put_slot(uint8_t *p, int slot)
     uint32_t size = 0, crc = 0;
     char version[17] = {0};
     uint8_t state = SP_SLOT_EMPTY;
-    if (image_check(slot, &size, &crc, version) == 0) {
+    if (!v2.memo[slot].known) {
+        v2.memo[slot].ok = image_check(slot, &v2.memo[slot].size, &v2.memo[slot].crc,
+                                       v2.memo[slot].version) == 0;
+        v2.memo[slot].known = 1;
+    }
+    if (v2.memo[slot].ok) {
+        size = v2.memo[slot].size;
+        crc = v2.memo[slot].crc;
+        memcpy(version, v2.memo[slot].version, sizeof version);
         state = SP_SLOT_VERIFIED;
     } else if (slot == v2.upload_slot && v2.written) {
         state = SP_SLOT_PARTIAL;
@@ -408,6 +446,8 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
     }
     v2.upload_slot = -1;
     v2.verified = 0;
+    v2.verify_job = VERIFY_NONE;
+    v2.memo[slot].known = 0;
     /* only the header's sector now (the old image is gone at once); the rest as the upload
      * reaches it, one sector per FW_WRITE at most: no request waits for a whole slot erase */
     if (hal_image_erase(slot, 0, hal_image_sector_size()) != 0) {
@@ -433,6 +473,7 @@ static int fw_begin(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
 static int program(uint32_t at, const uint8_t *data, uint32_t len)
 {
     uint32_t sector = hal_image_sector_size();
+    v2.memo[v2.upload_slot].known = 0;
     while ((uint64_t)at + len > v2.erased_to) {
         if (v2.erased_to >= hal_image_slot_size() ||
             hal_image_erase(v2.upload_slot, v2.erased_to, sector) != 0) {
@@ -527,6 +568,7 @@ static int fw_write(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code
         return 0;
     }
     v2.verified = 0;
+    v2.verify_job = VERIFY_NONE;
     if (upload_bytes(p + 6, n) != 0) {
         v2.upload_slot = -1; /* the bytes buffered are lost: FW_BEGIN again */
         spiel_stats.flash_errors++;
@@ -613,6 +655,30 @@ static int fw_verify(uint8_t *out, uint16_t *code, const char **text)
     return 43;
 }
 
+/* FW_VERIFY: checked within the request, or (SP_FW_VERIFY_ASYNC) BUSY until v2_tick has
+ * checked, then the result, as often as asked, until FW_BEGIN or new FW_WRITE bytes */
+static int fw_verify_request(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
+                             const char **text)
+{
+    if (len == 0 || !(p[0] & SP_FW_VERIFY_ASYNC)) {
+        v2.verify_job = VERIFY_NONE;
+        return fw_verify(out, code, text);
+    }
+    if (v2.verify_job == VERIFY_DONE) {
+        v2.verified = v2.verify_code == SP_ERR_OK;
+        *code = v2.verify_code;
+        *text = v2.verify_text;
+        memcpy(out, v2.verify_out, v2.verify_len);
+        return v2.verify_len;
+    }
+    if (v2.verify_job == VERIFY_NONE) {
+        v2.verify_job = VERIFY_PENDING;
+        v2.verify_at = hal_time_us() + VERIFY_DEFER_US;
+    }
+    *code = SP_ERR_BUSY, *text = "checking the image: ask again";
+    return 0;
+}
+
 static int fw_test(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
                    const char **text)
 {
@@ -633,6 +699,7 @@ static int fw_test(const uint8_t *p, uint16_t len, uint8_t *out, uint16_t *code,
     }
     out[0] = (uint8_t)v2.upload_slot;
     v2.upload_slot = -1;
+    v2.verify_job = VERIFY_NONE; /* no result for an upload that ended */
     core_reboot_after_ms(sp_le_get_u16(in));
     return 1;
 }
@@ -698,7 +765,7 @@ int v2_request(uint16_t msg_type, const uint8_t *p, uint16_t len, uint8_t *out,
         n = msg_type == SP_MSG_FW_INFO     ? fw_info(out)
             : msg_type == SP_MSG_FW_BEGIN  ? fw_begin(p, len, out, code, text)
             : msg_type == SP_MSG_FW_WRITE  ? fw_write(p, len, out, code, text)
-            : msg_type == SP_MSG_FW_VERIFY ? fw_verify(out, code, text)
+            : msg_type == SP_MSG_FW_VERIFY ? fw_verify_request(p, len, out, code, text)
             : msg_type == SP_MSG_FW_TEST   ? fw_test(p, len, out, code, text)
                                            : fw_confirm(out, code, text);
         break;

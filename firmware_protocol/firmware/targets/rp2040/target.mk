@@ -10,6 +10,11 @@
 #   *-emu.*           the same with the emulator's flash path (flash_rp2040.c): what
 #                     run-emulated.sh runs in rp2040js (firmware-emu.uf2); never for a board
 #   obj/*.su          -fstack-usage of every file (make TARGET=rp2040 stack)
+# Signed images (PROTOCOL.md 14.6), as on mps2: core/verify.c and the vendored Ed25519 verifier
+# (vendor/monocypher) are in the boot stage (it starts only a slot signed by FW_KEY) and in the
+# application (FW_VERIFY). The slot-0 image of firmware.uf2 is signed by FW_SIGN_KEY, the private
+# half of FW_KEY (default: FW_KEY with .key for .pub, so keys/dev.key for the development key;
+# RELEASE=1 refuses the development key), security counter RP_SECURITY_COUNTER (default 0).
 RP_DIR := targets/rp2040
 # The CH101/CH201 sensor layer over TDK SonicLib (sensor/): built against the user's checkout
 # of github.com/tdk-invn-oss/ultrasonic.soniclib, never vendored (its licence restricts it to
@@ -46,6 +51,8 @@ else
 RP_MAX_SAMPLES := 64
 endif
 RP_VERSION ?= 1.0.0+rp2040
+FW_SIGN_KEY ?= $(FW_KEY:.pub=.key)
+RP_SECURITY_COUNTER ?= 0
 RP_DEFS := -DPICO_RP2040=1 -DPICO_ON_DEVICE=1 -DPICO_NO_HARDWARE=0 -DPICO_BUILD=1 \
 	-DPICO_32BIT=1 -DPICO_NO_FLASH=0 -DPICO_COPY_TO_RAM=0 -DPICO_USE_BLOCKED_RAM=0 \
 	-DPICO_CXX_ENABLE_EXCEPTIONS=0 -DNDEBUG -DCFG_TUSB_MCU=OPT_MCU_RP2040 \
@@ -90,9 +97,10 @@ O := $(BUILD)/obj
 RP_APP_OBJS := $(addprefix $(O)/,$(addsuffix .o,main hal_rp2040 usb_rp2040 startup_rp2040 \
 	image_rp2040 clocks_rp2040 $(RP_CORE) $(RP_VENDOR) ascans))
 RP_BOOT_OBJS := $(addprefix $(O)/,$(addsuffix .o,boot_rp2040 image_rp2040 clocks_rp2040 boot sha256 \
-	spiel_proto flash bootrom clocks pll xosc ticks watchdog platform boot2))
-RP_HDRS := $(wildcard include/*.h core/*.h $(PROTO)/*.h $(RP_DIR)/*.h) $(BUILD)/ascans.h
-vpath %.c $(RP_DIR) core $(PROTO) $(BUILD) $(addprefix $(SDK)/,$(dir $(RP_SDK_SRC))) \
+	verify monocypher monocypher-ed25519 spiel_proto flash bootrom clocks pll xosc ticks watchdog platform boot2))
+RP_HDRS := $(wildcard include/*.h core/*.h $(PROTO)/*.h $(RP_DIR)/*.h $(VENDOR)/*.h) $(BUILD)/ascans.h \
+	$(FW_KEY)
+vpath %.c $(RP_DIR) core $(PROTO) $(VENDOR) $(BUILD) $(addprefix $(SDK)/,$(dir $(RP_SDK_SRC))) \
 	$(addprefix $(TUSB)/,$(dir $(RP_TUSB_SRC)))
 
 all:
@@ -166,8 +174,9 @@ $(BUILD)/boot-emu.elf: $(RP_BOOT_OBJS) $(O)/flash_rp2040_emu.o $(RP_DIR)/rp2040-
 	$(ARM_CC) $(RP_LDFLAGS) -Trp2040-boot.ld $(RP_BOOT_OBJS) $(O)/flash_rp2040_emu.o -o $@
 $(BUILD)/%.bin: $(BUILD)/%.elf
 	$(ARM_OBJCOPY) -O binary $< $@
-$(BUILD)/%.img: $(BUILD)/%.bin $(RP_DIR)/pack_image.py
-	$(PYTHON) $(RP_DIR)/pack_image.py $< $(RP_VERSION) rp2040 $@
+$(BUILD)/%.img: $(BUILD)/%.bin $(RP_DIR)/pack_image.py $(FW_KEY)
+	@test -f $(FW_SIGN_KEY) || { echo "rp2040: no $(FW_SIGN_KEY) to sign firmware.uf2's image with: set FW_SIGN_KEY=<the private half of $(FW_KEY)>" >&2; exit 1; }
+	$(PYTHON) $(RP_DIR)/pack_image.py $< $(RP_VERSION) rp2040 $@ $(FW_SIGN_KEY) $(FW_KEY) $(RP_SECURITY_COUNTER)
 	head -c 96 $@ > $(@:.img=.hdr)
 # the boot stage at the flash's start, the image in slot 0 and installed in the execution region
 $(BUILD)/firmware%uf2: $(BUILD)/boot%bin $(BUILD)/app%img $(RP_DIR)/uf2.py
