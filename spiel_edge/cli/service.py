@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from spiel_edge.errors import ConfigError
 from spiel_edge.service import kit as service_kit
 
 
@@ -52,7 +53,16 @@ def install(
     from spiel_edge.service.sandbox import protect_home_for
 
     exec_path = exec_path or service_kit.default_exec()
-    protect_home = protect_home_for(exec_path)  # an install under /tmp: refused in one line
+    live = Path(prefix).resolve() == Path("/")  # the system itself, not a staging folder
+    try:
+        protect_home = protect_home_for(exec_path)  # under /tmp: the unit could not start
+    except ConfigError as exc:
+        if live:
+            raise
+        # a staging folder (packaging, a look at the kit) is written, with the reason it
+        # would not start as installed; installing it into / refuses
+        click.echo(f"warning: {exc}", err=True)
+        protect_home = "yes"
     if protect_home != "yes":
         click.echo(f"note: {exec_path} lies under a home folder: ProtectHome={protect_home}")
     allow = tuple(service_kit.check_allow_ip(a) for a in allow_ip)
