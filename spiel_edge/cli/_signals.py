@@ -59,15 +59,19 @@ class Terminated(KeyboardInterrupt):
 REDELIVER_S = 0.02  # a signal that came during an import is handled again this much later
 
 
+_LLVMLITE = f"{os.sep}llvmlite{os.sep}"
+
+
 def deferred_in_import(signum: int, frame: object) -> bool:
-    """True when the signal came while the main thread was importing a module: raising there
-    breaks the import (numba's C extension reported ``ImportError: numba._devicearray failed
-    to import`` with the interrupt's traceback, status 2), so the signal is sent again
-    ``REDELIVER_S`` later, until it lands outside the import system."""
+    """True when the signal came while the main thread was importing a module or inside
+    llvmlite: raising there breaks the import (numba's C extension reported ``ImportError:
+    numba._devicearray failed to import`` with the interrupt's traceback, status 2) or leaves
+    a native LLVM object half disposed (a second Ctrl-C 0.3 s into a cold `run` ended in
+    glibc's "double free", status -6), so the signal is sent again ``REDELIVER_S`` later,
+    until it lands outside both."""
     while frame is not None:
-        if getattr(frame, "f_code", None) and frame.f_code.co_filename.startswith(  # type: ignore[attr-defined]
-            "<frozen importlib"
-        ):
+        name = getattr(getattr(frame, "f_code", None), "co_filename", "")
+        if name.startswith("<frozen importlib") or _LLVMLITE in name:
             timer = threading.Timer(REDELIVER_S, _resend, args=(signum,))
             timer.daemon = True
             timer.start()

@@ -201,6 +201,21 @@ def test_a_signal_inside_an_import_is_handled_after_it(tmp_path, monkeypatch):
         while not got and time.monotonic() < deadline:
             time.sleep(0.01)
         assert got == [sig.SIGUSR1]  # the deferred one (signal 10) came back
+        got.clear()
+        llvm_dir = tmp_path / "site" / "llvmlite"  # a frame inside llvmlite: deferred too
+        llvm_dir.mkdir(parents=True)
+        code = compile(
+            f"import sys\nDEFERRED = deferred_in_import({int(sig.SIGUSR1)}, sys._getframe())\n",
+            str(llvm_dir / "ffi.py"),
+            "exec",
+        )
+        scope = {"deferred_in_import": deferred_in_import}
+        exec(code, scope)
+        assert scope["DEFERRED"] is True
+        deadline = time.monotonic() + 10
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert got == [sig.SIGUSR1]
     finally:
         sig.signal(sig.SIGUSR1, previous)
     try:
