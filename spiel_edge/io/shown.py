@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import re
 
-MAX_SHOWN = 80  # characters of user-supplied text echoed into a message
+MAX_SHOWN = 200  # characters of user-supplied text echoed into a message: a deep path whole,
+# a 10 MB token not (80 cut the paths of a test run under pytest-xdist)
 
 
 # control characters, lone surrogates (bytes that were not UTF-8), line and paragraph

@@ -24,7 +24,10 @@ def test_a_short_fuzz_run_is_clean(tmp_path, capsys):
         pytest.skip(captured.err.strip())
     result = json.loads(captured.out)
     assert status == 0 and not result["crashed"], result
-    assert result["harness_inputs"] == result["libfuzzer_units"] == RUNS
+    # libFuzzer counts RUNS units; the harness may count a few more: libFuzzer runs an input
+    # again, uncounted, when its mallocs and frees differ (its leak check), as on CI once (+16).
+    assert result["libfuzzer_units"] == RUNS
+    assert RUNS <= result["harness_inputs"] <= RUNS * 1.05, result
     assert result["seeds"] > 10 and result["corpus_files"] >= result["seeds"]
 
 

@@ -259,7 +259,10 @@ def test_a_board_that_ignores_its_start_time_is_started_by_the_host(tmp_path, ca
     assert "does not start at the time of its clock it is given" in err, err
     assert "started by the host)" in err
     records = _records(out)
-    host.allowance(0.0005, 200, most=0.01)  # a start by the host lands as late as it wakes
+    # a start by the host lands as late as it wakes; the median below holds while fewer than
+    # half of the last starts land late, so only a host that wakes late a quarter of the time
+    # skips (CI wakes 7 % of 2 ms sleeps > 0.5 ms late even at load 0.3)
+    host.allowance(0.0005, 200, most=0.25)
     phases = [_phase_ms(r["stamp_host"], 0.025, 0.00566) for r in records if r.get("stamp_host")]
     assert np.median(np.abs(phases[-40:])) <= 0.5
 
