@@ -10,7 +10,8 @@ import pytest
 from firmware_protocol.v2_messages import FwTest, SelfTest
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
-from spiel_edge.device.firmware import _upload, firmware_info, update_firmware
+from spiel_edge.device.firmware import firmware_info, update_firmware
+from spiel_edge.device.firmware_requests import upload_image
 from spiel_edge.errors import DeviceError
 from tests.fwsign import signed_image
 from tests.protocol_v2.test_v2_firmware_posix import board, script_image
@@ -23,7 +24,7 @@ def killed_after_test_boot(port: str, image: bytes) -> None:
     from crc32c import crc32c
 
     with DeviceSession(port, reconnect=False) as dev:
-        _upload(dev, port, image, crc32c(image), hashlib.sha256(image).digest(), None)
+        upload_image(dev, port, image, crc32c(image), hashlib.sha256(image).digest(), None)
         dev.request(FwTest(100))
 
 

@@ -64,7 +64,7 @@ def test_a_reboot_that_repeats_the_boot_id_is_seen_by_the_clock(sim_url, caplog)
     board._rng.getrandbits = lambda bits: 0x5EED  # every boot draws the same id
     board.boot_id = 0x5EED
     board._boot_time -= 5.0  # up for 5 s: its clock after the reboot is behind FW_TEST's
-    with caplog.at_level("WARNING", logger="spiel_edge.device.firmware"):
+    with caplog.at_level("WARNING", logger="spiel_edge.device.firmware_outcome"):
         result = update_firmware(url, NEW, boot_wait_s=5)
     assert result.confirmed and result.version == "sim-0.2.0"
     assert "same boot_id" in caplog.text

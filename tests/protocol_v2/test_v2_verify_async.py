@@ -19,7 +19,7 @@ from firmware_protocol.v2_messages import (
     FwWrite,
 )
 from spiel_edge.device import DeviceSession
-from spiel_edge.device import firmware as fw
+from spiel_edge.device import firmware_requests as fw
 from spiel_edge.device.firmware import update_firmware, verify_upload
 from spiel_edge.errors import DeviceRequestError, DeviceTimeoutError
 from spiel_edge.sim.protocol_sim import device_for_url
