@@ -20,6 +20,7 @@ the compiled kernels know no phase. docs/hardware-3d.md.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -28,6 +29,8 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.ranging import CONFIDENCE_COLUMN, iq_refine, toa_sigma
 from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.profile.specs import Profile
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -58,6 +61,16 @@ class IqPipeline(Pipeline):
         self.cycles_per_sample = acq.carrier_hz / acq.sample_rate_hz
         self.phase_on = profile.ranging.timing == "iq"
         self._baseband: np.ndarray | None = None  # the acquisition being processed
+        wrap, error = 1.0 / self.cycles_per_sample, profile.ranging.envelope_sigma[0]
+        if self.phase_on and wrap < 2.0 * error:  # e.g. 22 kHz at 175 kHz: 0.126 sample
+            log.warning(
+                "profile %r: the carrier phase wraps every %.3g samples, under twice the "
+                "envelope's expected ToA error (%.3g, [ranging] envelope_sigma): it will often "
+                "take a wrong wrap; [ranging] timing = 'envelope' is safer",
+                profile.name,
+                wrap,
+                error,
+            )
 
     def expected_shape(self) -> tuple[int, int]:
         return self.profile.geometry.n_channels, 2 * self.profile.acquisition.n_samples

@@ -1,4 +1,4 @@
-"""A virtual board with four CH101 sending I/Q pairs (``sim://?profile=<an I/Q profile>``,
+"""A virtual board with four CH101 sending I/Q pairs (``sim://?profile=ch101-quad-iq``,
 ``--samples iq``) end to end: 3-D records timed by the carrier phase, with its covariance;
 the same board's amplitudes timed by the envelope."""
 
@@ -9,13 +9,12 @@ import json
 import numpy as np
 
 from spiel_edge.cli import main
-from tests.core.test_iq3d import quad_iq_profile_file
 
 TARGET = (20.0, -10.0, 150.0)
 
 
 def _run(tmp_path, name, *extra):
-    profile = quad_iq_profile_file(tmp_path)
+    profile = "ch101-quad-iq"
     out = tmp_path / f"{name}.ndjson"
     port = f"sim://?scene=model&profile={profile}&targets=20,-10,150&noise=5"
     args = ["run", "--port", port, "--profile", profile, "--frames", "8", "--rate", "0"]
