@@ -92,3 +92,16 @@ def test_hash_groups_and_refusals():
     with pytest.raises(ValueError, match="both modes"):
         one = rows[rows[:, 3] == 1]
         cross_fit(one, position_groups(one, 0))
+
+
+def test_scale_only_rows_fit_one_factor_per_mode():
+    """--scale-only zeroes the per-target features: the model is the intercept and the two
+    cross-fitted mode factors, the ratio of the modes' variances kept."""
+    rows = _rows(6, per_mode=300)
+    rows[:, 6:] = 0.0
+    model = cross_fit(rows, position_groups(rows, 0))
+    np.testing.assert_array_equal(model[1:6], 0.0)
+    ratio = (model[6] / model[7]) / (
+        np.quantile(rows[rows[:, 3] == 1, 4], 0.95) / np.quantile(rows[rows[:, 3] == 0, 4], 0.95)
+    )
+    assert ratio == pytest.approx(1.0, rel=0.25)

@@ -2,7 +2,7 @@
 pipeline/stages/error_model.py) on positions the pipeline was never tuned on, and measure it
 on positions never used for any of its constants.
 
-    python -m tools.train.fit_error_model DATA/train_val DATA/train_val_bg [--folds 4]
+    python -m tools.train.fit_error_model DATA/train_val DATA/train_val_bg [--folds 4] [--scale-only]
 
 Rows: the best target of every acquisition at the validation (x, y) positions of
 ``split_by_position`` (never used to tune the pipeline), with and without the background
@@ -192,12 +192,20 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--folds", type=int, default=0, help="groups by hash of (x, y); 0: one per position"
     )
+    ap.add_argument(
+        "--scale-only",
+        action="store_true",
+        help="no per-target features: one factor per mode on the global scale, cross-fitted",
+    )
     args = ap.parse_args(argv)
     profile = load_profile(args.profile)
     rows = collect(profile, args.folder, args.background, "val")
+    train = collect(profile, args.folder, args.background, "train")
+    if args.scale_only:  # w1..w5 stay 0 (the ridge of fit_weights keeps the solve regular)
+        rows[:, FEATURES + 1 :] = 0.0
+        train[:, FEATURES + 1 :] = 0.0
     groups = position_groups(rows, args.folds)
     model = cross_fit(rows, groups)
-    train = collect(profile, args.folder, args.background, "train")
     out = {
         "groups": int(len(np.unique(groups))),
         "validation_nested": score(rows, nested(rows, groups)),
