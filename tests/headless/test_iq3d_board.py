@@ -4,29 +4,20 @@ the same board's amplitudes timed by the envelope."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
-from spiel_edge.cli import main
+from tests.headless.test_ranging_boards import _run
 
 TARGET = (20.0, -10.0, 150.0)
 
 
-def _run(tmp_path, name, *extra):
-    profile = "ch101-quad-iq"
-    out = tmp_path / f"{name}.ndjson"
-    port = f"sim://?scene=model&profile={profile}&targets=20,-10,150&noise=5"
-    args = ["run", "--port", port, "--profile", profile, "--frames", "8", "--rate", "0"]
-    assert main([*args, "-o", str(out), *extra]) == 0
-    return [json.loads(line) for line in out.read_text().splitlines()]
-
-
 def test_four_channel_iq_board_is_timed_by_the_carrier_phase(tmp_path):
-    iq = _run(tmp_path, "iq", "--samples", "iq")
-    env = _run(tmp_path, "env")
-    assert len(iq) == len(env) == 8
-    assert [r["timing"] for r in iq] == ["iq"] * 8
+    (tmp_path / "iq").mkdir()
+    (tmp_path / "env").mkdir()
+    iq = _run(tmp_path / "iq", "ch101-quad-iq", "20,-10,150", "--samples", "iq")
+    env = _run(tmp_path / "env", "ch101-quad-iq", "20,-10,150")
+    assert len(iq) == len(env) == 12
+    assert [r["timing"] for r in iq] == ["iq"] * 12
     assert {r["timing"] for r in env} == {"envelope"}
     assert all(r["targets"][0]["timing"] == "iq" for r in iq)
     err_iq = [np.linalg.norm(np.subtract(r["position_mm"], TARGET)) for r in iq]
