@@ -59,6 +59,10 @@ def test_iq_profile_builds_the_phase_timed_pipeline(quad):
         pipe.process(np.zeros((4, 100)))
     with pytest.raises(InputError, match="background"):
         pipe.process(np.zeros((4, 256)), np.zeros((3, 256)))
+    for bad in (np.nan, np.inf):  # one line, whatever the phase path would have made of it
+        with pytest.raises(InputError, match="NaN or infinite"):
+            pipe.process(np.full((4, 256), bad))
+    assert pipe.process(np.zeros((4, 256))).record()["reason"].startswith("frame is flat")
     icra = load_profile("spiel-icra23")
     assert isinstance(build_pipeline(_with(icra, acquisition={"signal": "iq"})), IqPipeline)
     assert not isinstance(build_pipeline(icra), IqPipeline)
