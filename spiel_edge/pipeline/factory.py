@@ -6,6 +6,7 @@ import logging
 
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline.compiled.fused import FusedPipeline
+from spiel_edge.pipeline.iq3d import IqPipeline
 from spiel_edge.pipeline.learned.toa_correction import build_echo_timing
 from spiel_edge.pipeline.ranging import RangePipeline
 from spiel_edge.pipeline.staged import Pipeline
@@ -39,15 +40,17 @@ def build_pipeline(
     toa_correction: str | None = None,
     *,
     fused: bool = True,
-) -> Pipeline | FusedPipeline | RangePipeline:
+) -> Pipeline | FusedPipeline | RangePipeline | IqPipeline:
     """``toa_correction`` (auto|onnx|none) overrides the profile's ``echo_timing.toa_correction``;
     the fused path (same results as the staged one, less overhead) unless fused=False.
-    One or two listening transducers: the ranging pipeline (pipeline/ranging.py)."""
+    One or two listening transducers: the ranging pipeline (pipeline/ranging.py); three or more
+    with I/Q samples: the staged 3-D pipeline timed by the carrier phase (pipeline/iq3d.py)."""
     if int(profile.geometry.listening_mask().sum()) < 3:
         return RangePipeline(profile)
-    staged = Pipeline(
+    kind = IqPipeline if profile.acquisition.signal == "iq" else Pipeline
+    staged = kind(
         profile,
         build_associator(profile, association),
         echo_timing=build_echo_timing(profile, toa_correction),
     )
-    return FusedPipeline(staged) if fused else staged
+    return FusedPipeline(staged) if fused and kind is Pipeline else staged

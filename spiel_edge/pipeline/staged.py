@@ -67,6 +67,7 @@ class Target:
     matched: list[int | None]  # per channel: index into the record's echoes, or None
     score: float  # higher is better; comparable within one acquisition
     track_id: int | None = None  # set by the tracker
+    timing: str | None = None  # I/Q boards: what timed its echoes (pipeline/iq3d.py); else None
 
     def record(self) -> dict:
         out = {
@@ -78,6 +79,8 @@ class Target:
         }
         if self.track_id is not None:
             out["track_id"] = int(self.track_id)
+        if self.timing is not None:
+            out["timing"] = self.timing
         return out
 
 
@@ -334,6 +337,9 @@ class Pipeline:
         )
         if self.echo_timing.active:  # the echo timing replaces echo quality's ToA shift
             shift = 0.0
+        picked, weights, shift, timing = self.phase_timing(
+            feats, matched, use, picked, weights, shift
+        )
         paths = (picked + shift - self.delays) * self.profile.mm_per_sample
         pos, rms, ok = locate(
             paths, self.channels_mm, self.emitter_mm, self.facing, use, weights=weights
@@ -355,7 +361,12 @@ class Pipeline:
         )
         match_list = [int(m) if m >= 0 else None for m in matched]
         score = -cost if np.isfinite(cost) else 0.0
-        return Target(pos, cov, rms, match_list, score), paths
+        return Target(pos, cov, rms, match_list, score, timing=timing), paths
+
+    def phase_timing(self, feats, matched, use, picked, weights, shift) -> tuple:
+        """(ToAs, weights, shift, timing) of one target's matched echoes: as given here (no
+        carrier phase, timing None); an I/Q board's pipeline refines them (pipeline/iq3d.py)."""
+        return picked, weights, shift, None
 
     def covariance_scale(self, background: np.ndarray | None) -> float:
         """The covariance's scale for a captured background, or for none (the static model

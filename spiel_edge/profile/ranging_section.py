@@ -1,7 +1,8 @@
 """The ``[ranging]`` section of a profile: how a board with one or two listening transducers
 (pulse-echo rangefinders such as TDK's DK-CH101, or a pair) turns echoes into a range, a
 bearing and their variances (spiel_edge/pipeline/ranging.py, docs/hardware-ranging.md).
-Boards with three or more listening channels ignore it."""
+Boards with three or more listening channels use only its timing, iq_* and iq_sigma keys, to time
+their matched echoes by the carrier phase with I/Q samples (pipeline/iq3d.py)."""
 
 from __future__ import annotations
 

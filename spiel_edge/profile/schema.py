@@ -271,12 +271,8 @@ def validate_profile(p: Profile, origin: str = "profile") -> None:
         need(a.carrier_hz > 0, "acquisition.carrier_hz must be > 0 for signal = 'iq'")
     n_listen = int(g.listening_mask().sum())
     need(n_listen >= 1, "geometry needs at least 1 listening channel, has 0")
-    # 1 or 2 listening transducers: range (and bearing), pipeline/ranging.py
-    need(
-        n_listen < 3 or a.signal != "iq",
-        "acquisition.signal = 'iq' is supported for 1 or 2 listening channels "
-        f"(not yet for {n_listen}: give the envelope)",
-    )
+    # 1 or 2 listening transducers: range (and bearing), pipeline/ranging.py; 3 or more with
+    # I/Q: 3-D positions timed by the carrier phase, pipeline/iq3d.py
     check_geometry(g, a.n_samples, origin)
     _validate_window(p.memg, need)
     validate_ranging(p.ranging, a.signal, origin)

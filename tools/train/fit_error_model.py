@@ -1,17 +1,24 @@
 """Fit the per-target error model of the 3-D covariance (``[scene] error_model``,
 pipeline/stages/error_model.py) on positions the pipeline was never tuned on, and measure it
-on positions the model itself never saw.
+on positions never used for any of its constants.
 
-    python -m tools.train.fit_error_model DATA/train_val DATA/train_val_bg [--folds 4]
+    python -m tools.train.fit_error_model DATA/train_val DATA/train_val_bg [--folds 4] [--scale-only]
 
-The validation (x, y) positions of ``split_by_position`` (never used to tune the pipeline)
-are split again into ``--folds`` groups by position; each group is scored with the model
-fitted on the others (with and without the background): the coverage of the 95 % ellipsoids
-and their median radius against the profile's global scale. The printed ``error_model`` is
-fitted on every validation position. The fit: log k linear in the target's features, by
-Gaussian likelihood of its Mahalanobis distance under the unscaled covariance; then per mode
-the factor that puts the 95 % quantile of the fitted distances at the chi-square bound
-(errors are heavy-tailed: the likelihood alone would under-cover).
+Rows: the best target of every acquisition at the validation (x, y) positions of
+``split_by_position`` (never used to tune the pipeline), with and without the background
+(z = 90 mm left out). Groups: one per (x, y) position (the default), or ``--folds`` groups by
+a hash of (x, y).
+
+The fit (``cross_fit``): log k linear in the target's features, by Gaussian likelihood of its
+Mahalanobis distance under the unscaled covariance, on all rows; then per mode (background,
+none) the factor that puts the 95 % quantile of the *out-of-fold* normalised distances (each
+group's from the weights fitted without it) at the chi-square bound. Cross-fitted so the
+factor does not inherit the fit's optimism (errors are heavy-tailed).
+
+The score (``nested``): each group is scored with ``cross_fit`` run on the other groups only
+(weights and factors chosen without it), so every figure is on positions never used for any
+constant. Also printed: the global scale's coverage on the same rows, and the final model on
+the training positions (never used by its fit, but the pipeline was tuned there).
 """
 
 from __future__ import annotations
@@ -32,18 +39,23 @@ from spiel_edge.pipeline.stages.uncertainty import CHI2_95_3DOF
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.recordings.spiel_csv import frame_files, position_key, read_recording, read_truth
 
+# row layout: x, y, z, captured (1 background, 0 none), d2 (unscaled Mahalanobis^2), features
+D2, CAPTURED, FEATURES = 4, 3, 5
+MODES = (("background", 1), ("none", 0))
 
-def collect(profile, folder, background_folder):
-    """Per best target on validation positions: (x, y, z, captured, d2, features...)."""
+
+def collect(profile, folder, background_folder, side: str = "val"):
+    """Per best target at the ``side`` ("val" or "train") positions: the rows above."""
     off = profile.replace(scene=dataclasses.replace(profile.scene, error_model=()))
     pipe = build_pipeline(off)
     files = frame_files(folder)
-    _, val = split_by_position([p.name for p in files])
+    train, val = split_by_position([p.name for p in files])
+    keep = val if side == "val" else train
     rows = []
     for captured in (True, False):
         for path in files:
             key = position_key(path.name)
-            if key is None or key[:2] not in val or key[2] in EXCLUDED_Z_MM:
+            if key is None or key[:2] not in keep or key[2] in EXCLUDED_Z_MM:
                 continue
             rec = read_recording(path, background_folder if captured else None)
             if rec.frames is None:
@@ -79,8 +91,9 @@ def design(profile, result, target) -> list[float]:
     return out
 
 
-def fit(rows) -> list[float]:
-    captured, d2, a = rows[:, 3], rows[:, 4], rows[:, 5:]
+def fit_weights(rows) -> np.ndarray:
+    """w maximising the Gaussian likelihood of d2 ~ k^2 chi2(3), log k = features @ w (Newton)."""
+    d2, a = rows[:, D2], rows[:, FEATURES:]
     w = np.zeros(a.shape[1])
     for it in range(200):
         g = np.exp(-2 * (a @ w)) * d2
@@ -88,17 +101,81 @@ def fit(rows) -> list[float]:
         w -= 0.5 * step if it < 5 else step
         if np.abs(step).max() < 1e-9:
             break
-    k2 = np.exp(2 * (a @ w))
-    factors = [
-        float(np.quantile(d2[captured == m] / k2[captured == m], 0.95) / CHI2_95_3DOF)
-        for m in (1, 0)
-    ]
-    return [float(v) for v in w] + factors
+    return w
+
+
+def normalised(rows, w) -> np.ndarray:
+    """d2 / k^2: the Mahalanobis distance under the weights, before the mode's factor."""
+    return rows[:, D2] / np.exp(2 * (rows[:, FEATURES:] @ w))
+
+
+def out_of_fold(rows, groups) -> np.ndarray:
+    """Each group's normalised distances under the weights fitted without that group."""
+    out = np.empty(len(rows))
+    for g in np.unique(groups):
+        out[groups == g] = normalised(rows[groups == g], fit_weights(rows[groups != g]))
+    return out
+
+
+def cross_fit(rows, groups) -> list[float]:
+    """The 8-number ``error_model``: weights on all rows, each mode's factor from the
+    out-of-fold distances (95 % of them inside the chi-square bound)."""
+    if len(np.unique(groups)) < 2:
+        raise ValueError("cross-fitting needs rows from at least 2 groups")
+    held = out_of_fold(rows, groups)
+    factors = []
+    for _, m in MODES:
+        sel = rows[:, CAPTURED] == m
+        if not sel.any():
+            raise ValueError("cross-fitting needs rows of both modes (background, none)")
+        factors.append(float(np.quantile(held[sel], 0.95) / CHI2_95_3DOF))
+    return [float(v) for v in fit_weights(rows)] + factors
 
 
 def factors(rows, model) -> np.ndarray:
-    k2 = np.exp(2 * (rows[:, 5:] @ np.array(model[:6])))
-    return k2 * np.where(rows[:, 3] == 1, model[6], model[7])
+    """Each row's covariance factor k^2 x its mode's factor under ``model``."""
+    k2 = np.exp(2 * (rows[:, FEATURES:] @ np.array(model[:6])))
+    return k2 * np.where(rows[:, CAPTURED] == 1, model[6], model[7])
+
+
+def nested(rows, groups) -> np.ndarray:
+    """Each row's factor from ``cross_fit`` on the other groups only (nested: the weights and
+    the factors never saw the scored group)."""
+    out = np.empty(len(rows))
+    for g in np.unique(groups):
+        inner = groups != g
+        out[~inner] = factors(rows[~inner], cross_fit(rows[inner], groups[inner]))
+    return out
+
+
+def score(rows, k2) -> dict:
+    """Per mode: 95 % coverage, its worst (x, y) position, the median radius against the
+    global scale's (k), and the global scale's own coverage of the same rows."""
+    out = {}
+    inside = rows[:, D2] / k2 <= CHI2_95_3DOF
+    for name, m in MODES:
+        sel = rows[:, CAPTURED] == m
+        xys = {tuple(r) for r in rows[sel, :2]}
+        at = [sel & np.all(rows[:, :2] == xy, axis=1) for xy in xys]
+        out[name] = {
+            "acquisitions": int(sel.sum()),
+            "coverage95": round(float(np.mean(inside[sel])), 4),
+            "worst_position": round(min(float(np.mean(inside[s])) for s in at), 4),
+            "median_radius_ratio": round(float(np.median(np.sqrt(k2[sel]))), 4),
+            "coverage95_global_scale": round(float(np.mean(rows[sel, D2] <= CHI2_95_3DOF)), 4),
+            "worst_position_global_scale": round(
+                min(float(np.mean(rows[s, D2] <= CHI2_95_3DOF)) for s in at), 4
+            ),
+        }
+    return out
+
+
+def position_groups(rows, folds: int) -> np.ndarray:
+    """One group per (x, y) (``folds`` = 0) or ``folds`` groups by a hash of (x, y)."""
+    if folds == 0:
+        xys = sorted({(x, y) for x, y in rows[:, :2]})
+        return np.array([xys.index((x, y)) for x, y in rows[:, :2]])
+    return np.array([fold(x, y, folds) for x, y in rows[:, :2]])
 
 
 def fold(x, y, k) -> int:
@@ -112,28 +189,29 @@ def main(argv=None) -> int:
     ap.add_argument("folder")
     ap.add_argument("background")
     ap.add_argument("--profile", default="spiel-icra23")
-    ap.add_argument("--folds", type=int, default=4)
+    ap.add_argument(
+        "--folds", type=int, default=0, help="groups by hash of (x, y); 0: one per position"
+    )
+    ap.add_argument(
+        "--scale-only",
+        action="store_true",
+        help="no per-target features: one factor per mode on the global scale, cross-fitted",
+    )
     args = ap.parse_args(argv)
     profile = load_profile(args.profile)
-    rows = collect(profile, args.folder, args.background)
-    groups = np.array([fold(x, y, args.folds) for x, y in rows[:, :2]])
-    k2 = np.empty(len(rows))
-    for g in range(args.folds):
-        k2[groups == g] = factors(rows[groups == g], fit(rows[groups != g]))
-    out = {}
-    for name, m in (("background", 1), ("none", 0)):
-        sel = rows[:, 3] == m
-        keys = {tuple(r) for r in rows[sel, :3]}
-        inside = rows[:, 4] / k2 <= CHI2_95_3DOF
-        worst = min(float(np.mean(inside[sel & np.all(rows[:, :3] == k, axis=1)])) for k in keys)
-        out[name] = {
-            "acquisitions": int(sel.sum()),
-            "coverage95_unseen_positions": round(float(np.mean(inside[sel])), 4),
-            "worst_position": round(worst, 4),
-            "coverage95_global_scale": round(float(np.mean(rows[sel, 4] <= CHI2_95_3DOF)), 4),
-            "median_radius_ratio": round(float(np.median(np.sqrt(k2[sel]))), 4),
-        }
-    out["error_model"] = [round(v, 4) for v in fit(rows)]
+    rows = collect(profile, args.folder, args.background, "val")
+    train = collect(profile, args.folder, args.background, "train")
+    if args.scale_only:  # w1..w5 stay 0 (the ridge of fit_weights keeps the solve regular)
+        rows[:, FEATURES + 1 :] = 0.0
+        train[:, FEATURES + 1 :] = 0.0
+    groups = position_groups(rows, args.folds)
+    model = cross_fit(rows, groups)
+    out = {
+        "groups": int(len(np.unique(groups))),
+        "validation_nested": score(rows, nested(rows, groups)),
+        "training_positions": score(train, factors(train, model)),
+        "error_model": [round(v, 4) for v in model],
+    }
     print(json.dumps(out, indent=2))
     return 0
 

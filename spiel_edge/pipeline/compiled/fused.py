@@ -40,7 +40,7 @@ def unsupported_stages(pipeline: staged.Pipeline) -> list[str]:
     known = [s for s in staged.STAGES if s in COMPILED_STAGES]
     if known != [s for s in COMPILED_STAGES if s in known]:
         missing.append("stages reordered")
-    for method in ("process", "locate_hypotheses", "_targets", "locate_target"):
+    for method in ("process", "locate_hypotheses", "_targets", "locate_target", "phase_timing"):
         if getattr(type(pipeline), method) is not getattr(staged.Pipeline, method):
             missing.append(f"{type(pipeline).__name__}.{method}")
     return missing
