@@ -93,3 +93,18 @@ def _no_process_outlives_its_module():
             f"processes outlived their test module and were killed: {sorted(left.items())}",
             stacklevel=1,
         )
+
+
+@pytest.fixture(autouse=True)
+def _log_handlers_end_with_their_test():
+    """``main()`` points the root logger at the stderr it sees, a test's capture; a later test's
+    threads would log into that closed stream ("Logging error ... I/O operation on closed
+    file"). Handlers a test added are removed when it ends."""
+    import logging
+
+    root = logging.getLogger()
+    before = list(root.handlers)
+    yield
+    for handler in root.handlers[:]:
+        if handler not in before:
+            root.removeHandler(handler)

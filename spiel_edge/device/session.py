@@ -49,11 +49,13 @@ from spiel_edge.device.stream import StreamTracker
 from spiel_edge.device.streaming import StreamingMixin
 from spiel_edge.device.v2 import SessionV2Mixin
 from spiel_edge.errors import (
+    ConfigError,
     DeviceDisconnectedError,
     DeviceError,
     DeviceRequestError,
     DeviceTimeoutError,
 )
+from spiel_edge.io.shown import escape
 from spiel_edge.link import Link, LinkIdentity, open_link
 
 log = logging.getLogger(__name__)
@@ -61,6 +63,25 @@ log = logging.getLogger(__name__)
 POLL_S = 0.05  # the longest any single read blocks
 BUSY_DELAY_S = 0.05  # before asking a BUSY board again
 LINK_BYTES_PER_S = 1e6  # the slowest link (full-speed USB) for size-dependent timeouts
+TIMEOUT_SCALE_ENV = "SPIEL_REQUEST_TIMEOUT_SCALE"
+
+
+def request_timeout_scale(environ: dict[str, str] | None = None) -> float:
+    """``SPIEL_REQUEST_TIMEOUT_SCALE``: every request's timeout times this factor (1-100), for a
+    board that answers slowly (an emulated board on a loaded machine, a bridge on a busy hub);
+    1 where unset. ConfigError in one line for anything else."""
+    import os
+
+    text = (os.environ if environ is None else environ).get(TIMEOUT_SCALE_ENV, "").strip()
+    if not text:
+        return 1.0
+    try:
+        scale = float(text)
+    except ValueError:
+        scale = float("nan")
+    if not 1.0 <= scale <= 100.0:  # NaN fails too
+        raise ConfigError(f"{TIMEOUT_SCALE_ENV}={escape(text)[:40]!r}: not a number from 1 to 100")
+    return scale
 
 
 @dataclass
@@ -96,6 +117,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         self.poll_s = poll_s
         self.stall_s = stall_s  # no stream data this long: ask the board whether it is alive
         self.link_options = link_options or {}
+        self.timeout_scale = request_timeout_scale()
         self.counters = SessionCounters()
         self.tracker = StreamTracker()
         self.decoder = FrameDecoder()
@@ -255,6 +277,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         wire = encode_message(msg, seq=seq)
         if timeout_s is None:  # the type's timeout plus both frames' time on a 1 MB/s link
             timeout_s = type(msg).TIMEOUT_S + (len(wire) + MAX_WIRE_SIZE) / LINK_BYTES_PER_S
+            timeout_s *= self.timeout_scale
         for attempt in range(1 + retries):
             if attempt:
                 self.counters.retries += 1

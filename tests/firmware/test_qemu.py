@@ -255,6 +255,7 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
             if host.poll() is None:  # only when an assertion stopped us: the host we started
                 host.kill()
                 host.wait(10)
+            said = host.stderr.read()
             host.stderr.close()
         cut.disarm()
         cut.start()
@@ -266,6 +267,7 @@ def test_a_power_cut_at_every_flash_operation_keeps_old_or_new(board, tmp_path):
         seen[n] = config["board"]["name"]
         assert seen[n] in ("old-config", "new-config"), seen
         if not fired:  # the commit needed fewer than n + 1 operations: all cut points done
+            assert host.returncode == 0, f"the commit failed uncut: {said}"
             assert seen[n] == "new-config"
             break
     else:

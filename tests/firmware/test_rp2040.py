@@ -214,6 +214,7 @@ def test_config_is_kept_across_a_watchdog_reboot(pico, tmp_path):
     with serial.Serial(pico.port, timeout=0.2) as port:
         port.write(encode_message(Reboot(0, 10), seq=7))
         pico.wait_message("rp2040js: boot 2")
+    pico.wait_message("USB configured", count=2)  # enumerated again (seconds at load 12)
     with DeviceSession(pico.port, reconnect=False) as again:
         assert again.hello.boot_id != first
     assert pulled(pico.port)["board"]["name"] == "pico-one"

@@ -196,3 +196,28 @@ def test_opening_a_missing_or_bad_port_fails_clearly(sim_url, tmp_path):
         DeviceSession(sim_url("bogus=1")).open()
     with pytest.raises(DeviceError, match="unknown port URL scheme"):
         DeviceSession("tcp://localhost:1").open()
+
+
+def test_a_slow_board_gets_the_scaled_timeout(sim_url, monkeypatch):
+    """SPIEL_REQUEST_TIMEOUT_SCALE multiplies each request's own timeout (0.5 s and the wire
+    time): an emulated board on a loaded machine gets the time it needs."""
+    monkeypatch.setenv("SPIEL_REQUEST_TIMEOUT_SCALE", "3")
+    url = sim_url("stall_after=1&stall_ms=5000")
+    with DeviceSession(url, reconnect=False) as session:
+        session.start_stream(rate_hz=100)
+        take(session, 1)
+        t0 = time.monotonic()
+        with pytest.raises(DeviceTimeoutError, match=r"after 1 tries of 1\.5"):
+            session.request(Ping(b"x"), retries=0)
+        assert 1.5 <= time.monotonic() - t0 < 3.0
+
+
+@pytest.mark.parametrize("value", ["0.5", "101", "nan", "fast", "inf"])
+def test_a_bad_timeout_scale_is_one_clear_error(sim_url, monkeypatch, value):
+    from spiel_edge.errors import ConfigError
+
+    monkeypatch.setenv("SPIEL_REQUEST_TIMEOUT_SCALE", value)
+    with pytest.raises(
+        ConfigError, match="SPIEL_REQUEST_TIMEOUT_SCALE=.*not a number from 1 to 100"
+    ):
+        DeviceSession(sim_url(), reconnect=False)

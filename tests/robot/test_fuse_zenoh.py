@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from spiel_edge.robot.description import load_robot
+from tests.load import HostTiming
 
 zenoh = pytest.importorskip("zenoh", reason="the 'zenoh' extra is not installed")
 
@@ -81,17 +82,19 @@ def test_fuse_over_zenoh(clock_off_s):
             connect=[endpoint], config=zenoh.Config.from_json5(f'{{"mode": "peer", {off}}}')
         )
     )
+    host_timing = HostTiming()  # how late this machine wakes while the boards publish
     try:
         time.sleep(1.0)  # the peers connect
         publishers = _publishers(pub, [b.key for b in robot.boards])
         p_base = np.array([300.0, 0.0, 0.0])  # in front: the front board sees it 200 mm ahead
         t0 = time.time()
-        for k in range(60):  # boards firing every 25 ms, 5 ms apart (published when due)
-            _sleep_until(t0 + k * 0.025)
-            for j, b in enumerate(robot.boards):
-                host = time.time() + (clock_off_s if b.name == "back" else 0.0)
-                target = b.mount.to_board(p_base) if b.name == "front" else [0.0, 0.0, 150.0]
-                publishers[b.name].put(_record(k, 10.0 + k * 0.025 + j * 0.005, host, target))
+        with host_timing:
+            for k in range(60):  # boards firing every 25 ms, 5 ms apart (published when due)
+                _sleep_until(t0 + k * 0.025)
+                for j, b in enumerate(robot.boards):
+                    host = time.time() + (clock_off_s if b.name == "back" else 0.0)
+                    target = b.mount.to_board(p_base) if b.name == "front" else [0.0, 0.0, 150.0]
+                    publishers[b.name].put(_record(k, 10.0 + k * 0.025 + j * 0.005, host, target))
     finally:
         worker.join(timeout=20)
         stop.set()
@@ -101,13 +104,18 @@ def test_fuse_over_zenoh(clock_off_s):
     assert len(records) >= 50
     late = records[20:]
     assert all(r["frame_id"] == "base_link" for r in late)
+    # a board's record that this process publishes a cycle (25 ms) late may miss its cycle: as
+    # many incomplete cycles as the machine's late wake-ups explain (load 12-15: one of 40)
+    slack = host_timing.allowance(0.025, len(late))
     if clock_off_s:
         assert "back" in fuse.dropped and "clock" in fuse.dropped["back"]
         assert all("back" not in r["boards"] for r in late)
-        assert all(set(r["boards"]) == {"front", "left", "right"} for r in late[:-1])
+        want = {"front", "left", "right"}
     else:
         assert not fuse.dropped
-        assert all(set(r["boards"]) == {"front", "left", "back", "right"} for r in late[:-1])
+        want = {"front", "left", "back", "right"}
+    incomplete = sum(set(r["boards"]) != want for r in late[:-1])
+    assert incomplete <= slack, (incomplete, host_timing.why(0.025))
     # the front board's target, in base_link, tracked
     front_targets = [t for r in late for t in r["targets"] if t["boards"] == ["front"]]
     np.testing.assert_allclose(front_targets[-1]["position_mm"], p_base, atol=1e-6)
