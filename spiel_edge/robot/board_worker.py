@@ -132,9 +132,9 @@ class BoardWorker(threading.Thread):
             self.association,
             use_board=b.calibration is None,
             toa_correction=self.toa_correction,
+            max_targets=self.max_targets,
+            chosen=True,  # robot/serve.py chose it, once per board
         )
-        if self.max_targets:
-            pipeline.set_max_targets(self.max_targets)
         self.pipeline = pipeline
 
     def _start_in_slot(self) -> None:
@@ -264,8 +264,3 @@ class BoardWorker(threading.Thread):
         us = getattr(acq, "stamp_uncertainty_us", None)
         return us * 1e-6 if self.synced and us is not None else None
 
-
-def toa_of(port: str, requested: str | None) -> str | None:
-    from spiel_edge.runtime.loop import live_toa_correction
-
-    return live_toa_correction(port, requested)

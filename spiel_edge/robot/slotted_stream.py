@@ -134,3 +134,16 @@ def start_in_slot(
     slotted = SlottedStream(session, keeper, stop, **stream)
     slotted.start()
     return slotted
+
+
+def slot_starter(slot: str):
+    """``--slot ROBOT:BOARD``'s starter for runtime/live.py's LiveRun (its ``in_slot``): the
+    robot file read now (ConfigError naming what is wrong), the stream started in the slot
+    when the board is open."""
+    keeper = slot_keeper_of(slot)
+
+    def in_slot(session, stop: threading.Event, stream: dict) -> SlottedStream:
+        return start_in_slot(session, keeper, stop, stream)
+
+    in_slot.keeper = keeper  # type: ignore[attr-defined]
+    return in_slot
