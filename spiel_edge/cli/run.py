@@ -19,7 +19,7 @@ from spiel_edge.cli._options import (
     realtime_option,
     toa_correction_option,
 )
-from spiel_edge.cli._ros2 import ros2_options, ros2_output_options, zenoh_settings
+from spiel_edge.cli._ros2 import ros2_options, zenoh_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.cli._status_line import StatusLine
 from spiel_edge.io.shown import escape, shorten_tokens
@@ -225,9 +225,8 @@ def command(
         udp=udp,
         foxglove=foxglove,
         zenoh=zenoh,
-        zenoh_encoding=ros2["zenoh_encoding"],
         force=force,
-        output_options=lambda profile: ros2_output_options(ros2, profile),
+        ros2=ros2,
     )
     notifier = Notifier()
     live = LiveRun(config, notifier=notifier, in_slot=in_slot)
@@ -249,6 +248,7 @@ def command(
             if live.slotted is not None:
                 slotted = live.slotted
                 finalizers.add(lambda: click.echo(shorten_tokens(slotted.summary()), err=True))
+            notifier.ready(f"streaming from {port}")
             live.run(stop, status=_reporter(show_status, notifier))
         except BrokenPipeError:  # the reader of stdout went away (| head): a normal end
             sys.stdout = None  # type: ignore[assignment]  # nothing more can be flushed there

@@ -31,6 +31,7 @@ from spiel_edge.errors import ConfigError, DeviceError
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import Sink, check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
+from spiel_edge.outputs.ros2_options import ros2_output_options
 from spiel_edge.profile.schema import apply_calibration, load_profile
 from spiel_edge.runtime.loop import (
     LiveRunner,
@@ -72,27 +73,17 @@ class LiveConfig:
     udp: tuple[str, ...] = ()
     foxglove: str | None = None
     zenoh: str | None = None
-    zenoh_encoding: str = "json"
     force: bool = False  # outputs may replace files
-    # the ROS 2 options of the outputs for the resolved profile (cli/_ros2.py), or fixed ones
-    output_options: Callable[[Any], Mapping] | Mapping = field(default_factory=dict)
-
-
-class _Quiet:
-    """The notifier when nobody listens (the CLI hands in systemd's, service/systemd.py)."""
-
-    enabled = False
-
-    def ping(self) -> None: ...
-    def status(self, text: str) -> None: ...
-    def ready(self, text: str) -> None: ...
-    def stopping(self) -> None: ...
+    # the outputs' ROS 2 and Zenoh options by their `run` names (record_profile, frame_id,
+    # zenoh_encoding, ...: outputs/ros2_options.py); a key left out is the option's default
+    ros2: Mapping[str, Any] = field(default_factory=dict)
 
 
 class LiveRun:
     """One board's run: ``prepare()``, ``open(stop)``, ``run(stop)``, ``close()``.
 
-    ``notifier``: told of the run's state (systemd's, service/systemd.py); ``in_slot``: with
+    ``notifier``: pinged per record and told of a kernel compile's progress (systemd's,
+    service/systemd.py; readiness is the caller's to say, after ``start``); ``in_slot``: with
     ``config.slot``, starts the stream in the board's trigger slot, ``in_slot(session, stop,
     stream options)`` -> an object with ``on_acquisition(acq)`` and ``summary()``
     (robot/slotted_stream.py's ``slot_starter``: the robot layer sits above this one)."""
@@ -103,7 +94,7 @@ class LiveRun:
                 f"slot {config.slot!r}: give in_slot=robot.slotted_stream.slot_starter(slot)"
             )
         self.config = config
-        self.notifier = notifier if notifier is not None else _Quiet()
+        self.notifier = notifier
         self.in_slot = in_slot if config.slot else None
         self.port = config.port
         self.profile = None  # the resolved profile (calibration applied)
@@ -137,16 +128,11 @@ class LiveRun:
             self._record = check_outputs(plan, c.output, c.record)
         # a bad profile, calibration or frame option: before the board
         self._base = load_profile(c.profile)
-        self.profile = (
-            apply_calibration(self._base, c.calibration) if c.calibration else self._base
-        )
-        self._output_options = (
-            dict(c.output_options(self.profile))
-            if callable(c.output_options)
-            else dict(c.output_options)
-        )
+        calibrated = apply_calibration(self._base, c.calibration) if c.calibration else None
+        self.profile = calibrated or self._base
+        self._output_options = ros2_output_options(c.ros2, self.profile)
         if c.zenoh is not None:
-            check_output_key(c.zenoh, c.zenoh_encoding)
+            check_output_key(c.zenoh, self._output_options["zenoh_encoding"])
         self._background = load_background(c.background) if c.background else None
         if self.port is None:  # USB scanning only when needed
             from spiel_edge.link.discover import default_port
@@ -186,11 +172,13 @@ class LiveRun:
             session, self.pipeline, self.sink, background=self._background, tracker=tracker
         )
         runner.tiers = self.tiers
-        runner.on_record = self.notifier.ping
+        if self.notifier is not None:
+            runner.on_record = self.notifier.ping  # the service watchdog
         self.runner = runner
 
     def start(self, stop: threading.Event) -> None:
-        """The stream started: at ``config.rate``, or in the board's trigger slot."""
+        """The stream started: at ``config.rate``, or in the board's trigger slot (``slotted``:
+        its keeper); ConfigError when the board's stream does not fit the profile."""
         c, session, profile = self.config, self.session, self.pipeline.profile
         stream = dict(
             n_samples=profile.acquisition.n_samples,
@@ -201,6 +189,7 @@ class LiveRun:
         else:
             self.slotted = self.in_slot(session, stop, stream)
             self.runner.on_acquisition = self.slotted.on_acquisition
+        check_stream_shape(session, self.pipeline)  # ConfigError when it does not fit
 
     def _open_sink(self, profile, source: str):
         c = self.config
@@ -220,14 +209,12 @@ class LiveRun:
                 **chosen_toa_correction(self.toa_correction),
             },
             force=c.force,
-            **{"zenoh_encoding": c.zenoh_encoding, **self._output_options},
+            **self._output_options,
         )
 
     def run(self, stop: threading.Event, status=None) -> LiveStats:
         """Records until ``stop`` is set or ``frames`` were written (``status(runner)``: every
-        few seconds); ConfigError first when the board's stream does not fit the profile."""
-        check_stream_shape(self.session, self.pipeline)
-        self.notifier.ready(f"streaming from {self.port}")
+        few seconds)."""
         return self.runner.run(stop, frames=self.config.frames, status=status)
 
     def close(self) -> None:
