@@ -21,7 +21,7 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.cli._ros2 import ros2_options, zenoh_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
-from spiel_edge.cli._status_line import StatusLine
+from spiel_edge.cli._status_line import StatusLine, say_live_views
 from spiel_edge.io.shown import escape, shorten_tokens
 from spiel_edge.robot.slotted_stream import slot_starter
 from spiel_edge.runtime.live import LiveConfig, LiveRun
@@ -242,7 +242,7 @@ def command(
         try:
             live.open()
             finalizers.add(live.sink.close_files)
-            _say_live_views(live.sink)
+            say_live_views(live.sink)
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
             live.start(stop)
             if live.slotted is not None:
@@ -274,13 +274,6 @@ def _say(line: str | None) -> None:
 def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
     notifier.ping()
     notifier.status(f"waiting {waited:.0f} s for the board at {port} to come back")
-
-
-def _say_live_views(sink) -> None:
-    """Where to look, said at start without -v: the Foxglove server's address and layout."""
-    for out in sink.parts():
-        if out.view_line:
-            click.echo(f"{out.view_line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
 
 
 STATUS = StatusLine()

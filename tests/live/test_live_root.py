@@ -97,3 +97,16 @@ def test_a_walk_of_port_climbs_back_up_at_most_3_times():
     assert w.calls["spiel_edge.profile.schema:load_profile"] == 1
     assert w.calls["spiel_edge.runtime.loop:live_toa_correction"] == 1
     assert w.calls["spiel_edge.runtime.loop:open_pipeline"] == 1
+
+
+def test_run_robot_says_the_foxglove_view_address(tmp_path, capsys):
+    pytest.importorskip("foxglove", reason="extra 'foxglove' not installed")
+    from spiel_edge.cli import main
+    from tests.robot.test_serve import _robot
+
+    out = tmp_path / "fused.ndjson"
+    argv = ["run", "--robot", str(_robot(tmp_path)), "--frames", "3", "-o", str(out)]
+    assert main([*argv, "--foxglove", "0"]) == 0
+    err = capsys.readouterr().err
+    assert "(layout: packaging/foxglove/spiel-edge.json)" in err, err  # as `run --foxglove`
+    assert "ws://127.0.0.1:" in err, err
