@@ -5,8 +5,8 @@ callee, is mapped to the callee's and the caller's package. A *climb back up* is
 call edge from a package of a lower layer into one of a higher layer (a callback handed down
 and called from below, e.g. the live loop calling the CLI's status line): imports cannot see
 those, tests/house/test_layers.py keeps the imports. Not counted: imports (a module's body),
-and calls into the virtual board (`sim`) on a sim:// port: it stands for the hardware across
-the link, which pyserial's URL handler plugs in. The *port walk* is the functions that are
+and calls into the virtual board (`sim`) through pyserial's URL handler or from its own code:
+it stands for the hardware across the link. The *port walk* is the functions that are
 handed the port URL itself as an argument (the rooms it stays in).
 
     python -m tests.house.call_walk run --port sim:// --frames 3 -o /dev/null
@@ -70,7 +70,7 @@ class Walk:
         name = f"{callee}:{code.co_qualname if hasattr(code, 'co_qualname') else code.co_name}"
         self.calls[name] += 1
         args = [frame.f_locals.get(v) for v in code.co_varnames[: code.co_argcount]]
-        if any(isinstance(v, str) and v == self.port for v in args):
+        if self.port and any(isinstance(v, str) and v == self.port for v in args):
             self.port_stays[name] += 1
         caller = frame.f_back
         while caller is not None and package(caller.f_globals.get("__name__")) is None:
@@ -79,12 +79,24 @@ class Walk:
             return
         cm = caller.f_globals.get("__name__")
         a = package(cm)
-        if b == "sim" and a != "sim" and self.port.startswith("sim:"):
+        if b == "sim" and a != "sim" and _the_board(callee, caller):
             return  # the virtual board: the hardware behind the link, not a layer of the host
         if RANK.get(a, 0) < RANK.get(b, 0):
             cc = caller.f_code
             cname = f"{cm}:{getattr(cc, 'co_qualname', cc.co_name)}"
             self.climbs[(cname, name)] += 1
+
+
+def _the_board(callee: str, caller) -> bool:
+    """A call into the virtual board: through pyserial's URL handler (``sim.protocol_sim``, the
+    link's far end), or made while the board's own code is on the stack (its thread)."""
+    if callee == "spiel_edge.sim.protocol_sim":
+        return True
+    while caller is not None:
+        if package(caller.f_globals.get("__name__")) == "sim":
+            return True
+        caller = caller.f_back
+    return False
 
 
 def walk(argv: list[str]) -> tuple[Walk, int]:
