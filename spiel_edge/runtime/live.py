@@ -19,6 +19,7 @@ signals, the status line, the lines on stderr and the exit status (docs/live-api
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 from collections.abc import Callable, Mapping
@@ -80,7 +81,7 @@ class LiveConfig:
 
 
 class LiveRun:
-    """One board's run: ``prepare()``, ``open(stop)``, ``run(stop)``, ``close()``.
+    """One board's run: ``prepare()``, ``open()``, ``start(stop)``, ``run(stop)``, ``close()``.
 
     ``notifier``: pinged per record and told of a kernel compile's progress (systemd's,
     service/systemd.py; readiness is the caller's to say, after ``start``); ``in_slot``: with
@@ -108,6 +109,7 @@ class LiveRun:
         self._background = None
         self._record = config.record
         self._base = None
+        self._output_options: dict = {}
 
     def prepare(self) -> None:
         """Before the board: every input and output file checked, the profile resolved, the
@@ -124,8 +126,7 @@ class LiveRun:
         plan.input_if_file(c.profile, "--profile")
         if c.slot:
             plan.input_if_file(c.slot.rpartition(":")[0], "--slot")
-        if c.output is not None:
-            self._record = check_outputs(plan, c.output, c.record)
+        self._record = check_outputs(plan, c.output, c.record)
         # a bad profile, calibration or frame option: before the board
         self._base = load_profile(c.profile)
         calibrated = apply_calibration(self._base, c.calibration) if c.calibration else None
@@ -196,7 +197,7 @@ class LiveRun:
         if c.output is None and not (c.record or c.udp or c.foxglove or c.zenoh):
             return Sink()  # a library run with no outputs: records go to on_record only
         return open_outputs(
-            c.output if c.output is not None else "-",
+            c.output,
             self._record,
             c.udp,
             c.foxglove,
@@ -220,8 +221,6 @@ class LiveRun:
     def close(self) -> None:
         """The session closed (the board's counters read first when it streamed), then the
         outputs; safe after a failed open."""
-        import contextlib
-
         if self.runner is not None and self.session is not None and self.session.stream is not None:
             self.runner.refresh_device_counters()
         if self.session is not None:
@@ -245,8 +244,8 @@ def run(
     ``in_slot``: as :class:`LiveRun` takes it."""
     live = LiveRun(config, in_slot=in_slot)
     stop = stop if stop is not None else threading.Event()
-    live.prepare()
     try:
+        live.prepare()
         live.open()
         live.start(stop)
         if on_record is not None:

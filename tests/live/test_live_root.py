@@ -110,3 +110,13 @@ def test_run_robot_says_the_foxglove_view_address(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "(layout: packaging/foxglove/spiel-edge.json)" in err, err  # as `run --foxglove`
     assert "ws://127.0.0.1:" in err, err
+
+
+def test_a_recording_without_ndjson(tmp_path, capsys):
+    records = []
+    mcap = tmp_path / "run.mcap"
+    run(
+        LiveConfig(port="sim://", frames=3, output=None, record=str(mcap)), on_record=records.append
+    )
+    assert len(records) == 3 and mcap.stat().st_size > 0
+    assert capsys.readouterr().out == ""  # a recording, and nothing on stdout
