@@ -117,17 +117,25 @@ def run_profile(
     calibration: str | Path | None = None,
     *,
     use_board: bool = True,
+    resolved: tuple[Profile, Profile] | None = None,
 ) -> tuple[Profile, str]:
     """The profile ``run`` uses and where its geometry came from. Precedence: ``calibration``
-    over the board's stored config (unless ``use_board`` is false) over ``profile_name``."""
-    profile = load_profile(profile_name)
+    over the board's stored config (unless ``use_board`` is false) over ``profile_name``.
+    ``resolved``: ``profile_name`` loaded and that with the calibration applied, when the
+    caller has them already (runtime/live.py): reused unless the board's config changes them."""
+    base, calibrated = resolved if resolved is not None else (load_profile(profile_name), None)
+    profile, board = base, None
     source = f"profile {profile.name!r}"
     if use_board:
         profile, board = _board_profile(session, profile)
         if board is not None:
             source = f"board {board!r}"
     if calibration:
-        profile = apply_calibration(profile, calibration)
+        profile = (
+            calibrated
+            if calibrated is not None and board is None
+            else apply_calibration(profile, calibration)
+        )
         source = f"calibration {str(calibration)!r} over {source}"
     log.info("geometry from %s", source)
     return profile, source

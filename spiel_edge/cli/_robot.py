@@ -13,6 +13,7 @@ import numpy as np
 
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
+from spiel_edge.cli._status_line import say_live_views
 from spiel_edge.io.guard import FilePlan
 from spiel_edge.io.shown import shorten_tokens
 from spiel_edge.outputs import check_outputs, open_outputs
@@ -102,7 +103,7 @@ def open_fused_outputs(
 ):
     """The sinks of a fused run (NDJSON, MCAP, UDP, Foxglove, Zenoh) in the robot's frame
     (``odom`` when the fusion tracks in odom); ``outputs`` from :func:`check_fused_outputs`."""
-    return open_outputs(
+    sink = open_outputs(
         outputs["output"],
         outputs["record"],
         outputs["udp"],
@@ -115,6 +116,8 @@ def open_fused_outputs(
         ros2=robot_ros2(robot, "odom" if odom else None),
         zenoh_settings=outputs.get("zenoh_settings"),
     )
+    say_live_views(sink)  # the Foxglove view's address, as `run` says it
+    return sink
 
 
 def run_robot(

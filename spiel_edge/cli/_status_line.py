@@ -48,3 +48,11 @@ class StatusLine:
     def _before_log(self, record: logging.LogRecord) -> bool:
         self.clear()
         return True
+
+
+def say_live_views(sink) -> None:
+    """Where to look, said at start without -v: the Foxglove server's address and layout
+    (`run`, `run --robot`, `fuse`)."""
+    for out in sink.parts():
+        if out.view_line:
+            click.echo(f"{out.view_line} (layout: packaging/foxglove/spiel-edge.json)", err=True)

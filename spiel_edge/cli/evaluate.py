@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -138,41 +139,50 @@ def command(
             jobs = 1
         return _evaluate(
             profile,
-            folder,
-            background,
-            association,
-            max_targets,
-            toa_correction,
-            split,
-            val_fraction,
-            exclude_z,
-            max_z,
-            as_json,
-            track,
-            jobs,
-            plot,
-            (profile_name, calibration),
+            EvaluateOptions(
+                folder=folder,
+                background=background,
+                profile_name=profile_name,
+                calibration=calibration,
+                association=association,
+                max_targets=max_targets,
+                toa_correction=toa_correction,
+                split=split,
+                val_fraction=val_fraction,
+                exclude_z=exclude_z,
+                max_z=max_z,
+                as_json=as_json,
+                track=track,
+                jobs=jobs,
+                plot=plot,
+            ),
         )
 
 
-def _evaluate(
-    profile,
-    folder,
-    background,
-    association,
-    max_targets,
-    toa_correction,
-    split,
-    val_fraction,
-    exclude_z,
-    max_z,
-    as_json,
-    track,
-    jobs,
-    plot,
-    named,
-) -> int:
-    profile_name, calibration = named
+@dataclass(frozen=True)
+class EvaluateOptions:
+    """`evaluate`'s options, as given (the profile is resolved apart)."""
+
+    folder: str
+    background: str | None
+    profile_name: str
+    calibration: str | None
+    association: str | None
+    max_targets: int | None
+    toa_correction: str | None
+    split: str
+    val_fraction: float
+    exclude_z: tuple
+    max_z: float | None
+    as_json: bool
+    track: bool
+    jobs: int | None
+    plot: str | None
+
+
+def _evaluate(profile, o: EvaluateOptions) -> int:
+    folder, background, split, track, max_z = o.folder, o.background, o.split, o.track, o.max_z
+    association, max_targets, toa_correction = o.association, o.max_targets, o.toa_correction
     pipeline = build_pipeline(profile, association, toa_correction)
     if max_targets:
         pipeline.set_max_targets(max_targets)
@@ -180,15 +190,15 @@ def _evaluate(
     if background and kind != "spiel-csv":
         raise ConfigError(f"--background is for a spiel-csv folder; {folder} is {kind}")
     if kind == "scenes":
-        return _evaluate_scene_file(pipeline, folder, as_json)
+        return _evaluate_scene_file(pipeline, folder, o.as_json)
     if kind == "labelled" and track:
         raise ConfigError("--track needs a spiel-csv folder (recordings in time order)")
     positions = None
-    skip = exclude_z or EXCLUDED_Z_MM
+    skip = o.exclude_z or EXCLUDED_Z_MM
     if kind == "labelled":
         data = load_labelled(folder, InputLimits.for_profile(pipeline.profile), exclude_z=skip)
         if split != "all":
-            train, val = split_by_position(data.names, val_fraction)
+            train, val = split_by_position(data.names, o.val_fraction)
             data = load_labelled(
                 folder,
                 InputLimits.for_profile(pipeline.profile),
@@ -198,16 +208,18 @@ def _evaluate(
         ev = evaluate_labelled(pipeline, data)
     else:
         if split != "all":
-            train, val = split_by_position([p.name for p in frame_files(folder)], val_fraction)
+            train, val = split_by_position([p.name for p in frame_files(folder)], o.val_fraction)
             positions = train if split == "train" else val
-        recipe = PipelineRecipe(profile_name, calibration, association, toa_correction, max_targets)
+        recipe = PipelineRecipe(
+            o.profile_name, o.calibration, association, toa_correction, max_targets
+        )
         ev = evaluate_folder(
             pipeline,
             folder,
             background,
             positions=positions,
             exclude_z=skip,
-            jobs=resolve_jobs(jobs),
+            jobs=resolve_jobs(o.jobs),
             recipe=recipe,
         )
     summary = {
@@ -220,17 +232,17 @@ def _evaluate(
         summary["tracked"] = evaluate_tracked(
             pipeline, folder, background, positions=positions, exclude_z=skip, max_z=max_z
         )
-    if as_json:
+    if o.as_json:
         click.echo(json.dumps(summary))
     else:
         _print_table(summary)
         print_scene_table(summary["by_targets"])
         click.echo(COLUMNS)
-    if plot and ev.by_position:
+    if o.plot and ev.by_position:
         from spiel_edge.view.evaluation import draw_error_by_position
 
-        draw_error_by_position(ev.by_position, plot)
-        click.echo(f"plot written to {plot}", err=True)
+        draw_error_by_position(ev.by_position, o.plot)
+        click.echo(f"plot written to {o.plot}", err=True)
     for message in ev.failed:
         click.echo(f"failed: {escape(message)}", err=True)
     if not sum(ev.frames.values()):  # nothing was evaluated: an error, not a result

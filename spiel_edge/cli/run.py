@@ -8,11 +8,9 @@ import threading
 
 import click
 
-from firmware_protocol import SampleFormat
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import (
     association_option,
-    board_port,
     calibration_option,
     force_option,
     max_targets_option,
@@ -21,28 +19,13 @@ from spiel_edge.cli._options import (
     realtime_option,
     toa_correction_option,
 )
-from spiel_edge.cli._ros2 import ros2_options, ros2_output_options, zenoh_settings
+from spiel_edge.cli._ros2 import ros2_options, zenoh_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
-from spiel_edge.cli._status_line import StatusLine
-from spiel_edge.device import DeviceSession
-from spiel_edge.errors import DeviceError
-from spiel_edge.io.guard import FilePlan
+from spiel_edge.cli._status_line import StatusLine, say_live_views
 from spiel_edge.io.shown import escape, shorten_tokens
-from spiel_edge.outputs import check_outputs, open_outputs
-from spiel_edge.outputs.fanout import check_output_key
-from spiel_edge.profile.schema import resolve_profile
-from spiel_edge.robot.slotted_stream import slot_keeper_of, start_in_slot
-from spiel_edge.runtime.loop import (
-    LiveRunner,
-    check_stream_shape,
-    live_toa_correction,
-    load_background,
-    open_pipeline,
-)
-from spiel_edge.runtime.realtime import apply_realtime
-from spiel_edge.runtime.replay import chosen_toa_correction
-from spiel_edge.runtime.tiered import start_tiered
-from spiel_edge.runtime.tracking import ResultTracker
+from spiel_edge.robot.slotted_stream import slot_starter
+from spiel_edge.runtime.live import LiveConfig, LiveRun
+from spiel_edge.runtime.loop import LiveRunner
 from spiel_edge.service.systemd import Notifier
 
 
@@ -217,99 +200,65 @@ def command(
         )
     if odom_key:
         raise click.UsageError("--odom goes with --robot (one board tracks in its own frame)")
-    keeper = slot_keeper_of(slot) if slot else None  # the robot file: before the board
+    in_slot = slot_starter(slot) if slot else None  # the robot file: before the board
     source = click.get_current_context().get_parameter_source("rate")
-    if keeper is not None and source == click.core.ParameterSource.COMMANDLINE:
+    if in_slot is not None and source == click.core.ParameterSource.COMMANDLINE:
         raise click.UsageError("--rate with --slot: the slot's rate is the robot file's period")
-    plan = FilePlan(force)  # every file checked before the board is touched
-    for path, option in ((background, "--background"), (calibration, "--calibration")):
-        if path:
-            plan.input_file(path, option)
-    plan.input_if_file(profile_name, "--profile")
-    if slot:
-        plan.input_if_file(slot.rpartition(":")[0], "--slot")
-    record = check_outputs(plan, output, record)
-    # a bad profile, calibration or frame option: before the board
-    chosen = resolve_profile(profile_name, calibration)
-    ros2_kwargs = ros2_output_options(ros2, chosen)
-    if zenoh is not None:
-        check_output_key(zenoh, ros2["zenoh_encoding"])
-    fixed_background = load_background(background) if background else None
-    port = board_port(port)
-    toa_correction = live_toa_correction(port, toa_correction)
-    # kernels missing from every cache: the interpreted ones run while a background process
-    # compiles them (said at once, with progress), before the board is opened
+    config = LiveConfig(
+        port=port or None,
+        frames=frames,
+        profile=profile_name,
+        calibration=calibration,
+        use_board=use_board,
+        association=association,
+        max_targets=max_targets,
+        toa_correction=toa_correction,
+        rate=rate,
+        background=background,
+        reconnect_timeout=reconnect_timeout,
+        track=track,
+        samples=samples,
+        slot=slot,
+        realtime=realtime,
+        output=output,
+        record=record,
+        udp=udp,
+        foxglove=foxglove,
+        zenoh=zenoh,
+        force=force,
+        ros2=ros2,
+    )
     notifier = Notifier()
-    tiers = start_tiered(chosen, association, max_targets, track, toa_correction, notifier=notifier)
-    apply_realtime(realtime)  # compiled: the link's and the outputs' threads inherit it
+    live = LiveRun(config, notifier=notifier, in_slot=in_slot)
+    live.prepare()  # every file, the profile, the ToA correction, the kernels: before the board
+    port, tiers, session = live.port, live.tiers, live.session
     if show_status is None:
         show_status = sys.stderr.isatty()
-    session = DeviceSession(port, reconnect_timeout_s=reconnect_timeout)
-    runner: LiveRunner | None = None
-    sink = None
     stop = threading.Event()
     finalizers = Finalizers()
     if tiers is not None:  # a signal stops the background compile; a normal end leaves it
         finalizers.add(lambda: _say(tiers.close(stop_compile=stop.is_set())))
     with stop_on_signals(stop, finalizers):
         try:
-            pipeline, source = open_pipeline(
-                session,
-                profile_name,
-                calibration,
-                association,
-                use_board=use_board,
-                toa_correction=toa_correction,
-            )
-            if max_targets:
-                pipeline.set_max_targets(max_targets)
-            profile = pipeline.profile
-            sink = open_outputs(
-                output,
-                record,
-                udp,
-                foxglove,
-                zenoh,
-                receivers_mm=profile.geometry.channels_mm,
-                metadata={
-                    "port": port,
-                    "profile": profile.name,
-                    "geometry": source,
-                    **chosen_toa_correction(toa_correction),
-                },
-                force=force,
-                **ros2_kwargs,
-            )
-            finalizers.add(sink.close_files)
-            _say_live_views(sink)
-            tracker = ResultTracker(profile.track, profile.scene) if track else None
-            runner = LiveRunner(
-                session, pipeline, sink, background=fixed_background, tracker=tracker
-            )
-            runner.tiers = tiers
-            runner.on_record = notifier.ping
+            live.open()
+            finalizers.add(live.sink.close_files)
+            say_live_views(live.sink)
             session.on_waiting = lambda waited: _still_waiting(notifier, port, waited)
-            stream = dict(
-                n_samples=profile.acquisition.n_samples,
-                sample_format=SampleFormat.I16_IQ if samples == "iq" else SampleFormat.U16_ENVELOPE,
-            )
-            if keeper is None:
-                session.start_stream(rate_hz=rate, **stream)
-            else:
-                slotted = start_in_slot(session, keeper, stop, stream)
-                runner.on_acquisition = slotted.on_acquisition
+            live.start(stop)
+            if live.slotted is not None:
+                slotted = live.slotted
                 finalizers.add(lambda: click.echo(shorten_tokens(slotted.summary()), err=True))
-            check_stream_shape(session, pipeline)
             notifier.ready(f"streaming from {port}")
-            runner.run(stop, frames=frames, status=_reporter(show_status, notifier))
+            live.run(stop, status=_reporter(show_status, notifier))
         except BrokenPipeError:  # the reader of stdout went away (| head): a normal end
             sys.stdout = None  # type: ignore[assignment]  # nothing more can be flushed there
         finally:
             notifier.stopping()
             finalizers.run_all()  # the files first: closing the session can take a while
-            _close(runner, session, sink, show_status)
+            _close(live, show_status)
     if tiers is not None:  # the dispatchers back, once nothing runs (a run in-process)
         tiers.leave()
+    sink, runner = live.sink, live.runner
     failed = sink is not None and sink.failed
     if failed:
         click.echo(f"outputs that failed: {escape('; '.join(sink.failed))}", err=True)
@@ -325,13 +274,6 @@ def _say(line: str | None) -> None:
 def _still_waiting(notifier: Notifier, port: str, waited: float) -> None:
     notifier.ping()
     notifier.status(f"waiting {waited:.0f} s for the board at {port} to come back")
-
-
-def _say_live_views(sink) -> None:
-    """Where to look, said at start without -v: the Foxglove server's address and layout."""
-    for out in sink.parts():
-        if out.view_line:
-            click.echo(f"{out.view_line} (layout: packaging/foxglove/spiel-edge.json)", err=True)
 
 
 STATUS = StatusLine()
@@ -350,15 +292,10 @@ def _reporter(show_status: bool, notifier: Notifier):
     return report
 
 
-def _close(runner: LiveRunner | None, session: DeviceSession, sink, show_status: bool) -> None:
-    streamed = session.stream is not None  # a stream was started: its summary says how it went
-    if runner is not None and streamed:
-        runner.refresh_device_counters()
-    with contextlib.suppress(DeviceError):
-        session.close()
-    if sink is not None:
-        with contextlib.suppress(BrokenPipeError, ValueError):
-            sink.close()
+def _close(live: LiveRun, show_status: bool) -> None:
+    runner = live.runner
+    streamed = live.session.stream is not None  # a stream was started: its summary says how
+    live.close()  # the board's counters, the session, then the outputs
     with contextlib.suppress(OSError):  # stderr may be a terminal that hung up
         if show_status:
             STATUS.close()

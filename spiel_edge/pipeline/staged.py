@@ -140,6 +140,7 @@ def front_stages(p: Profile, frames, background, clock) -> tuple:
         min_amplitude=d.min_amplitude,
         max_echoes=d.max_echoes,
         first_sample=p.preprocess.blind_zone_samples,
+        checked=True,  # preprocess validated the acquisition: once, not in every stage
     )
     t2 = clock()
     m = p.memg
@@ -151,6 +152,7 @@ def front_stages(p: Profile, frames, background, clock) -> tuple:
         max_iterations=m.max_iterations,
         window_before=m.window_before,
         window_after=m.window_after,
+        checked=True,
     )
     if m.split_merged:
         peaks, counts, params = split_merged(
@@ -162,9 +164,10 @@ def front_stages(p: Profile, frames, background, clock) -> tuple:
             max_cost_ratio=m.split_max_cost_ratio,
             mu_window=m.mu_window,
             max_iterations=m.max_iterations,
+            checked=True,
         )
     t3 = clock()
-    feats = echo_features(y, params, peaks, m.toa)
+    feats = echo_features(y, params, peaks, m.toa, checked=True)
     return feats, counts, (t1, t2, t3, clock()), y
 
 

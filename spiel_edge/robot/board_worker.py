@@ -31,6 +31,7 @@ from spiel_edge.robot.description import BoardSpec
 from spiel_edge.robot.fusion import BoardReport, reports_targets
 from spiel_edge.robot.schedule import Schedule
 from spiel_edge.robot.slot_keeper import SlotPhase, StartAtTrust
+from spiel_edge.robot.slotted_stream import start_in_time
 
 log = logging.getLogger(__name__)
 
@@ -132,9 +133,9 @@ class BoardWorker(threading.Thread):
             self.association,
             use_board=b.calibration is None,
             toa_correction=self.toa_correction,
+            max_targets=self.max_targets,
+            chosen=True,  # robot/serve.py chose it, once per board
         )
-        if self.max_targets:
-            pipeline.set_max_targets(self.max_targets)
         self.pipeline = pipeline
 
     def _start_in_slot(self) -> None:
@@ -150,20 +151,22 @@ class BoardWorker(threading.Thread):
         n_samples = self.pipeline.profile.acquisition.n_samples
         period = sched.period_s / (1.0 + self.clock.drift) if self.clock.ready else sched.period_s
         unix_at = at + unix_minus_perf_s()
-        timed = None
-        if self.trust.usable:
-            timed = self.session.start_stream_at(unix_at, rate_hz=1.0 / period, n_samples=n_samples)
-        self.on_its_clock = timed is not None
-        self._named = (at, period) if timed is not None else None
-        host_timed = timed is None
-        if host_timed:  # sent lead_s early: how late the earlier such starts landed
+
+        def by_host() -> bool:  # sent lead_s early: how late the earlier such starts landed
             lead = self.phase.lead_s
-            at = self.schedule.next_fire(
+            fire = self.schedule.next_fire(
                 self.board.name, self.t0, max(at, time.perf_counter() + lead)
             )
-            if not wait_until(at - lead, self.stop):
-                return
-            timed = self.session.start_stream(rate_hz=1.0 / period, n_samples=n_samples)
+            return wait_until(fire - lead, self.stop)
+
+        timed, named = start_in_time(
+            self.session, self.trust, unix_at, 1.0 / period, by_host, n_samples=n_samples
+        )
+        self.on_its_clock = named
+        self._named = (at, period) if named else None
+        host_timed = not named
+        if timed is None:  # stopping
+            return
         self._timed = timed
         self._host_timed = host_timed
         self.phase.started(self.synced, host_timed)
@@ -263,9 +266,3 @@ class BoardWorker(threading.Thread):
         measured it (the reported time is then the measured one: SlotPhase)."""
         us = getattr(acq, "stamp_uncertainty_us", None)
         return us * 1e-6 if self.synced and us is not None else None
-
-
-def toa_of(port: str, requested: str | None) -> str | None:
-    from spiel_edge.runtime.loop import live_toa_correction
-
-    return live_toa_correction(port, requested)

@@ -30,6 +30,7 @@ BLOCKS = 64  # lower-envelope points in the fit
 MIN_DRIFT_SPAN_S = 10.0  # the drift is fitted once the minima span this long (else 0)
 MAX_DRIFT = 1e-3  # a crystal drifts by ppm, never by 0.1 %
 MAX_DISAGREEMENT_S = 1.0  # a mapped time this far from arrival: the clock is not believable
+MAX_BACKLOG_S = 10.0  # a record older than this on arrival is refused, not waited for (fuse)
 DISAGREE_LIMIT = 3  # times in a row from the future: the clocks disagree
 BEHIND_FOR_S = 5.0  # times this long all seconds in the past: the clocks disagree
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from spiel_edge.errors import ConfigError, InputError
 from spiel_edge.robot import record_check
-from spiel_edge.robot.clock import MAX_DISAGREEMENT_S, Disagreement, StampClock
+from spiel_edge.robot.clock import MAX_BACKLOG_S, MAX_DISAGREEMENT_S, Disagreement, StampClock
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
 from spiel_edge.robot.fusion import BoardReport, Fuser, stamp_latency
@@ -39,7 +39,6 @@ from spiel_edge.robot.record_check import Refused
 log = logging.getLogger(__name__)
 
 MAX_RECORD_BYTES = record_check.MAX_RECORD_BYTES
-MAX_BACKLOG_S = 10.0  # a record older than this on arrival is refused, not waited for
 BAD_RECORDS_LIMIT = 20  # this many of its own bad records in a row: the board is reported dropped
 RESET_AGREE = 4  # stamps off a board's clock, agreeing with each other: it restarted
 NOT_THE_BOARDS = ("forged", "replayed")  # refused: not the board's own messages

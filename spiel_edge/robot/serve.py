@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from spiel_edge.errors import SpielError
-from spiel_edge.robot.board_worker import BoardWorker, toa_of
+from spiel_edge.robot.board_worker import BoardWorker
 from spiel_edge.robot.clock import unix_minus_perf_s
 from spiel_edge.robot.coast import CoastPolicy
 from spiel_edge.robot.description import RobotSpec
@@ -63,6 +63,8 @@ class RobotRunner:
         self.stop = threading.Event()
         self.queue: queue.Queue = queue.Queue(maxsize=1024)
         self.t0 = 0.0  # slots count from here: set once every board is open
+        from spiel_edge.runtime.loop import live_toa_correction  # chosen once per board
+
         self.workers = [
             BoardWorker(
                 b,
@@ -72,7 +74,7 @@ class RobotRunner:
                 self.stop,
                 association=association,
                 max_targets=max_targets,
-                toa_correction=toa_of(b.port, toa_correction),
+                toa_correction=live_toa_correction(b.port, toa_correction),
                 reconnect_timeout=reconnect_timeout,
             )
             for b in robot.boards

@@ -36,18 +36,18 @@ class SlottedStream:
         board's clock where it offers that (START_AT, through TIME_SYNC), else by sending
         STREAM_START at that moment."""
         at = self.keeper.start_time(time.time())
-        answer = None
-        if self.trust.usable:
-            answer = self.session.start_stream_at(
-                at, rate_hz=self.keeper.rate_hz, **self.start_options
-            )
-        self.on_clock_of_board = answer is not None
-        self._named = at if answer is not None else None
-        if answer is None:  # sent at the slot's moment instead
+
+        def by_host() -> bool:  # sent at the slot's moment instead
             _sleep_until_unix(self.keeper.start_time(time.time()), self.stop)
-            if self.stop.is_set():  # stopping: no new stream
-                return None
-            answer = self.session.start_stream(rate_hz=self.keeper.rate_hz, **self.start_options)
+            return not self.stop.is_set()  # stopping: no new stream
+
+        answer, named = start_in_time(
+            self.session, self.trust, at, self.keeper.rate_hz, by_host, **self.start_options
+        )
+        self.on_clock_of_board = named
+        self._named = at if named else None
+        if answer is None:
+            return None
         self.keeper.started()
         self._stream = answer
         return answer
@@ -94,6 +94,21 @@ class SlottedStream:
         )
 
 
+def start_in_time(session, trust: StartAtTrust, unix_at: float, rate_hz: float, by_host, **options):
+    """The one slot starter of `run --slot` and `run --robot` (robot/board_worker.py): the
+    stream named to start at ``unix_at`` in the board's clock (START_AT, TIME_SYNC synced) while
+    ``trust`` says the board keeps such times, else sent by the host once ``by_host()`` has
+    waited for the moment (False: stopping, no start). (the stream's answer or None, whether
+    it was named in the board's clock)."""
+    if trust.usable:
+        answer = session.start_stream_at(unix_at, rate_hz=rate_hz, **options)
+        if answer is not None:
+            return answer, True
+    if not by_host():
+        return None, False
+    return session.start_stream(rate_hz=rate_hz, **options), False
+
+
 def _sleep_until_unix(at: float, stop: threading.Event) -> None:
     """Sleep until the Unix clock reads ``at`` (spinning the last 2 ms)."""
     while not stop.is_set():
@@ -134,3 +149,16 @@ def start_in_slot(
     slotted = SlottedStream(session, keeper, stop, **stream)
     slotted.start()
     return slotted
+
+
+def slot_starter(slot: str):
+    """``--slot ROBOT:BOARD``'s starter for runtime/live.py's LiveRun (its ``in_slot``): the
+    robot file read now (ConfigError naming what is wrong), the stream started in the slot
+    when the board is open."""
+    keeper = slot_keeper_of(slot)
+
+    def in_slot(session, stop: threading.Event, stream: dict) -> SlottedStream:
+        return start_in_slot(session, keeper, stop, stream)
+
+    in_slot.keeper = keeper  # type: ignore[attr-defined]
+    return in_slot

@@ -117,15 +117,25 @@ def open_pipeline(
     *,
     use_board: bool = True,
     toa_correction: str | None = None,
+    max_targets: int | None = None,
+    chosen: bool = False,
+    resolved=None,
 ) -> tuple[Pipeline, str]:
     """Open ``session``, choose the profile (``calibration`` > the board's stored config, unless
-    ``use_board`` is false > ``profile_name``), build the pipeline and warm it up. Returns the
-    pipeline and where its geometry came from; closing the session is the caller's.
-    ``toa_correction``: as :func:`live_toa_correction` chooses."""
-    toa_correction = live_toa_correction(session.url, toa_correction)
+    ``use_board`` is false > ``profile_name``), build the pipeline (up to ``max_targets``
+    targets) and warm it up. Returns the pipeline and where its geometry came from; closing
+    the session is the caller's. ``toa_correction``: as :func:`live_toa_correction` chooses,
+    or as given when the caller chose it already (``chosen``); ``resolved``: the profile and
+    the calibrated one when the caller loaded them (board/flash.run_profile)."""
+    if not chosen:
+        toa_correction = live_toa_correction(session.url, toa_correction)
     session.open()
-    profile, source = run_profile(session, profile_name, calibration, use_board=use_board)
+    profile, source = run_profile(
+        session, profile_name, calibration, use_board=use_board, resolved=resolved
+    )
     pipeline = build_pipeline(profile, association, toa_correction)
+    if max_targets:
+        pipeline.set_max_targets(max_targets)
     warm_up(pipeline)
     return pipeline, source
 

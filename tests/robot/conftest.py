@@ -42,10 +42,11 @@ def write_robot(tmp_path):
 def zenoh_output_settings(monkeypatch) -> list:
     """The ZenohSettings each --zenoh output is opened with (no session is opened)."""
     from spiel_edge.outputs import fanout
+    from spiel_edge.outputs.sink import Sink as Contract
 
     seen: list = []
 
-    class Sink:
+    class Sink(Contract):  # the contract's defaults (no view line: `run --robot` asks)
         def write(self, record):
             pass
 

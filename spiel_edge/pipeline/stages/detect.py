@@ -22,13 +22,16 @@ def detect(
     min_amplitude: float = 0.0,
     max_echoes: int = 6,
     first_sample: int = 0,
+    checked: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return ``(peaks, counts)``: per channel up to ``max_echoes`` peak sample indices
     (int64, ascending, padded with -1) of the strongest echoes, and how many there are.
 
     Rises before ``first_sample`` are ignored: the edge of a blanked blind zone is no echo.
+    ``checked``: ``envelope`` is :func:`preprocess`'s output, validated there (a pipeline
+    validates an acquisition once, pipeline/staged.py).
     """
-    y = as_frames(envelope, "envelope")
+    y = envelope if checked else as_frames(envelope, "envelope")
     if threshold <= 0 or not 0.0 <= hysteresis <= 1.0 or max_echoes < 1:
         raise InputError("detect needs threshold > 0, hysteresis in [0, 1] and max_echoes >= 1")
     peaks = np.full((y.shape[0], max_echoes), -1, dtype=np.int64)

@@ -33,11 +33,18 @@ TOA_COLUMN = FEATURE_NAMES.index("toa")
 
 
 def echo_features(
-    envelope: np.ndarray, params: np.ndarray, peaks: np.ndarray, toa: str = "mode"
+    envelope: np.ndarray,
+    params: np.ndarray,
+    peaks: np.ndarray,
+    toa: str = "mode",
+    *,
+    checked: bool = False,
 ) -> np.ndarray:
     """Return features (channels, max_echoes, 8), NaN where there is no echo; each channel's
-    echoes ordered by ToA (fitted modes of overlapping echoes can swap their detection order)."""
-    y = as_frames(envelope, "envelope")
+    echoes ordered by ToA (fitted modes of overlapping echoes can swap their detection order).
+    ``checked``: ``envelope`` is :func:`preprocess`'s output, validated there (a pipeline
+    validates an acquisition once, pipeline/staged.py)."""
+    y = envelope if checked else as_frames(envelope, "envelope")
     params = np.ascontiguousarray(params, dtype=np.float64)
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     if (

@@ -38,13 +38,16 @@ def fit_memg(
     max_iterations: int = 30,
     window_before: int = WINDOW_BEFORE,
     window_after: int = WINDOW_AFTER,
+    checked: bool = False,
 ) -> np.ndarray:
     """Return MEMG parameters (channels, max_echoes, 4) as [alpha, mu, sigma, eta] per echo
     (NaN where there is no echo), from the outputs of :func:`detect`. Each echo (or cluster)
     is fitted from ``window_before`` samples before its detection to ``window_after`` after
     (the profile's ``[memg]``): the default 5/6 runs in one compiled call, any other window
-    cluster by cluster (:func:`_fit_windowed`, the same compiled fit per cluster)."""
-    y = as_frames(envelope, "envelope")
+    cluster by cluster (:func:`_fit_windowed`, the same compiled fit per cluster).
+    ``checked``: ``envelope`` is :func:`preprocess`'s output, validated there (a pipeline
+    validates an acquisition once, pipeline/staged.py)."""
+    y = envelope if checked else as_frames(envelope, "envelope")
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     counts = np.ascontiguousarray(counts, dtype=np.int64)
     if peaks.ndim != 2 or peaks.shape[0] != y.shape[0] or counts.shape != (y.shape[0],):

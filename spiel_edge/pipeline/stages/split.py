@@ -44,12 +44,15 @@ def split_merged(
     max_cost_ratio: float,
     mu_window: float = 3.0,
     max_iterations: int = 30,
+    checked: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return new ``(peaks, counts, params)`` with merged echoes split in two (the inputs are
     the outputs of :func:`detect` and :func:`fit_memg`; they are not modified). A split
     echo's two peaks are its start samples, detection -/+ SPLIT_OFFSET; the new one is
-    inserted in time order."""
-    y = as_frames(envelope, "envelope")
+    inserted in time order.
+    ``checked``: ``envelope`` is :func:`preprocess`'s output, validated there (a pipeline
+    validates an acquisition once, pipeline/staged.py)."""
+    y = envelope if checked else as_frames(envelope, "envelope")
     peaks = np.array(peaks, dtype=np.int64)
     counts = np.array(counts, dtype=np.int64)
     params = np.array(params, dtype=np.float64)
