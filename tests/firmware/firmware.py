@@ -83,6 +83,14 @@ def build_driver(out_dir: Path, **defines) -> Path:
     return build / "core_driver"
 
 
+def build_test_driver(out_dir: Path, source: Path, with_: str) -> Path:
+    """A test's own C driver (main() in ``source``) linked with the frame layer (``"proto"``) or
+    the vendored Ed25519 verifier (``"ed25519"``): ``make TARGET=driver WITH=...``."""
+    build = Path(out_dir) / f"{Path(source).stem}_{with_}"
+    make(build, "driver", {}, None, f"DRIVER={Path(source).resolve()}", f"WITH={with_}")
+    return build / Path(source).stem
+
+
 class PosixBoard:
     """``with PosixBoard(exe, scans, flash) as board: board.port`` -> the pty path."""
 

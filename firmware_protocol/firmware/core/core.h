@@ -34,11 +34,13 @@ void cfg_settings(hal_settings_t *out);
 
 /* ---- the units and their order -------------------------------------------------------------
  * Each unit calls only units below it, never one above (no call circle):
- *   device.c       the protocol engine: the link, the request table, the stream (top)
- *   telemetry.c    TIME_SYNC, TELEMETRY, the HEARTBEAT and LOG frames
- *   update.c       the firmware update FW_* and a trial's self-test and watchdog
- *   boot.c, verify.c, sha256.c, config_store.c   flash areas, images, digests
- *   link.c         the state they share (bottom) */
+ *   device.c                  the protocol engine: the link, the request table, the stream (top)
+ *   telemetry.c, update.c     TIME_SYNC, TELEMETRY, HEARTBEAT, LOG | FW_*, a trial's self-test
+ *   boot.c                    the boot record, image checks, the boot choice and install
+ *   verify.c                  an image's signature and security counter
+ *   config_store.c, sha256.c  the config slots | SHA-256
+ *   link.c                    the state they share (bottom)
+ * tests/firmware/test_core_layers.py holds them to this order. */
 
 /* link.c: the shared state. */
 #define SPIEL_LOG_QUEUE 8u
@@ -143,8 +145,6 @@ uint32_t image_trailer_size(const sp_image_header_t *h);
  * _FLASH_VERIFY_FAILED) with *why a short reason. Call after image_check() passed (it matches
  * the body to the signed header). *counter: the image's counter, when the signature verifies. */
 uint16_t image_auth(int slot, uint32_t min_counter, uint32_t *counter, const char **why);
-/* 1: the slot may be started (image_check() and image_auth() pass with this floor). */
-int image_bootable(int slot, uint32_t floor);
 /* The floor a confirmation of the slot's image leaves: max(floor, its header's counter). */
 uint32_t image_counter_floor(int slot, uint32_t floor);
 #endif
