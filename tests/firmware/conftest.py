@@ -27,7 +27,7 @@ def posix_exe(fw_build) -> Path:
 
 @pytest.fixture(scope="session")
 def driver_exe(fw_build) -> Path:
-    return build_driver(fw_build, SPIEL_MAX_PAYLOAD=8256)
+    return build_driver(fw_build, SPIEL_MAX_PAYLOAD=8256, SPIEL_FW_UPDATE=1)
 
 
 @pytest.fixture(scope="session")
