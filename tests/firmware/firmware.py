@@ -28,8 +28,11 @@ DRIVER = Path(__file__).with_name("core_driver.c")
 VENDOR = FIRMWARE / "vendor" / "monocypher"
 DEV_PUB = FIRMWARE / "keys" / "dev.pub"  # the key boards built here trust (FW_KEY)
 # the defines the Makefile has a switch for (make VAR=0|1); any other goes in CFLAGS_EXTRA
-SWITCHES = {"SPIEL_FW_UPDATE": "FW_UPDATE", "SPIEL_FW_EXEC_COPY": "FW_EXEC_COPY",
-            "SPIEL_IQ_SAMPLES": "IQ_SAMPLES"}
+SWITCHES = {
+    "SPIEL_FW_UPDATE": "FW_UPDATE",
+    "SPIEL_FW_EXEC_COPY": "FW_EXEC_COPY",
+    "SPIEL_IQ_SAMPLES": "IQ_SAMPLES",
+}
 
 
 def compiler() -> str:
@@ -48,8 +51,18 @@ def make(build: Path, target: str, defines: dict, key: Path | None = None, *extr
     cflags = " ".join(f"-D{k}={v}" for k, v in sorted(defines.items()) if k not in SWITCHES)
     if os.environ.get("SPIEL_FW_SANITIZE") == "1":
         args.append("SANITIZE=1")
-    cmd = ["make", "-s", "-C", str(FIRMWARE), f"TARGET={target}", f"BUILD={build}",
-           f"CC={compiler()}", f"FW_KEY={(key or DEV_PUB).resolve()}", *args, *extra]
+    cmd = [
+        "make",
+        "-s",
+        "-C",
+        str(FIRMWARE),
+        f"TARGET={target}",
+        f"BUILD={build}",
+        f"CC={compiler()}",
+        f"FW_KEY={(key or DEV_PUB).resolve()}",
+        *args,
+        *extra,
+    ]
     if cflags:
         cmd.append(f"CFLAGS_EXTRA={cflags}")
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)

@@ -49,7 +49,8 @@ def uses() -> dict[str, set[str]]:
     for path in (FIRMWARE / "core").glob("*.c"):
         code = _code(path)
         found[path.name] = {
-            unit for name, unit in owner.items()
+            unit
+            for name, unit in owner.items()
             if unit != path.name and re.search(rf"\b{name}\b", code)
         }
     return found
@@ -113,12 +114,27 @@ def test_the_boot_header_stands_alone(tmp_path, update):
         '#include "spiel_boot.h"\n'
         "int boot_stage(void);\n"
         "int boot_stage(void)\n{\n"
-        + ("    return boot_start(SPIEL_FW_WATCHDOG_MS) + boot_is_trial(0) +"
-           " image_check(0, 0, 0, 0);\n" if update else "    return (int)SPIEL_FW_WATCHDOG_MS;\n")
+        + (
+            "    return boot_start(SPIEL_FW_WATCHDOG_MS) + boot_is_trial(0) +"
+            " image_check(0, 0, 0, 0);\n"
+            if update
+            else "    return (int)SPIEL_FW_WATCHDOG_MS;\n"
+        )
         + "}\n"
     )
-    cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wmissing-prototypes",
-           "-fsyntax-only", f"-DSPIEL_FW_UPDATE={update}", f"-I{FIRMWARE / 'include'}",
-           f"-I{PROTO}", str(src)]
+    cmd = [
+        cc,
+        "-std=c99",
+        "-Wall",
+        "-Wextra",
+        "-Werror",
+        "-pedantic",
+        "-Wmissing-prototypes",
+        "-fsyntax-only",
+        f"-DSPIEL_FW_UPDATE={update}",
+        f"-I{FIRMWARE / 'include'}",
+        f"-I{PROTO}",
+        str(src),
+    ]
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr

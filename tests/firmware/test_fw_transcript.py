@@ -48,7 +48,10 @@ IGNORED = {
     m.TimeSyncResponse: ("board_time_us", "boot_id"),
     # what the slots hold: the virtual board boots a factory image in slot 0, the driver's
     # slots start erased; the target name is each board's own
-    m.FwInfo: ("target", *(f"slot{i}_{k}" for i in (0, 1) for k in ("state", "version", "size", "crc"))),
+    m.FwInfo: (
+        "target",
+        *(f"slot{i}_{k}" for i in (0, 1) for k in ("state", "version", "size", "crc")),
+    ),
 }
 
 

@@ -30,8 +30,17 @@ def build(cc: str, exe: Path) -> subprocess.CompletedProcess:
     makefile = c_dir().parent / "firmware" / "Makefile"
     if makefile.is_file() and shutil.which("make"):
         build_dir = exe.parent / "build"
-        cmd = ["make", "-s", "-C", str(makefile.parent), "TARGET=driver", "WITH=proto",
-               f"BUILD={build_dir}", f"CC={cc}", f"DRIVER={DRIVER.resolve()}"]
+        cmd = [
+            "make",
+            "-s",
+            "-C",
+            str(makefile.parent),
+            "TARGET=driver",
+            "WITH=proto",
+            f"BUILD={build_dir}",
+            f"CC={cc}",
+            f"DRIVER={DRIVER.resolve()}",
+        ]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode == 0:
             shutil.copyfile(build_dir / DRIVER.stem, exe)
