@@ -1,8 +1,9 @@
 """The C core's scope, frozen (docs/reference-board.md): the virtual board in Python is the
-executable specification, and the C core answers exactly the requests PROTOCOL.md section 6
-lists, each under the protocol version the list gives it; the transcript test
-(test_fw_transcript.py) sends every one of them to both boards, and test_vectors.json holds a
-vector of each. A new request type must be added to all four, or this test fails."""
+executable specification, and the C core answers exactly the requests of PROTOCOL.md 12.1's
+list, each under the protocol version the list gives it; every one of them is a request of
+section 6's table, the transcript test (test_fw_transcript.py) sends each to both boards and
+test_vectors.json holds a vector of each. A request added to the C core without the list (or
+the list without the transcript) fails here."""
 
 from __future__ import annotations
 
@@ -53,15 +54,31 @@ def c_request_table(device_c: str) -> dict[str, tuple[int, int]]:
     return {name: (codes[name], int(version)) for name, version, _, _ in rows}
 
 
+def scope_list(text: str) -> dict[str, int]:
+    """PROTOCOL.md 12.1's table: NAME -> the version it is listed under."""
+    part = text.split("<!-- c-reference-scope:", 1)[1].split("\n\n", 1)[0]
+    return {
+        name.strip(): int(version)
+        for version, names in re.findall(r"^\| (\d) \| ([A-Z_, ]+) \|$", part, re.M)
+        for name in names.split(",")
+    }
+
+
 def listed() -> dict[str, tuple[int, int]]:
-    return protocol_requests((ROOT / "firmware_protocol" / "PROTOCOL.md").read_text())
+    """The frozen scope: NAME -> (msg_type, version), from PROTOCOL.md 12.1 and section 6."""
+    text = (ROOT / "firmware_protocol" / "PROTOCOL.md").read_text()
+    requests = protocol_requests(text)
+    return {name: (requests[name][0], version) for name, version in scope_list(text).items()}
 
 
-def test_the_list_is_the_protocols_requests():
-    requests = listed()
-    assert len(requests) == 19
-    assert requests["HELLO"] == (0x0001, 1) and requests["FW_CONFIRM"] == (0x0045, 2)
+def test_the_scope_is_requests_of_the_protocol_under_their_versions():
+    text = (ROOT / "firmware_protocol" / "PROTOCOL.md").read_text()
+    requests, scope = protocol_requests(text), scope_list(text)
+    assert len(requests) == 19 and len(scope) == 19
     assert "HEARTBEAT" not in requests and "STREAM_DATA" not in requests
+    for name, version in scope.items():
+        assert name in requests, f"{name}: not a request of PROTOCOL.md section 6"
+        assert requests[name][1] == version, f"{name}: section 6 gives another version"
 
 
 def test_the_c_cores_request_table_is_the_protocols_list():
