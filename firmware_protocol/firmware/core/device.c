@@ -657,8 +657,10 @@ static result_t own_request(const sp_frame_t *f)
         return do_config_write(p, len);
     case SP_MSG_CONFIG_COMMIT:
         return do_config_commit(p, len);
-    default:
+    case SP_MSG_CONFIG_STATUS:
         return do_config_status();
+    default: /* a row of the table without its handler: refused, never another's answer */
+        return fail(SP_ERR_UNSUPPORTED, f->header.msg_type, "unknown message type");
     }
 }
 
