@@ -108,6 +108,18 @@ def test_every_listed_request_has_a_test_vector():
     assert {code for code, _ in listed().values()} <= requests
 
 
+def test_the_virtual_boards_request_table_holds_the_list():
+    """The specification's table (sim/board.py REQUESTS) holds every row of the C core's, under
+    the same version: one shape on both sides. It may hold more (a request newer than the
+    frozen scope lives in the virtual board first)."""
+    from spiel_edge.sim.board import REQUESTS
+
+    table = {cls.MSG_TYPE: version for cls, (_, version) in REQUESTS.items()}
+    assert {code: table.get(code) for code, _ in listed().values()} == dict(listed().values())
+    for cls, (name, _) in REQUESTS.items():
+        assert callable(getattr(VirtualBoard, name, None)), (cls.__name__, name)
+
+
 def _answer(board: VirtualBoard, msg_type: int, seq: int) -> object:
     out = board.receive(encode_frame(msg_type, b"", seq=seq), 1.0)
     frames = [f for o in out for f in FrameDecoder().feed(o.wire) if f.seq == seq]
