@@ -1,6 +1,6 @@
 """Fixtures of the C reference firmware tests: builds (once per session), the scans file of
 the vendored recordings, and a posix board on a pty. These tests always run: they need only
-the system C compiler (no dataset, no Debian package)."""
+the system C compiler and make (no dataset, no other Debian package)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 the cryptography package, the build's key (FW_KEY, RELEASE=1 refusing the development key),
 the boot stage starting only a signed slot, FW_VERIFY refusing every forged, tampered, unsigned
 or downgraded image with its code, and a power cut during the security counter's update.
-Always runs (needs only the system C compiler)."""
+Always runs (needs only the system C compiler and make)."""
 
 from __future__ import annotations
 
