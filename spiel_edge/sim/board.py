@@ -92,6 +92,32 @@ class BoardStats:
         self.executed[msg_type] = self.executed.get(msg_type, 0) + 1
 
 
+# The request table: every request this board answers, its handler and the lowest protocol
+# version it is answered under (version 2: board_v2.py). The C core's table (firmware/core/
+# device.c, requests[]) has the same rows: tests/firmware/test_core_scope.py.
+REQUESTS: dict[type, tuple[str, int]] = {
+    Hello: ("_hello", 1),
+    m.DeviceInfoRequest: ("_device_info", 1),
+    Ping: ("_ping", 1),
+    m.Reboot: ("_reboot", 1),
+    StreamStart: ("_stream_start", 1),
+    StreamStop: ("_stream_stop", 1),
+    m.StreamStatusRequest: ("_stream_status", 1),
+    m.ConfigRead: ("_config_read", 1),
+    m.ConfigWrite: ("_config_write", 1),
+    m.ConfigCommit: ("_config_commit", 1),
+    m.ConfigStatusRequest: ("_config_status", 1),
+    m.TimeSync: ("_time_sync", 2),
+    m.Telemetry: ("_telemetry", 2),
+    m.FwInfoRequest: ("_fw_info", 2),
+    m.FwBegin: ("_fw_begin", 2),
+    m.FwWrite: ("_fw_write", 2),
+    m.FwVerify: ("_fw_verify", 2),
+    m.FwTest: ("_fw_test", 2),
+    m.FwConfirm: ("_fw_confirm", 2),
+}
+
+
 class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
     def __init__(
         self,
@@ -193,25 +219,14 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
         return wire
 
     def _execute(self, req: m.Message, now: float) -> m.Message:
-        handler = {
-            Hello: self._hello,
-            m.DeviceInfoRequest: self._device_info,
-            Ping: self._ping,
-            m.Reboot: self._reboot,
-            StreamStart: self._stream_start,
-            StreamStop: self._stream_stop,
-            m.StreamStatusRequest: self._stream_status,
-            m.ConfigRead: self._config_read,
-            m.ConfigWrite: self._config_write,
-            m.ConfigCommit: self._config_commit,
-            m.ConfigStatusRequest: self._config_status,
-        }.get(type(req))
-        handler = handler or self._v2_handler(req)  # version 2 (board_v2.py)
-        if handler is None:
+        entry = REQUESTS.get(type(req))
+        if entry is None:
             return ErrorResponse(
                 ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles"
             )
-        return handler(req, now)
+        name, version = entry
+        refused = self._need_v2(req) if version >= 2 else None  # board_v2.py
+        return refused if refused is not None else getattr(self, name)(req, now)
 
     # --- session -------------------------------------------------------------------------
 

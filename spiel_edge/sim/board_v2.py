@@ -81,21 +81,6 @@ class BoardV2Mixin:
             caps |= Capability.IQ_SAMPLES
         return int(caps)
 
-    def _v2_handler(self, req: m.Message):
-        """The handler of a version-2 request (one that refuses it on a version-1 link)."""
-        handler = {
-            m.TimeSync: self._time_sync,
-            m.Telemetry: self._telemetry,
-            m.FwInfoRequest: self._fw_info,
-            m.FwBegin: self._fw_begin,
-            m.FwWrite: self._fw_write,
-            m.FwVerify: self._fw_verify,
-            m.FwTest: self._fw_test,
-            m.FwConfirm: self._fw_confirm,
-        }.get(type(req))
-        refused = self._need_v2(req) if handler is not None else None
-        return handler if refused is None else (lambda req, now: refused)
-
     no_sensor = False  # set by the link from its options
     trial_window_s = 60.0
     SELFTEST_S = 0.02  # one acquisition

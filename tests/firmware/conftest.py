@@ -1,6 +1,6 @@
 """Fixtures of the C reference firmware tests: builds (once per session), the scans file of
 the vendored recordings, and a posix board on a pty. These tests always run: they need only
-the system C compiler (no dataset, no Debian package)."""
+the system C compiler and make (no dataset, no other Debian package)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def posix_exe(fw_build) -> Path:
 
 @pytest.fixture(scope="session")
 def driver_exe(fw_build) -> Path:
-    return build_driver(fw_build, SPIEL_MAX_PAYLOAD=8256)
+    return build_driver(fw_build, SPIEL_MAX_PAYLOAD=8256, SPIEL_FW_UPDATE=1)
 
 
 @pytest.fixture(scope="session")

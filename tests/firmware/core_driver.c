@@ -135,6 +135,73 @@ uint32_t hal_random(void)
     return rng;
 }
 
+#if SPIEL_FW_UPDATE
+/* Firmware image areas in memory (-DSPIEL_FW_UPDATE=1): two erased 64 KiB slots, the boot
+ * record area, slot 0 named as the one running (as on the virtual board), NOR rules
+ * (whole sectors erased, program units of erased bytes only). The watchdog is not started. */
+#define IMG_SECTOR 4096u
+#define IMG_SLOT (16u * IMG_SECTOR)
+#define IMG_UNIT 8u
+static uint8_t images[3][IMG_SLOT];
+static int images_ready;
+
+static uint8_t *image_area(int slot, uint32_t offset, uint32_t len)
+{
+    uint32_t size = slot == SPIEL_IMAGE_RECORD ? 2u * IMG_SECTOR : IMG_SLOT;
+    if (!images_ready) {
+        memset(images, 0xFF, sizeof images);
+        images_ready = 1;
+    }
+    if (slot < 0 || slot > SPIEL_IMAGE_RECORD || offset > size || len > size - offset) {
+        return NULL;
+    }
+    return images[slot] + offset;
+}
+
+uint32_t hal_image_slot_size(void) { return IMG_SLOT; }
+uint32_t hal_image_sector_size(void) { return IMG_SECTOR; }
+uint32_t hal_image_program_unit(void) { return IMG_UNIT; }
+int hal_image_running(void) { return 0; }
+void hal_watchdog_start(uint32_t timeout_ms) { (void)timeout_ms; }
+void hal_watchdog_kick(void) {}
+
+int hal_image_erase(int slot, uint32_t offset, uint32_t len)
+{
+    uint8_t *area = image_area(slot, offset, len);
+    if (area == NULL || offset % IMG_SECTOR || len % IMG_SECTOR) {
+        return -1;
+    }
+    memset(area, 0xFF, len);
+    return 0;
+}
+
+int hal_image_write(int slot, uint32_t offset, const uint8_t *data, uint32_t len)
+{
+    uint8_t *area = image_area(slot, offset, len);
+    uint32_t i;
+    if (area == NULL || offset % IMG_UNIT || len % IMG_UNIT) {
+        return -1;
+    }
+    for (i = 0; i < len; i++) {
+        if (area[i] != 0xFF) {
+            return -1;
+        }
+        area[i] = data[i];
+    }
+    return 0;
+}
+
+int hal_image_read(int slot, uint32_t offset, uint8_t *data, uint32_t len)
+{
+    const uint8_t *area = image_area(slot, offset, len);
+    if (area == NULL) {
+        return -1;
+    }
+    memcpy(data, area, len);
+    return 0;
+}
+#endif
+
 const hal_board_info_t *hal_board_info(void) { return &info; }
 int16_t hal_temperature_cdeg(void) { return 2000; }
 void hal_apply_settings(const hal_settings_t *s) { (void)s; }

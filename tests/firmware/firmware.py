@@ -1,6 +1,7 @@
 """Build and run the C reference firmware (firmware_protocol/firmware) for the tests.
 
-Two builds, both with the system C compiler and the firmware's warning flags:
+Two builds, both through the firmware's Makefile (its release flags: every warning an error,
+-O2) with the system C compiler:
 * the posix target (``spiel_fw_posix``): the firmware as a Linux program on a pty, A-scans
   from a scans file (tools/release/firmware_scans.py), flash in a file;
 * the core driver (tests/firmware/core_driver.c): the portable core with an in-memory HAL,
@@ -22,10 +23,16 @@ ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE = ROOT / "firmware_protocol" / "firmware"
 PROTO = ROOT / "firmware_protocol" / "c"
 DRIVER = Path(__file__).with_name("core_driver.c")
-CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
-# SPIEL_FW_SANITIZE=1: every build of these tests with AddressSanitizer and UBSan (the first
-# report aborts the firmware, which the tests see as a dead board)
-SANITIZE = ["-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
+# SPIEL_FW_SANITIZE=1: every build of these tests with AddressSanitizer and UBSan (the Makefile's
+# SANITIZE=1; the first report aborts the firmware, which the tests see as a dead board)
+VENDOR = FIRMWARE / "vendor" / "monocypher"
+DEV_PUB = FIRMWARE / "keys" / "dev.pub"  # the key boards built here trust (FW_KEY)
+# the defines the Makefile has a switch for (make VAR=0|1); any other goes in CFLAGS_EXTRA
+SWITCHES = {
+    "SPIEL_FW_UPDATE": "FW_UPDATE",
+    "SPIEL_FW_EXEC_COPY": "FW_EXEC_COPY",
+    "SPIEL_IQ_SAMPLES": "IQ_SAMPLES",
+}
 
 
 def compiler() -> str:
@@ -35,59 +42,68 @@ def compiler() -> str:
     raise RuntimeError("no C compiler (cc, gcc or clang): the posix firmware tests need one")
 
 
-def _compile(out: Path, sources: list[Path], includes: list[Path], defines: dict) -> Path:
-    cmd = [compiler(), *CFLAGS, *(f"-I{p}" for p in includes)]
+def make(build: Path, target: str, defines: dict, key: Path | None = None, *extra: str) -> None:
+    """``make TARGET=target BUILD=build`` in the firmware folder: the Makefile's release flags
+    (its warnings as errors, -O2), the defines as its switches or CFLAGS_EXTRA."""
+    if shutil.which("make") is None:
+        raise RuntimeError("no make: the firmware tests build through the firmware's Makefile")
+    args = [f"{SWITCHES[k]}={v}" for k, v in defines.items() if k in SWITCHES]
+    cflags = " ".join(f"-D{k}={v}" for k, v in sorted(defines.items()) if k not in SWITCHES)
     if os.environ.get("SPIEL_FW_SANITIZE") == "1":
-        cmd += SANITIZE
-    cmd += [f"-D{k}={v}" for k, v in defines.items()]
-    cmd += [str(s) for s in sources] + ["-o", str(out)]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        args.append("SANITIZE=1")
+    else:
+        args.append("HOST_DEBUG=")  # the release flags without debug info: a faster build
+    cmd = [
+        "make",
+        "-s",
+        "-C",
+        str(FIRMWARE),
+        f"TARGET={target}",
+        f"BUILD={build}",
+        f"CC={compiler()}",
+        f"FW_KEY={(key or DEV_PUB).resolve()}",
+        *args,
+        *extra,
+    ]
+    if cflags:
+        cmd.append(f"CFLAGS_EXTRA={cflags}")
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     if done.returncode:
         raise RuntimeError(f"build failed: {' '.join(cmd)}\n{done.stderr}")
-    return out
 
 
-VENDOR = FIRMWARE / "vendor" / "monocypher"
-DEV_PUB = FIRMWARE / "keys" / "dev.pub"  # the key boards built here trust (FW_KEY)
-
-
-def core_sources() -> list[Path]:
-    return (
-        sorted((FIRMWARE / "core").glob("*.c"))
-        + [PROTO / "spiel_proto.c"]
-        + [VENDOR / "monocypher.c", VENDOR / "monocypher-ed25519.c"]
-    )
-
-
-def _key_define(defines: dict, key: Path | None) -> tuple[dict, str]:
-    """The public key built in (the Makefile's FW_KEY): a define, and a name suffix."""
-    key = DEV_PUB if key is None else Path(key)
-    return {
-        **defines,
-        "SPIEL_FW_KEY_FILE": f'"{key.resolve()}"',
-    }, "" if key == DEV_PUB else f"_{key.stem}"
+def _name(stem: str, defines: dict, key: Path | None) -> str:
+    name = stem + "".join(f"_{k}{v}" for k, v in sorted(defines.items()))
+    return name if key is None or Path(key) == DEV_PUB else f"{name}_{Path(key).stem}"
 
 
 def build_posix(out_dir: Path, key: Path | None = None, **defines) -> Path:
     """The posix target, e.g. ``build_posix(d, SPIEL_MAX_PAYLOAD=256)``; with its firmware
     image slots (``--images DIR``) unless ``SPIEL_FW_UPDATE=0``, and I/Q streams (its recordings'
     amplitude as i, q = 0) unless ``SPIEL_IQ_SAMPLES=0``. ``key``: the public key file it
-    trusts (default the development key)."""
+    trusts (default the development key). Built by ``make TARGET=posix`` into a folder of its
+    own under out_dir (kept: a second call with the same defines builds nothing)."""
     defines = {"SPIEL_FW_UPDATE": 1, "SPIEL_FW_EXEC_COPY": 1, "SPIEL_IQ_SAMPLES": 1, **defines}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    name = "spiel_fw_posix" + "".join(f"_{k}{v}" for k, v in sorted(defines.items()))
-    defines, suffix = _key_define(defines, key)
-    sources = core_sources() + sorted((FIRMWARE / "targets" / "posix").glob("*.c"))
-    includes = [FIRMWARE / "include", FIRMWARE / "core", PROTO, FIRMWARE / "targets" / "posix"]
-    return _compile(out_dir / (name + suffix), sources, includes + [VENDOR], defines)
+    build = Path(out_dir) / _name("posix", defines, key)
+    make(build, "posix", defines, key)
+    return build / "spiel_fw_posix"
 
 
 def build_driver(out_dir: Path, **defines) -> Path:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    name = "core_driver" + "".join(f"_{k}{v}" for k, v in sorted(defines.items()))
-    includes = [FIRMWARE / "include", FIRMWARE / "core", PROTO, VENDOR]
-    defines, _ = _key_define(defines, None)
-    return _compile(out_dir / name, core_sources() + [DRIVER], includes, defines)
+    """The core under tests/firmware/core_driver.c (``make TARGET=driver``), without firmware
+    update and I/Q unless the defines turn them on."""
+    defines = {"SPIEL_FW_UPDATE": 0, "SPIEL_FW_EXEC_COPY": 0, "SPIEL_IQ_SAMPLES": 0, **defines}
+    build = Path(out_dir) / _name("driver", defines, None)
+    make(build, "driver", defines, None, f"DRIVER={DRIVER}")
+    return build / "core_driver"
+
+
+def build_test_driver(out_dir: Path, source: Path, with_: str) -> Path:
+    """A test's own C driver (main() in ``source``) linked with the frame layer (``"proto"``) or
+    the vendored Ed25519 verifier (``"ed25519"``): ``make TARGET=driver WITH=...``."""
+    build = Path(out_dir) / f"{Path(source).stem}_{with_}"
+    make(build, "driver", {}, None, f"DRIVER={Path(source).resolve()}", f"WITH={with_}")
+    return build / Path(source).stem
 
 
 class PosixBoard:

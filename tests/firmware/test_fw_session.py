@@ -162,7 +162,7 @@ def test_the_makefile_builds_the_posix_target(tmp_path):
     from tests.firmware.firmware import FIRMWARE, compiler
 
     if shutil.which("make") is None:
-        pytest.skip("no make: the tests build with the compiler directly (firmware.py)")
+        pytest.skip("no make: the firmware tests need it (firmware.py builds through the Makefile)")
     done = subprocess.run(
         ["make", "-C", str(FIRMWARE), f"BUILD={tmp_path}", f"CC={compiler()}"],
         capture_output=True,

@@ -5,6 +5,7 @@ fields that carry time or say which board it is (listed in IGNORED)."""
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import replace
 
@@ -44,6 +45,13 @@ IGNORED = {
     m.DeviceInfo: ("uptime_ms", "temperature_cdeg", "board_name", "max_sample_rate_hz"),
     StreamData: ("timestamp_us",),
     ErrorResponse: ("text",),  # the code and request type must agree; the wording is free
+    m.TimeSyncResponse: ("board_time_us", "boot_id"),
+    # what the slots hold: the virtual board boots a factory image in slot 0, the driver's
+    # slots start erased; the target name is each board's own
+    m.FwInfo: (
+        "target",
+        *(f"slot{i}_{k}" for i in (0, 1) for k in ("state", "version", "size", "crc")),
+    ),
 }
 
 
@@ -64,6 +72,7 @@ def script():
         DeviceInfoRequest(),
         Ping(b"hello"),
         "retry",  # the same request, same seq: answered from the cache
+        *version2_steps(),
         ConfigStatusRequest(),
         ConfigRead(0, 64, ConfigSource.ACTIVE),  # no config yet: NOT_FOUND
         ConfigRead(0, 64, ConfigSource.STAGING),  # empty staging: empty data
@@ -116,6 +125,33 @@ def script():
         Reboot(0, 50),
     ]
     return steps
+
+
+def version2_steps():
+    """TIME_SYNC, TELEMETRY and each FW_* request (PROTOCOL.md 14.1-14.3): the answers and the
+    refusals both boards owe, without a signed image (the posix and QEMU tests upload those)."""
+    body = bytes(range(104))
+    return [
+        m.TimeSync(123456789),  # the board's clock and boot id are its own (IGNORED)
+        m.Telemetry(0, 2, 5),  # no heartbeat, log level WARNING, 5 lines a second
+        m.Telemetry(20, 9, 0),  # heartbeat raised to 50 ms, level capped at DEBUG
+        m.Telemetry(0, 1, 20),
+        m.FwInfoRequest(),
+        m.FwWrite(0, bytes(8)),  # no upload: BAD_STATE
+        m.FwVerify(0),  # no upload: BAD_STATE
+        m.FwTest(50),  # nothing verified: BAD_STATE
+        m.FwBegin(1 << 20, 0, bytes(32)),  # larger than the 64 KiB slot: TOO_LARGE
+        m.FwBegin(50, 0, bytes(32)),  # shorter than an image header: INVALID
+        m.FwBegin(len(body), crc32c(body), hashlib.sha256(body).digest()),  # slot 1
+        m.FwWrite(0, body[:64]),
+        "retry",  # a repeated chunk: written stays 64
+        m.FwWrite(80, body[80:]),  # a gap: INVALID
+        m.FwWrite(64, body[64:]),
+        m.FwVerify(0),  # the bytes match FW_BEGIN's digest but are no image: INVALID
+        m.FwTest(50),  # not verified: BAD_STATE
+        m.FwInfoRequest(),
+        m.FwConfirm(),  # the running slot, already confirmed: OK
+    ]
 
 
 def run(board_step, steps) -> list[tuple]:

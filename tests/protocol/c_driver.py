@@ -24,6 +24,28 @@ def c_dir() -> Path:
 
 
 def build(cc: str, exe: Path) -> subprocess.CompletedProcess:
+    """The driver over the frame layer. In a checkout: through the firmware's Makefile
+    (``make TARGET=driver WITH=proto``, its release flags); an installed package without the
+    firmware sources: the compiler alone with CFLAGS."""
+    makefile = c_dir().parent / "firmware" / "Makefile"
+    if makefile.is_file() and shutil.which("make"):
+        build_dir = exe.parent / "build"
+        cmd = [
+            "make",
+            "-s",
+            "-C",
+            str(makefile.parent),
+            "TARGET=driver",
+            "WITH=proto",
+            f"BUILD={build_dir}",
+            f"CC={cc}",
+            f"DRIVER={DRIVER.resolve()}",
+        ]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode == 0:
+            shutil.copyfile(build_dir / DRIVER.stem, exe)
+            exe.chmod(0o755)
+        return done
     sources = sorted(str(p) for p in c_dir().glob("*.c"))
     cmd = [cc, *CFLAGS, f"-I{c_dir()}", *sources, str(DRIVER), "-o", str(exe)]
     return subprocess.run(cmd, capture_output=True, text=True)

@@ -1,6 +1,6 @@
 """Firmware update with rollback on the C reference firmware (posix target): two image files,
 a boot record, the bootloader executing the chosen slot; SIGKILL at every image operation.
-Always runs (needs only the system C compiler)."""
+Always runs (needs only the system C compiler and make)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 the cryptography package, the build's key (FW_KEY, RELEASE=1 refusing the development key),
 the boot stage starting only a signed slot, FW_VERIFY refusing every forged, tampered, unsigned
 or downgraded image with its code, and a power cut during the security counter's update.
-Always runs (needs only the system C compiler)."""
+Always runs (needs only the system C compiler and make)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pytest
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import update_firmware
 from spiel_edge.errors import DeviceError
-from tests.firmware.firmware import FIRMWARE, VENDOR, PosixBoard, compiler
+from tests.firmware.firmware import FIRMWARE, PosixBoard, build_test_driver
 from tests.fwsign import signed_image
 from tests.protocol_v2.signing_cases import forged_images, other_signer, raw_upload
 from tests.protocol_v2.test_v2_firmware_posix import hello_version, script_image
@@ -25,12 +25,8 @@ from tests.protocol_v2.test_v2_signing import RFC8032, flips
 
 @pytest.fixture(scope="module")
 def verifier(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("ed25519") / "ed25519_driver"
     src = Path(__file__).parents[1] / "firmware" / "ed25519_driver.c"
-    cmd = [compiler(), "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
-    cmd += [f"-I{VENDOR}", str(src), str(VENDOR / "monocypher.c")]
-    subprocess.run([*cmd, str(VENDOR / "monocypher-ed25519.c"), "-o", str(out)], check=True)
-    return out
+    return build_test_driver(tmp_path_factory.mktemp("ed25519"), src, "ed25519")
 
 
 def c_check(exe: Path, cases: list[tuple[bytes, bytes, bytes]]) -> list[bool]:

@@ -137,6 +137,15 @@ int image_check(int slot, uint32_t *size, uint32_t *crc, char version[17])
     return 0;
 }
 
+/* 1: the slot may be started: its image checks (image_check) and is signed by the built-in key
+ * with a security counter at or above the floor (verify.c's image_auth). */
+static int image_bootable(int slot, uint32_t floor)
+{
+    const char *why;
+    return image_check(slot, NULL, NULL, NULL) == 0 &&
+           image_auth(slot, floor, NULL, &why) == SP_ERR_OK;
+}
+
 int boot_choose(void)
 {
     boot_record_t r, w;

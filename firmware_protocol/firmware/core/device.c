@@ -16,8 +16,6 @@
 #define MAX_RATE_HZ 10000.0f
 #define ERROR_TEXT_MAX 48u
 
-spiel_device_stats_t spiel_stats;
-
 /* ---- state ------------------------------------------------------------------------------ */
 
 static struct {
@@ -34,7 +32,6 @@ static struct {
 } tx;
 
 static uint8_t payload[SPIEL_MAX_PAYLOAD];
-static uint16_t samples[SPIEL_MAX_SAMPLES];
 
 static struct {
     int valid;
@@ -45,20 +42,14 @@ static struct {
 } cache;
 
 static struct {
-    uint32_t boot_id;
-    uint8_t version;       /* negotiated protocol version (1 before any HELLO) */
-    uint16_t max_payload;  /* effective: min(device, host's HELLO) */
     hal_settings_t settings;
     uint8_t staging[SPIEL_CONFIG_MAX];
     uint32_t staged_length;
     uint32_t acquisition;  /* index of the next acquisition, since boot */
     uint32_t counter;      /* aux of the next STREAM_DATA frame, since boot */
-    int reboot_pending, reboot_mode;
-    uint64_t reboot_at;
 } dev;
 
 static struct {
-    int on;
     uint16_t seq;          /* the STREAM_START's seq */
     uint32_t mask;         /* resolved channel mask */
     uint8_t format;        /* SP_SAMPLE_U16_ENVELOPE or (version 2) SP_SAMPLE_I16_IQ */
@@ -149,6 +140,13 @@ static void put_text(uint8_t *p, const char *s, size_t size)
 
 /* ---- session ------------------------------------------------------------------------------ */
 
+/* HELLO capability bits offered under protocol version 2 */
+static uint32_t version2_capabilities(void)
+{
+    return SP_CAP_TIME_SYNC | SP_CAP_TELEMETRY | SP_CAP_START_AT |
+           (update_offered() ? SP_CAP_FIRMWARE_UPDATE : 0u);
+}
+
 static result_t do_hello(const uint8_t *p, uint16_t len)
 {
     uint8_t in[8] = {0};
@@ -168,12 +166,12 @@ static result_t do_hello(const uint8_t *p, uint16_t len)
     if (host_payload != 0 && host_payload < SPIEL_MIN_PAYLOAD) {
         return fail(SP_ERR_INVALID, SP_MSG_HELLO, "max_payload below the minimum 64");
     }
-    dev.version = (uint8_t)(max_v < SPIEL_PROTOCOL_MAX ? max_v : SPIEL_PROTOCOL_MAX);
-    dev.max_payload = (uint16_t)SPIEL_MAX_PAYLOAD;
-    if (host_payload != 0 && host_payload < dev.max_payload) {
-        dev.max_payload = host_payload;
+    spiel_link.version = (uint8_t)(max_v < SPIEL_PROTOCOL_MAX ? max_v : SPIEL_PROTOCOL_MAX);
+    spiel_link.max_payload = (uint16_t)SPIEL_MAX_PAYLOAD;
+    if (host_payload != 0 && host_payload < spiel_link.max_payload) {
+        spiel_link.max_payload = host_payload;
     }
-    payload[0] = dev.version;
+    payload[0] = spiel_link.version;
     payload[1] = 1;
     payload[2] = (uint8_t)SPIEL_PROTOCOL_MAX;
     payload[3] = info->n_channels;
@@ -181,10 +179,10 @@ static result_t do_hello(const uint8_t *p, uint16_t len)
     sp_le_put_u16(payload + 6, info->max_samples < SPIEL_MAX_SAMPLES ? info->max_samples
                                                                      : (uint16_t)SPIEL_MAX_SAMPLES);
     sp_le_put_u32(payload + 8, SP_CAP_STREAM | (cfg_capacity() ? SP_CAP_CONFIG : 0u) |
-                                   (dev.version >= 2u ? v2_capabilities() : 0u) |
-                                   (dev.version >= 2u && SPIEL_IQ_SAMPLES ? SP_CAP_IQ_SAMPLES : 0u));
+                                   (spiel_link.version >= 2u ? version2_capabilities() : 0u) |
+                                   (spiel_link.version >= 2u && SPIEL_IQ_SAMPLES ? SP_CAP_IQ_SAMPLES : 0u));
     sp_le_put_u32(payload + 12, SP_SCHEMA_HASH);
-    sp_le_put_u32(payload + 16, dev.boot_id);
+    sp_le_put_u32(payload + 16, spiel_link.boot_id);
     put_text(payload + 20, info->firmware_version, 16);
     sp_le_put_u16(payload + 36, info->usb_vid);
     sp_le_put_u16(payload + 38, info->usb_pid);
@@ -217,7 +215,7 @@ static result_t do_ping(const uint8_t *p, uint16_t len)
             return fail(SP_ERR_INVALID, SP_MSG_PING, "data shorter than its length");
         }
     }
-    if ((uint32_t)n + 2u > dev.max_payload) {
+    if ((uint32_t)n + 2u > spiel_link.max_payload) {
         return fail(SP_ERR_TOO_LARGE, SP_MSG_PING, "ping data exceeds max_payload - 2");
     }
     memmove(payload + 2, p + 2, n);
@@ -232,9 +230,7 @@ static result_t do_reboot(const uint8_t *p, uint16_t len)
     if (in[0] > SP_REBOOT_BOOTLOADER) {
         return fail(SP_ERR_INVALID, SP_MSG_REBOOT, "mode must be 0 or 1");
     }
-    dev.reboot_pending = 1;
-    dev.reboot_mode = in[0];
-    dev.reboot_at = hal_time_us() + (uint64_t)sp_le_get_u16(in + 1) * 1000u;
+    link_reboot_after_ms(in[0], sp_le_get_u16(in + 1));
     return ok(0);
 }
 
@@ -255,7 +251,7 @@ static uint32_t all_channels(void)
     return n >= 32 ? 0xFFFFFFFFu : ((1u << n) - 1u);
 }
 
-/* When acquisition 0 of a stream is due: at once, or (v2, START_AT) at start_at on the
+/* When acquisition 0 of a stream is due: at once, or (protocol version 2, START_AT) at start_at on the
  * device clock; a start_at already past keeps its grid (start_at + k periods, the slot the
  * host chose), the first point not yet past. 1 and *due set, or 0: more than
  * START_AT_AHEAD_US ahead. */
@@ -296,11 +292,11 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     }
     max_samples = info->max_samples < SPIEL_MAX_SAMPLES ? info->max_samples
                                                         : (uint16_t)SPIEL_MAX_SAMPLES;
-    if (st.on) {
+    if (spiel_link.streaming) {
         return fail(SP_ERR_BAD_STATE, SP_MSG_STREAM_START, "a stream is already running");
     }
     if (fmt != SP_SAMPLE_U16_ENVELOPE &&
-        !(SPIEL_IQ_SAMPLES && fmt == SP_SAMPLE_I16_IQ && dev.version >= 2u)) {
+        !(SPIEL_IQ_SAMPLES && fmt == SP_SAMPLE_I16_IQ && spiel_link.version >= 2u)) {
         return fail(SP_ERR_UNSUPPORTED, SP_MSG_STREAM_START,
                     SPIEL_IQ_SAMPLES ? "U16_ENVELOPE, or I16_IQ under version 2" : "U16_ENVELOPE samples only");
     }
@@ -310,13 +306,13 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     if ((mask & ~all_channels()) != 0) {
         return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "channel_mask names absent channels");
     }
-    if (dev.version < 2 && mask != all_channels()) {
+    if (spiel_link.version < 2 && mask != all_channels()) {
         /* version 1 numbers a subset's channels 0..n-1, losing which they are */
         return fail(SP_ERR_UNSUPPORTED, SP_MSG_STREAM_START, "channel subsets need version 2");
     }
     if (n_samples > max_samples ||
         SP_STREAM_HEADER_SIZE + (fmt == SP_SAMPLE_I16_IQ ? 4u : 2u) * (uint32_t)n_samples >
-            dev.max_payload ||
+            spiel_link.max_payload ||
         (fmt == SP_SAMPLE_I16_IQ && 2u * (uint32_t)n_samples > SPIEL_MAX_SAMPLES)) {
         return fail(SP_ERR_TOO_LARGE, SP_MSG_STREAM_START, "n_samples too large");
     }
@@ -327,12 +323,12 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
         return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "rate_hz below 0.001");
     }
     period_us = rate > 0.0f ? (uint64_t)(1.0e6 / (double)rate + 0.5) : 0u;
-    start_at = dev.version >= 2u ? sp_le_get_u64(in + 12) : 0u; /* version 1: at once */
+    start_at = spiel_link.version >= 2u ? sp_le_get_u64(in + 12) : 0u; /* version 1: at once */
     if (!first_due(start_at, period_us, hal_time_us(), &due)) {
         return fail(SP_ERR_INVALID, SP_MSG_STREAM_START, "start_at_us more than 60 s ahead");
     }
     memset(&st, 0, sizeof st);
-    st.on = 1;
+    spiel_link.streaming = 1;
     st.seq = seq;
     st.mask = mask;
     st.n_channels = popcount(mask);
@@ -348,7 +344,7 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     payload[14] = st.n_channels;
     payload[15] = fmt;
     st.format = fmt;
-    if (dev.version >= 2) {
+    if (spiel_link.version >= 2) {
         sp_le_put_u32(payload + 16, mask);
         return ok(20);
     }
@@ -358,8 +354,8 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
 
 static result_t do_stream_stop(void)
 {
-    uint32_t sent = st.on ? st.sent : 0;
-    st.on = 0; /* an acquisition in flight is abandoned; its index stays used */
+    uint32_t sent = spiel_link.streaming ? st.sent : 0;
+    spiel_link.streaming = 0; /* an acquisition in flight is abandoned; its index stays used */
     st.busy = 0;
     sp_le_put_u32(payload, sent);
     sp_le_put_u32(payload + 4, dev.counter);
@@ -369,7 +365,7 @@ static result_t do_stream_stop(void)
 static result_t do_stream_status(void)
 {
     const sp_stats_t *r = &spiel_stats.rx;
-    payload[0] = (uint8_t)(st.on != 0);
+    payload[0] = (uint8_t)(spiel_link.streaming != 0);
     sp_le_put_u32(payload + 1, spiel_stats.acquisitions_sent);
     sp_le_put_u32(payload + 5, spiel_stats.frames_sent);
     sp_le_put_u32(payload + 9, spiel_stats.overruns);
@@ -385,7 +381,7 @@ static void scheduled(uint64_t now)
     if (!st.endless && --st.remaining == 0) {
         st.last = 1;
         if (!st.busy) {
-            st.on = 0;
+            spiel_link.streaming = 0;
         }
     }
 }
@@ -395,7 +391,7 @@ static void scheduled(uint64_t now)
  * overrun: its index is used, no frame carries it) once the next one is due too. */
 static void schedule(uint64_t now)
 {
-    while (st.on && !st.last && now >= st.next_us) {
+    while (spiel_link.streaming && !st.last && now >= st.next_us) {
         if (st.busy) {
             if (st.period_us == 0 || now < st.next_us + st.period_us) {
                 return; /* wait for the acquisition in flight */
@@ -405,7 +401,7 @@ static void schedule(uint64_t now)
             scheduled(now);
             continue;
         }
-        if (v2_selftest_busy()) {
+        if (update_selftest_busy()) {
             return; /* a trial's self-test holds the front end: this one waits */
         }
         if (hal_acq_trigger(st.mask, st.n_samples) == 0) {
@@ -435,17 +431,17 @@ static void send_channel(void)
     /* I/Q: 2 values per sample (q, i) in the same buffer (n_samples <= SPIEL_MAX_SAMPLES / 2) */
     values = st.format == SP_SAMPLE_I16_IQ ? (uint16_t)(2u * st.n_samples) : st.n_samples;
 #if SPIEL_IQ_SAMPLES
-    if (st.format == SP_SAMPLE_I16_IQ ? hal_acq_read_iq((uint8_t)c, samples, st.n_samples) != 0
-                                      : hal_acq_read((uint8_t)c, samples, st.n_samples) != 0) {
+    if (st.format == SP_SAMPLE_I16_IQ ? hal_acq_read_iq((uint8_t)c, spiel_samples, st.n_samples) != 0
+                                      : hal_acq_read((uint8_t)c, spiel_samples, st.n_samples) != 0) {
 #else
-    if (hal_acq_read((uint8_t)c, samples, st.n_samples) != 0) {
+    if (hal_acq_read((uint8_t)c, spiel_samples, st.n_samples) != 0) {
 #endif
         /* the front end lost this measurement: abandon it (an overrun; its index stays used,
          * and a host drops the channels already sent as an incomplete acquisition) */
         spiel_stats.overruns++;
         st.busy = 0;
         if (st.last) {
-            st.on = 0;
+            spiel_link.streaming = 0;
         }
         return;
     }
@@ -460,7 +456,7 @@ static void send_channel(void)
     h.reserved = 0;
     sp_stream_header_pack(&h, payload);
     for (i = 0; i < values; i++) {
-        sp_le_put_u16(payload + SP_STREAM_HEADER_SIZE + 2u * i, samples[i]);
+        sp_le_put_u16(payload + SP_STREAM_HEADER_SIZE + 2u * i, spiel_samples[i]);
     }
     len = (uint16_t)(SP_STREAM_HEADER_SIZE + 2u * values);
     st.rank++;
@@ -474,7 +470,7 @@ static void send_channel(void)
         st.sent++;
         spiel_stats.acquisitions_sent++;
         if (st.last) {
-            st.on = 0;
+            spiel_link.streaming = 0;
         }
     }
 }
@@ -483,7 +479,7 @@ static void send_channel(void)
 
 static uint16_t read_limit(void)
 {
-    return (uint16_t)(dev.max_payload - 6u);
+    return (uint16_t)(spiel_link.max_payload - 6u);
 }
 
 static result_t do_config_read(const uint8_t *p, uint16_t len)
@@ -559,7 +555,7 @@ static result_t do_config_commit(const uint8_t *p, uint16_t len)
     memcpy(in, p, len < sizeof in ? len : sizeof in);
     total = sp_le_get_u32(in);
     crc = sp_le_get_u32(in + 4);
-    if (st.on) {
+    if (spiel_link.streaming) {
         return fail(SP_ERR_BAD_STATE, SP_MSG_CONFIG_COMMIT, "stop the stream before a commit");
     }
     if (total == 0 || total > dev.staged_length) {
@@ -602,11 +598,44 @@ static result_t do_config_status(void)
 
 /* ---- requests ----------------------------------------------------------------------------- */
 
-static result_t execute(const sp_frame_t *f)
+enum { NEEDS_NOTHING, NEEDS_CONFIG, NEEDS_UPDATE };
+
+/* The request table: every request this core answers, the lowest protocol version it is
+ * answered under, what it needs, and its handler in a unit below (NULL: device.c's own, in
+ * own_request). A message type not here is "unknown". tests/firmware/test_core_scope.py holds
+ * this list to PROTOCOL.md's. */
+static const struct {
+    uint16_t msg_type;
+    uint8_t min_version, needs;
+    core_handler_t handler;
+} requests[] = {
+    {SP_MSG_HELLO, 1, NEEDS_NOTHING, NULL},
+    {SP_MSG_DEVICE_INFO, 1, NEEDS_NOTHING, NULL},
+    {SP_MSG_PING, 1, NEEDS_NOTHING, NULL},
+    {SP_MSG_REBOOT, 1, NEEDS_NOTHING, NULL},
+    {SP_MSG_STREAM_START, 1, NEEDS_NOTHING, NULL},
+    {SP_MSG_STREAM_STOP, 1, NEEDS_NOTHING, NULL},
+    {SP_MSG_STREAM_STATUS, 1, NEEDS_NOTHING, NULL},
+    {SP_MSG_CONFIG_READ, 1, NEEDS_CONFIG, NULL},
+    {SP_MSG_CONFIG_WRITE, 1, NEEDS_CONFIG, NULL},
+    {SP_MSG_CONFIG_COMMIT, 1, NEEDS_CONFIG, NULL},
+    {SP_MSG_CONFIG_STATUS, 1, NEEDS_CONFIG, NULL},
+    {SP_MSG_TIME_SYNC, 2, NEEDS_NOTHING, telemetry_time_sync},
+    {SP_MSG_TELEMETRY, 2, NEEDS_NOTHING, telemetry_set},
+#if SPIEL_FW_UPDATE
+    {SP_MSG_FW_INFO, 2, NEEDS_UPDATE, update_info},
+    {SP_MSG_FW_BEGIN, 2, NEEDS_UPDATE, update_begin},
+    {SP_MSG_FW_WRITE, 2, NEEDS_UPDATE, update_write},
+    {SP_MSG_FW_VERIFY, 2, NEEDS_UPDATE, update_verify},
+    {SP_MSG_FW_TEST, 2, NEEDS_UPDATE, update_test},
+    {SP_MSG_FW_CONFIRM, 2, NEEDS_UPDATE, update_confirm},
+#endif
+};
+
+static result_t own_request(const sp_frame_t *f)
 {
     const uint8_t *p = f->payload;
     uint16_t len = f->header.payload_len;
-    int config = cfg_capacity() != 0;
     switch (f->header.msg_type) {
     case SP_MSG_HELLO:
         return do_hello(p, len);
@@ -623,58 +652,41 @@ static result_t execute(const sp_frame_t *f)
     case SP_MSG_STREAM_STATUS:
         return do_stream_status();
     case SP_MSG_CONFIG_READ:
-        return config ? do_config_read(p, len) : fail(SP_ERR_UNSUPPORTED, f->header.msg_type, "no config flash");
+        return do_config_read(p, len);
     case SP_MSG_CONFIG_WRITE:
-        return config ? do_config_write(p, len) : fail(SP_ERR_UNSUPPORTED, f->header.msg_type, "no config flash");
+        return do_config_write(p, len);
     case SP_MSG_CONFIG_COMMIT:
-        return config ? do_config_commit(p, len) : fail(SP_ERR_UNSUPPORTED, f->header.msg_type, "no config flash");
+        return do_config_commit(p, len);
     case SP_MSG_CONFIG_STATUS:
-        return config ? do_config_status() : fail(SP_ERR_UNSUPPORTED, f->header.msg_type, "no config flash");
-    default:
-        if (dev.version >= 2u) {
-            uint16_t n = 0, code = 0;
-            const char *text = "";
-            if (v2_request(f->header.msg_type, p, len, payload, &n, &code, &text)) {
-                return code ? fail(code, f->header.msg_type, text) : ok(n);
-            }
-        }
+        return do_config_status();
+    default: /* a row of the table without its handler: refused, never another's answer */
         return fail(SP_ERR_UNSUPPORTED, f->header.msg_type, "unknown message type");
     }
 }
 
-/* ---- for v2.c ------------------------------------------------------------------------------ */
-
-uint8_t core_version(void)
+static result_t execute(const sp_frame_t *f)
 {
-    return dev.version;
-}
-
-int core_streaming(void)
-{
-    return st.on;
-}
-
-uint32_t core_boot_id(void)
-{
-    return dev.boot_id;
-}
-
-uint16_t core_max_payload(void)
-{
-    return dev.max_payload;
-}
-
-uint16_t *core_sample_buffer(uint16_t *cap)
-{
-    *cap = (uint16_t)(SPIEL_MAX_SAMPLES > 0xFFFFu ? 0xFFFFu : SPIEL_MAX_SAMPLES);
-    return samples;
-}
-
-void core_reboot_after_ms(uint32_t ms)
-{
-    dev.reboot_pending = 1;
-    dev.reboot_mode = SP_REBOOT_NORMAL;
-    dev.reboot_at = hal_time_us() + (uint64_t)ms * 1000u;
+    uint16_t type = f->header.msg_type;
+    size_t i;
+    for (i = 0; i < sizeof requests / sizeof requests[0]; i++) {
+        if (requests[i].msg_type == type) {
+            break;
+        }
+    }
+    if (i == sizeof requests / sizeof requests[0] || spiel_link.version < requests[i].min_version ||
+        (requests[i].needs == NEEDS_UPDATE && !update_offered())) {
+        return fail(SP_ERR_UNSUPPORTED, type, "unknown message type");
+    }
+    if (requests[i].needs == NEEDS_CONFIG && cfg_capacity() == 0) {
+        return fail(SP_ERR_UNSUPPORTED, type, "no config flash");
+    }
+    if (requests[i].handler) {
+        uint16_t code = 0;
+        const char *text = "";
+        int n = requests[i].handler(f->payload, f->header.payload_len, payload, &code, &text);
+        return code ? fail(code, type, text) : ok((uint16_t)n);
+    }
+    return own_request(f);
 }
 
 static void answer(const sp_frame_t *f)
@@ -789,22 +801,20 @@ void spiel_device_init(void)
     memset(&cache, 0, sizeof cache);
     memset(&dev, 0, sizeof dev);
     memset(&st, 0, sizeof st);
-    memset(&spiel_stats, 0, sizeof spiel_stats);
-    dev.boot_id = hal_random();
-    dev.version = 1;
-    dev.max_payload = (uint16_t)SPIEL_MAX_PAYLOAD;
+    link_init();
     cfg_init();
     cfg_settings(&dev.settings);
     hal_apply_settings(&dev.settings);
-    v2_init();
-    v2_log(SP_LOG_NOTICE, "booted");
+    telemetry_init();
+    update_init();
+    link_log(SP_LOG_NOTICE, "booted");
 }
 
 void spiel_device_poll(void)
 {
     sp_frame_t f;
     uint64_t now;
-    v2_tick(hal_time_us()); /* a trial's self-test; the watchdog kick */
+    update_tick(hal_time_us()); /* a trial's self-test; the watchdog kick */
     flush();
     if (tx.len) {
         schedule(hal_time_us()); /* the link is blocked: count the slots that pass */
@@ -813,8 +823,8 @@ void spiel_device_poll(void)
         }
         return;
     }
-    if (dev.reboot_pending && hal_time_us() >= dev.reboot_at) {
-        hal_reset(dev.reboot_mode == SP_REBOOT_BOOTLOADER);
+    if (spiel_link.reboot_pending && hal_time_us() >= spiel_link.reboot_at) {
+        hal_reset(spiel_link.reboot_mode == SP_REBOOT_BOOTLOADER);
     }
     if (receive(&f)) {
         answer(&f);
@@ -823,7 +833,10 @@ void spiel_device_poll(void)
     now = hal_time_us();
     if (st.busy != 2) { /* heartbeat and log lines between acquisitions, never inside one */
         uint16_t n = 0;
-        uint16_t type = v2_due(now, payload, &n);
+        uint8_t state = update_uploading()     ? (uint8_t)SP_BOARD_UPDATING
+                        : spiel_link.streaming ? (uint8_t)SP_BOARD_STREAMING
+                                               : (uint8_t)SP_BOARD_IDLE;
+        uint16_t type = telemetry_due(now, state, update_error_flags(), payload, &n);
         if (type) {
             send_frame(type, 0, 0, 0, payload, n);
             return;
@@ -846,14 +859,17 @@ uint32_t spiel_device_idle_us(void)
     }
     now = hal_time_us();
     wake = now + 50000u;
-    if (st.on && st.next_us < wake) {
+    if (spiel_link.streaming && st.next_us < wake) {
         wake = st.next_us;
     }
-    if (dev.reboot_pending && dev.reboot_at < wake) {
-        wake = dev.reboot_at;
+    if (spiel_link.reboot_pending && spiel_link.reboot_at < wake) {
+        wake = spiel_link.reboot_at;
     }
-    if (v2_next_us(now) < wake) {
-        wake = v2_next_us(now);
+    if (telemetry_next_us(now) < wake) {
+        wake = telemetry_next_us(now);
+    }
+    if (update_next_us(now) < wake) {
+        wake = update_next_us(now);
     }
     return wake <= now ? 0u : (uint32_t)(wake - now);
 }

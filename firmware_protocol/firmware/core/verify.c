@@ -79,13 +79,6 @@ uint16_t image_auth(int slot, uint32_t min_counter, uint32_t *counter, const cha
     return SP_ERR_OK;
 }
 
-int image_bootable(int slot, uint32_t floor)
-{
-    const char *why;
-    return image_check(slot, NULL, NULL, NULL) == 0 &&
-           image_auth(slot, floor, NULL, &why) == SP_ERR_OK;
-}
-
 uint32_t image_counter_floor(int slot, uint32_t floor)
 {
     uint8_t head[SP_IMAGE_HEADER_SIZE];

@@ -45,7 +45,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "core.h"
+#include "core.h" /* white-box: the core's SHA-256 and SPIEL_FW_TARGET (fuzz.mk adds -Icore) */
 #include "spiel_device.h"
 #include "spiel_hal.h"
 #include "spiel_proto.h"

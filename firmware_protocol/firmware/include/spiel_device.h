@@ -83,13 +83,10 @@ const spiel_device_stats_t *spiel_device_stats(void);
 
 /* Firmware update (-DSPIEL_FW_UPDATE=1): how long an unconfirmed trial image keeps kicking the
  * watchdog (so that a host that died mid-update leaves no trial behind: it rolls back by
- * itself), and how long the boot stage's watchdog waits for a kick. Defaults below; a target
+ * itself; the boot stage's watchdog: SPIEL_FW_WATCHDOG_MS in spiel_boot.h). Default below; a target
  * may change the window before spiel_device_init() (the posix target for its tests). */
 #ifndef SPIEL_FW_TRIAL_WINDOW_MS
 #define SPIEL_FW_TRIAL_WINDOW_MS 60000u
-#endif
-#ifndef SPIEL_FW_WATCHDOG_MS
-#define SPIEL_FW_WATCHDOG_MS 2000u
 #endif
 void spiel_device_set_trial_window_ms(uint32_t ms);
 

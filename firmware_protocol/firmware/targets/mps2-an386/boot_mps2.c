@@ -12,7 +12,7 @@
  */
 #include <stdint.h>
 
-#include "core.h"
+#include "spiel_boot.h"
 #include "mps2.h"
 
 extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;

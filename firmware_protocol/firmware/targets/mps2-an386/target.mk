@@ -74,19 +74,19 @@ $(BUILD)/firmware.elf: $(BUILD)/boot.elf $(BUILD)/obj/factory.o
 	$(ARM_SIZE) $(BUILD)/app.elf $(BUILD)/boot.elf
 endif
 
-CORE_OBJS := $(filter $(BUILD)/obj/device.o $(BUILD)/obj/config_store.o $(BUILD)/obj/spiel_proto.o,$(MPS2_OBJS))
-V2_OBJS := $(filter $(BUILD)/obj/v2.o $(BUILD)/obj/boot.o $(BUILD)/obj/sha256.o,$(MPS2_OBJS))
+CORE_OBJS := $(filter $(BUILD)/obj/device.o $(BUILD)/obj/link.o $(BUILD)/obj/config_store.o $(BUILD)/obj/spiel_proto.o,$(MPS2_OBJS))
+PROTOCOL2_OBJS := $(filter $(BUILD)/obj/telemetry.o $(BUILD)/obj/update.o $(BUILD)/obj/boot.o $(BUILD)/obj/sha256.o,$(MPS2_OBJS))
 ARM_NM ?= arm-none-eabi-nm
 
 sizes: $(BUILD)/firmware.elf
 	@echo "core + frame layer, Cortex-M4 -Os ($(MPS2_DEFINES) $(MPS2_FW) $(CFLAGS_EXTRA)):"
 	@$(ARM_SIZE) -t $(CORE_OBJS)
 	@echo "protocol version 2 in the core (time sync, telemetry, firmware update):"
-	@$(ARM_SIZE) -t $(V2_OBJS)
+	@$(ARM_SIZE) -t $(PROTOCOL2_OBJS)
 	@echo "signed images (core/verify.c and the vendored Ed25519 verifier, vendor/monocypher):"
 	@$(ARM_SIZE) -t $(filter $(BUILD)/obj/verify.o $(BUILD)/obj/monocypher.o $(BUILD)/obj/monocypher-ed25519.o,$(MPS2_OBJS))
 	@echo "their largest RAM buffers (bytes):"
-	@$(ARM_NM) -S --size-sort -t d $(CORE_OBJS) $(V2_OBJS) | awk '$$3 ~ /^[bBdD]$$/ && $$2 + 0 >= 64 {print "  " $$4, $$2 + 0}'
+	@$(ARM_NM) -S --size-sort -t d $(CORE_OBJS) $(PROTOCOL2_OBJS) | awk '$$3 ~ /^[bBdD]$$/ && $$2 + 0 >= 64 {print "  " $$4, $$2 + 0}'
 	@echo "library routines linked into the application (bytes; entry points that share code, once):"
 	@$(ARM_NM) -S -t d $(BUILD)/app.elf | awk '$$3 ~ /^[tT]$$/ && $$4 ~ /^(__|mem|str)/' | sort -n | \
 		awk '{s = $$1 + 0; e = s + $$2; if (s >= end) n += e - s; else if (e > end) n += e - end; if (e > end) end = e; print "  " $$4, $$2 + 0} END {print "  total", n}'

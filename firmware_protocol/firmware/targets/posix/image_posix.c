@@ -32,7 +32,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "core.h"
+#include "spiel_boot.h"
 #include "posix_hal.h"
 
 #if SPIEL_FW_UPDATE

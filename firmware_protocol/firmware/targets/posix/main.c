@@ -28,6 +28,7 @@
 #include <unistd.h>
 
 #include "posix_hal.h"
+#include "spiel_boot.h"
 #include "spiel_device.h"
 
 static void usage(void)

@@ -10,7 +10,7 @@
  */
 #include <stdint.h>
 
-#include "core.h"
+#include "spiel_boot.h"
 #include "hardware/structs/scb.h"
 #include "hardware/structs/watchdog.h"
 #include "rp2040_board.h"
