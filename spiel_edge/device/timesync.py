@@ -355,9 +355,10 @@ def _corridor(
     # highest send - rate * board on the upper hull of the sends: the searches below look at
     # those few points (a dozen) instead of the whole window (up to 512), once per exchange.
     order = np.argsort(board, kind="stable")
-    xs = board[order].tolist()
-    top = _hull(xs, read[order].tolist(), lower=True)
-    bottom = _hull(xs, sent[order].tolist(), lower=False)
+    bx = board[order]
+    xs = bx.tolist()
+    top = _hull(*_hull_candidates(bx, read[order], lower=True), lower=True)
+    bottom = _hull(*_hull_candidates(bx, sent[order], lower=False), lower=False)
     lowest, highest = _lowest(top), _highest(bottom)
 
     def width(rate: float) -> float:  # concave in rate: its maximum is the widest corridor
@@ -422,6 +423,28 @@ class _Envelope:
         high = _along(self.top, x, self.r_lo, self.r_hi, self.top_at)
         low = _along(self.bottom, x, self.r_hi, self.r_lo, self.bottom_at)
         return self.h0 + min(low, high), self.h0 + max(low, high)
+
+
+def _hull_candidates(x: np.ndarray, y: np.ndarray, *, lower: bool, passes: int = 8):
+    """The points (sorted by x) that may be on the lower (upper) hull, as lists for
+    :func:`_hull`: a few vectorised passes drop every point clearly above (below) the chord of
+    its two neighbours among those kept, which no hull has as a vertex (a window of 512 jittered
+    exchanges keeps a few dozen). Near-collinear points are kept for :func:`_hull` to judge,
+    so the hull is the one of all the points."""
+    keep = np.arange(len(x))
+    for _ in range(passes if len(x) > 64 else 0):  # a short window: _hull alone is faster
+        if len(keep) < 3:
+            break
+        a, b, c = keep[:-2], keep[1:-1], keep[2:]
+        left = (x[b] - x[a]) * (y[c] - y[a])
+        right = (y[b] - y[a]) * (x[c] - x[a])
+        cross = left - right
+        margin = 1e-9 * (np.abs(left) + np.abs(right))
+        out = (cross < -margin) if lower else (cross > margin)
+        if not out.any():
+            break
+        keep = np.concatenate((keep[:1], b[~out], keep[-1:]))
+    return x[keep].tolist(), y[keep].tolist()
 
 
 def _hull(xs: list[float], ys: list[float], *, lower: bool) -> tuple[list[float], list[float]]:

@@ -54,3 +54,20 @@ def test_no_line_fits_contradicting_exchanges() -> None:
     # an answer 50 ms away from the others, with a short round trip: no line passes it all
     bad = SyncSample(good[20].sent_us, good[20].sent_us + 300.0, good[20].board_us + 50_000.0)
     assert timesync._corridor([*good, bad], None) == (None, None)
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("lower", [True, False])
+def test_the_candidates_keep_every_hull_vertex(seed, lower) -> None:
+    """Dropping the points above (below) their neighbours' chord first gives the same hull."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(65, 600))
+    x = np.sort(rng.choice(np.arange(0.0, 4e8, 1e5), n))
+    k = int(rng.integers(1, n - 1))
+    x[k] = x[k - 1]  # a repeated board time
+    y = 1.0001 * x + rng.random(n) * (1e3 if seed % 2 else 3e4)
+    assert timesync._hull(
+        *timesync._hull_candidates(x, y, lower=lower), lower=lower
+    ) == timesync._hull(x.tolist(), y.tolist(), lower=lower)
+    kept = timesync._hull_candidates(x, y, lower=lower)[0]
+    assert len(kept) < n // 2  # it does drop most of a jittered window
