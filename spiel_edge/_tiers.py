@@ -27,11 +27,26 @@ from collections.abc import Callable
 log = logging.getLogger(__name__)
 
 KERNELS: list = []  # every dispatcher spiel_edge._jit.jit made, in the order they were made
+# kernel id -> (kernel, a numpy function giving its py_func's results bit for bit, faster
+# interpreted): the twin of the hottest interpreted kernels (issue 39: the interpreted tier
+# keeps up with the board)
+NUMPY_FORMS: dict[int, tuple[object, Callable]] = {}
 OWN_PREFIXES = ("spiel_edge.", "firmware_protocol.")
 
 
 def register(dispatcher) -> None:
     KERNELS.append(dispatcher)
+
+
+def numpy_form(dispatcher) -> Callable[[Callable], Callable]:
+    """Decorator: ``fn`` is ``dispatcher``'s interpreted form (the same arguments and results,
+    bit for bit as its Python function: checked in tests; it calls no kernel)."""
+
+    def wrap(fn: Callable) -> Callable:
+        NUMPY_FORMS[id(dispatcher)] = (dispatcher, fn)
+        return fn
+
+    return wrap
 
 
 def is_inlined(dispatcher) -> bool:
@@ -154,8 +169,13 @@ class Interpreted:
             twin.__qualname__ = f.__qualname__
             twin.__doc__ = f.__doc__
             self.twins[id(k)] = twin
+        for k in self.kernels:  # a numpy form where there is one (no kernel inside)
+            if id(k) in NUMPY_FORMS:
+                self.twins[id(k)] = NUMPY_FORMS[id(k)][1]
         for k in self.kernels:  # closures holding kernels: cells of the twins instead
             twin = self.twins[id(k)]
+            if id(k) in NUMPY_FORMS:
+                continue
             if twin.__closure__ and any(self._maps(c) for c in twin.__closure__):
                 cells = tuple(types.CellType(self._mapped(c)) for c in twin.__closure__)
                 self.twins[id(k)] = fixed = types.FunctionType(

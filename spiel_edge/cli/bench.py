@@ -121,6 +121,12 @@ def command(
             f"CPU-us per record ({run.get('over_pipeline', '-')}x the pipeline's), "
             f"latency at --rate 0 {run['latency_ms']}"
         )
+        # the board's default pace (issue 39): the same path, idle between acquisitions
+        result["run_path_4x64_50hz"] = paced = run_path_cpu(500, 50.0)
+        click.echo(
+            f"the same at the board's 50/s: {paced['cpu_us_per_record']:.0f} CPU-us per record, "
+            f"{paced['wakeups_per_record']} wake-ups per record"
+        )
     if not no_startup:  # a tiered start (docs/first-start.md): cheap, the compile is stopped
         from spiel_edge.measure.bench_run import first_record_cold, interpreted_tier
 

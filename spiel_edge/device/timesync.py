@@ -351,9 +351,18 @@ def _corridor(
     read = np.array([x.received_us for x in samples]) + RESOLUTION_US
     b0, h0 = float(board.mean()), float(sent.mean())
     board, sent, read = board - b0, sent - h0, read - h0  # centred: no cancellation
+    # For any rate, the lowest read - rate * board lies on the lower hull of the reads and the
+    # highest send - rate * board on the upper hull of the sends: the searches below look at
+    # those few points (a dozen) instead of the whole window (up to 512), once per exchange.
+    order = np.argsort(board, kind="stable")
+    bx = board[order]
+    xs = bx.tolist()
+    top = _hull(*_hull_candidates(bx, read[order], lower=True), lower=True)
+    bottom = _hull(*_hull_candidates(bx, sent[order], lower=False), lower=False)
+    lowest, highest = _lowest(top), _highest(bottom)
 
     def width(rate: float) -> float:  # concave in rate: its maximum is the widest corridor
-        return float(np.min(read - rate * board) - np.max(sent - rate * board))
+        return lowest(rate) - highest(rate)
 
     lo, hi = 1.0 - MAX_DRIFT, 1.0 + MAX_DRIFT
     if prior is not None:  # the rate measured before a reset narrows the search
@@ -368,15 +377,30 @@ def _corridor(
     # the rates with a corridor at all: how far the rate may be off
     r_lo = _root(width, lo, rate) if width(lo) < 0.0 else lo
     r_hi = _root(width, hi, rate) if width(hi) < 0.0 else hi
-    offset = 0.5 * (np.min(read - rate * board) + np.max(sent - rate * board))
+    offset = 0.5 * (lowest(rate) + highest(rate))
     growth = max(rate - r_lo, r_hi - rate)
     # Every feasible line's offset at the centre lies within half the width plus the rate's
     # play times the window's half-length (the corridor's walls turn with the rate): a bound
     # for every line the exchanges allow, used to judge answers; stamps use the envelope.
-    reach = float(np.max(np.abs(board))) * growth
+    reach = max(abs(xs[0]), abs(xs[-1])) * growth
     base = 0.5 * w + reach + RESOLUTION_US
     line = ClockEstimate(b0, h0 + float(offset), rate, base, growth, True)
-    return line, _Envelope(b0, h0, board, sent, read, r_lo, r_hi)
+    envelope = _Envelope(b0, h0, top, bottom, r_lo, r_hi)
+    envelope.top_at = {r: lowest(r) for r in (r_lo, r_hi)}
+    envelope.bottom_at = {r: highest(r) for r in (r_lo, r_hi)}
+    return line, envelope
+
+
+def _lowest(hull: tuple[list[float], list[float]]):
+    """rate -> the lowest y - rate * x over the hull's points."""
+    points = list(zip(*hull, strict=True))
+    return lambda rate: min([y - rate * x for x, y in points])
+
+
+def _highest(hull: tuple[list[float], list[float]]):
+    """rate -> the highest y - rate * x over the hull's points."""
+    points = list(zip(*hull, strict=True))
+    return lambda rate: max([y - rate * x for x, y in points])
 
 
 class _Envelope:
@@ -385,23 +409,42 @@ class _Envelope:
     rates within [r_lo, r_hi] (a relaxation of the corridor, so the range holds whatever line
     is true; within the window it is about the corridor's width, not its width plus the rate's
     play times the window). Beyond the window (or where the hull's slope leaves the rates), the
-    extreme rate's line through the hull bounds it."""
+    extreme rate's line through the hull bounds it. ``top_at``/``bottom_at``: the extreme
+    rates' lines under every read / over every send (offsets at 0), set by the caller."""
 
-    def __init__(self, b0, h0, board, sent, read, r_lo: float, r_hi: float) -> None:
-        order = np.argsort(board, kind="stable")
-        b, lo, hi = board[order], sent[order], read[order]
+    def __init__(self, b0, h0, top, bottom, r_lo: float, r_hi: float) -> None:
         self.b0, self.h0, self.r_lo, self.r_hi = b0, h0, r_lo, r_hi
-        self.top = _hull(b.tolist(), hi.tolist(), lower=True)
-        self.bottom = _hull(b.tolist(), lo.tolist(), lower=False)
-        # the extreme rates' lines under every read / over every send (offsets at 0)
-        self.top_at = {r: float(np.min(hi - r * b)) for r in (r_lo, r_hi)}
-        self.bottom_at = {r: float(np.max(lo - r * b)) for r in (r_lo, r_hi)}
+        self.top, self.bottom = top, bottom
+        self.top_at: dict[float, float] = {}
+        self.bottom_at: dict[float, float] = {}
 
     def bounds(self, board_us: float) -> tuple[float, float]:
         x = board_us - self.b0
         high = _along(self.top, x, self.r_lo, self.r_hi, self.top_at)
         low = _along(self.bottom, x, self.r_hi, self.r_lo, self.bottom_at)
         return self.h0 + min(low, high), self.h0 + max(low, high)
+
+
+def _hull_candidates(x: np.ndarray, y: np.ndarray, *, lower: bool, passes: int = 8):
+    """The points (sorted by x) that may be on the lower (upper) hull, as lists for
+    :func:`_hull`: a few vectorised passes drop every point clearly above (below) the chord of
+    its two neighbours among those kept, which no hull has as a vertex (a window of 512 jittered
+    exchanges keeps a few dozen). Near-collinear points are kept for :func:`_hull` to judge,
+    so the hull is the one of all the points."""
+    keep = np.arange(len(x))
+    for _ in range(passes if len(x) > 64 else 0):  # a short window: _hull alone is faster
+        if len(keep) < 3:
+            break
+        a, b, c = keep[:-2], keep[1:-1], keep[2:]
+        left = (x[b] - x[a]) * (y[c] - y[a])
+        right = (y[b] - y[a]) * (x[c] - x[a])
+        cross = left - right
+        margin = 1e-9 * (np.abs(left) + np.abs(right))
+        out = (cross < -margin) if lower else (cross > margin)
+        if not out.any():
+            break
+        keep = np.concatenate((keep[:1], b[~out], keep[-1:]))
+    return x[keep].tolist(), y[keep].tolist()
 
 
 def _hull(xs: list[float], ys: list[float], *, lower: bool) -> tuple[list[float], list[float]]:

@@ -49,11 +49,28 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _wakeups(pid: int) -> int:
+    """Voluntary context switches of a running process, all its threads (its waits that
+    ended; what ``wait4`` reports at its end)."""
+    total = 0
+    for task in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{task}/status") as fh:
+                total += sum(
+                    int(line.split()[1]) for line in fh if line.startswith("voluntary_ctxt")
+                )
+        except OSError:  # a thread that ended meanwhile
+            continue
+    return total
+
+
 def run_path_cpu(records: int = 2000, rate: float = 0.0) -> dict:
     """CPU microseconds per record of ``spiel-edge run`` over a pty (4 x 64, 4 targets,
     tracking, NDJSON on stdout read here), the virtual board in another process: the run's
     CPU from its first record to its exit (kernel accounting), over the records after the
-    first; start-up is left out. Its own summary line gives the latency."""
+    first; start-up is left out. Its own summary line gives the latency. ``wakeups_per_record``:
+    the process's voluntary context switches over the same span (each wait for the board that
+    ended), per record: 1 is one wake-up per acquisition."""
     server, port = _serve_pty()
     try:
         args = ["run", "--port", port, "--frames", str(records), "--rate", str(rate), *RUN_ARGS]
@@ -62,6 +79,7 @@ def run_path_cpu(records: int = 2000, rate: float = 0.0) -> dict:
             proc = subprocess.Popen([*CLI, *args], stdout=subprocess.PIPE, stderr=err)
             first_line = proc.stdout.readline()
             at_first = _cpu_s(proc.pid) if first_line else None
+            waits_at_first = _wakeups(proc.pid) if first_line else 0
             first_s = time.perf_counter() - t0
             lines = 1 + sum(1 for _ in proc.stdout)
             _, status, usage = os.wait4(proc.pid, 0)
@@ -84,6 +102,7 @@ def run_path_cpu(records: int = 2000, rate: float = 0.0) -> dict:
         "records": lines,
         "rate_hz": rate,
         "cpu_us_per_record": round((total - at_first) / max(lines - 1, 1) * 1e6, 1),
+        "wakeups_per_record": round((usage.ru_nvcsw - waits_at_first) / max(lines - 1, 1), 2),
         "startup_cpu_s": round(at_first, 2),
         "first_record_s": round(first_s, 2),
         "latency_ms": (

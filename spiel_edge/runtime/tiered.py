@@ -280,24 +280,26 @@ class TieredStart:
 
     def close(self, stop_compile: bool) -> str | None:
         """The command ends: stop the compile (``stop_compile``, or SPIEL_EDGE_COMPILE_AFTER_EXIT
-        =0), else leave it running; the line saying which, or None when none runs."""
+        =0), else leave it running; the line saying which, or None when none runs. A stopped
+        compile's line is said here, before waiting for the compile to end (None returned):
+        run from the signal watchdog's thread, the command may exit during that wait."""
         proc = self.proc  # (its plan file is the compile process's to remove)
         if proc is None or proc.poll() is not None:
             return None
         if stop_compile or os.environ.get(ENV_AFTER, "1") == "0":
             self.stopped = True
-            try:
-                os.killpg(proc.pid, signal.SIGTERM)
-                proc.wait(timeout=10)
-            except (OSError, subprocess.TimeoutExpired):
-                pass
-            if self._plan_file is not None:  # stopped before it could remove it
-                self._plan_file.unlink(missing_ok=True)
             p = self.progress()
-            return (
+            with contextlib.suppress(OSError):
+                os.killpg(proc.pid, signal.SIGTERM)
+            self._say(
                 f"spiel-edge: compile stopped at {p['compiled']}/{p['to_compile']} kernels "
                 "(kept in the cache; the next start goes on from there)"
             )
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=10)  # at the lowest priority it may need a moment
+            if self._plan_file is not None:  # stopped before it could remove it
+                self._plan_file.unlink(missing_ok=True)
+            return None
         p = self.progress()
         return (
             f"spiel-edge: kernels keep compiling in the background (pid {proc.pid}, "

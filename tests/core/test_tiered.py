@@ -498,3 +498,29 @@ def test_fuse_starts_tiered_on_the_tracker_alone_and_fuses_the_same(tmp_path):
     fused = [json.loads(line) for line in tiered.stdout.splitlines()]
     assert len(fused) == 60 and any(r["tracks"] for r in fused)
     assert tiered.stdout == plain.stdout
+
+
+PRIORITY = """
+import json, os, subprocess, sys
+from spiel_edge.runtime.tier_compile import lower_priority
+said = lower_priority()
+child = subprocess.run(
+    [sys.executable, "-c", "import os; print(os.nice(0), os.sched_getscheduler(0))"],
+    capture_output=True, text=True, check=True,
+).stdout.split()
+print(json.dumps({"said": said, "nice": os.nice(0), "policy": os.sched_getscheduler(0),
+                  "child": [int(v) for v in child]}))
+"""
+
+
+def test_the_background_compile_and_its_workers_run_at_the_lowest_priority():
+    out = subprocess.run(
+        [sys.executable, "-c", PRIORITY], capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["nice"] == 19 and got["child"][0] == 19  # the warm-up's children inherit it
+    assert "nice 19" in got["said"]
+    if hasattr(os, "SCHED_IDLE"):  # Linux: the idle class, for the worker too
+        assert got["policy"] == os.SCHED_IDLE == got["child"][1]
+        assert "SCHED_IDLE" in got["said"]

@@ -21,6 +21,7 @@ import struct
 
 import numpy as np
 
+from spiel_edge import _tiers
 from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
 from spiel_edge.pipeline.learned.tree_ensemble import _fields
@@ -195,6 +196,16 @@ def _layer_rows(x, w, b, out):
                 out[i, r] += wij * x[j, r]
         for r in range(n):
             out[i, r] = max(out[i, r], 0.0)
+
+
+@_tiers.numpy_form(_layer_rows)
+def _layer_rows_numpy(x, w, b, out):
+    """:func:`_layer_rows` on the interpreted tier: the same float64 sums in the same order
+    (bias, then w[i, j] * x[j, r] for j = 0, 1, ...), all rows and columns at once."""
+    acc = np.repeat(b.astype(np.float64)[:, None], x.shape[1], axis=1)
+    for j in range(w.shape[1]):
+        acc += w[:, j].astype(np.float64)[:, None] * x[j][None, :]
+    out[:, :] = np.where(acc < 0.0, 0.0, acc)  # max(v, 0.0) keeps v when not below (NaN, -0.0)
 
 
 @jit

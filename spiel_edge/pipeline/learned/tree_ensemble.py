@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spiel_edge import _tiers
 from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
 
@@ -271,3 +272,17 @@ def _sum_depth3(xf, feature, threshold, value, total):
         i = _down(xf, f, h, _down(xf, f, h, _down(xf, f, h, 0)))
         total += np.float32(value[t, i - 7])
     return total
+
+
+@_tiers.numpy_form(_sum_depth3)
+def _sum_depth3_numpy(xf, feature, threshold, value, total):
+    """:func:`_sum_depth3` on the interpreted tier: every tree's path at once, the leaves
+    summed in tree order in float32 (``np.add.accumulate`` adds one after the other)."""
+    t = np.arange(feature.shape[0])
+
+    def down(i):
+        return 2 * i + 2 - (xf[feature[t, i]] <= threshold[t, i]).astype(np.int64)
+
+    leaves = value[t, down(down(down(np.zeros(len(t), dtype=np.int64)))) - 7]
+    terms = np.concatenate((np.array([total], dtype=np.float32), leaves.astype(np.float32)))
+    return np.add.accumulate(terms)[-1]
