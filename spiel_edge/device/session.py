@@ -245,15 +245,19 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         timeout_s: float | None = None,
         retries: int = MAX_RETRIES,
         probe: bool = False,
+        retry_busy: bool = True,
     ) -> Message:
         """Send a request and return its answer; DeviceRequestError on an error answer,
         DeviceTimeoutError when ``1 + retries`` tries got none. BUSY is retried after a short
-        delay with a new sequence number (PROTOCOL.md section 10). ``probe``: an optional
-        exchange (clock sync) whose silence is not counted in ``counters.timeouts``."""
+        delay with a new sequence number (PROTOCOL.md section 10), unless ``retry_busy`` is
+        False (the caller must know the board said BUSY: FW_VERIFY's silence after it).
+        ``probe``: an optional exchange (clock sync) whose silence is not counted in
+        ``counters.timeouts``."""
         for attempt in range(1 + retries):
             answer = self._exchange(msg, timeout_s, retries, probe)
             if not (
-                isinstance(answer, ErrorResponse)
+                retry_busy
+                and isinstance(answer, ErrorResponse)
                 and answer.code == ErrorCode.BUSY
                 and attempt < retries
             ):
