@@ -1,7 +1,7 @@
 """spiel-edge: 3-D ultrasonic echolocation (PaCE) for robots.
 
 Data flow, mirrored by the package layout:
-bytes (link/) -> frames (firmware_protocol) -> acquisitions (device/, io/) ->
+bytes (link/) -> frames (spiel_edge.protocol) -> acquisitions (device/, safety/) ->
 echoes (pipeline/preprocess, detect, memg) -> features (pipeline/features) ->
 associations (pipeline/associate, scene) -> positions (pipeline/echo_timing, locate) ->
 tracks (track/) -> outputs (outputs/); runtime/ runs it, cli/ is the command line.
@@ -15,10 +15,7 @@ if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "spiel-edge" or list(
 ) == ["-m", "spiel_edge.cli"]:
     from spiel_edge import _early  # noqa: F401  # the command itself: signals recorded from here
 
-from spiel_edge import _shipped  # noqa: E402
 from spiel_edge.errors import SpielError  # noqa: E402
-
-_shipped.select_cpu()  # before anything imports numba: a wheel's prebuilt kernels need it
 
 __version__ = "0.1.0"
 __all__ = ["SpielError", "__version__"]

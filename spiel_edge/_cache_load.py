@@ -10,7 +10,7 @@ three things only a compilation needs (docs/performance.md, "Fifth session"):
 - each loaded library parses the LLVM bitcode kept for linking it into other functions.
 
 :func:`install` makes a cache hit of this project's kernels (``spiel_edge.*`` and
-``firmware_protocol.*``) initialise only the runtime before loading, keeps the runtime's
+``spiel_edge.protocol.*``) initialise only the runtime before loading, keeps the runtime's
 machine code in numba's cache folder beside the kernels, keyed like numba's own entries (CPU
 name and features, versions), and defers each library's bitcode until something links it,
 so a warm start runs no LLVM pass at all. A cache miss compiles exactly as before: numba's
@@ -40,7 +40,7 @@ ENV_SWITCH = "SPIEL_EDGE_NUMBA_LEAN"
 # kernels numba's own way
 SUPPORTED = _numba_gate.TESTED["numba"]
 SUPPORTED_LLVMLITE = _numba_gate.TESTED["llvmlite"]
-OWN_MODULES = ("spiel_edge.", "firmware_protocol.")
+OWN_MODULES = ("spiel_edge.",)
 RUNTIME_MAGIC = b"spiel-edge nrt 1\n"
 
 _state = {"installed": False, "folder": None, "loading": False}

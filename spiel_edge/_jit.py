@@ -13,9 +13,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from numba import njit
+from spiel_edge import _shipped
 
-from spiel_edge import _cache_load, _numba_gate, _tiers
+_shipped.select_cpu()  # before numba reads NUMBA_CPU_NAME: a wheel's prebuilt kernels
+
+from numba import njit  # noqa: E402
+
+from spiel_edge import _cache_load, _numba_gate, _tiers  # noqa: E402
 
 GATED = _numba_gate.ok()  # numba's internals as tested: the project's cache layers
 if GATED:

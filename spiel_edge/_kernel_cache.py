@@ -45,7 +45,7 @@ listeners: list[Callable[[str, str, object], None]] = []
 _warned: set[str] = set()
 counts = {"hits": 0, "shipped_hits": 0, "compiled": 0}
 ENV_FORBID = "SPIEL_EDGE_NO_COMPILE"  # "1": a kernel missing from every cache is an error
-_forbid = {"on": False}
+forbid = {"on": False}
 
 
 class CompileNeeded(SpielError):
@@ -60,14 +60,14 @@ class CompileNeeded(SpielError):
 def no_compile():
     """Within: a kernel that would compile raises :class:`CompileNeeded` instead (the caller
     finds out cheaply whether everything is cached, and compiles elsewhere if not)."""
-    before, _forbid["on"] = _forbid["on"], True
+    before, forbid["on"] = forbid["on"], True
     try:
         yield
     finally:
-        _forbid["on"] = before
+        forbid["on"] = before
 
 
-def _emit(event: str, name: str, detail: object) -> None:
+def emit(event: str, name: str, detail: object) -> None:
     for listener in list(listeners):
         try:
             listener(event, name, detail)
@@ -75,14 +75,14 @@ def _emit(event: str, name: str, detail: object) -> None:
             log.debug("compile listener failed: %s", exc)
 
 
-def _warn_once(key: str, message: str) -> None:
+def warn_once(key: str, message: str) -> None:
     if key in _warned:
         return
     _warned.add(key)
     # a display listening (compile progress, a warm-up child's relay) says it: once, not again
     # through the log
     (log.debug if listeners else log.warning)("%s", message)
-    _emit("warning", key, message)
+    emit("warning", key, message)
 
 
 def cache_dir_problem() -> str | None:
@@ -104,6 +104,6 @@ def cache_dir_problem() -> str | None:
 
 
 @functools.cache
-def _cache_dir_problem_once() -> str | None:
+def cache_dir_problem_once() -> str | None:
     """:func:`cache_dir_problem`, looked at once per process (not per kernel)."""
     return cache_dir_problem()

@@ -17,12 +17,12 @@ from spiel_edge import _shipped
 from spiel_edge._kernel_cache import (
     ENV_FORBID,
     CompileNeeded,
-    _cache_dir_problem_once,
-    _emit,
-    _forbid,
-    _warn_once,
+    cache_dir_problem_once,
     counts,
+    emit,
+    forbid,
     log,
+    warn_once,
 )
 
 
@@ -172,8 +172,8 @@ class KernelCache(caching.FunctionCache):
         )
         self._name = f"{py_func.__module__}.{py_func.__qualname__}"
         self.writable = not isinstance(self._impl.locator, _NowhereLocator)
-        if self.writable and (problem := _cache_dir_problem_once()):
-            _warn_once("cache-dir", f"{problem}: compiled kernels are kept in {self._cache_path}")
+        if self.writable and (problem := cache_dir_problem_once()):
+            warn_once("cache-dir", f"{problem}: compiled kernels are kept in {self._cache_path}")
         shipped = _shipped.index_folder(inspect.getfile(py_func))
         self._shipped = None
         if shipped is not None and not os.environ.get(_shipped.ENV_BUILD):
@@ -212,23 +212,23 @@ class KernelCache(caching.FunctionCache):
                     counts["shipped_hits"] += shipped
                     return result
             except Exception as exc:  # a damaged or foreign file: compile instead
-                if _forbid["on"]:
+                if forbid["on"]:
                     continue  # a probe: whoever compiles it next says why
                 where = "prebuilt kernel" if shipped else "cached kernel"
-                _warn_once(
+                warn_once(
                     f"load:{layer._index_path}",
                     f"{where} {self._name} unusable ({type(exc).__name__}: {exc}): compiling it",
                 )
-        if _forbid["on"] or os.environ.get(ENV_FORBID, "0") not in ("", "0"):
+        if forbid["on"] or os.environ.get(ENV_FORBID, "0") not in ("", "0"):
             raise CompileNeeded(self._name)
         if not self.writable:
-            _warn_once(
+            warn_once(
                 "nowhere",
                 "no writable folder for compiled kernels: kernels compiled now are not kept "
                 "(set NUMBA_CACHE_DIR to a folder this user can write)",
             )
         self._started[sig] = time.perf_counter()
-        _emit("compile", self._name, sig)
+        emit("compile", self._name, sig)
         return None
 
     def _save_or_renew(self, sig, data) -> None:
@@ -249,13 +249,13 @@ class KernelCache(caching.FunctionCache):
             if self.writable:
                 self._save_or_renew(sig, data)
         except Exception as exc:  # read-only folder, full disk: the kernel runs from memory
-            _warn_once(
+            warn_once(
                 f"save:{self._cache_path}",
                 f"compiled kernel {self._name} not saved to {self._cache_path} "
                 f"({type(exc).__name__}: {exc}): it compiles again next start",
             )
         seconds = time.perf_counter() - started if started is not None else 0.0
-        _emit("compiled", self._name, seconds)
+        emit("compiled", self._name, seconds)
 
 
 def make(py_func) -> caching._Cache:
@@ -264,5 +264,5 @@ def make(py_func) -> caching._Cache:
     try:
         return KernelCache(py_func)
     except RuntimeError as exc:
-        _warn_once("nocache", f"kernels are not cached: {exc}")
+        warn_once("nocache", f"kernels are not cached: {exc}")
         return caching.NullCache()

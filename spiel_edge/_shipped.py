@@ -5,7 +5,7 @@ in ``spiel_edge/_kernels/``, compiled for a generic CPU of its architecture (``N
 generic``: no instruction beyond the architecture's baseline), with ``manifest.json`` naming
 the Python, machine, numba and llvmlite they were built with and a SHA-256 of every file.
 
-:func:`select_cpu` runs when ``spiel_edge`` is imported, before anything imports numba: when
+:func:`select_cpu` runs when ``spiel_edge._jit`` is imported, before it imports numba: when
 the shipped kernels fit this interpreter it sets ``NUMBA_CPU_NAME=generic``, so numba looks
 them up (its cache key holds the CPU name) and compiles whatever is missing for the same CPU.
 An sdist or editable install has no ``_kernels/`` and compiles for the host's CPU as before.
@@ -55,7 +55,7 @@ def select_cpu() -> bool:
     if chosen is not None and chosen.lower() != CPU_NAME:
         return _set(False, f"NUMBA_CPU_NAME={chosen} is set: kernels are compiled for it")
     if "numba" in sys.modules and chosen is None:
-        return _set(False, "numba was imported before spiel_edge: kernels are compiled")
+        return _set(False, "numba was imported before spiel_edge._jit: kernels are compiled")
     os.environ["NUMBA_CPU_NAME"] = CPU_NAME
     _state["manifest"] = manifest
     return _set(True, f"prebuilt kernels for a generic {manifest['machine']} CPU")

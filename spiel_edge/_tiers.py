@@ -7,7 +7,7 @@ kernel calling another kernel calls its interpreted form (numba decides interpre
 compiled when a function is decorated: the two forms cannot share module globals, or one
 tier's kernels calling the other's would compile in place). :meth:`Interpreted.enter` puts
 the twins where the Python code around the kernels finds them (every module global of
-``spiel_edge.*`` and ``firmware_protocol.*`` bound to a kernel, and the stream decoder's
+``spiel_edge.*`` and ``spiel_edge.protocol.*`` bound to a kernel, and the stream decoder's
 pure-Python path), :meth:`Interpreted.leave` puts the dispatchers back: the objects that hold
 state (pipelines, trackers, sessions, sinks) are the same on both tiers.
 
@@ -31,7 +31,7 @@ KERNELS: list = []  # every dispatcher spiel_edge._jit.jit made, in the order th
 # interpreted): the twin of the hottest interpreted kernels (issue 39: the interpreted tier
 # keeps up with the board)
 NUMPY_FORMS: dict[int, tuple[object, Callable]] = {}
-OWN_PREFIXES = ("spiel_edge.", "firmware_protocol.")
+OWN_PREFIXES = ("spiel_edge.",)
 
 
 def register(dispatcher) -> None:
@@ -245,7 +245,7 @@ class Interpreted:
 
     def use_pure_cobs(self) -> None:
         """The stream decoder on its pure-Python path (the same bytes, faster than twins)."""
-        cobs = sys.modules.get("firmware_protocol.cobs")  # imported with the kernels
+        cobs = sys.modules.get("spiel_edge.protocol.cobs")  # imported with the kernels
         if cobs is not None and cobs.kernels() is not None:
             self._swapped.append((vars(cobs), "_kernels", cobs._kernels))
             cobs._kernels = None

@@ -34,7 +34,7 @@ class DeviceDisconnectedError(DeviceError):
 
 
 class DeviceRequestError(DeviceError):
-    """The board answered a request with an error (``code``: firmware_protocol.ErrorCode)."""
+    """The board answered a request with an error (``code``: spiel_edge.protocol.ErrorCode)."""
 
     def __init__(self, message: str, code: int = 0, request_type: int = 0) -> None:
         super().__init__(message)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from firmware_protocol.image import pack_image
+from spiel_edge.protocol.image import pack_image
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV_KEY = ROOT / "firmware_protocol" / "firmware" / "keys" / "dev.key"

@@ -17,7 +17,7 @@ import numpy as np
 
 from spiel_edge.errors import DeviceError
 from spiel_edge.profile.schema import Profile
-from spiel_edge.runtime.background import background_of
+from spiel_edge.runtime.background_capture import background_of
 
 log = logging.getLogger(__name__)
 

@@ -77,7 +77,7 @@ def load_recordings(
 def read_positions(path: str | Path) -> np.ndarray:
     """Target positions (P, 3) in mm from a CSV with x, y, z per row (a header and # comments
     are allowed)."""
-    from spiel_edge.io.limits import read_input_text  # the bounded reader (positions: 1 MiB)
+    from spiel_edge.safety.limits import read_input_text  # the bounded reader (positions: 1 MiB)
 
     path = Path(path)
     text = read_input_text(path, "positions")

@@ -23,7 +23,7 @@ import click
 from spiel_edge import __version__
 from spiel_edge.cli._signals import Terminated, deferred_in_import, interrupted
 from spiel_edge.errors import SpielError
-from spiel_edge.io.guard import escape, release_claims, shorten, shorten_tokens
+from spiel_edge.safety.guard import escape, release_claims, shorten, shorten_tokens
 
 EXIT_OK, EXIT_PARTIAL, EXIT_ERROR = 0, 1, 2
 
@@ -50,16 +50,16 @@ def setup_logging(verbosity: int) -> None:
     handler = logging.getLogger().handlers[0]
     if stderr_is_journal():
         handler.setFormatter(JournalFormatter())
-    handler.addFilter(_shorten_record)
+    handler.addFilter(shorten_record)
     from spiel_edge.runtime.log_limit import ClientLogLimiter  # libraries' client-driven lines
 
     handler.addFilter(ClientLogLimiter())
 
 
-def _shorten_record(record: logging.LogRecord) -> bool:
+def shorten_record(record: logging.LogRecord) -> bool:
     """No log line carries a huge token (a 10 MB argument echoed by some message) nor a raw
     control character (a board's string, a file name, a Zenoh key): a record is one line,
-    its newlines shown as ``\\n``, escape sequences as ``\\x1b`` (io/shown.py)."""
+    its newlines shown as ``\\n``, escape sequences as ``\\x1b`` (safety/shown.py)."""
     message = record.getMessage()
     short = shorten_tokens(escape(message))
     if short != message:

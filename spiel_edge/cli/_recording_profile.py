@@ -14,7 +14,7 @@ from spiel_edge.profile.schema import apply_calibration, resolve_profile
 
 def recording_profile(path, fmt, profile_name, calibration, *, param: str = "profile_name"):
     """--profile when the user gave it; a SToF-Chirp recording's own board otherwise."""
-    from spiel_edge.runtime.replay import format_of
+    from spiel_edge.runtime.recorded import format_of
 
     ctx = click.get_current_context(silent=True)
     given = ctx is None or ctx.get_parameter_source(param) == click.core.ParameterSource.COMMANDLINE

@@ -14,12 +14,12 @@ import numpy as np
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.cli._status_line import say_live_views
-from spiel_edge.io.guard import FilePlan
-from spiel_edge.io.shown import shorten_tokens
 from spiel_edge.outputs import check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.robot.description import RobotSpec, load_robot
 from spiel_edge.runtime.realtime import apply_realtime
+from spiel_edge.safety.guard import FilePlan
+from spiel_edge.safety.shown import shorten_tokens
 
 log = logging.getLogger(__name__)
 

@@ -10,9 +10,9 @@ import click
 from spiel_edge.cli._options import board_port, force_option, port_option
 from spiel_edge.cli._signals import stop_on_signals
 from spiel_edge.device import DeviceSession
-from spiel_edge.io.guard import FilePlan
-from spiel_edge.io.shown import escape
-from spiel_edge.runtime.background import median_background, save_background
+from spiel_edge.runtime.background_capture import median_background, save_background
+from spiel_edge.safety.guard import FilePlan
+from spiel_edge.safety.shown import escape
 
 
 @click.command("background")

@@ -32,11 +32,11 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import FilePlan, atomic_write
-from spiel_edge.io.shown import escape
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import resolve_profile
 from spiel_edge.runtime.tiered import tiered_work
+from spiel_edge.safety.guard import FilePlan, atomic_write
+from spiel_edge.safety.shown import escape
 from spiel_edge.view import require_matplotlib
 
 

@@ -7,14 +7,14 @@ import sys
 
 import click
 
-from spiel_edge.board import schema as bc
-from spiel_edge.board.flash import commit, pull, push
+from spiel_edge.board_config import schema as bc
+from spiel_edge.board_config.flash import commit, pull, push
 from spiel_edge.cli import EXIT_OK
 from spiel_edge.cli._options import board_port, force_option, port_option, profile_option
 from spiel_edge.errors import ConfigError, DeviceError
-from spiel_edge.io.guard import FilePlan, atomic_write
-from spiel_edge.io.shown import escape
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.safety.guard import FilePlan, atomic_write
+from spiel_edge.safety.shown import escape
 
 
 def open_session(port: str):

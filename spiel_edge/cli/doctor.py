@@ -96,7 +96,7 @@ def service_rejects(env: dict[str, str]) -> str | None:
         if ctx.params.get("foxglove"):
             parse_host_port(ctx.params["foxglove"], default_host="127.0.0.1", what="--foxglove")
         if ctx.params.get("slot"):  # the robot file and its board, as run checks them
-            from spiel_edge.robot.slotted_stream import slot_keeper_of
+            from spiel_edge.robot.slot_session import slot_keeper_of
 
             slot_keeper_of(ctx.params["slot"])
     except SpielError as exc:

@@ -20,9 +20,6 @@ from spiel_edge.cli._options import (
 )
 from spiel_edge.data import EXCLUDED_Z_MM
 from spiel_edge.errors import ConfigError, InputError
-from spiel_edge.io.guard import FilePlan
-from spiel_edge.io.limits import InputLimits
-from spiel_edge.io.shown import escape
 from spiel_edge.measure.evaluate import evaluate_folder, evaluate_labelled, split_by_position
 from spiel_edge.measure.scenes import evaluate_scenes
 from spiel_edge.measure.track_eval import evaluate_tracked
@@ -33,6 +30,9 @@ from spiel_edge.recordings.labelled import load_labelled
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, resolve_jobs
 from spiel_edge.runtime.tiered import tiered_work
+from spiel_edge.safety.guard import FilePlan
+from spiel_edge.safety.limits import InputLimits
+from spiel_edge.safety.shown import escape
 from spiel_edge.view import require_matplotlib
 
 

@@ -10,8 +10,8 @@ import click
 from spiel_edge.cli import EXIT_ERROR, EXIT_OK
 from spiel_edge.cli._options import board_port, force_option, port_option
 from spiel_edge.errors import DeviceError, InputError
-from spiel_edge.io.guard import FilePlan, atomic_write
-from spiel_edge.io.shown import escape  # a board's or an image's strings: never raw
+from spiel_edge.safety.guard import FilePlan, atomic_write
+from spiel_edge.safety.shown import escape  # a board's or an image's strings: never raw
 
 MAX_IMAGE_BYTES = 64 * 1024 * 1024  # an image file larger than this is refused unread
 
@@ -109,7 +109,7 @@ def update_cmd(port: str, image: str, wait_s: float) -> int:
 
 def update_outcome_line(result, version: str) -> str:
     """One line: what the board reports after the update (its slot, version and state)."""
-    from spiel_edge.io.shown import escape
+    from spiel_edge.safety.shown import escape
 
     state = f"board {escape(result.serial)} runs {escape(result.version)} in slot {result.slot}"
     if result.confirmed:
@@ -187,8 +187,8 @@ def pack_cmd(
 
     For mps2-an386 the BODY is build/mps2/app.bin (make TARGET=mps2), the application linked
     for the boot stage's execution region."""
-    from firmware_protocol.image import ImageError, check_body, pack_image
     from spiel_edge.device.fwkeys import is_dev_key, load_private_key
+    from spiel_edge.protocol.image import ImageError, check_body, pack_image
 
     plan = FilePlan(force)
     plan.input_file(body, "BODY")
@@ -253,8 +253,8 @@ def pack_cmd(
 def check_cmd(image: str, pub_path: str, min_counter: int) -> int:
     """Check IMAGE offline as a board built with --pub would at FW_VERIFY: intact, signed by
     that key, its security counter at least --min-counter (exit 0), or say why not (exit 2)."""
-    from firmware_protocol.image import ImageError, verify_image
-    from firmware_protocol.signing import parse_public_key_text
+    from spiel_edge.protocol.image import ImageError, verify_image
+    from spiel_edge.protocol.signing import parse_public_key_text
 
     plan = FilePlan(False)
     plan.input_file(image, "IMAGE")

@@ -11,8 +11,8 @@ import click
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import force_option, realtime_option
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
-from spiel_edge.io.shown import shorten_tokens
 from spiel_edge.runtime.tiered import tiered_work
+from spiel_edge.safety.shown import shorten_tokens
 
 
 @click.command("fuse")
@@ -133,8 +133,8 @@ def command(
     frame, one record per trigger cycle (docs/robot.md). With --replay, the boards' recorded
     records instead, offline (no Zenoh)."""
     from spiel_edge.cli._robot import check_fused_outputs, open_fused_outputs, robot_inputs
-    from spiel_edge.io.guard import FilePlan
     from spiel_edge.robot.description import load_robot
+    from spiel_edge.safety.guard import FilePlan
 
     robot = load_robot(robot_file)
     plan = FilePlan(force)

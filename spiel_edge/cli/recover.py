@@ -6,8 +6,8 @@ import click
 
 from spiel_edge.cli import EXIT_OK, EXIT_PARTIAL
 from spiel_edge.cli._options import force_option
-from spiel_edge.io.guard import FilePlan
-from spiel_edge.io.shown import escape
+from spiel_edge.safety.guard import FilePlan
+from spiel_edge.safety.shown import escape
 
 
 @click.command("recover")

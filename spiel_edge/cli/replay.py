@@ -23,12 +23,10 @@ from spiel_edge.cli._recording_profile import recording_profile
 from spiel_edge.cli._ros2 import ros2_record_options, ros2_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.errors import ConfigError, OutputError
-from spiel_edge.io.guard import FilePlan
-from spiel_edge.io.limits import InputLimits
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.recordings.spiel_csv import frame_files
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files, usable_jobs
-from spiel_edge.runtime.replay import (
+from spiel_edge.runtime.recorded import (
     FORMATS,
     ReplaySummary,
     chosen_toa_correction,
@@ -37,9 +35,11 @@ from spiel_edge.runtime.replay import (
     recorded_toa_correction,
     replay,
 )
-from spiel_edge.runtime.replay_output import is_mcap_output, open_replay_output
+from spiel_edge.runtime.recorded_output import is_mcap_output, open_replay_output
 from spiel_edge.runtime.tiered import start_tiered
-from spiel_edge.runtime.tracking import replay_tracked
+from spiel_edge.runtime.track_records import replay_tracked
+from spiel_edge.safety.guard import FilePlan
+from spiel_edge.safety.limits import InputLimits
 
 
 @click.command("replay")

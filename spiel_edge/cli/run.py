@@ -22,10 +22,10 @@ from spiel_edge.cli._options import (
 from spiel_edge.cli._ros2 import ros2_options, zenoh_settings
 from spiel_edge.cli._signals import Finalizers, stop_on_signals
 from spiel_edge.cli._status_line import StatusLine, say_live_views
-from spiel_edge.io.shown import escape, shorten_tokens
-from spiel_edge.robot.slotted_stream import slot_starter
+from spiel_edge.robot.slot_session import slot_starter
 from spiel_edge.runtime.live import LiveConfig, LiveRun
 from spiel_edge.runtime.loop import LiveRunner
+from spiel_edge.safety.shown import escape, shorten_tokens
 from spiel_edge.service.systemd import Notifier
 
 

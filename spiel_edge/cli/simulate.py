@@ -8,7 +8,7 @@ import click
 
 from spiel_edge.cli import EXIT_OK
 from spiel_edge.cli._signals import stop_on_signals
-from spiel_edge.io.shown import escape
+from spiel_edge.safety.shown import escape
 from spiel_edge.sim.pty import serve_pty
 
 

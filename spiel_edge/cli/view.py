@@ -15,7 +15,7 @@ from spiel_edge.cli._options import (
     toa_correction_option,
 )
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import FilePlan
+from spiel_edge.safety.guard import FilePlan
 
 
 @click.group("view")
@@ -53,10 +53,10 @@ def ascan_cmd(path, index, output, profile_name, calibration, association, toa_c
     labelled .npz such as spiel_edge/data/spiel_icra23_subset.npz): each channel's envelope
     after background subtraction, the detected echoes (red; the matched one green) and the
     fitted MEMG components (blue)."""
-    from spiel_edge.io.limits import InputLimits
     from spiel_edge.pipeline.factory import build_pipeline
     from spiel_edge.profile.schema import resolve_profile
-    from spiel_edge.runtime.replay import format_of, iter_sources
+    from spiel_edge.runtime.recorded import format_of, iter_sources
+    from spiel_edge.safety.limits import InputLimits
     from spiel_edge.view import require_matplotlib
     from spiel_edge.view.ascan import draw_ascan
 

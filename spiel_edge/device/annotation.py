@@ -1,6 +1,6 @@
 """ANNOTATION: a vendor extension that simulators and test rigs send beside the stream.
 
-Not part of firmware_protocol (a real board never sends it): msg_type 0x8A01, in the range
+Not part of spiel_edge.protocol (a real board never sends it): msg_type 0x8A01, in the range
 PROTOCOL.md reserves for vendor experiments (0x8000-0xFFFF), flags 0, ``aux`` = acquisition index.
 It carries the ground truth of an acquisition and, when it changed, the target-free
 background of the scene, one channel per frame (the host subtracts it). Senders put a 0x00
@@ -16,7 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from firmware_protocol import MAX_PAYLOAD, Message, encode_frame
+from spiel_edge.protocol import MAX_PAYLOAD, Message, encode_frame
 
 ANNOTATION_TYPE = 0x8A01
 NO_TRUTH = math.nan

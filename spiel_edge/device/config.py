@@ -1,13 +1,20 @@
 """Config transfer over a device session: chunked reads and writes of the board's config
 blob, the commit into its two-slot flash, and its status. The blob's content is the board
-config schema's business (:mod:`spiel_edge.board.schema`); here it is bytes."""
+config schema's business (:mod:`spiel_edge.board_config.schema`); here it is bytes."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
 
-from firmware_protocol import (
+from spiel_edge.device.sanity import (
+    CONFIG_READ_TIMEOUT_S,
+    MAX_BOARD_CONFIG_BYTES,
+    FirmwareError,
+    board_name,
+)
+from spiel_edge.errors import DeviceError
+from spiel_edge.protocol import (
     ConfigCommit,
     ConfigCommitResponse,
     ConfigRead,
@@ -19,13 +26,6 @@ from firmware_protocol import (
     ConfigWriteResponse,
     Message,
 )
-from spiel_edge.device.sanity import (
-    CONFIG_READ_TIMEOUT_S,
-    MAX_BOARD_CONFIG_BYTES,
-    FirmwareError,
-    board_name,
-)
-from spiel_edge.errors import DeviceError
 
 CHUNK_OVERHEAD = 6  # CONFIG_READ response / CONFIG_WRITE request: u32 offset, u16 length
 

@@ -17,7 +17,6 @@ from collections.abc import Callable
 
 from crc32c import crc32c
 
-from firmware_protocol.v2_messages import BootState, FwTest
 from spiel_edge.device.firmware_outcome import (
     UpdateResult,
     close_quietly,
@@ -38,7 +37,8 @@ from spiel_edge.device.firmware_requests import (
     verify_upload,
 )
 from spiel_edge.errors import DeviceError, DeviceRequestError
-from spiel_edge.io.shown import escape
+from spiel_edge.protocol.link_messages import BootState, FwTest
+from spiel_edge.safety.shown import escape
 
 log = logging.getLogger(__name__)
 

@@ -8,15 +8,15 @@ import logging
 import time
 from dataclasses import dataclass
 
-from firmware_protocol.messages import Reboot, RebootMode
-from firmware_protocol.v2_messages import BootState, FwInfo, SelfTest
 from spiel_edge.device.firmware_requests import (
     board_clock_us,
     confirm_firmware,
     firmware_info,
 )
 from spiel_edge.errors import DeviceError, DeviceRequestError
-from spiel_edge.io.shown import escape
+from spiel_edge.protocol.link_messages import BootState, FwInfo, SelfTest
+from spiel_edge.protocol.messages import Reboot, RebootMode
+from spiel_edge.safety.shown import escape
 
 log = logging.getLogger(__name__)
 

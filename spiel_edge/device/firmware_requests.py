@@ -7,10 +7,10 @@ from __future__ import annotations
 import logging
 import time
 
-from firmware_protocol import MAX_PAYLOAD, Capability, ErrorCode, Message
-from firmware_protocol.image import ImageError, ImageHeader, parse_image
-from firmware_protocol.messages import MAX_PROTOCOL_VERSION, MIN_PROTOCOL_VERSION
-from firmware_protocol.v2_messages import (
+from spiel_edge.errors import DeviceError, DeviceRequestError, DeviceTimeoutError
+from spiel_edge.protocol import MAX_PAYLOAD, Capability, ErrorCode, Message
+from spiel_edge.protocol.image import ImageError, ImageHeader, parse_image
+from spiel_edge.protocol.link_messages import (
     BootState,
     FwBegin,
     FwBeginResponse,
@@ -28,7 +28,7 @@ from firmware_protocol.v2_messages import (
     TimeSync,
     TimeSyncResponse,
 )
-from spiel_edge.errors import DeviceError, DeviceRequestError, DeviceTimeoutError
+from spiel_edge.protocol.messages import MAX_PROTOCOL_VERSION, MIN_PROTOCOL_VERSION
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """Firmware signing keys on the host: generate a pair, load a private key to sign images with.
 
 Signing uses the ``cryptography`` package (extra ``sign``), imported only here and only when a
-key is made or used; verifying needs nothing (``firmware_protocol.signing``).
+key is made or used; verifying needs nothing (``spiel_edge.protocol.signing``).
 
 Files: the private key is PKCS#8 PEM (what ``openssl pkey`` reads), written with mode 0600;
 the public key is the text the C build includes (``make FW_KEY=PATH.pub``): 32 bytes as
@@ -14,8 +14,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from firmware_protocol.signing import DEV_PUBLIC_KEY, key_id, public_key_text
 from spiel_edge.errors import InputError
+from spiel_edge.protocol.signing import DEV_PUBLIC_KEY, key_id, public_key_text
 
 __all__ = ["FirmwareKey", "generate_key", "is_dev_key", "load_private_key"]
 
@@ -39,7 +39,7 @@ def _crypto():
 
 @dataclass(frozen=True)
 class FirmwareKey:
-    """A private key that signs images (``firmware_protocol.signing.Signer``)."""
+    """A private key that signs images (``spiel_edge.protocol.signing.Signer``)."""
 
     _key: object
     public_key: bytes

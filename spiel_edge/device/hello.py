@@ -4,15 +4,15 @@ that fails them is refused with a message naming both sides, before any stream s
 
 from __future__ import annotations
 
-from firmware_protocol import (
+from spiel_edge.errors import DeviceError
+from spiel_edge.protocol import (
     MAX_PAYLOAD,
     MIN_PAYLOAD,
     MIN_PROTOCOL_VERSION,
     HelloResponse,
 )
-from firmware_protocol import MAX_PROTOCOL_VERSION as PROTOCOL_VERSION
-from firmware_protocol.errors import ErrorCode
-from spiel_edge.errors import DeviceError
+from spiel_edge.protocol import MAX_PROTOCOL_VERSION as PROTOCOL_VERSION
+from spiel_edge.protocol.errors import ErrorCode
 
 MAX_CHANNELS = 64  # channels one board may report
 MAX_SAMPLES = 4096  # samples per channel (one channel fits MAX_PAYLOAD)

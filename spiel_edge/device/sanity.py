@@ -3,7 +3,7 @@ STREAM_START and the stream's own history. A contradiction is a firmware bug; it
 at once, in one line naming the board, instead of leaving the session waiting for
 acquisitions that can never be assembled (docs/reliability.md, "A firmware that lies").
 
-Pure (no I/O): the tracker feeds it every STREAM_DATA frame before the assembler sees it; the
+Pure (no I/O): the assembly feeds it every STREAM_DATA frame before the assembler sees it; the
 session asks it whether the stream still makes progress.
 """
 
@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from firmware_protocol import HelloResponse, StreamStartResponse
-from firmware_protocol.stream import STREAM_HEADER
 from spiel_edge.errors import DeviceError
-from spiel_edge.io.shown import escape
+from spiel_edge.protocol import HelloResponse, StreamStartResponse
+from spiel_edge.protocol.stream_data import STREAM_HEADER
+from spiel_edge.safety.shown import escape
 
 _MASK = 0xFFFFFFFF
 MAX_CONTRADICTIONS = 3  # restarts or repeats of a counter before the stream is refused

@@ -21,7 +21,21 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from firmware_protocol import (
+from spiel_edge.device.acquisitions import StreamAssembly
+from spiel_edge.device.config import ConfigTransferMixin
+from spiel_edge.device.hello import check_hello, link_payload, version_refused
+from spiel_edge.device.link_services import SessionLinkServices
+from spiel_edge.device.sanity import sanitized_hello
+from spiel_edge.device.stream_control import StreamingMixin
+from spiel_edge.errors import (
+    ConfigError,
+    DeviceDisconnectedError,
+    DeviceError,
+    DeviceRequestError,
+    DeviceTimeoutError,
+)
+from spiel_edge.link import Link, LinkIdentity, open_link
+from spiel_edge.protocol import (
     MAX_PAYLOAD,
     MAX_PROTOCOL_VERSION,
     MAX_RETRIES,
@@ -40,23 +54,9 @@ from firmware_protocol import (
     decode_message,
     encode_message,
 )
-from firmware_protocol.errors import ErrorCode
-from firmware_protocol.framing import Frame
-from spiel_edge.device.config import ConfigTransferMixin
-from spiel_edge.device.hello import check_hello, link_payload, version_refused
-from spiel_edge.device.sanity import sanitized_hello
-from spiel_edge.device.stream import StreamTracker
-from spiel_edge.device.streaming import StreamingMixin
-from spiel_edge.device.v2 import SessionV2Mixin
-from spiel_edge.errors import (
-    ConfigError,
-    DeviceDisconnectedError,
-    DeviceError,
-    DeviceRequestError,
-    DeviceTimeoutError,
-)
-from spiel_edge.io.shown import escape
-from spiel_edge.link import Link, LinkIdentity, open_link
+from spiel_edge.protocol.errors import ErrorCode
+from spiel_edge.protocol.framing import Frame
+from spiel_edge.safety.shown import escape
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ class SessionCounters:
     restarts: int = 0  # streams the board had stopped by itself (restarted)
 
 
-class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
+class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionLinkServices):
     """``with DeviceSession("sim://") as dev: dev.start_stream(rate_hz=50); for a in dev.acquisitions(stop): ...``"""
 
     def __init__(
@@ -119,7 +119,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         self.link_options = link_options or {}
         self.timeout_scale = request_timeout_scale()
         self.counters = SessionCounters()
-        self.tracker = StreamTracker()
+        self.assembly = StreamAssembly()
         self.decoder = FrameDecoder()
         self.hello: HelloResponse | None = None
         # negotiated by HELLO: the protocol version and the largest payload of this link
@@ -139,8 +139,8 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
         self._overruns_before = 0
         self._rx_errors_before = 0
         self._last_data = time.monotonic()
-        self._v2_init()
-        self.tracker.stamp = self.stamp_acquisition  # board time -> host time, once synced
+        self._link_services_init()
+        self.assembly.stamp = self.stamp_acquisition  # board time -> host time, once synced
 
     # --- connection ----------------------------------------------------------------------
 
@@ -229,7 +229,7 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
             hello.n_channels,
             hello.protocol_version,
         )
-        self._v2_start()
+        self._link_services_start()
 
     def _drop_link(self) -> None:
         if self._link is not None:
@@ -336,9 +336,9 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
             self._inbox.extend((frame, ns) for frame in self.decoder.feed(data))
 
     def _dispatch(self, frame: Frame, ns: int) -> None:
-        if self._v2_frame(frame, ns):
+        if self._link_services_frame(frame, ns):
             return
-        if self.tracker.feed(frame, ns):
+        if self.assembly.feed(frame, ns):
             self._last_data = time.monotonic()
         elif frame.is_response:
             self.counters.stale += 1
@@ -362,20 +362,20 @@ class DeviceSession(StreamingMixin, ConfigTransferMixin, SessionV2Mixin):
 
     def counts(self) -> dict[str, int]:
         """Every counter in one flat dict (see the README for their meaning)."""
-        assembler = self.tracker.assembler.stats
+        assembler = self.assembly.assembler.stats
         decoder = self.decoder.stats
         return {
-            "acquisitions": self.tracker.acquisitions,
-            "lost": self.tracker.lost,
+            "acquisitions": self.assembly.acquisitions,
+            "lost": self.assembly.lost,
             "damaged": assembler.incomplete,
             "gaps": assembler.gaps,
-            "jumps": self.tracker.jumps + assembler.jumps,
+            "jumps": self.assembly.jumps + assembler.jumps,
             "duplicates": assembler.duplicates,
             "crc_errors": decoder.crc,
             "framing_errors": decoder.errors - decoder.crc,
-            "bad_messages": self.tracker.bad_messages,
+            "bad_messages": self.assembly.bad_messages,
             "overruns": self._overruns_before + self._since_start("overruns"),
             "device_rx_errors": self._rx_errors_before + self._since_start("rx_errors"),
             **asdict(self.counters),
-            **self.v2_counts(),
+            **self.link_service_counts(),
         }

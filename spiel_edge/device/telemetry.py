@@ -2,7 +2,7 @@
 
 Pure apart from logging: the session hands it each frame with the time it arrived. Heartbeats
 tell the session the board is alive between acquisitions (``silent_for``); log lines go to the
-``spiel_edge.board`` logger (the journal under systemd), with the board named, their text made
+``spiel_edge.board_config`` logger (the journal under systemd), with the board named, their text made
 printable and bounded, and at most ``rate_per_s`` lines a second (a token bucket): a board that
 floods its log costs a counter, never the host's disk.
 """
@@ -12,18 +12,18 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass
 
-from firmware_protocol.v2_messages import (
+from spiel_edge.protocol.link_messages import (
     KNOWN_ERROR_FLAGS,
     BoardState,
     ErrorFlag,
     Heartbeat,
     LogMessage,
 )
-from spiel_edge.io.shown import escape
+from spiel_edge.safety.shown import escape
 
 __all__ = ["BoardTelemetry", "TelemetryCounters"]
 
-board_log = logging.getLogger("spiel_edge.board")
+board_log = logging.getLogger("spiel_edge.board_config")
 
 TEXT_MAX = 200  # characters of one forwarded line
 RATE_PER_S = 20.0  # lines per second forwarded at most
@@ -45,7 +45,7 @@ def _level(severity: int) -> int:
 
 
 def _printable(text: str) -> str:
-    clean = escape(text[: TEXT_MAX + 1])  # the one escaping function (io/shown.py)
+    clean = escape(text[: TEXT_MAX + 1])  # the one escaping function (safety/shown.py)
     return clean if len(clean) <= TEXT_MAX else clean[:TEXT_MAX] + "..."
 
 

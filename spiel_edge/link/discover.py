@@ -33,7 +33,7 @@ def find_usb_boards(
     ids: tuple[tuple[int, int], ...] = BOARD_USB_IDS, backend: Any = None
 ) -> list[LinkIdentity]:
     """Boards reachable over bulk endpoints; empty when no libusb is available."""
-    from spiel_edge.link.usb_link import _serial_of, find_usb_devices
+    from spiel_edge.link.usb_link import find_usb_devices, serial_of
 
     found = []
     for vid, pid in ids:
@@ -43,7 +43,7 @@ def find_usb_boards(
             log.debug("USB enumeration unavailable: %s", exc)
             return found
         for dev in devices:
-            serial_number = _serial_of(dev)
+            serial_number = serial_of(dev)
             suffix = f"/{serial_number}" if serial_number else ""
             found.append(
                 LinkIdentity(f"usb://{vid:04x}:{pid:04x}{suffix}", vid, pid, serial_number)

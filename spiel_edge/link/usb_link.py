@@ -52,7 +52,7 @@ def default_backend() -> Any:
     return backend
 
 
-def _serial_of(dev: Any) -> str | None:
+def serial_of(dev: Any) -> str | None:
     try:
         return dev.serial_number
     except (usb.core.USBError, ValueError, NotImplementedError):  # no permission or no strings
@@ -64,7 +64,7 @@ def find_usb_devices(
 ) -> list[Any]:
     backend = backend if backend is not None else default_backend()
     found = usb.core.find(find_all=True, idVendor=vid, idProduct=pid, backend=backend)
-    return [d for d in found if serial is None or _serial_of(d) == serial]
+    return [d for d in found if serial is None or serial_of(d) == serial]
 
 
 class UsbLink:
@@ -75,7 +75,7 @@ class UsbLink:
         self._dev, self._interface = dev, interface
         self._ep_in, self._ep_out = ep_in, ep_out
         self._read_size = ep_in.wMaxPacketSize * READ_PACKETS
-        self._identity = LinkIdentity(url, dev.idVendor, dev.idProduct, _serial_of(dev))
+        self._identity = LinkIdentity(url, dev.idVendor, dev.idProduct, serial_of(dev))
 
     def read(self, timeout_s: float) -> bytes:
         try:

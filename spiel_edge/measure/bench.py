@@ -256,7 +256,7 @@ def tracked_scene_cost(pipeline, frames: np.ndarray, repeat: int, k: int = 4) ->
     """What a robot's acquisition costs on the default (fused) path: up to ``k`` targets
     WITHOUT a background, then the tracker's update; end-to-end microseconds per acquisition
     (the acquisitions in recording order, 20 ms apart)."""
-    from spiel_edge.runtime.tracking import ResultTracker
+    from spiel_edge.runtime.track_records import ResultTracker
 
     pipeline.set_max_targets(k)
     tracker = ResultTracker(pipeline.profile.track)

@@ -265,7 +265,7 @@ def interpreted_tier(passes: int = 2, acquisitions: int = 16) -> dict:
     from spiel_edge.data import load_subset
     from spiel_edge.pipeline.factory import build_pipeline
     from spiel_edge.profile.schema import load_profile
-    from spiel_edge.runtime.tracking import ResultTracker
+    from spiel_edge.runtime.track_records import ResultTracker
     from spiel_edge.runtime.warmup import pipeline_kernels
 
     pipeline_kernels()

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.data import EXCLUDED_Z_MM
-from spiel_edge.io.limits import InputLimits
 from spiel_edge.measure.echo_labels import (
     AssociationScore,
     expected_toa,
@@ -28,6 +27,7 @@ from spiel_edge.pipeline.staged import Pipeline, Result
 from spiel_edge.profile.schema import Profile
 from spiel_edge.recordings.spiel_csv import frame_files, position_key, read_recording, read_truth
 from spiel_edge.runtime.parallel import PipelineRecipe, replay_files
+from spiel_edge.safety.limits import InputLimits
 
 
 @dataclass

@@ -104,7 +104,7 @@ def _ratio(a: float, b: float) -> float | None:
 
 
 def load_scenes(path: str | Path) -> dict[str, np.ndarray]:
-    from spiel_edge.io.limits import load_npz_bounded
+    from spiel_edge.safety.limits import load_npz_bounded
 
     data = load_npz_bounded(path, "scenes", text_ok=True)  # sizes before decompression
     try:

@@ -1,12 +1,12 @@
 """Tracked vs per-acquisition error on labelled recordings (``evaluate --track``).
 
-Each recording (one static target) is tracked in time order (runtime/tracking.py). For every
+Each recording (one static target) is tracked in time order (runtime/track_records.py). For every
 acquisition with a position, the per-acquisition error is that of the best target and the
 tracked error that of its confirmed track, or of the position itself while the target is not
 on a confirmed track yet (the first acquisitions of a recording): both means are over the same
 acquisitions, which is what a consumer of the records would see. Without a background
 capture and with ``[track] running_background_window`` > 0 the running estimate of the static
-scene (runtime/running_background.py) stands in for it, fed in the same time order;
+scene (runtime/static_scene.py) stands in for it, fed in the same time order;
 ``within_30mm_share`` is the share of acquisitions with a target within 30 mm of the truth.
 
 ``static_track_mean_mm``: the recordings hold one static target each, whose track is the
@@ -26,8 +26,8 @@ import numpy as np
 from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.recordings.spiel_csv import iter_recordings, position_key, read_truth
-from spiel_edge.runtime.running_background import RunningBackground
-from spiel_edge.runtime.tracking import ResultTracker, time_ordered
+from spiel_edge.runtime.static_scene import RunningBackground
+from spiel_edge.runtime.track_records import ResultTracker, time_ordered
 
 
 def evaluate_tracked(

@@ -11,7 +11,7 @@ from spiel_edge.messages.ros2_limits import SensorLimits
 from spiel_edge.profile.frame_section import DEFAULT_FRAME_ID
 
 
-def _default_limits():
+def default_limits():
     return SensorLimits()
 
 
@@ -19,7 +19,7 @@ def _default_limits():
 class Ros2Settings:
     frame_id: str = DEFAULT_FRAME_ID  # the sensor's REP 103 frame; messages: <frame_id>_optical
     transforms: tuple[StaticTransform, ...] = ()  # the mount: parent -> frame_id
-    limits: object = field(default_factory=_default_limits)  # ros2_messages.SensorLimits
+    limits: object = field(default_factory=default_limits)  # ros2_messages.SensorLimits
     # False: the records are already in frame_id's own REP 103 axes (a robot's fused scene in
     # base_link or odom): messages stamped frame_id itself, no optical frame, no Range
     optical: bool = True

@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 from typing import TextIO
 
-from spiel_edge.io.guard import AtomicTextFile, open_exclusive
 from spiel_edge.outputs.sink import FILE, HOLD, Sink
+from spiel_edge.safety.guard import AtomicTextFile, open_exclusive
 
 # one encoder for every record (json.dumps with options builds one per call); same text
 _ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from spiel_edge.errors import ConfigError
 from spiel_edge.messages.cdr import StaticTransform
-from spiel_edge.messages.settings import Ros2Settings, _default_limits  # noqa: F401 (re-exported)
+from spiel_edge.messages.settings import Ros2Settings, default_limits  # noqa: F401 (re-exported)
 from spiel_edge.profile.frame_section import (
     DEFAULT_FRAME_ID,
     FrameSpec,
@@ -107,7 +107,7 @@ def frame_settings(
             f"--static-tf: {spec.frame_id!r} would have {len(transforms)} parents (with {given}); "
             "a frame has one parent in tf2: give one transform"
         )
-    return Ros2Settings(spec.frame_id, tuple(transforms), limits or _default_limits())
+    return Ros2Settings(spec.frame_id, tuple(transforms), limits or default_limits())
 
 
 def frame_transform(spec: FrameSpec) -> StaticTransform:

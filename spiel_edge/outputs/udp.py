@@ -12,8 +12,8 @@ import socket
 import time
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import shorten
 from spiel_edge.outputs.sink import Sink
+from spiel_edge.safety.guard import shorten
 
 log = logging.getLogger(__name__)
 

@@ -78,7 +78,7 @@ def config_reason(exc: BaseException) -> str:
     return f"not a Zenoh configuration{at}; its text is not shown"
 
 
-def _import_zenoh():
+def import_zenoh():
     try:
         import zenoh
     except ImportError as exc:
@@ -88,7 +88,7 @@ def _import_zenoh():
 
 def load_config(config: Any = None):
     """A zenoh.Config from a Config, a JSON5 file path, ``$ZENOH_CONFIG`` or the defaults."""
-    zenoh = _import_zenoh()
+    zenoh = import_zenoh()
     if isinstance(config, zenoh.Config):
         return config
     path = config or os.environ.get("ZENOH_CONFIG")
@@ -139,7 +139,7 @@ def session_config(config: Any = None, settings: Any = None, *, rmw_zenoh: bool 
     mode and endpoints of ``settings`` (outputs.ros2.ZenohSettings) over it, confined to
     loopback where neither sets otherwise (:func:`confine_to_loopback`; rmw_zenoh's own
     sessions listen on ``tcp/localhost:0`` and do not scout by multicast either)."""
-    zenoh = _import_zenoh()
+    zenoh = import_zenoh()
     del rmw_zenoh  # every encoding is confined alike
     if config is None:
         config = getattr(settings, "config_file", None)
@@ -175,7 +175,7 @@ def publish_key_problem(key: str) -> str | None:
 def open_publishers(keys: dict[str, str], encoding: str, config: Any = None, settings: Any = None):
     """(session, {name: publisher}) for the key expressions ``keys``; ``encoding`` names a
     ``zenoh.Encoding`` attribute. Bad keys or an unreachable network: ConfigError."""
-    zenoh = _import_zenoh()
+    zenoh = import_zenoh()
     exprs = {}
     for name, key in keys.items():
         if problem := publish_key_problem(key):

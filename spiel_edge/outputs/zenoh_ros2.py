@@ -24,7 +24,7 @@ from spiel_edge.messages import ros2_messages as rm
 from spiel_edge.messages import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
 from spiel_edge.outputs.sink import STATUS, Sink
-from spiel_edge.outputs.zenoh import _import_zenoh, open_publishers
+from spiel_edge.outputs.zenoh import import_zenoh, open_publishers
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ class ZenohRos2Sink(Sink):
     ):
         from spiel_edge.outputs.rmw_zenoh.sink import topics_of
 
-        zenoh = _import_zenoh()
+        zenoh = import_zenoh()
         topics_of(key_expr)  # the bridge makes ROS 2 topics of the keys: ROS's rules apply
         self.messages = rm.Ros2Messages(ros2)
         prefix = key_expr.strip("/")

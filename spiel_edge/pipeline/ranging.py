@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.staged import Result, Target, _no_clock, front_stages
+from spiel_edge.pipeline.staged import Result, Target, front_stages, no_clock
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.pipeline.stages.static_scene import load_static_model
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT, Profile
@@ -130,7 +130,7 @@ class RangePipeline:
         self.check_shape(frames)
         if background is not None:  # amplitudes or pairs, either (its envelope is used)
             self.check_shape(background, "background")
-        clock = time.perf_counter_ns if timed else _no_clock
+        clock = time.perf_counter_ns if timed else no_clock
         t0 = clock()
         raw = np.asarray(frames, dtype=np.float64)
         if not p.preprocess.background_subtraction:

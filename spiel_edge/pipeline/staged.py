@@ -28,7 +28,7 @@ from spiel_edge.pipeline.stages.scene import SceneAssociator, is_double_reflecti
 from spiel_edge.pipeline.stages.scene_geometry import distance3
 from spiel_edge.pipeline.stages.split import split_merged
 from spiel_edge.pipeline.stages.static_scene import load_static_model
-from spiel_edge.pipeline.stages.uncertainty import _covariance_kernel
+from spiel_edge.pipeline.stages.uncertainty import covariance_kernel
 from spiel_edge.profile.schema import Profile
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
 
@@ -174,6 +174,15 @@ def front_stages(p: Profile, frames, background, clock) -> tuple:
 class Pipeline:
     """preprocess -> detect -> memg -> features -> associate -> locate for one profile."""
 
+    #: the compiled path (pipeline/compiled/fused.py) computes what ``process`` does; a
+    #: subclass that keeps that true says so in its own body, any other runs staged
+    compiled_equivalent = True
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "compiled_equivalent" not in vars(cls):
+            cls.compiled_equivalent = False
+
     def __init__(
         self,
         profile: Profile,
@@ -186,7 +195,7 @@ class Pipeline:
         self.profile = profile
         self.associator = associator or GeometricAssociator(profile)
         self.echo_timing = echo_timing or build_echo_timing(profile)
-        self._echo_timing_ns, self._clock = 0, _no_clock
+        self._echo_timing_ns, self._clock = 0, no_clock
         self.set_max_targets(profile.scene.max_targets if max_targets is None else max_targets)
         self.static_model = load_static_model(profile)  # stands in for a missing background
         self.saturation = saturation  # full scale of the board's samples (u16 envelopes)
@@ -231,7 +240,7 @@ class Pipeline:
         self.check_shape(frames)
         if background is not None:
             self.check_shape(background, "background")
-        clock = time.perf_counter_ns if timed else _no_clock
+        clock = time.perf_counter_ns if timed else no_clock
         t0 = clock()
         if not p.preprocess.background_subtraction:
             background = None
@@ -351,7 +360,7 @@ class Pipeline:
             return None
         sigma_mm = self.profile.mm_per_sample / weights
         cov = np.empty((3, 3))  # arrays checked above: the kernel directly (hot path)
-        _covariance_kernel(
+        covariance_kernel(
             pos,
             paths,
             sigma_mm,
@@ -427,5 +436,5 @@ class Pipeline:
         return REASON_NO_CONSISTENT_ECHOES
 
 
-def _no_clock() -> int:
+def no_clock() -> int:
     return 0

@@ -17,8 +17,6 @@ from typing import Any
 import numpy as np
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import read_config_text, shorten
-from spiel_edge.io.limits import load_npz_bounded, loads_toml
 from spiel_edge.profile.frame_section import FrameSpec, validate_frame
 from spiel_edge.profile.geometry_checks import check_geometry
 from spiel_edge.profile.ranges import RANGES, check_number, check_range
@@ -42,10 +40,12 @@ from spiel_edge.profile.specs import (
     SceneSpec,
 )
 from spiel_edge.profile.track_section import TrackSpec, validate_track
+from spiel_edge.safety.guard import read_config_text, shorten
+from spiel_edge.safety.limits import load_npz_bounded, loads_toml
 
 log = logging.getLogger(__name__)
 
-_SECTIONS = {
+SECTIONS = {
     "acquisition": AcquisitionSpec,
     "preprocess": PreprocessSpec,
     "detect": DetectSpec,
@@ -137,13 +137,11 @@ def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
 
 def profile_from_dict(data: dict[str, Any], *, origin: str = "profile") -> Profile:
     data = dict(data)
-    allowed = {"name", "description", "geometry", *_SECTIONS}
+    allowed = {"name", "description", "geometry", *SECTIONS}
     unknown = set(data) - allowed
     if unknown:
         raise ConfigError(f"{origin}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
-    sections = {
-        key: _section(origin, key, cls, data.get(key, {})) for key, cls in _SECTIONS.items()
-    }
+    sections = {key: _section(origin, key, cls, data.get(key, {})) for key, cls in SECTIONS.items()}
     geometry = _geometry(origin, data.get("geometry"))
     profile = Profile(
         name=str(data.get("name", Path(origin).stem)),
@@ -376,7 +374,7 @@ def profile_to_dict(p: Profile) -> dict[str, Any]:
         "delay_samples": g.delays().tolist(),
     }
     out: dict[str, Any] = {"name": p.name, "description": p.description, "geometry": geometry}
-    for key in _SECTIONS:
+    for key in SECTIONS:
         out[key] = dataclasses.asdict(getattr(p, key))
     return out
 

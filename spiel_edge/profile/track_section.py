@@ -30,7 +30,7 @@ class TrackSpec:
     imm_switch_probability: float = 0.3  # per acquisition, static <-> moving (chosen on training)
     imm_static_share: float = 0.5  # the static model's probability at a track's birth
     # without a background capture: per-sample median of this many recent acquisitions, not
-    # updated at confirmed tracks' echoes (runtime/running_background.py); 0 = off
+    # updated at confirmed tracks' echoes (runtime/static_scene.py); 0 = off
     running_background_window: int = 0
     running_background_guard_samples: float = 4.0  # half width kept out around a track's echo
 

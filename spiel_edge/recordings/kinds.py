@@ -21,7 +21,7 @@ import stat
 from pathlib import Path
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.shown import shorten
+from spiel_edge.safety.shown import shorten
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a member first, or an empty archive
@@ -100,7 +100,7 @@ def _expected(accepted: tuple[str, ...]) -> str:
 
 
 def _npz_kind(path: Path) -> str:
-    from spiel_edge.io.limits import load_npz_bounded
+    from spiel_edge.safety.limits import load_npz_bounded
 
     heads = load_npz_bounded(path, "scenes", headers_only=True, text_ok=True)
     if not {"frames", "backgrounds", "truth_mm", "names"} <= set(heads):

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.limits import InputLimits, load_npz_bounded
-from spiel_edge.io.shown import shorten
 from spiel_edge.recordings.spiel_csv import Recording, position_key
+from spiel_edge.safety.limits import InputLimits, load_npz_bounded
+from spiel_edge.safety.shown import shorten
 
 
 @dataclass(frozen=True)

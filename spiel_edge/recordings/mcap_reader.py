@@ -21,8 +21,6 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import shorten
-from spiel_edge.io.limits import InputLimits
 from spiel_edge.messages.cdr import ENCAPSULATION, decode_acquisition
 from spiel_edge.recordings.mcap_scan import (
     MAGIC,
@@ -34,6 +32,8 @@ from spiel_edge.recordings.mcap_scan import (
     RawMessage,
 )
 from spiel_edge.recordings.spiel_csv import Recording
+from spiel_edge.safety.guard import shorten
+from spiel_edge.safety.limits import InputLimits
 
 log = logging.getLogger(__name__)
 

@@ -30,8 +30,8 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
-from spiel_edge.io.guard import open_exclusive
 from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
+from spiel_edge.safety.guard import open_exclusive
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +188,7 @@ class McapSink:
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
         """One raw acquisition; a ``background`` entry in ``acquisition`` goes to its own channel."""
         meta = {k: v for k, v in acquisition.items() if k not in ("frames", "background")}
-        stamp = _stamp(meta)
+        stamp = stamp_ns_of(meta)
         background = acquisition.get("background")
         if background is not None and (
             self._background is None
@@ -224,7 +224,7 @@ class McapSink:
     def write(self, record: dict) -> None:
         synced = record.get("stamp_host")  # the board's time on the host clock (protocol 2)
         log_ns = int(synced * 1e9) if isinstance(synced, float) and synced > 0 else 0
-        self._add(POSITION_TOPIC, record, _stamp(record), log_ns)
+        self._add(POSITION_TOPIC, record, stamp_ns_of(record), log_ns)
         self.counts["records"] += 1
 
     def _add(self, topic: str, payload: dict | bytes, stamp: int, synced_ns: int = 0) -> None:
@@ -273,7 +273,7 @@ class McapSink:
         self.close()
 
 
-def _stamp(meta: dict) -> int:
+def stamp_ns_of(meta: dict) -> int:
     value = meta.get("timestamp_ns")
     return int(value) if isinstance(value, (int, np.integer)) and value > 0 else 0
 
@@ -292,7 +292,7 @@ def _samples(frames: np.ndarray) -> list:
     return np.where(finite, frames, None).tolist()
 
 
-def _default(obj: Any) -> Any:
+def json_default(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
@@ -303,4 +303,6 @@ def _default(obj: Any) -> Any:
 
 
 def _dumps(payload: dict) -> bytes:
-    return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=_default).encode()
+    return json.dumps(
+        payload, separators=(",", ":"), allow_nan=False, default=json_default
+    ).encode()

@@ -11,8 +11,6 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from spiel_edge import __version__
-from spiel_edge.io.guard import atomic_write
-from spiel_edge.io.limits import InputLimits
 from spiel_edge.recordings.mcap_reader import (
     ACQUISITION_TOPIC,
     BACKGROUND_TOPIC,
@@ -23,6 +21,8 @@ from spiel_edge.recordings.mcap_reader import (
     topic_of,
 )
 from spiel_edge.recordings.mcap_scan import McapScanner, ScanReport
+from spiel_edge.safety.guard import atomic_write
+from spiel_edge.safety.limits import InputLimits
 
 
 @dataclass

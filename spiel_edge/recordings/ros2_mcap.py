@@ -26,7 +26,7 @@ import numpy as np
 from spiel_edge.messages import cdr, ros2_types
 from spiel_edge.messages import ros2_messages as rm
 from spiel_edge.recordings.mcap_reader import ACQUISITION_TOPIC, BACKGROUND_TOPIC, POSITION_TOPIC
-from spiel_edge.recordings.mcap_writer import McapSink, _default, _stamp
+from spiel_edge.recordings.mcap_writer import McapSink, json_default, stamp_ns_of
 
 PREFIX = "/spiel"
 POINT_TOPIC = "/spiel/point"
@@ -123,7 +123,7 @@ class Ros2McapSink(McapSink):
 
     def write_acquisition(self, acquisition: dict, frames: np.ndarray) -> None:
         meta = {k: v for k, v in acquisition.items() if k not in ("frames", "background")}
-        stamp = _stamp(meta)
+        stamp = stamp_ns_of(meta)
         synced = meta.get("stamp_host_ns")  # the board's time on the host clock (protocol 2)
         if isinstance(synced, int) and synced > 0:
             stamp = synced
@@ -155,7 +155,7 @@ class Ros2McapSink(McapSink):
             self.write_transforms(seconds if stamp else time.time())
         for topic, message in self.messages.of_record(record):
             self._add(topic_name(topic), message, stamp)
-        text = json.dumps(record, separators=(",", ":"), allow_nan=False, default=_default)
+        text = json.dumps(record, separators=(",", ":"), allow_nan=False, default=json_default)
         self._add(POSITION_TOPIC, cdr.string_message(text), stamp)
         self.counts["records"] += 1
 

@@ -18,8 +18,8 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.io.guard import decode_text, read_bytes_bounded, shorten
-from spiel_edge.io.limits import InputLimits, read_input_text
+from spiel_edge.safety.guard import decode_text, read_bytes_bounded, shorten
+from spiel_edge.safety.limits import InputLimits, read_input_text
 
 FRAMES_SUFFIX = "_frames.csv"
 LABELS_SUFFIX = "_labels.csv"
@@ -57,7 +57,7 @@ def read_frames(path: str | Path, limits: InputLimits | None = None) -> np.ndarr
     data = read_bytes_bounded(
         path, limits.max_text_bytes, InputError, path.name, "a frame of the profile's shape"
     )
-    fast = _read_integers(data)  # integer samples (what boards record): the compiled scanner
+    fast = read_integers(data)  # integer samples (what boards record): the compiled scanner
     if fast is not None:
         try:
             limits.check_shape(*fast.shape)
@@ -84,7 +84,7 @@ def read_frames(path: str | Path, limits: InputLimits | None = None) -> np.ndarr
     return arr
 
 
-def _read_integers(data: bytes) -> np.ndarray | None:
+def read_integers(data: bytes) -> np.ndarray | None:
     """(rows, columns) when every token is an integer and rows agree in length, else None."""
     if not data:
         return None

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import ConfigError, InputError
-from spiel_edge.io.limits import InputLimits, decode_text, read_bytes_bounded
 from spiel_edge.recordings.spiel_csv import Recording
+from spiel_edge.safety.limits import InputLimits, decode_text, read_bytes_bounded
 
 SPECS_NAME = "sensor_specs.yaml"
 TRUTH_CSV = Path("truth") / "true_measurement_positions.csv"

@@ -31,7 +31,7 @@ from spiel_edge.robot.description import BoardSpec
 from spiel_edge.robot.fusion import BoardReport, reports_targets
 from spiel_edge.robot.schedule import Schedule
 from spiel_edge.robot.slot_keeper import SlotPhase, StartAtTrust
-from spiel_edge.robot.slotted_stream import start_in_time
+from spiel_edge.robot.slot_session import start_in_time
 
 log = logging.getLogger(__name__)
 

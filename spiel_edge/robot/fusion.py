@@ -378,7 +378,7 @@ def reports_targets(result) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """A pipeline result's targets as (position, covariance, score) in the board frame."""
     if result is None:
         return []
-    from spiel_edge.runtime.tracking import targets_of
+    from spiel_edge.runtime.track_records import targets_of
 
     out = []
     for t in targets_of(result):

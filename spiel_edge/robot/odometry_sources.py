@@ -69,10 +69,10 @@ class OdometrySubscription:
     ``$ZENOH_CONFIG`` or Zenoh's defaults. ConfigError when it cannot subscribe."""
 
     def __init__(self, key: str, deliver: Callable[[bytes, float], None]):
-        from spiel_edge.outputs.zenoh import _import_zenoh
+        from spiel_edge.outputs.zenoh import import_zenoh
         from spiel_edge.robot.zenoh_fuse import zenoh_config
 
-        zenoh = _import_zenoh()
+        zenoh = import_zenoh()
         self.session = None
         try:
             self.session = zenoh.open(zenoh_config())

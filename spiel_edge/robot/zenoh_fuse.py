@@ -33,9 +33,9 @@ ODOM = "\x00odom"  # the odometry subscriber's name in the queue (no board is na
 def zenoh_config(connect=(), listen=(), mode: str | None = None, config: str | None = None):
     """A zenoh.Config: a JSON5 file (or ``$ZENOH_CONFIG``), then the endpoints and mode;
     confined to loopback where none of them says otherwise (docs/security.md)."""
-    from spiel_edge.outputs.zenoh import _import_zenoh, confine_to_loopback, load_config
+    from spiel_edge.outputs.zenoh import confine_to_loopback, import_zenoh, load_config
 
-    _import_zenoh()
+    import_zenoh()
     cfg = load_config(config)
     try:
         if mode:
@@ -78,9 +78,9 @@ class ZenohFuse(RecordFuse):
         spec=None,
         odom_key: str | None = None,
     ):
-        from spiel_edge.outputs.zenoh import _import_zenoh
+        from spiel_edge.outputs.zenoh import import_zenoh
 
-        self.zenoh = _import_zenoh()
+        self.zenoh = import_zenoh()
         super().__init__(robot, sink, track=track, spec=spec, odom_messages=odom_key is not None)
         self.queue: queue.Queue = queue.Queue(maxsize=QUEUE)
         self.overflow = 0

@@ -23,7 +23,7 @@ from typing import TextIO
 
 from spiel_edge import _shipped
 
-PROBE_SOURCE = Path(__file__).resolve().parents[2] / "firmware_protocol" / "_cobs_numba.py"
+PROBE_SOURCE = Path(__file__).resolve().parents[1] / "protocol" / "_cobs_numba.py"
 PROBE_PATTERN = "_cobs_numba.encode-*.nbi"  # numba's index file: <qualname>-<line>.pyXY.nbi
 TIERED = ("run", "replay", "evaluate", "calibrate")  # a tiered start (runtime/tiered.py)
 WHAT_WAITS = {"run": "the board is opened", "replay": "the first file is read"}

@@ -15,11 +15,11 @@ import os
 import time
 
 from spiel_edge.runtime.warmup import (
-    _run_child,
-    _step_stream,
     cache_dir,
     closed_form_acquisition,
     pipeline_kernels,
+    run_child,
+    step_stream,
 )
 
 log = logging.getLogger(__name__)
@@ -27,14 +27,14 @@ log = logging.getLogger(__name__)
 RUN_STEPS = ("stream", "fused-geometric", "fused-learned", "tracker")  # what `run` compiles
 
 
-def _exercise_run(profile, association, max_targets, track: bool, toa_correction=None) -> None:
+def exercise_run(profile, association, max_targets, track: bool, toa_correction=None) -> None:
     """What ``run`` compiles before its first record: the stream decoder, the pipeline on a
     closed-form acquisition of the profile's shape (one target and ``max_targets``) and the
     tracker on the results."""
     from spiel_edge.pipeline.factory import build_pipeline
-    from spiel_edge.runtime.tracking import ResultTracker
+    from spiel_edge.runtime.track_records import ResultTracker
 
-    _step_stream()
+    step_stream()
     pipeline = build_pipeline(profile, association, toa_correction)
     frames, background = closed_form_acquisition(profile)
     results = []
@@ -66,7 +66,7 @@ def prepare_for_run(
     t0 = time.perf_counter()
     try:
         with _kernel_cache.no_compile():
-            _exercise_run(profile, association, max_targets, track, toa_correction)
+            exercise_run(profile, association, max_targets, track, toa_correction)
         return {"compiled": False, "seconds": round(time.perf_counter() - t0, 3)}
     except _kernel_cache.CompileNeeded as exc:
         if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
@@ -89,10 +89,10 @@ def prepare_for_run(
         _compile_plan(plan, progress)
     elif writable:
         for step in RUN_STEPS:
-            _run_child(step, progress)
+            run_child(step, progress)
     _kernel_cache.listeners.append(progress)  # what the profile needs beyond the steps: here
     try:
-        _exercise_run(profile, association, max_targets, track, toa_correction)
+        exercise_run(profile, association, max_targets, track, toa_correction)
     except SpielError as exc:
         log.debug("kernel preparation: %s", exc)
     finally:
@@ -154,7 +154,7 @@ def _compile_plan(plan: list, progress) -> None:
     try:
         write_plan(path, plan)
         os.environ[ENV_PLAN] = str(path)  # the children's
-        _run_child("plan", progress)
+        run_child("plan", progress)
     finally:
         path.unlink(missing_ok=True)
         if before is None:
@@ -181,7 +181,7 @@ def kernel_status() -> dict:
 def cache_writable() -> bool:
     """Whether compiled kernels are kept (a kernel cache with a writable folder)."""
     try:
-        from firmware_protocol import _cobs_numba
+        from spiel_edge.protocol import _cobs_numba
     except (ImportError, RuntimeError):  # no numba, or numba's own cache with no folder
         return False
     return bool(getattr(_cobs_numba.decode._cache, "writable", True))
@@ -196,9 +196,9 @@ def make_plan(
     ``exercise``: what the command runs instead of ``run``'s pipeline and tracker (``fuse``)."""
     from numba.core.registry import cpu_target
 
-    from firmware_protocol import cobs
     from spiel_edge import _tiers
     from spiel_edge.errors import SpielError
+    from spiel_edge.protocol import cobs
     from spiel_edge.runtime.warmup import pipeline_kernels
 
     pipeline_kernels()  # every kernel module imported: each kernel has its twin
@@ -209,7 +209,7 @@ def make_plan(
         if exercise is not None:
             exercise()
         else:
-            _exercise_run(profile, association, max_targets, track, toa_correction)
+            exercise_run(profile, association, max_targets, track, toa_correction)
     except SpielError as exc:
         log.debug("interpreted plan: %s", exc)
     interpreted.use_pure_cobs()

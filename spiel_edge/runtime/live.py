@@ -26,14 +26,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from firmware_protocol import SampleFormat
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import ConfigError, DeviceError
-from spiel_edge.io.guard import FilePlan
 from spiel_edge.outputs import Sink, check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.outputs.ros2_options import ros2_output_options
 from spiel_edge.profile.schema import apply_calibration, load_profile
+from spiel_edge.protocol import SampleFormat
 from spiel_edge.runtime.loop import (
     LiveRunner,
     LiveStats,
@@ -43,8 +42,9 @@ from spiel_edge.runtime.loop import (
     open_pipeline,
 )
 from spiel_edge.runtime.realtime import apply_realtime
-from spiel_edge.runtime.replay import chosen_toa_correction
-from spiel_edge.runtime.tracking import ResultTracker
+from spiel_edge.runtime.recorded import chosen_toa_correction
+from spiel_edge.runtime.track_records import ResultTracker
+from spiel_edge.safety.guard import FilePlan
 
 log = logging.getLogger(__name__)
 
@@ -87,12 +87,12 @@ class LiveRun:
     service/systemd.py; readiness is the caller's to say, after ``start``); ``in_slot``: with
     ``config.slot``, starts the stream in the board's trigger slot, ``in_slot(session, stop,
     stream options)`` -> an object with ``on_acquisition(acq)`` and ``summary()``
-    (robot/slotted_stream.py's ``slot_starter``: the robot layer sits above this one)."""
+    (robot/slot_session.py's ``slot_starter``: the robot layer sits above this one)."""
 
     def __init__(self, config: LiveConfig, *, notifier=None, in_slot=None):
         if config.slot and in_slot is None:
             raise ConfigError(
-                f"slot {config.slot!r}: give in_slot=robot.slotted_stream.slot_starter(slot)"
+                f"slot {config.slot!r}: give in_slot=robot.slot_session.slot_starter(slot)"
             )
         self.config = config
         self.notifier = notifier

@@ -17,17 +17,17 @@ from pathlib import Path
 
 import numpy as np
 
-from spiel_edge.board.flash import run_profile
+from spiel_edge.board_config.profile_choice import run_profile
 from spiel_edge.device import DeviceSession, LiveAcquisition
 from spiel_edge.errors import ConfigError, DeviceError, InputError, SpielError
-from spiel_edge.io.limits import load_npy_bounded
 from spiel_edge.outputs import Sink
 from spiel_edge.outputs.sink import HOLD
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.runtime.once import OncePerProblem
 from spiel_edge.runtime.records import error_record
-from spiel_edge.runtime.tracking import ResultTracker, track_records
+from spiel_edge.runtime.track_records import ResultTracker, track_records
+from spiel_edge.safety.limits import load_npy_bounded
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +126,7 @@ def open_pipeline(
     targets) and warm it up. Returns the pipeline and where its geometry came from; closing
     the session is the caller's. ``toa_correction``: as :func:`live_toa_correction` chooses,
     or as given when the caller chose it already (``chosen``); ``resolved``: the profile and
-    the calibrated one when the caller loaded them (board/flash.run_profile)."""
+    the calibrated one when the caller loaded them (board_config/flash.run_profile)."""
     if not chosen:
         toa_correction = live_toa_correction(session.url, toa_correction)
     session.open()
@@ -185,7 +185,7 @@ def _stamp_fields(acq: LiveAcquisition) -> dict:
     }
 
 
-def _v2_meta(acq: LiveAcquisition) -> dict:
+def _stamp_phase_meta(acq: LiveAcquisition) -> dict:
     """Recorded beside the raw samples: the synced stamp and, from I/Q, the phase (rad)."""
     out = {}
     stamp = getattr(acq, "stamp_host", None)
@@ -213,7 +213,7 @@ class LiveRunner:
         self.sink = sink
         self.background = background  # fixed background; else the one the link sends, if any
         self.keep_latencies = keep_latencies
-        self.tracker = tracker  # records gain ``tracks`` (runtime/tracking.py)
+        self.tracker = tracker  # records gain ``tracks`` (runtime/track_records.py)
         self.on_record: Callable[[], None] | None = None  # e.g. the systemd watchdog ping
         self.on_acquisition: Callable[[LiveAcquisition], None] | None = None  # run --slot
         self.stats = LiveStats()
@@ -287,7 +287,7 @@ class LiveRunner:
             "device_time_us": acq.timestamp_us,
             "timestamp_ns": int(acq.host_time * 1e9),
             "background": background,
-            **_v2_meta(acq),
+            **_stamp_phase_meta(acq),
             **_truth_meta(acq),
         }
 

@@ -4,7 +4,7 @@ Workers come from a "forkserver" context (numba's threads and a forked parent do
 each builds its pipeline once from a picklable :class:`PipelineRecipe` (the numba cache makes
 that a load, not a compile) and replays tasks of consecutive files. Results come back in
 file order, so the records are those of one job. With tracking a task holds whole recordings
-(``<run>_<index>`` names, see :mod:`spiel_edge.runtime.tracking`) and a fresh tracker; the
+(``<run>_<index>`` names, see :mod:`spiel_edge.runtime.track_records`) and a fresh tracker; the
 parent shifts each task's track ids by the ids issued before it, as one tracker would have.
 
 Workers ignore INT and HUP (the terminal sends them to the whole group): the parent decides.
@@ -24,10 +24,10 @@ from concurrent.futures import Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
-from spiel_edge.io.limits import InputLimits
 from spiel_edge.recordings.spiel_csv import read_recording
-from spiel_edge.runtime.replay import Replayed, format_of, replay
-from spiel_edge.runtime.tracking import ResultTracker, _run_and_index, replay_tracked
+from spiel_edge.runtime.recorded import Replayed, format_of, replay
+from spiel_edge.runtime.track_records import ResultTracker, replay_tracked, run_and_index
+from spiel_edge.safety.limits import InputLimits
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +79,7 @@ def plan_tasks(files: Sequence[Path], jobs: int, track: bool) -> list[tuple[Path
         return [tuple(files[i : i + size]) for i in range(0, len(files), size)]
     runs: dict[str, list[Path]] = {}
     for path in files:
-        runs.setdefault(_run_and_index(path.name)[0], []).append(path)
+        runs.setdefault(run_and_index(path.name)[0], []).append(path)
     tasks: list[tuple[Path, ...]] = []
     current: list[Path] = []
     for run in sorted(runs):
@@ -105,7 +105,7 @@ def replay_files(
     stopped: Callable[[], bool] = lambda: False,
     on_workers: Callable[[Callable[[], None]], None] | None = None,
 ) -> Iterator[Replayed]:
-    """:func:`~spiel_edge.runtime.replay.replay` (or ``replay_tracked``) over ``files`` with
+    """:func:`~spiel_edge.runtime.recorded.replay` (or ``replay_tracked``) over ``files`` with
     ``jobs`` processes, in the order one job gives; ends early once ``stopped()`` is true.
 
     This process is one of the jobs: with its ``pipeline`` (built from ``recipe``) it runs

@@ -88,7 +88,7 @@ class _Out:
 
 def main(argv: list[str]) -> int:
     from spiel_edge.runtime.warmup import ENV_PLAN, cache_dir
-    from spiel_edge.runtime.warmup_child import WarmupError, _run_child
+    from spiel_edge.runtime.warmup_child import WarmupError, run_child
 
     out = _Out()
     for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):  # the worker stops with us
@@ -123,7 +123,7 @@ def main(argv: list[str]) -> int:
             )
 
     try:
-        report = _run_child("plan", relay)
+        report = run_child("plan", relay)
     except WarmupError as exc:
         out({"error": str(exc)})
         return 1

@@ -6,7 +6,7 @@ a background process has compiled them (issue 39; docs/first-start.md).
 1. tries the command's kernels with compiling forbidden (``_kernel_cache.no_compile``); all
    cached: the compiled tier, nothing else happens;
 2. else puts the interpreted tier in place (``spiel_edge._tiers``) and runs what the command
-   will run on a closed-form acquisition of its profile (``first_start._exercise_run``),
+   will run on a closed-form acquisition of its profile (``first_start.exercise_run``),
    noting each call from Python into a kernel with its argument types: the compile plan,
    only what this configuration needs;
 3. starts ``tier_compile`` on that plan in a background process (low priority, one per
@@ -337,8 +337,8 @@ def start_tiered(
     from spiel_edge import _kernel_cache, _tiers
     from spiel_edge.errors import SpielError
     from spiel_edge.runtime.first_start import (
-        _exercise_run,
         cache_writable,
+        exercise_run,
         make_plan,
         prepare_for_run,
     )
@@ -352,7 +352,7 @@ def start_tiered(
                 if exercise is not None:  # a command of its own kernels (fuse: the tracker)
                     exercise()
                 else:
-                    _exercise_run(profile, association, max_targets, track, toa_correction)
+                    exercise_run(profile, association, max_targets, track, toa_correction)
             return tiers  # all cached: the compiled tier
     except _kernel_cache.CompileNeeded as exc:
         if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):

@@ -21,10 +21,10 @@ import time
 
 import numpy as np
 
-from spiel_edge.runtime.warmup_child import WarmupError, _run_child
+from spiel_edge.runtime.warmup_child import WarmupError, run_child
 
 log = logging.getLogger(__name__)
-__all__ = ["STEPS", "WarmupError", "_run_child", "pipeline_kernels", "warmup"]
+__all__ = ["STEPS", "WarmupError", "run_child", "pipeline_kernels", "warmup"]
 
 
 KERNEL_PACKAGES = (
@@ -32,7 +32,7 @@ KERNEL_PACKAGES = (
     "spiel_edge.recordings",
     "spiel_edge.device",
     "spiel_edge.track",
-    "firmware_protocol",
+    "spiel_edge.protocol",
 )
 
 
@@ -90,9 +90,9 @@ def _ring_input(n_channels: int = 8, n_samples: int = 128):
 
 
 def _step_csv() -> None:
-    from spiel_edge.recordings.spiel_csv import _read_integers
+    from spiel_edge.recordings.spiel_csv import read_integers
 
-    _read_integers(b"0 15 860\n0 8 54\n")  # the spiel-csv scanner (replay, evaluate)
+    read_integers(b"0 15 860\n0 8 54\n")  # the spiel-csv scanner (replay, evaluate)
 
 
 def _vendored_pairs(n: int = 4):
@@ -122,7 +122,7 @@ def _pipeline_results(association: str, fused: bool) -> list:
 def _step_tracker() -> None:
     """The tracker's kernels (``run`` tracks by default), fed the fused geometric results."""
     from spiel_edge.profile.schema import load_profile
-    from spiel_edge.runtime.tracking import ResultTracker
+    from spiel_edge.runtime.track_records import ResultTracker
 
     results = _pipeline_results("geometric", True) + _pipeline_results("auto", True)
     tracker = ResultTracker(load_profile().track)
@@ -130,10 +130,10 @@ def _step_tracker() -> None:
         tracker.update(result, 0.02 * i)
 
 
-def _step_stream() -> None:
+def step_stream() -> None:
     """The stream decoder's COBS kernels (a live board, the virtual one included)."""
-    from firmware_protocol import cobs
     from spiel_edge.device.iq import iq_amplitude
+    from spiel_edge.protocol import cobs
 
     cobs.warm_up()
     pairs = np.zeros((1, 2), dtype=np.int16)  # I/Q streams (protocol 2): writable and
@@ -165,7 +165,7 @@ def _step_variants() -> None:
 # memory (numba keeps every module it compiled until the process ends): the fused path first,
 # the one `run` takes, then what shares its kernels.
 STEPS = {
-    "stream": _step_stream,
+    "stream": step_stream,
     "fused-geometric": lambda: _pipeline_results("geometric", True),
     "fused-learned": lambda: _pipeline_results("auto", True),
     "staged-geometric": lambda: _pipeline_results("geometric", False),
@@ -239,7 +239,7 @@ def warmup(isolate: bool = True, progress=None) -> dict:
 def _isolated(t0: float, progress) -> dict:
     merged: dict = {"kernels": set(), "cache_hits": set(), "compiled": set()}
     for step in STEPS:
-        child = _run_child(step, progress)
+        child = run_child(step, progress)
         for key in merged:
             merged[key].update(child[key])
     return {
@@ -267,7 +267,7 @@ def cache_dir() -> str | None:
     except RuntimeError as exc:  # numba raises at import when no cache location is writable
         log.debug("numba cache: %s", exc)
         return None
-    cache = detect._detect_kernel._cache
+    cache = detect.detect_kernel._cache
     return str(cache._cache_path) if getattr(cache, "writable", True) else None
 
 

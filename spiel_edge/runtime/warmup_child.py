@@ -37,7 +37,7 @@ class WarmupError(RuntimeError):
     """A warm-up child process failed (its error is on stderr)."""
 
 
-def _run_child(step: str, progress) -> dict:
+def run_child(step: str, progress) -> dict:
     """The step ``step`` in as many children as its budget needs: their compile reports go to
     ``progress`` (``_kernel_cache`` listener's arguments), the last child's report (its
     ``compiled`` including what the earlier children compiled) is returned."""

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from spiel_edge.errors import SpielError
-from spiel_edge.io.limits import read_input_text
+from spiel_edge.safety.limits import read_input_text
 from spiel_edge.service.host_checks import (
     Check,
     check_board,

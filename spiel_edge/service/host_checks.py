@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from spiel_edge.io.guard import escape
+from spiel_edge.safety.guard import escape
 
 UDEV_RULE_DIRS = (
     "/etc/udev/rules.d",

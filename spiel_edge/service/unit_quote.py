@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import shorten
+from spiel_edge.safety.guard import shorten
 
 _NEEDS_QUOTES = set(" \t\"'\\;")
 

@@ -1,4 +1,4 @@
-"""The virtual board: the device side of firmware_protocol, with scenes and fault injection.
+"""The virtual board: the device side of spiel_edge.protocol, with scenes and fault injection.
 
 Reach it as ``sim://[NAME][?query]`` (see :mod:`spiel_edge.link.sim_options` for the keys), on a
 pseudo-terminal (``spiel-edge simulate --pty``), or through the fake pyusb backend

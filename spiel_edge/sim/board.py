@@ -1,4 +1,4 @@
-"""The board side of firmware_protocol: answers requests and streams a scene's acquisitions.
+"""The board side of spiel_edge.protocol: answers requests and streams a scene's acquisitions.
 
 Pure state machine driven by the caller's clock: ``receive(bytes, now)`` returns the frames
 to send back, ``due(now, room)`` the stream frames whose time has come. Requests are
@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from firmware_protocol import (
+from spiel_edge.link.usb_ids import BOARD_USB_IDS
+from spiel_edge.protocol import (
     MAX_PAYLOAD,
     MAX_PROTOCOL_VERSION,
     MIN_PAYLOAD,
@@ -40,12 +41,11 @@ from firmware_protocol import (
     decode_message,
     encode_message,
 )
-from firmware_protocol import messages as m
-from firmware_protocol.framing import Frame
-from firmware_protocol.stream import SAMPLE_SIZE, STREAM_HEADER
-from spiel_edge.link.usb_ids import BOARD_USB_IDS
+from spiel_edge.protocol import messages as m
+from spiel_edge.protocol.framing import Frame
+from spiel_edge.protocol.stream_data import SAMPLE_SIZE, STREAM_HEADER
 from spiel_edge.sim.board_acquire import AcquireMixin
-from spiel_edge.sim.board_v2 import BoardV2Mixin
+from spiel_edge.sim.board_link_services import BoardLinkServices
 from spiel_edge.sim.config_slots import BoardConfigMixin
 from spiel_edge.sim.faults import Outgoing
 from spiel_edge.sim.firmware_slots import FirmwareFlash
@@ -118,7 +118,7 @@ REQUESTS: dict[type, tuple[str, int]] = {
 }
 
 
-class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
+class VirtualBoard(BoardConfigMixin, BoardLinkServices, AcquireMixin):
     def __init__(
         self,
         scene: ReplayScene | EchoModelScene,
@@ -142,7 +142,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
         self.max_version = protocol  # the highest protocol version this board speaks
         self.board_max_payload = max_payload  # HELLO max_payload: what it sends or accepts
         self.flash = flash or Flash()
-        self._v2_init(drift_ppm, firmware, sync_fault, heartbeat_flags, log_flood)
+        self._link_services_init(drift_ppm, firmware, sync_fault, heartbeat_flags, log_flood)
         self.stats = BoardStats()
         self.tx_dropped = 0  # set by the line: frames lost on the way out
         self._rng = random.Random(seed)
@@ -167,7 +167,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
         self.reboot_at = None
         self.version = 1  # negotiated by HELLO
         self.max_payload = self.board_max_payload  # of the link: min(board, host's HELLO)
-        self._v2_boot(now)  # the bootloader's choice of firmware image, telemetry
+        self._link_services_boot(now)  # the bootloader's choice of firmware image, telemetry
         on_boot = getattr(self.scene, "on_boot", None)  # a scene on the host's clock (robot)
         if on_boot is not None:
             on_boot(now)
@@ -244,7 +244,7 @@ class VirtualBoard(BoardConfigMixin, BoardV2Mixin, AcquireMixin):
         self.version = min(req.max_version, top)
         self.max_payload = min(req.max_payload or MAX_PAYLOAD, self.board_max_payload)
         caps = Capability.STREAM | Capability.CONFIG | Capability.BULK
-        caps |= self.v2_capabilities()
+        caps |= self.link_service_capabilities()
         return m.HelloResponse(
             self.version,
             1,

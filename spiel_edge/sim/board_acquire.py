@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmware_protocol import Flags, SampleFormat, StreamData, encode_message
 from spiel_edge.device.annotation import encode_annotations, encode_truth_targets
+from spiel_edge.protocol import Flags, SampleFormat, StreamData, encode_message
 from spiel_edge.sim.faults import Outgoing
 
 _MASK = 0xFFFFFFFF

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from crc32c import crc32c
 
-from firmware_protocol import ErrorCode, ErrorResponse
-from firmware_protocol import messages as m
+from spiel_edge.protocol import ErrorCode, ErrorResponse
+from spiel_edge.protocol import messages as m
 from spiel_edge.sim.flash import Flash, FlashError
 
 

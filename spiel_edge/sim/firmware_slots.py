@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 from crc32c import crc32c
 
-from firmware_protocol.image import ImageError, ImageHeader, pack_image, parse_image, verify_image
-from firmware_protocol.signing import DEV_PUBLIC_KEY
-from firmware_protocol.v2_messages import BootState, SlotState
+from spiel_edge.protocol.image import ImageError, ImageHeader, pack_image, parse_image, verify_image
+from spiel_edge.protocol.link_messages import BootState, SlotState
+from spiel_edge.protocol.signing import DEV_PUBLIC_KEY
 from spiel_edge.sim.flash import PowerCut
 
 SLOT_SIZE = 64 * 1024

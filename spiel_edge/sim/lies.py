@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from firmware_protocol import Flags, FrameDecoder, SampleFormat, StreamData, encode_message
-from firmware_protocol import messages as m
 from spiel_edge.link.sim_options import LIES  # the names lie= takes
+from spiel_edge.protocol import Flags, FrameDecoder, SampleFormat, StreamData, encode_message
+from spiel_edge.protocol import messages as m
 from spiel_edge.sim.faults import Outgoing
 
 HOSTILE_SERIAL = "SIM\x1b[2J\x07\n"  # clear screen, bell, newline: 9 bytes (fits 16)
@@ -51,7 +51,7 @@ def install(board, lie: str) -> None:
     elif lie == "mute-stream":
         board.due = lambda now, room, limit=None: []
     elif lie == "start-at-ignored":
-        board.first_due = _ignoring_start_times(board.first_due)
+        board.first_due = ignoring_start_times(board.first_due)
     else:
         _stream_lies(board, lie)
 
@@ -59,7 +59,7 @@ def install(board, lie: str) -> None:
 IGNORED_START_OFF_S = 0.001  # "at once" this near the named grid would hide the lie
 
 
-def _ignoring_start_times(named_due):
+def ignoring_start_times(named_due):
     """``first_due`` of a firmware that starts every stream at once, whatever time it is
     given; never on the named grid by chance (half a period later then), so that a test of
     the lie sees it every time."""

@@ -23,8 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io.guard import shorten
 from spiel_edge.link.sim_options import SimOptions
+from spiel_edge.safety.guard import shorten
 from spiel_edge.sim.device import DeviceGone, SimDevice
 
 log = logging.getLogger(__name__)

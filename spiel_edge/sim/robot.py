@@ -37,8 +37,8 @@ from spiel_edge.sim.scenes import (
     EchoModel,
     EchoModelScene,
     SceneFrame,
-    _emg_mode,
-    _erf,
+    emg_mode,
+    erf_array,
 )
 
 BEAM_WIDTH_DEG = 80.0  # e-folding half-angle of the transducer's beam (each way)
@@ -137,10 +137,10 @@ class RobotWorld:
         self.receivers = {n: m.to_base(g.channels_mm) for n, m in self.mounts.items()}
         self.facing = {n: m.facing for n, m in self.mounts.items()}
         # the EMG pulse shape on a fine grid: interpolated instead of erf per sample
-        mode = _emg_mode(self._model.sigma, self._model.eta)
+        mode = emg_mode(self._model.sigma, self._model.eta)
         self._grid = np.linspace(-12.0, 24.0, 3601)
         u = (self._grid + mode) / self._model.sigma
-        raw = np.exp(-0.5 * u * u) * (1.0 + _erf(self._model.eta * u / math.sqrt(2.0)))
+        raw = np.exp(-0.5 * u * u) * (1.0 + erf_array(self._model.eta * u / math.sqrt(2.0)))
         self._shape = raw / raw.max()
         self._rng = np.random.default_rng([seed, 0x5EED])
         self._lock = threading.Lock()

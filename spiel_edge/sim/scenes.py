@@ -97,7 +97,7 @@ class EchoModelScene:
         self.model = model
         self.carrier_hz = carrier_hz
         self._rng = np.random.default_rng(seed)
-        self._mode_offset = _emg_mode(model.sigma, model.eta)
+        self._mode_offset = emg_mode(model.sigma, model.eta)
         self._backgrounds: dict[int, np.ndarray] = {}
 
     @property
@@ -238,7 +238,7 @@ class EchoModelScene:
         """An EMG envelope whose maximum (``amplitude``) is at ``mode``."""
         m = self.model
         u = (t - (mode - self._mode_offset)) / m.sigma
-        shape = np.exp(-0.5 * u * u) * (1.0 + _erf(m.eta * u / math.sqrt(2.0)))
+        shape = np.exp(-0.5 * u * u) * (1.0 + erf_array(m.eta * u / math.sqrt(2.0)))
         return amplitude * shape / self._peak
 
     @property
@@ -247,14 +247,14 @@ class EchoModelScene:
         return math.exp(-0.5 * u * u) * (1.0 + math.erf(self.model.eta * u / math.sqrt(2.0)))
 
 
-def _erf(x: np.ndarray) -> np.ndarray:
+def erf_array(x: np.ndarray) -> np.ndarray:
     return np.vectorize(math.erf, otypes=[np.float64])(x)
 
 
-def _emg_mode(sigma: float, eta: float) -> float:
+def emg_mode(sigma: float, eta: float) -> float:
     """Offset of the EMG maximum from its mu (samples), found on a fine grid."""
     u = np.linspace(-3.0, 3.0, 60001)
-    shape = np.exp(-0.5 * u * u) * (1.0 + _erf(eta * u / math.sqrt(2.0)))
+    shape = np.exp(-0.5 * u * u) * (1.0 + erf_array(eta * u / math.sqrt(2.0)))
     return float(u[np.argmax(shape)] * sigma)
 
 

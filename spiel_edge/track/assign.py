@@ -27,7 +27,7 @@ def assign(cost: np.ndarray) -> np.ndarray:
     n, m = c.shape
     size = max(n, m) + 1
     out, owner, way, cols = np.zeros((4, size), dtype=np.int64)
-    _assign_into(
+    assign_into(
         np.ascontiguousarray(c),
         n,
         m,
@@ -42,7 +42,7 @@ def assign(cost: np.ndarray) -> np.ndarray:
 
 
 @jit
-def _assign_into(cost, n, m, out, fwork, owner, way, cols, used) -> None:
+def assign_into(cost, n, m, out, fwork, owner, way, cols, used) -> None:
     """The matching of the top-left ``n`` x ``m`` block of ``cost`` with preallocated
     scratch (``fwork`` (3, >= max(n, m) + 1); ``owner``, ``way``, ``cols``, ``used`` of at
     least that length). ``out[:n]``: per row the

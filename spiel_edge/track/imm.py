@@ -7,7 +7,7 @@ positions. Model 1: the constant-velocity filter of kalman.py. Per acquisition (
 Bar-Shalom's IMM): mix the two models' estimates with the probabilities of having switched
 (``switch`` per acquisition, both ways), predict each, and after a measurement update each
 model and reweight them by the measurement's likelihood under each. The track's estimate is
-the moment-matched mixture of the two (:func:`_combine`), which the tracker gates, assigns
+the moment-matched mixture of the two (:func:`combine_kernel`), which the tracker gates, assigns
 and reports. A static target's track then averages its acquisitions like a running mean
 instead of letting the velocity follow the noise; a moving one is carried by model 1.
 
@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.track.kalman import _gate_det, _predict, _update_inv
+from spiel_edge.track.kalman import gate_det, predict_kernel, update_inv
 
 STATIC, MOVING = 0, 1
 _TINY = 1e-300  # a model probability below this is taken as zero in the mixing
@@ -33,7 +33,7 @@ def mix_predict(xm, pm, mu, dt, acceleration, static_q2, switch, v02):
     xm2, pm2, mu2 = _copies(xm, pm, mu)
     x, p = np.empty(6), np.empty((6, 6))
     wx, wp = np.empty((2, 6)), np.empty((2, 6, 6))
-    _mix_predict(
+    mix_predict_kernel(
         xm2, pm2, mu2, x, p, float(dt), float(acceleration), float(static_q2), float(switch),
         float(v02), wx, wp,
     )  # fmt: skip
@@ -46,7 +46,7 @@ def update(xm, pm, mu, z, r):
     xm2, pm2, mu2 = _copies(xm, pm, mu)
     x, p = np.empty(6), np.empty((6, 6))
     z2, r2 = np.asarray(z, dtype=np.float64), np.asarray(r, dtype=np.float64)
-    if not _imm_update(xm2, pm2, mu2, x, p, z2, r2, np.empty((6, 15))):
+    if not imm_update(xm2, pm2, mu2, x, p, z2, r2, np.empty((6, 15))):
         return None
     return xm2, pm2, mu2, x, p
 
@@ -60,7 +60,7 @@ def _copies(xm, pm, mu):
 
 
 @jit
-def _mix_predict(xm, pm, mu, x, p, dt, acceleration, static_q2, switch, v02, wx, wp) -> None:
+def mix_predict_kernel(xm, pm, mu, x, p, dt, acceleration, static_q2, switch, v02, wx, wp) -> None:
     """Mix (into the scratch ``wx``, ``wp``), predict each model, combine into ``x``, ``p``;
     ``mu`` becomes the predicted model probabilities."""
     c0 = (1.0 - switch) * mu[0] + switch * mu[1]
@@ -92,8 +92,8 @@ def _mix_predict(xm, pm, mu, x, p, dt, acceleration, static_q2, switch, v02, wx,
                 pm[j, a, b] = wp[j, a, b]
     mu[0], mu[1] = c0, c1
     _predict_static(xm[STATIC], pm[STATIC], dt, static_q2, v02)
-    _predict(xm[MOVING], pm[MOVING], dt, acceleration)
-    _combine(xm, pm, mu, x, p)
+    predict_kernel(xm[MOVING], pm[MOVING], dt, acceleration)
+    combine_kernel(xm, pm, mu, x, p)
 
 
 @jit
@@ -111,12 +111,12 @@ def _predict_static(x, p, dt, static_q2, v02) -> None:
 
 
 @jit
-def _imm_update(xm, pm, mu, x, p, z, r, work) -> bool:
+def imm_update(xm, pm, mu, x, p, z, r, work) -> bool:
     """Update both models with ``z`` (covariance ``r``) and reweight them by its likelihood;
     combine into ``x``, ``p``. False (nothing changed) when a model's S is singular."""
     inv0, inv1 = work[:3, 12:15], work[3:, 12:15]  # each model's S^-1, for its update
-    d0, det0 = _gate_det(xm[STATIC], pm[STATIC], z, r, inv0)
-    d1, det1 = _gate_det(xm[MOVING], pm[MOVING], z, r, inv1)
+    d0, det0 = gate_det(xm[STATIC], pm[STATIC], z, r, inv0)
+    d1, det1 = gate_det(xm[MOVING], pm[MOVING], z, r, inv1)
     if not (np.isfinite(d0) and np.isfinite(d1)):
         return False
     ll0, ll1 = -0.5 * (d0 + np.log(det0)), -0.5 * (d1 + np.log(det1))
@@ -125,14 +125,14 @@ def _imm_update(xm, pm, mu, x, p, z, r, work) -> bool:
     total = l0 + l1
     if total > 0.0 and np.isfinite(total):  # else both were ~0: keep the predicted weights
         mu[0], mu[1] = l0 / total, l1 / total
-    _update_inv(xm[STATIC], pm[STATIC], z, r, work, inv0)
-    _update_inv(xm[MOVING], pm[MOVING], z, r, work, inv1)
-    _combine(xm, pm, mu, x, p)
+    update_inv(xm[STATIC], pm[STATIC], z, r, work, inv0)
+    update_inv(xm[MOVING], pm[MOVING], z, r, work, inv1)
+    combine_kernel(xm, pm, mu, x, p)
     return True
 
 
 @jit
-def _combine(xm, pm, mu, x, p) -> None:
+def combine_kernel(xm, pm, mu, x, p) -> None:
     """Moment-matched mixture: x = sum mu_j x_j, P = sum mu_j (P_j + d_j d_j^T), exactly
     symmetric."""
     for a in range(6):

@@ -17,7 +17,7 @@ from spiel_edge._jit import jit
 def predict(x: np.ndarray, p: np.ndarray, dt: float, acceleration: float):
     """One prediction step over ``dt`` seconds; returns new (x, P)."""
     x2, p2 = _checked(x, p)
-    _predict(x2, p2, float(dt), float(acceleration))
+    predict_kernel(x2, p2, float(dt), float(acceleration))
     return x2, p2
 
 
@@ -25,14 +25,14 @@ def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
     """One measurement update with position ``z`` (3,) of covariance ``r`` (3, 3)."""
     x2, p2 = _checked(x, p)
     z2, r2 = np.asarray(z, dtype=np.float64), np.asarray(r, dtype=np.float64)
-    _update(x2, p2, z2, r2, np.empty((6, 15)))
+    update_kernel(x2, p2, z2, r2, np.empty((6, 15)))
     return x2, p2
 
 
 def mahalanobis2(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray) -> float:
     """Squared Mahalanobis distance of ``z`` from the predicted position."""
     x2, p2 = _checked(x, p)
-    d2, _ = _gate(x2, p2, np.asarray(z, dtype=np.float64), np.asarray(r, dtype=np.float64))
+    d2, _ = gate_kernel(x2, p2, np.asarray(z, dtype=np.float64), np.asarray(r, dtype=np.float64))
     return float(d2)
 
 
@@ -43,7 +43,7 @@ def _checked(x, p):
 
 
 @jit
-def _predict(x: np.ndarray, p: np.ndarray, dt: float, acceleration: float) -> None:
+def predict_kernel(x: np.ndarray, p: np.ndarray, dt: float, acceleration: float) -> None:
     for a in range(3):
         x[a] += dt * x[a + 3]
     # P <- F P F^T with F = [[I, dt I], [0, I]]: rows then columns
@@ -62,7 +62,7 @@ def _predict(x: np.ndarray, p: np.ndarray, dt: float, acceleration: float) -> No
 
 
 @jit
-def _sym_inv3(a00, a01, a02, a11, a12, a22):
+def sym_inv3(a00, a01, a02, a11, a12, a22):
     """Determinant and inverse (upper triangle) of a symmetric 3x3 matrix, as scalars."""
     i00 = a11 * a22 - a12 * a12
     i01 = a02 * a12 - a01 * a22
@@ -79,7 +79,7 @@ def _sym_inv3(a00, a01, a02, a11, a12, a22):
 @jit
 def _innovation_inverse(p: np.ndarray, r: np.ndarray, inv: np.ndarray) -> float:
     """S = P_pos + R (symmetric); its inverse into ``inv`` (3, 3); returns det S."""
-    det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
+    det, i00, i01, i02, i11, i12, i22 = sym_inv3(
         p[0, 0] + r[0, 0],
         0.5 * (p[0, 1] + p[1, 0] + r[0, 1] + r[1, 0]),
         0.5 * (p[0, 2] + p[2, 0] + r[0, 2] + r[2, 0]),
@@ -94,20 +94,20 @@ def _innovation_inverse(p: np.ndarray, r: np.ndarray, inv: np.ndarray) -> float:
 
 
 @jit
-def _gate(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
+def gate_kernel(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray):
     """(squared Mahalanobis distance, log det S) of ``z``; (inf, 0) when S is singular."""
-    d2, det = _gate_det(x, p, z, r)
+    d2, det = gate_det(x, p, z, r)
     if not det > 0.0:
         return np.inf, 0.0
     return d2, np.log(det)
 
 
 @jit(inline="always")
-def _gate_det(x, p, z, r, inv=None):
+def gate_det(x, p, z, r, inv=None):
     """(squared Mahalanobis distance, det S) of ``z``, (inf, 0) when S is singular; with
     ``inv`` (3, 3) given, S^-1 goes there too (as :func:`_innovation_inverse`), so that
-    :func:`_update_inv` need not invert S again."""
-    det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
+    :func:`update_inv` need not invert S again."""
+    det, i00, i01, i02, i11, i12, i22 = sym_inv3(
         p[0, 0] + r[0, 0],
         0.5 * (p[0, 1] + p[1, 0] + r[0, 1] + r[1, 0]),
         0.5 * (p[0, 2] + p[2, 0] + r[0, 2] + r[2, 0]),
@@ -132,20 +132,22 @@ def _gate_det(x, p, z, r, inv=None):
 
 
 @jit
-def _update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, work: np.ndarray) -> bool:
+def update_kernel(
+    x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, work: np.ndarray
+) -> bool:
     """Joseph-form update in place (``work``: scratch (6, 15)); False (state untouched) when
     S is singular."""
     inv = work[:3, 12:15]
     det = _innovation_inverse(p, r, inv)
     if not det > 0.0:
         return False
-    _update_inv(x, p, z, r, work, inv)
+    update_inv(x, p, z, r, work, inv)
     return True
 
 
 @jit
-def _update_inv(x, p, z, r, work, inv) -> None:
-    """:func:`_update` with S^-1 (3, 3) already in ``inv`` (not inside ``work[:, :12]``)."""
+def update_inv(x, p, z, r, work, inv) -> None:
+    """:func:`update_kernel` with S^-1 (3, 3) already in ``inv`` (not inside ``work[:, :12]``)."""
     k = work[:, 0:3]  # K = P H^T S^-1
     for i in range(6):
         for j in range(3):
@@ -184,8 +186,8 @@ def _update_inv(x, p, z, r, work, inv) -> None:
 
 
 @jit(inline="always")
-def _gate_at(x, p, s, z, r, j, gate):
-    """_gate of the step's slot ``s`` and target ``j`` (the same arithmetic) without array views
+def gate_at(x, p, s, z, r, j, gate):
+    """gate_kernel of the step's slot ``s`` and target ``j`` (the same arithmetic) without array views
     and without the logarithm: (squared Mahalanobis distance, det S); (inf, 0) if singular.
     A pair far outside the gate is rejected before inverting S: for S positive definite
     d2 >= |y|^2 / trace S, so |y|^2 > 2 gate trace S means d2 > gate (the factor 2 leaves
@@ -194,7 +196,7 @@ def _gate_at(x, p, s, z, r, j, gate):
     trace = p[s, 0, 0] + r[j, 0, 0] + p[s, 1, 1] + r[j, 1, 1] + p[s, 2, 2] + r[j, 2, 2]
     if trace > 0.0 and y0 * y0 + y1 * y1 + y2 * y2 > 2.0 * gate * trace:
         return np.inf, 0.0
-    det, i00, i01, i02, i11, i12, i22 = _sym_inv3(
+    det, i00, i01, i02, i11, i12, i22 = sym_inv3(
         p[s, 0, 0] + r[j, 0, 0],
         0.5 * (p[s, 0, 1] + p[s, 1, 0] + r[j, 0, 1] + r[j, 1, 0]),
         0.5 * (p[s, 0, 2] + p[s, 2, 0] + r[j, 0, 2] + r[j, 2, 0]),

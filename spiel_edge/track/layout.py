@@ -109,13 +109,13 @@ _MIX_X, _MIX_P = SCRATCH.offset("mix_x"), SCRATCH.offset("mix_p")
 _SNAP, _Z, _ZR = SCRATCH.offset("snapshot"), SCRATCH.offset("z"), SCRATCH.offset("zr")
 _CHOSEN, _TARGET_SLOT = SCRATCH.offset("chosen"), SCRATCH.offset("target_slot")
 _OWNER, _WAY, _COLS = SCRATCH.offset("owner"), SCRATCH.offset("way"), SCRATCH.offset("cols")
-_META = SCRATCH.offset("snap_meta")
+META = SCRATCH.offset("snap_meta")
 _NEAR, _SCRATCH, _USED = SCRATCH.offset("near"), SCRATCH.offset("scratch"), SCRATCH.offset("used")
 _FLOATS, _INTS, _BOOLS = SCRATCH.total(_F), SCRATCH.total(_I), SCRATCH.total(_B)
 
 
 @jit(inline="always")
-def _unpack(floats, ints, bools):
+def unpack(floats, ints, bools):
     cap = ints[_I_COUNTS + CAP]
     x = floats[:_F_P].reshape((SLOTS, 6))[:cap]
     p = floats[_F_P:_F_MODELS].reshape((SLOTS, 6, 6))[:cap]
@@ -130,7 +130,7 @@ def _unpack(floats, ints, bools):
 
 
 @jit(inline="always")
-def _views(wf, wi, wb, m):
+def scratch_views(wf, wi, wb, m):
     """The step's scratch (``wf``, ``wi``, ``wb``: the arrays from _F_SCRATCH, _I_SCRATCH, 0)
     as SCRATCH lays it out."""
     r = wf[_R:_WORK].reshape((SLOTS, 3, 3))[:m]
@@ -147,13 +147,13 @@ def _views(wf, wi, wb, m):
 
 
 @jit(inline="always")
-def _measurement_buffers(floats):
+def measurement_buffers(floats):
     z = floats[_F_SCRATCH + _Z : _F_SCRATCH + _ZR].reshape((SLOTS, 3))
     return z, floats[_F_SCRATCH + _ZR : _F_SCRATCH + _FLOATS].reshape((SLOTS, 3, 3))
 
 
 @jit(inline="always")
-def _snapshot_buffer(floats):
+def snapshot_buffer(floats):
     return floats[_F_SCRATCH + _SNAP : _F_SCRATCH + _Z].reshape((SLOTS, SNAPSHOT))
 
 
@@ -179,5 +179,5 @@ def target_ids(ints: np.ndarray, m: int) -> list[int]:
 
 def snapshot_meta(ints: np.ndarray, rows: int) -> list[int]:
     """After :func:`_snapshot` of ``rows`` tracks: id, age, hits, misses of each, flat."""
-    at = _I_SCRATCH + _META
+    at = _I_SCRATCH + META
     return ints[at : at + 4 * rows].tolist()

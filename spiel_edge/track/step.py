@@ -20,26 +20,26 @@ from __future__ import annotations
 import numpy as np
 
 from spiel_edge._jit import jit
-from spiel_edge.track.assign import INFEASIBLE, _assign_into
-from spiel_edge.track.imm import _combine, _imm_update, _mix_predict
-from spiel_edge.track.kalman import _gate_at, _predict, _sym_inv3, _update
+from spiel_edge.track.assign import INFEASIBLE, assign_into
+from spiel_edge.track.imm import combine_kernel, imm_update, mix_predict_kernel
+from spiel_edge.track.kalman import gate_at, predict_kernel, sym_inv3, update_kernel
 from spiel_edge.track.layout import (
-    _META,
     AGE,
     CONFIRMED,
     DROPPED,
     FREE,
     HITS,
     ID,
+    META,
     MISSES,
     NEXT_ID,
     SLOTS,
     STATUS,
     TENTATIVE,
-    _measurement_buffers,
-    _snapshot_buffer,
-    _unpack,
-    _views,
+    measurement_buffers,
+    scratch_views,
+    snapshot_buffer,
+    unpack,
 )
 
 
@@ -56,7 +56,7 @@ def _measurement_noise(r: np.ndarray, out: np.ndarray, floor2: float, fallback2:
     if ok:
         for i in range(3):
             out[i, i] += floor2
-        det = _sym_inv3(out[0, 0], out[0, 1], out[0, 2], out[1, 1], out[1, 2], out[2, 2])[0]
+        det = sym_inv3(out[0, 0], out[0, 1], out[0, 2], out[1, 1], out[1, 2], out[2, 2])[0]
         minor = out[0, 0] * out[1, 1] - out[0, 1] * out[1, 0]
         ok = out[0, 0] > 0.0 and minor > 0.0 and det > 0.0 and np.isfinite(det)
     if not ok:
@@ -91,16 +91,16 @@ def _match(x, p, meta, kind, z, r, usable, gated, gate, views) -> int:
         for j in range(m):
             cost[a, j] = INFEASIBLE
             if usable[j]:
-                d2, det = _gate_at(x, p, s, z, r, j, gate)
+                d2, det = gate_at(x, p, s, z, r, j, gate)
                 if d2 <= gate:
                     cost[a, j] = d2 + np.log(det)
                     gated[j] = True
-    _assign_into(cost, n, m, chosen, fwork, owner, way, cols, used)
+    assign_into(cost, n, m, chosen, fwork, owner, way, cols, used)
     return n
 
 
 @jit
-def _step(floats, ints, bools, z, r_in, dt):
+def step_kernel(floats, ints, bools, z, r_in, dt):
     """One acquisition on :func:`allocate`'s arrays. The parameters: acceleration, gate,
     floor^2, fallback^2, v0^2, confirm_hits, confirm_window, max_misses, and the IMM's
     static_q2 (mm^2/s), switch probability and static share at birth (imm.py; both of the
@@ -108,28 +108,28 @@ def _step(floats, ints, bools, z, r_in, dt):
     id of the confirmed track it went to, or -1, for :func:`target_ids`; returns the snapshot
     of the confirmed tracks (:func:`_snapshot`)."""
     n = _step_on(floats, ints, bools, z, r_in, dt)
-    return _snapshot_buffer(floats)[:n].copy()
+    return snapshot_buffer(floats)[:n].copy()
 
 
 # _nrt=False: the step allocates nothing (its snapshot goes to the float array too), and
 # without numba's runtime its many views of the state skip their atomic reference counts
 @jit(_nrt=False)
-def _step_buffered(floats, ints, bools, m, dt):
-    """:func:`_step` on the first ``m`` targets written into :func:`measurement_views`
+def step_buffered(floats, ints, bools, m, dt):
+    """:func:`step_kernel` on the first ``m`` targets written into :func:`measurement_views`
     beforehand (two array arguments fewer: each costs time in the call); returns the number
     of confirmed tracks, whose snapshot :func:`snapshot_rows` copies out."""
-    z, r_in = _measurement_buffers(floats)
+    z, r_in = measurement_buffers(floats)
     return _step_on(floats, ints, bools, z[:m], r_in[:m], dt)
 
 
 @jit(inline="always")
 def _step_on(floats, ints, bools, z, r_in, dt):
-    x, p, models, params, wf, meta, counters, wi, wb = _unpack(floats, ints, bools)
+    x, p, models, params, wf, meta, counters, wi, wb = unpack(floats, ints, bools)
     gate, floor2, fallback2 = params[1], params[2], params[3]
     confirm_hits, confirm_window, max_misses = int(params[5]), int(params[6]), int(params[7])
     imm = _imm_on(params)
     cap, m = meta.shape[1], len(z)
-    r, work, mixing, target_slot, usable, near, scratch, match_views = _views(wf, wi, wb, m)
+    r, work, mixing, target_slot, usable, near, scratch, match_views = scratch_views(wf, wi, wb, m)
     for j in range(m):
         _measurement_noise(r_in[j], r[j], floor2, fallback2)
         usable[j] = np.isfinite(z[j, 0]) and np.isfinite(z[j, 1]) and np.isfinite(z[j, 2])
@@ -162,7 +162,7 @@ def _step_on(floats, ints, bools, z, r_in, dt):
     for j in range(m):  # target_slot becomes per target the confirmed track's id or -1
         s = target_slot[j]
         target_slot[j] = meta[ID, s] if s >= 0 and meta[STATUS, s] == CONFIRMED else -1
-    return _snapshot(x, p, meta, wi, _snapshot_buffer(floats))
+    return _snapshot(x, p, meta, wi, snapshot_buffer(floats))
 
 
 @jit(inline="always")
@@ -176,20 +176,20 @@ def _predict_slot(x, p, models, mixing, s, dt, params, imm):
     if imm:
         xm, pm, mu = models
         mix_x, mix_p = mixing
-        _mix_predict(
+        mix_predict_kernel(
             xm[s], pm[s], mu[s], x[s], p[s], dt, params[0], params[8], params[9], params[4],
             mix_x, mix_p,
         )  # fmt: skip
     else:
-        _predict(x[s], p[s], dt, params[0])
+        predict_kernel(x[s], p[s], dt, params[0])
 
 
 @jit(inline="always")
 def _update_slot(x, p, models, s, z, r, work, imm) -> bool:
     if imm:
         xm, pm, mu = models
-        return _imm_update(xm[s], pm[s], mu[s], x[s], p[s], z, r, work)
-    return _update(x[s], p[s], z, r, work)
+        return imm_update(xm[s], pm[s], mu[s], x[s], p[s], z, r, work)
+    return update_kernel(x[s], p[s], z, r, work)
 
 
 @jit
@@ -201,7 +201,7 @@ def _start_models(x, p, models, s, static_share):
             for b in range(6):
                 pm[s, k, a, b] = p[s, a, b]
     mu[s, 0], mu[s, 1] = static_share, 1.0 - static_share
-    _combine(xm[s], pm[s], mu[s], x[s], p[s])
+    combine_kernel(xm[s], pm[s], mu[s], x[s], p[s])
 
 
 @jit
@@ -281,7 +281,7 @@ def _snapshot(x, p, meta, wi, out):
     for k in range(n):
         s = order[k]
         for c in range(4):
-            wi[_META + 4 * k + c] = meta[ID + c, s]
+            wi[META + 4 * k + c] = meta[ID + c, s]
         for i in range(6):
             out[k, i] = x[s, i]
         for i in range(6):
@@ -291,7 +291,7 @@ def _snapshot(x, p, meta, wi, out):
 
 
 @jit
-def _snapshot_now(floats, ints, bools):
+def snapshot_now(floats, ints, bools):
     """:func:`_snapshot` outside a step (``Tracker.tracks``): the number of rows."""
-    x, p, _, _, _, meta, _, wi, _ = _unpack(floats, ints, bools)
-    return _snapshot(x, p, meta, wi, _snapshot_buffer(floats))
+    x, p, _, _, _, meta, _, wi, _ = unpack(floats, ints, bools)
+    return _snapshot(x, p, meta, wi, snapshot_buffer(floats))

@@ -41,7 +41,7 @@ from spiel_edge.track.layout import (
     state_views,
     target_ids,
 )
-from spiel_edge.track.step import _snapshot_now, _step_buffered
+from spiel_edge.track.step import snapshot_now, step_buffered
 
 log = logging.getLogger(__name__)
 
@@ -187,7 +187,7 @@ class Tracker:
             used, m = targets[:MAX_TARGETS], MAX_TARGETS
         self._write_measurements(used)
         floats, ints, bools = self._arrays
-        snapshot = snapshot_rows(floats, _step_buffered(floats, ints, bools, m, dt))
+        snapshot = snapshot_rows(floats, step_buffered(floats, ints, bools, m, dt))
         for target, track_id in zip(used, target_ids(ints, m), strict=True):
             target.track_id = None if track_id < 0 else track_id
         if used is not targets:
@@ -220,7 +220,7 @@ class Tracker:
         self._meta[MISSES, slots] -= 1
 
     def _write_measurements(self, targets: Sequence[TargetLike]) -> None:
-        """:func:`_measurements` into the step's buffers: the same numbers (a target's
+        """:func:`measurements` into the step's buffers: the same numbers (a target's
         arrays are assigned as they are; anything else takes the general path)."""
         z, r = self._z, self._r
         try:
@@ -229,12 +229,12 @@ class Tracker:
                 r[j] = target.covariance_mm2
         except (TypeError, ValueError):
             m = len(targets)
-            z[:m], r[:m] = _measurements(targets)
+            z[:m], r[:m] = measurements(targets)
 
     def tracks(self) -> list[Track]:
         """The confirmed tracks now, by id."""
         floats, ints, bools = self._arrays
-        return _tracks(snapshot_rows(floats, _snapshot_now(floats, ints, bools)), ints)
+        return _tracks(snapshot_rows(floats, snapshot_now(floats, ints, bools)), ints)
 
     def _advance(self, t: float) -> float:
         last, self._last_t = self._last_t, t
@@ -257,7 +257,7 @@ def _tracks(snapshot: np.ndarray, ints: np.ndarray) -> list[Track]:
     return list(map(Track, repeat(snapshot_meta(ints, n), n), repeat(snapshot, n), range(n)))
 
 
-def _measurements(targets: Sequence[TargetLike]) -> tuple[np.ndarray, np.ndarray]:
+def measurements(targets: Sequence[TargetLike]) -> tuple[np.ndarray, np.ndarray]:
     """Positions (m, 3) and covariances (m, 3, 3); a malformed one becomes NaN (the step
     then skips the position, or uses the fallback covariance)."""
     m = len(targets)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.errors import InputError
-from spiel_edge.io.limits import read_text_bounded
+from spiel_edge.safety.limits import read_text_bounded
 from spiel_edge.view import pyplot
 
 CHI2_95_2DOF = 5.991

@@ -7,9 +7,9 @@ from types import SimpleNamespace
 
 from crc32c import crc32c
 
-from firmware_protocol import ConfigSource
-from firmware_protocol.errors import ErrorCode
 from spiel_edge.errors import DeviceError
+from spiel_edge.protocol import ConfigSource
+from spiel_edge.protocol.errors import ErrorCode
 
 
 class DeviceRequestError(DeviceError):

@@ -7,12 +7,12 @@ import copy
 import numpy as np
 import pytest
 
-from firmware_protocol.errors import ErrorCode
-from spiel_edge.board import flash
-from spiel_edge.board import schema as bc
-from spiel_edge.board.flash import commit, pull, push
+from spiel_edge.board_config import profile_choice
+from spiel_edge.board_config import schema as bc
+from spiel_edge.board_config.flash import commit, pull, push
 from spiel_edge.errors import ConfigError, DeviceError
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol.errors import ErrorCode
 from tests.calibrate.fake_board import (
     DeviceDisconnectedError,
     DeviceRequestError,
@@ -101,7 +101,7 @@ def test_calibration_overlay_and_diff(config):
 def test_profile_from_board_uses_the_stored_geometry(config):
     session = FakeBoardSession(TwoSlotFlash())
     base = load_profile()
-    assert flash.profile_from_board(session, base) is base  # nothing stored yet
+    assert profile_choice.profile_from_board(session, base) is base  # nothing stored yet
     moved = bc.overlay(
         config,
         {
@@ -110,7 +110,7 @@ def test_profile_from_board_uses_the_stored_geometry(config):
         },
     )
     commit(session, push(session, moved))
-    profile = flash.profile_from_board(session, base)
+    profile = profile_choice.profile_from_board(session, base)
     assert np.array_equal(profile.geometry.channels_mm[2], [70, 0, 0])
     assert profile.preprocess.blind_zone_samples == 7
     assert profile.detect == base.detect
@@ -126,23 +126,23 @@ def test_profile_from_board_when_the_board_cannot_store_a_config(code, kept):
     session.read_config = refuse
     base = load_profile()
     if kept:  # a board without config support runs with the profile
-        assert flash.profile_from_board(session, base) is base
+        assert profile_choice.profile_from_board(session, base) is base
     else:  # anything else is the board's trouble, not a missing config
         with pytest.raises(DeviceError, match="refused"):
-            flash.profile_from_board(session, base)
+            profile_choice.profile_from_board(session, base)
 
 
 def test_run_profile_precedence(config, tmp_path):
     session = FakeBoardSession(TwoSlotFlash())
     moved = bc.overlay(config, {"geometry": {"speed_of_sound_m_s": 350.0}})
     commit(session, push(session, moved))
-    profile, source = flash.run_profile(session, "spiel-icra23")
+    profile, source = profile_choice.run_profile(session, "spiel-icra23")
     assert profile.geometry.speed_of_sound_m_s == 350.0 and source == "board 'proto-1'"
-    profile, source = flash.run_profile(session, "spiel-icra23", use_board=False)
+    profile, source = profile_choice.run_profile(session, "spiel-icra23", use_board=False)
     assert profile.geometry.speed_of_sound_m_s == 343.0 and source == "profile 'spiel-icra23'"
     cal = tmp_path / "cal.toml"
     cal.write_text("[geometry]\nspeed_of_sound_m_s = 340.0\n")
-    profile, source = flash.run_profile(session, "spiel-icra23", cal)
+    profile, source = profile_choice.run_profile(session, "spiel-icra23", cal)
     assert (
         profile.geometry.speed_of_sound_m_s == 340.0
         and source.startswith("calibration")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from spiel_edge.board import schema as bc
+from spiel_edge.board_config import schema as bc
 from spiel_edge.cli import config as cli_config
 from spiel_edge.cli import main
 from spiel_edge.compat import tomllib

@@ -108,7 +108,7 @@ def test_fixed_order_sums_equal_numpy_sums(rng):
 @pytest.mark.parametrize("k", [1, 4])
 def test_packed_config_holds_every_constant_exactly(profile, association, k):
     """kernel_config packs the pipeline's constants into four buffers by dtype; the kernels'
-    views (_v1 / _v2 with the table's slot numbers) give each array back with its dtype,
+    views (view_1d / view_2d with the table's slot numbers) give each array back with its dtype,
     shape and bits; an array of another dtype turns the kernel off (the staged path)."""
     from spiel_edge.pipeline.compiled import abi
     from spiel_edge.pipeline.factory import build_pipeline
@@ -129,9 +129,9 @@ def test_packed_config_holds_every_constant_exactly(profile, association, k):
         slot = abi.CONSTANTS.slot(field.name)
         buf = buffers[abi.CONSTANTS.buffer_of(field.name)]
         got = (
-            abi._v2(buf, config.layout, slot)
+            abi.view_2d(buf, config.layout, slot)
             if len(field.dims) == 2
-            else abi._v1(buf, config.layout, slot)
+            else abi.view_1d(buf, config.layout, slot)
         )
         if field.name == "share_listening" and k == 1:
             assert got.size == 0  # the scene's constants are empty for one target
@@ -140,9 +140,9 @@ def test_packed_config_holds_every_constant_exactly(profile, association, k):
             assert got.dtype == want.dtype, field.name
             assert got.size == want.size and got.tobytes() == want.tobytes(), field.name
             assert got.shape == (want.shape or (1,)), field.name
-    floats = abi._v1(config.f64, config.layout, abi.L_FLOATS)
+    floats = abi.view_1d(config.f64, config.layout, abi.L_FLOATS)
     assert floats.tolist() == [values[n] for n in abi.FLOATS]
-    scene = abi._v1(config.f64, config.layout, abi.L_SCENE_FLOATS)
+    scene = abi.view_1d(config.f64, config.layout, abi.L_SCENE_FLOATS)
     assert scene.tolist() == ([values[n] for n in abi.SCENE_FLOATS] if k > 1 else [])
     wrong = dict(values, w0=np.zeros((2, 2)))  # float64 weights
     pipeline.kernel_constants = lambda: wrong

@@ -5,7 +5,7 @@ import pytest
 
 from spiel_edge.cli import main
 from spiel_edge.errors import InputError
-from spiel_edge.runtime.background import median_background, save_background
+from spiel_edge.runtime.background_capture import median_background, save_background
 from spiel_edge.runtime.loop import load_background
 
 

@@ -103,7 +103,7 @@ def test_unknown_stage_or_subclass_falls_back_to_staged(profile, subset, monkeyp
             return super().process(frames, background, timed=timed)
 
     fast = FusedPipeline(Extra(profile))
-    assert fast.fallback == ["Extra.process"]
+    assert fast.fallback == ["Extra (not compiled_equivalent)"]
     fast.process(subset.frames[0], subset.backgrounds[0])
     assert calls == [1]
 
@@ -111,7 +111,12 @@ def test_unknown_stage_or_subclass_falls_back_to_staged(profile, subset, monkeyp
         def locate_target(self, *args):
             return super().locate_target(*args)
 
-    assert FusedPipeline(OwnTarget(profile)).fallback == ["OwnTarget.locate_target"]
+    assert FusedPipeline(OwnTarget(profile)).fallback == ["OwnTarget (not compiled_equivalent)"]
+
+    class SameSteps(Pipeline):  # a subclass may say the compiled path is still its own
+        compiled_equivalent = True
+
+    assert FusedPipeline(SameSteps(profile)).fallback == []
     monkeypatch.setattr(run, "STAGES", (*run.STAGES[:5], "timing", "locate"))
     assert unsupported_stages(Pipeline(profile)) == ["timing"]  # a step fused.py lacks
     staged = Pipeline(profile)

@@ -180,7 +180,7 @@ STREAM = """
 import json, os, sys
 import numpy as np
 from spiel_edge import _kernel_cache, _shipped
-from firmware_protocol import cobs
+from spiel_edge.protocol import cobs
 warnings = []
 _kernel_cache.listeners.append(lambda e, n, d: warnings.append(str(d)) if e == "warning" else None)
 error = None

@@ -7,7 +7,7 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.stages.associate import GeometricAssociator, anchor_triples
 from spiel_edge.pipeline.stages.echo_quality import echo_quality
 from spiel_edge.pipeline.stages.features import N_FEATURES, TOA_COLUMN
-from spiel_edge.pipeline.stages.locate import _solve3, locate, locate_kernel
+from spiel_edge.pipeline.stages.locate import locate, locate_kernel, solve3
 from spiel_edge.pipeline.stages.memg import solve_spd
 from spiel_edge.sim.synthetic import ring_profile
 from tests.core import naive
@@ -120,7 +120,7 @@ def test_solve3_is_solve_spd_bit_for_bit(rng):
         ok, x = naive.cholesky_solve(a, b)
         ref = np.empty(3)
         assert solve_spd(a.copy(), b, 3, ref) == ok
-        got = _solve3(a[0, 0], a[1, 0], a[1, 1], a[2, 0], a[2, 1], a[2, 2], *b)
+        got = solve3(a[0, 0], a[1, 0], a[1, 1], a[2, 0], a[2, 1], a[2, 2], *b)
         assert got[0] == ok
         if ok:
             assert _bits(got[1:]) == _bits(x) == _bits(ref)

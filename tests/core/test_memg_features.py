@@ -6,11 +6,11 @@ from spiel_edge.errors import InputError
 from spiel_edge.pipeline.stages.detect import detect
 from spiel_edge.pipeline.stages.features import FEATURE_NAMES, echo_features
 from spiel_edge.pipeline.stages.memg import (
-    _jacobian_sums,
-    _trial_cost,
     emg_value,
     fit_memg,
+    jacobian_sums,
     solve_spd,
+    trial_cost,
 )
 from tests.core import naive
 
@@ -64,10 +64,10 @@ def test_trial_cost_and_jacobian_sums_are_the_normal_equations_bit_for_bit(rng):
         want = naive.normal_equations(y, 14, 31, p, n_comp, np.empty(n_par), a, b)
         shape, resid = np.empty(3 * n_comp * 17), np.empty(17)
         a2, b2 = np.full((n_par, n_par), np.nan), np.full(n_par, np.nan)
-        assert _trial_cost(y, 14, 31, p, n_comp, shape, resid, np.inf) == want
-        partial = _trial_cost(y, 14, 31, p, n_comp, np.empty_like(shape), resid.copy(), 1.0)
+        assert trial_cost(y, 14, 31, p, n_comp, shape, resid, np.inf) == want
+        partial = trial_cost(y, 14, 31, p, n_comp, np.empty_like(shape), resid.copy(), 1.0)
         assert 1.0 <= partial <= want  # stopped early: the step would be rejected anyway
-        _jacobian_sums(17, p, n_comp, shape, resid, np.empty(n_par), a2, b2)
+        jacobian_sums(17, p, n_comp, shape, resid, np.empty(n_par), a2, b2)
         assert np.array_equal(a, a2) and np.array_equal(b, b2)
 
 
@@ -148,12 +148,12 @@ def test_features_match_numpy_reference():
 
 
 def test_mode_is_the_maximum_for_every_bounded_eta():
-    from spiel_edge.pipeline.stages.features import _mode
+    from spiel_edge.pipeline.stages.features import component_mode
 
     for eta in np.linspace(-4.0, 8.0, 49):
         t = np.linspace(18.0, 25.0, 700001)  # mu 20, sigma 1: [mu - 2 sigma, mu + 5 sigma]
         want = t[np.argmax(naive.emg(t, 500.0, 20.0, 1.0, eta))]
-        assert _mode(500.0, 20.0, 1.0, eta) == pytest.approx(want, abs=2e-5)
+        assert component_mode(500.0, 20.0, 1.0, eta) == pytest.approx(want, abs=2e-5)
 
 
 def test_features_of_a_channel_do_not_depend_on_the_others(rng):

@@ -37,7 +37,7 @@ def _prewarm(cache_dir: Path) -> int:
         return sum(1 for _ in cache_dir.rglob("*.nbi"))
     copied = 0
     root = Path(cold_start.__file__).resolve().parents[2]
-    for package in ("spiel_edge", "firmware_protocol"):
+    for package in ("spiel_edge",):
         for pycache in (root / package).rglob("__pycache__"):
             files = [f for f in pycache.iterdir() if f.suffix in (".nbi", ".nbc", ".nbo")]
             if not files:
@@ -81,7 +81,7 @@ from spiel_edge.pipeline.stages import detect, memg
 y = subset.frames[0].astype(np.float32)
 peaks, counts = detect.detect(subset.frames[0] - subset.backgrounds[0], threshold=100.0)
 params = np.full((y.shape[0], peaks.shape[1], 4), np.nan)
-memg._memg_kernel(y, peaks, counts, 3.0, 30, params, np.zeros(peaks.shape, dtype=np.int64))
+memg.memg_kernel(y, peaks, counts, 3.0, 30, params, np.zeros(peaks.shape, dtype=np.int64))
 report["compiled"] = np.nan_to_num(params, nan=-1.0).ravel().tolist()
 print(json.dumps(report))
 """

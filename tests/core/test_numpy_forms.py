@@ -56,6 +56,6 @@ def test_the_interpreted_tier_runs_the_numpy_forms() -> None:
     assert tier.twins[id(tree_ensemble._sum_depth3)] is tree_ensemble._sum_depth3_numpy
     assert tier.twins[id(mlp._layer_rows)] is mlp._layer_rows_numpy
     # the twins of their callers call them
-    caller = tier.twins[id(tree_ensemble._predict_kernel)]
+    caller = tier.twins[id(tree_ensemble.predict_kernel)]
     assert caller.__globals__["_sum_depth3"] is tree_ensemble._sum_depth3_numpy
     assert tier.twins[id(mlp.mlp_scores)].__globals__["_layer_rows"] is mlp._layer_rows_numpy

@@ -25,7 +25,7 @@ from spiel_edge.pipeline.ranging import (
     toa_sigma,
 )
 from spiel_edge.pipeline.stages.detect import detect
-from spiel_edge.pipeline.stages.memg import _memg_kernel, fit_memg
+from spiel_edge.pipeline.stages.memg import fit_memg, memg_kernel
 from spiel_edge.profile.schema import load_profile, profile_from_dict, profile_to_dict
 
 
@@ -212,7 +212,7 @@ def test_memg_window_from_the_profile():
     memg._fit_windowed(y, peaks, counts, 3.0, 30, (5, 6), same)
     np.testing.assert_array_equal(same, default)
     reference = np.full_like(default, np.nan)
-    _memg_kernel(y, peaks, counts, 3.0, 30, reference, np.zeros(peaks.shape, dtype=np.int64))
+    memg_kernel(y, peaks, counts, 3.0, 30, reference, np.zeros(peaks.shape, dtype=np.int64))
     np.testing.assert_array_equal(reference, default)
     wide = fit_memg(y, peaks, counts, window_before=8, window_after=14)
     assert not np.array_equal(wide, default)
@@ -286,12 +286,12 @@ def test_error_model_per_echo_grows_as_the_echo_weakens():
 
 def test_data_peak_finds_the_echo_maximum_after_its_leading_edge():
     from spiel_edge.pipeline.ranging import data_peak
-    from spiel_edge.pipeline.stages.features import _interpolated_peak
+    from spiel_edge.pipeline.stages.features import interpolated_peak
 
     y = echo_frame(128, 60.3, sigma=2.0, eta=1.5)
     mode = emg_mode(60.3, 2.0, 1.5)
     edge = half_max_time(60.3, 2.0, 1.5)
     got = data_peak(y, edge, 7)
     assert got == pytest.approx(mode, abs=0.1)  # a parabola through sampled points
-    assert got == _interpolated_peak(y, int(np.argmax(y)))  # the features' "peak" ToA
+    assert got == interpolated_peak(y, int(np.argmax(y)))  # the features' "peak" ToA
     assert 126.0 <= data_peak(y, 126.5, 7) <= 127.0  # at the frame's end: inside it

@@ -27,7 +27,7 @@ SUBSET = str(resources.files("spiel_edge") / "data" / "spiel_icra23_subset.npz")
 
 
 def _records(pipeline_factory, pairs, tracker_factory):
-    from spiel_edge.runtime.tracking import track_records
+    from spiel_edge.runtime.track_records import track_records
 
     pipeline, tracker, out = pipeline_factory(), tracker_factory(), []
     for i, (frames, background) in enumerate(pairs):
@@ -43,7 +43,7 @@ def test_interpreted_kernels_give_the_compiled_records(targets):
     from spiel_edge.data import load_subset
     from spiel_edge.pipeline.factory import build_pipeline
     from spiel_edge.profile.schema import load_profile
-    from spiel_edge.runtime.tracking import ResultTracker
+    from spiel_edge.runtime.track_records import ResultTracker
     from spiel_edge.runtime.warmup import pipeline_kernels
 
     pipeline_kernels()

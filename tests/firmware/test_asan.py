@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_protocol import FrameDecoder, decode_message, encode_frame
-from firmware_protocol.framing import wrap_body
+from spiel_edge.protocol import FrameDecoder, decode_message, encode_frame
+from spiel_edge.protocol.framing import wrap_body
 from tests.firmware.firmware import FIRMWARE
 
 KNOWN_FLAGS = 0x1F

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import re
 
-from firmware_protocol import (
+from spiel_edge.protocol import (
     ErrorResponse,
     FrameDecoder,
     Hello,
@@ -18,8 +18,8 @@ from firmware_protocol import (
     encode_frame,
     encode_message,
 )
-from firmware_protocol import messages as m
-from firmware_protocol.errors import ErrorCode
+from spiel_edge.protocol import messages as m
+from spiel_edge.protocol.errors import ErrorCode
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.scenes import ReplayScene
 from tests.firmware import test_fw_transcript

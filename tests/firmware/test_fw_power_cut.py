@@ -9,9 +9,9 @@ from __future__ import annotations
 import pytest
 from crc32c import crc32c
 
-from firmware_protocol import ConfigCommit, ConfigRead, ConfigSource, ConfigWrite, ErrorCode
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceDisconnectedError, DeviceError, DeviceRequestError
+from spiel_edge.protocol import ConfigCommit, ConfigRead, ConfigSource, ConfigWrite, ErrorCode
 
 OLD = b"SPCF old config " * 20  # opaque to the board: any bytes are stored as they are
 NEW = b"SPCF the new one " * 30  # 510 bytes: erase, two pages, metadata = 4 operations

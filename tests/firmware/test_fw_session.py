@@ -116,7 +116,7 @@ def test_the_host_refuses_a_stream_the_link_cannot_carry(posix_board, fw_build):
 def test_reboot_re_executes_on_the_same_pty_with_a_new_boot_id(posix_board):
     import time
 
-    from firmware_protocol import Reboot
+    from spiel_edge.protocol import Reboot
 
     board = posix_board()
     with DeviceSession(board.port, reconnect=False) as session:
@@ -174,7 +174,7 @@ def test_the_makefile_builds_the_posix_target(tmp_path):
 
 
 def _blob(header_size: int, toml_length: int, n_samples: int) -> bytes:
-    from firmware_protocol.config_blob import HEADER, MAGIC, VERSION
+    from spiel_edge.protocol.config_blob import HEADER, MAGIC, VERSION
 
     return HEADER.pack(
         MAGIC, VERSION, header_size, n_samples, 8, 30, 9, 22000.0, 175000.0, 20.0, 30.0, toml_length
@@ -187,7 +187,7 @@ def test_a_blob_whose_lengths_add_up_only_modulo_2_to_the_32_is_not_used(posix_b
     its n_samples was used); the board runs with its factory defaults instead."""
     from crc32c import crc32c
 
-    from firmware_protocol import ConfigCommit, ConfigWrite, StreamStart, StreamStop
+    from spiel_edge.protocol import ConfigCommit, ConfigWrite, StreamStart, StreamStop
 
     def committed_n_samples(session, blob):
         session.request(ConfigWrite(0, blob))
@@ -206,7 +206,7 @@ def test_a_board_of_32_channels_streams(posix_board, tmp_path):
     32-channel scans file (undefined; on x86 a shift by 0), so it refused every acquisition."""
     import time
 
-    from firmware_protocol import StreamStart, StreamStatusRequest
+    from spiel_edge.protocol import StreamStart, StreamStatusRequest
     from tools.release.firmware_scans import write_scans
 
     frames = np.arange(2 * 32 * 16).reshape(2, 32, 16)

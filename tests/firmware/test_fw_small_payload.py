@@ -12,12 +12,12 @@ import json
 import numpy as np
 import pytest
 
-from firmware_protocol import ConfigRead, ConfigSource
 from spiel_edge.calibrate.capture import capture_positions
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceRequestError
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import ConfigRead, ConfigSource
 from tests.firmware.firmware import build_posix
 
 _names = itertools.count()

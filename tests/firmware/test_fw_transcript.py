@@ -12,7 +12,9 @@ from dataclasses import replace
 import pytest
 from crc32c import crc32c
 
-from firmware_protocol import (
+from spiel_edge.board_config.schema import encode, from_profile
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import (
     ConfigCommit,
     ConfigRead,
     ConfigSource,
@@ -32,9 +34,7 @@ from firmware_protocol import (
     encode_frame,
     encode_message,
 )
-from firmware_protocol import messages as m
-from spiel_edge.board.schema import encode, from_profile
-from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import messages as m
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.scenes import ReplayScene
 from tests.firmware.firmware import CoreDriver

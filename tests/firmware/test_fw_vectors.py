@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_protocol import (
+from spiel_edge.protocol import (
     ErrorCode,
     ErrorResponse,
     FrameDecoder,
@@ -108,7 +108,7 @@ def test_request_vectors_are_parsed_and_answered(core, v):
 def test_a_measurement_the_front_end_loses_is_skipped_not_invented(core):
     """hal_acq_read fails on channel 2 of acquisition 1: that acquisition is abandoned (an
     overrun, its index used), never sent with made-up samples; the stream goes on."""
-    from firmware_protocol import (
+    from spiel_edge.protocol import (
         AcquisitionAssembler,
         Hello,
         StreamData,

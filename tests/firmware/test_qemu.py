@@ -21,7 +21,11 @@ import numpy as np
 import pytest
 import serial
 
-from firmware_protocol import (
+from spiel_edge.board_config import schema as bc
+from spiel_edge.compat import tomllib
+from spiel_edge.device import DeviceSession
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import (
     FrameDecoder,
     Hello,
     HelloResponse,
@@ -30,10 +34,6 @@ from firmware_protocol import (
     encode_frame,
     encode_message,
 )
-from spiel_edge.board import schema as bc
-from spiel_edge.compat import tomllib
-from spiel_edge.device import DeviceSession
-from spiel_edge.profile.schema import load_profile
 from tests.core.spiel_csv_fixture import write_spiel_csv
 from tests.firmware.qemu_board import (
     CUT,

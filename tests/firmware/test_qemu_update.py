@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_protocol import Reboot
-from firmware_protocol.v2_messages import BootState, FwBegin, FwTest, FwVerify, FwWrite
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError
+from spiel_edge.protocol import Reboot
+from spiel_edge.protocol.link_messages import BootState, FwBegin, FwTest, FwVerify, FwWrite
 from tests.firmware.qemu_board import (
     CUT,
     QemuBoard,
@@ -75,7 +75,7 @@ class Ident:
     checks it stays the same)."""
 
     def __init__(self, dev) -> None:
-        from firmware_protocol.messages import DeviceInfoRequest
+        from spiel_edge.protocol.messages import DeviceInfoRequest
 
         self.firmware_version = dev.hello.firmware_version
         self.boot_id = dev.hello.boot_id

@@ -23,16 +23,16 @@ from pathlib import Path
 import pytest
 import serial
 
-from firmware_protocol import Reboot, encode_message
-from firmware_protocol.image import parse_image
-from firmware_protocol.v2_messages import BootState
-from spiel_edge.board import schema as bc
+from spiel_edge.board_config import schema as bc
 from spiel_edge.compat import tomllib
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import Reboot, encode_message
+from spiel_edge.protocol.image import parse_image
+from spiel_edge.protocol.link_messages import BootState
 from tests.firmware.rp2040_board import Rp2040Board, Unavailable, build_rp2040, missing_tools
 from tests.fwsign import DEV_KEY, signed_image
 from tests.protocol_v2.signing_cases import forged_images, other_signer, raw_upload
@@ -136,9 +136,9 @@ def test_a_release_build_signs_with_its_own_key(rp2040_image, tmp_path):
     """make TARGET=rp2040 FW_KEY=k.pub RELEASE=1: the slot-0 image of firmware.uf2 is signed by
     k.key (FW_SIGN_KEY's default) and verifies with k.pub only; without the private half, or
     with a private key of another pair, the build stops in one line naming FW_SIGN_KEY."""
-    from firmware_protocol.image import ImageRefused, verify_image
-    from firmware_protocol.signing import DEV_PUBLIC_KEY, parse_public_key_text
     from spiel_edge.device.fwkeys import generate_key
+    from spiel_edge.protocol.image import ImageRefused, verify_image
+    from spiel_edge.protocol.signing import DEV_PUBLIC_KEY, parse_public_key_text
 
     generate_key(tmp_path / "k.key", tmp_path / "k.pub")
     generate_key(tmp_path / "other.key", tmp_path / "other.pub")

@@ -18,7 +18,7 @@ def test_an_empty_cache_is_known_cold_and_said(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     monkeypatch.setenv("SPIEL_EDGE_HOST_KERNELS", "1")  # no prebuilt kernels in a checkout
     [folder] = cold_start.probe_folders()
-    assert folder.parent == tmp_path and folder.name.startswith("firmware_protocol_")
+    assert folder.parent == tmp_path and folder.name.startswith("protocol_")
     assert cold_start.has_no_kernels()
     out = io.StringIO()
     assert cold_start.say_if_cold("run", out)
@@ -37,7 +37,7 @@ def test_a_cache_holding_the_probe_kernel_is_left_to_numba(tmp_path, monkeypatch
 
 def test_the_folder_is_numbas_own_choice():
     """The folder numba's cache itself uses for the probe kernel in this process."""
-    from firmware_protocol import _cobs_numba
+    from spiel_edge.protocol import _cobs_numba
 
     assert str(cold_start.probe_folders()[0]) == str(_cobs_numba.encode._cache._cache_path)
 

@@ -45,12 +45,12 @@ def test_a_bar_redrawn_in_place_on_a_terminal():
     out = FakeTty()
     progress = Progress(total=4, stream=out)
     assert progress.tty
-    progress("compile", "spiel_edge.track.step._step", "()")
-    progress("compiled", "spiel_edge.track.step._step", 1.0)
+    progress("compile", "spiel_edge.track.step.step_kernel", "()")
+    progress("compiled", "spiel_edge.track.step.step_kernel", 1.0)
     progress.say("a line of its own")
     progress.finish("ready")
     text = out.getvalue()
-    assert "[######------------------] 1/4" in text and "track.step._step" in text
+    assert "[######------------------] 1/4" in text and "track.step.step_kernel" in text
     assert "\r\x1b[Ka line of its own\n" in text
     assert text.endswith("ready\n")
     assert "compiled 1/4" not in text  # no journal lines on a terminal
@@ -98,9 +98,9 @@ def test_the_service_hears_of_each_kernel_and_gets_more_time(tmp_path):
         server.bind(path)
         progress = Progress(total=3, stream=io.StringIO())
         progress.notifier = Notifier({"NOTIFY_SOCKET": path})
-        progress("compiled", "spiel_edge.track.step._step", 2.0)
+        progress("compiled", "spiel_edge.track.step.step_kernel", 2.0)
         message = server.recv(4096).decode()
-    assert "STATUS=compiling kernels: 1/3 (track.step._step)" in message
+    assert "STATUS=compiling kernels: 1/3 (track.step.step_kernel)" in message
     assert "EXTEND_TIMEOUT_USEC=120000000" in message
 
 
@@ -108,8 +108,8 @@ def test_a_warmup_step_in_a_child_reports_its_kernels():
     from spiel_edge.runtime import warmup
 
     seen = []
-    report = warmup._run_child("stream", lambda *event: seen.append(event))
-    names = {"firmware_protocol._cobs_numba.decode", "firmware_protocol._cobs_numba.encode"}
+    report = warmup.run_child("stream", lambda *event: seen.append(event))
+    names = {"spiel_edge.protocol._cobs_numba.decode", "spiel_edge.protocol._cobs_numba.encode"}
     assert names <= set(report["kernels"])
     assert set(report["compiled"]) | set(report["cache_hits"]) >= names
     assert {name for event, name, _ in seen if event == "compiled"} == set(report["compiled"])
@@ -126,7 +126,7 @@ def test_a_child_past_its_memory_budget_hands_the_kernel_to_a_fresh_one(tmp_path
         warmup_child, "_one_child", lambda *a: children.append(one_child(*a)) or children[-1]
     )
     seen = []
-    report = warmup._run_child("csv", lambda *event: seen.append(event))
+    report = warmup.run_child("csv", lambda *event: seen.append(event))
     kernel = "spiel_edge.recordings.spiel_csv._scan_integers"
     # the first child stops before compiling, naming the kernel; the second compiles it
     assert [status for _, status, _ in children] == [warmup_child.RESTART, 0]

@@ -1,6 +1,6 @@
 """`replay -o FILE.mcap`: a recording laid out as `run --record` writes it (JSON, or ROS 2 CDR
 read back by rosbags), with /tf_static from the profile's [frame] or the options, under the
-file rules of io/guard.py (no overwrite without --force, moved into place when finalized, a
+file rules of safety/guard.py (no overwrite without --force, moved into place when finalized, a
 signal finalizes it)."""
 
 from __future__ import annotations
@@ -195,7 +195,7 @@ def test_a_signal_finalizes_the_recording(recorded, tmp_path, monkeypatch, capsy
 
 def test_a_file_that_appears_during_the_replay_is_not_replaced(tmp_path):
     from spiel_edge.errors import ConfigError
-    from spiel_edge.runtime.replay_output import ReplayMcap
+    from spiel_edge.runtime.recorded_output import ReplayMcap
 
     target = tmp_path / "late.mcap"
     out = ReplayMcap(target, force=False)

@@ -11,11 +11,11 @@ import tty
 
 import pytest
 
-from firmware_protocol import FrameDecoder, Hello, HelloResponse, encode_message
-from firmware_protocol.errors import ErrorCode
-from firmware_protocol.messages import ErrorResponse
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
+from spiel_edge.protocol import FrameDecoder, Hello, HelloResponse, encode_message
+from spiel_edge.protocol.errors import ErrorCode
+from spiel_edge.protocol.messages import ErrorResponse
 
 GOOD = {"protocol_version": 1, "min_version": 1, "max_version": 1, "n_channels": 4}
 

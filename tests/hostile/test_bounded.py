@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from spiel_edge.errors import SpielError
-from spiel_edge.io import limits
 from spiel_edge.runtime.loop import load_background
+from spiel_edge.safety import limits
 
 GIB = 1 << 30
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from spiel_edge.board import schema as bc
+from spiel_edge.board_config import schema as bc
 from spiel_edge.cli.doctor import service_rejects
 from spiel_edge.errors import ConfigError
 from spiel_edge.profile.schema import apply_calibration, load_profile, profile_to_dict
@@ -95,7 +95,7 @@ class _NothingStaged:
 
 
 def test_commit_with_nothing_staged_is_a_clear_error():
-    from spiel_edge.board.flash import commit
+    from spiel_edge.board_config.flash import commit
 
     with pytest.raises(ConfigError, match="nothing is staged"):
         commit(_NothingStaged())

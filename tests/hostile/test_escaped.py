@@ -1,6 +1,6 @@
 """No raw control character reaches a terminal or a log (issue 43): strings from a board (HELLO,
 firmware slots), an image (version, target), a file name or the network (Zenoh keys) pass
-through the one escaping function, spiel_edge.io.shown.escape."""
+through the one escaping function, spiel_edge.safety.shown.escape."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import re
 
 import pytest
 
-from spiel_edge.cli import _shorten_record, main
-from spiel_edge.io.shown import escape
+from spiel_edge.cli import main, shorten_record
+from spiel_edge.safety.shown import escape
 from tests.fwsign import DEV_KEY, signed_image
 from tests.protocol_v2.conftest import sim_url  # noqa: F401  # a fixture: fresh boards
 
@@ -82,7 +82,7 @@ def test_every_log_record_is_one_escaped_line() -> None:
         "spiel_edge.outputs.zenoh", logging.WARNING, __file__, 1, "key %s: %s", None, None
     )
     record.args = ("robot/\x1b[2J/targets", "board\nFAKE LINE \x07")
-    assert _shorten_record(record)
+    assert shorten_record(record)
     message = record.getMessage()
     assert not _raw_in(message) and "\n" not in message, repr(message)
     assert "robot/\\x1b[2J/targets" in message and "board\\nFAKE LINE \\x07" in message

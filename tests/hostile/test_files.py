@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from spiel_edge.io.limits import InputLimits
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.recordings.mcap_reader import iter_mcap_recordings
 from spiel_edge.recordings.spiel_csv import read_frames
+from spiel_edge.safety.limits import InputLimits
 
 GOOD_ROW = " ".join(["100"] * 64)
 LIMITS = InputLimits.for_profile(load_profile("spiel-icra23"))

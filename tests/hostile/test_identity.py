@@ -14,7 +14,7 @@ import time
 import pytest
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.io import guard
+from spiel_edge.safety import guard
 from tests.hostile.conftest import digest
 
 NO_BOARD = "serial:///nonexistent/tty-spiel"

@@ -10,14 +10,14 @@ import math
 import pytest
 
 from spiel_edge.errors import ConfigError
-from spiel_edge.profile.schema import _SECTIONS, load_profile, profile_from_dict, profile_to_dict
+from spiel_edge.profile.schema import SECTIONS, load_profile, profile_from_dict, profile_to_dict
 
 BASE = profile_to_dict(load_profile("spiel-icra23"))
 
 
 def _numeric_keys() -> list[tuple[str, str, type]]:
     keys = []
-    for section, cls in _SECTIONS.items():
+    for section, cls in SECTIONS.items():
         for field in dataclasses.fields(cls):
             value = getattr(cls(), field.name)
             if isinstance(value, bool) or field.name == "static_model":
@@ -109,7 +109,7 @@ BOARD_KEYS = ["sample_rate_hz", "carrier_hz", "gain_db", "acquisition_rate_hz"]
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf, 1e308], ids=str)
 @pytest.mark.parametrize("key", BOARD_KEYS)
 def test_board_config_floats_are_finite_and_in_range(key, value):
-    from spiel_edge.board import schema
+    from spiel_edge.board_config import schema
 
     config = schema.from_profile(load_profile("spiel-icra23"))
     config["acquisition"][key] = value
@@ -119,7 +119,7 @@ def test_board_config_floats_are_finite_and_in_range(key, value):
 
 @pytest.mark.parametrize("value", [math.nan, math.inf, -1.0, 1e9], ids=str)
 def test_board_calibration_residual_is_bounded(value):
-    from spiel_edge.board import schema
+    from spiel_edge.board_config import schema
 
     config = schema.from_profile(load_profile("spiel-icra23"))
     config["calibration"] = {"residual_samples": value}

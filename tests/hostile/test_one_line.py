@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from spiel_edge.io.guard import escape, shorten
+from spiel_edge.safety.guard import escape, shorten
 
 CLI = [sys.executable, "-m", "spiel_edge.cli"]
 NO_BOARD = "serial:///nonexistent/tty-spiel"

@@ -119,7 +119,7 @@ def test_every_output_failing_is_an_error(cli):
 
 
 def test_atomic_outputs_keep_the_old_file_when_the_disk_fills(tmp_path, monkeypatch):
-    from spiel_edge.io import guard
+    from spiel_edge.safety import guard
 
     target = tmp_path / "cal.toml"
     target.write_text("old = 1\n")

@@ -9,9 +9,9 @@ import logging
 import numpy as np
 import pytest
 
-from firmware_protocol import StreamData, encode_message
-from firmware_protocol.framing import FrameDecoder
-from spiel_edge.device.stream import StreamTracker
+from spiel_edge.device.acquisitions import StreamAssembly
+from spiel_edge.protocol import StreamData, encode_message
+from spiel_edge.protocol.framing import FrameDecoder
 from spiel_edge.runtime.once import OncePerProblem
 
 SAMPLES = np.zeros(8, dtype="<u2").tobytes()
@@ -27,8 +27,8 @@ def wire(index: int, counter: int, channels: int = 2) -> bytes:
     )
 
 
-def fed(indices: list[int], counters: list[int]) -> StreamTracker:
-    tracker = StreamTracker()
+def fed(indices: list[int], counters: list[int]) -> StreamAssembly:
+    tracker = StreamAssembly()
     tracker.begin()
     tracker.started(indices[0])
     decoder = FrameDecoder()

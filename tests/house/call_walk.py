@@ -26,7 +26,7 @@ PROJECT = ("spiel_edge", "firmware_protocol")
 
 
 def package(module: str | None) -> str | None:
-    """spiel_edge.X.Y -> X (the root: __init__); firmware_protocol sits with the foundations."""
+    """spiel_edge.X.Y -> X (the root: __init__); spiel_edge.protocol sits with the foundations."""
     if not module:
         return None
     parts = module.split(".")

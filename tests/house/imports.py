@@ -6,7 +6,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("spiel_edge", "firmware_protocol", "tools")
+PACKAGES = ("spiel_edge", "tools")
 
 
 def module_files() -> dict[str, Path]:

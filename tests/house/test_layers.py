@@ -15,10 +15,11 @@ LAYERS = (
     # foundations: no spiel_edge package below them
     ("errors", "compat", "_abi", "_early", "_numba_gate", "_shipped", "_tiers", "data"),
     ("__init__",),  # the version and the early environment
-    ("io", "link", "_kernel_cache", "_cache_load"),  # file rules, port URLs, the numba cache
+    ("safety", "link", "_kernel_cache", "_cache_load"),  # file rules, port URLs, numba cache
     ("_kernel_layers",),
     ("_jit", "profile"),
-    ("board", "device", "messages", "pipeline", "track"),
+    ("protocol",),  # frames: the codec (its COBS kernel uses _jit)
+    ("board_config", "device", "messages", "pipeline", "track"),
     ("recordings", "view"),
     ("outputs",),
     ("runtime",),  # the live loop and replay: opens a device, runs the pipeline, writes sinks
@@ -65,7 +66,7 @@ def test_the_wheel_imports_no_tool_and_the_protocol_no_host():
         for m, targets in graph.items()
         for t in targets
         if (package_of(m) is not None and t.split(".")[0] == "tools")
-        or (m.split(".")[0] == "firmware_protocol" and package_of(t) not in (None, "_jit"))
+        or (package_of(m) == "protocol" and package_of(t) not in ("protocol", "_jit"))
     )  # the protocol's COBS kernel compiles through the project's one numba decorator
     assert wrong == []
 

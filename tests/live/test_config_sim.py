@@ -12,7 +12,7 @@ import pytest
 from crc32c import crc32c
 from mcap.reader import make_reader
 
-from spiel_edge.board import schema as bc
+from spiel_edge.board_config import schema as bc
 from spiel_edge.cli import main
 from spiel_edge.compat import tomllib
 from spiel_edge.device import DeviceSession

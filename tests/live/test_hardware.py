@@ -9,9 +9,9 @@ import threading
 
 import pytest
 
-from firmware_protocol import SCHEMA_HASH, Ping
 from spiel_edge.device import DeviceSession
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import SCHEMA_HASH, Ping
 
 PORT = os.environ.get("SPIEL_TEST_PORT")
 pytestmark = [

@@ -8,7 +8,6 @@ import time
 import numpy as np
 import pytest
 
-from firmware_protocol import ErrorCode, ErrorResponse, MsgType, Ping, Pong, StreamStart
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import (
     DeviceDisconnectedError,
@@ -16,6 +15,7 @@ from spiel_edge.errors import (
     DeviceRequestError,
     DeviceTimeoutError,
 )
+from spiel_edge.protocol import ErrorCode, ErrorResponse, MsgType, Ping, Pong, StreamStart
 from spiel_edge.sim.protocol_sim import device_for_url
 
 
@@ -56,7 +56,7 @@ def test_bit_errors_damaged_acquisitions_are_counted_and_the_rest_delivered(sim_
     url = sim_url("ber=1e-4&seed=5")
     with DeviceSession(url) as session:
         session.start_stream(rate_hz=0)
-        acqs = take(session, 1500) + list(session.tracker.ready)  # and those already assembled
+        acqs = take(session, 1500) + list(session.assembly.ready)  # and those already assembled
         counts = session.counts()
     faults = device_for_url(url).faults.stats
     delivered = {a.index for a in acqs}

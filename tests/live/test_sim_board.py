@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_protocol import (
+from spiel_edge.device.annotation import ANNOTATION_TYPE, Annotation
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import (
     ErrorCode,
     ErrorResponse,
     Flags,
@@ -22,8 +24,6 @@ from firmware_protocol import (
     encode_frame,
     encode_message,
 )
-from spiel_edge.device.annotation import ANNOTATION_TYPE, Annotation
-from spiel_edge.profile.schema import load_profile
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.scenes import EchoModelScene, ReplayScene
 

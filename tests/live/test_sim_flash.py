@@ -7,7 +7,9 @@ import time
 import pytest
 from crc32c import crc32c
 
-from firmware_protocol import (
+from spiel_edge.device import DeviceSession
+from spiel_edge.errors import DeviceDisconnectedError
+from spiel_edge.protocol import (
     ConfigCommit,
     ConfigCommitResponse,
     ConfigRead,
@@ -22,8 +24,6 @@ from firmware_protocol import (
     decode_message,
     encode_message,
 )
-from spiel_edge.device import DeviceSession
-from spiel_edge.errors import DeviceDisconnectedError
 from spiel_edge.sim import Flash, PowerCut
 from spiel_edge.sim.board import VirtualBoard
 from spiel_edge.sim.protocol_sim import device_for_url

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from firmware_protocol.framing import Frame
 from spiel_edge.cli import main
+from spiel_edge.device.acquisitions import StreamAssembly
 from spiel_edge.device.annotation import TARGETS_TYPE, TruthTargets, encode_truth_targets
-from spiel_edge.device.stream import StreamTracker
 from spiel_edge.errors import ConfigError
 from spiel_edge.link.sim_options import SimOptions
+from spiel_edge.protocol.framing import Frame
 from spiel_edge.sim.movers import HALF_RANGE_MM, MAX_TOP_SPEED_MM_S, MoverPaths
 
 
@@ -76,7 +76,7 @@ def test_truth_targets_annotation_round_trip_and_bad_payloads():
     assert wire[0] == 0
     note = TruthTargets.unpack(TruthTargets(7, truth.astype("<f4").tobytes()).pack())
     np.testing.assert_allclose(note.positions_mm(), truth, atol=1e-4)
-    stream = StreamTracker()
+    stream = StreamAssembly()
     bad = TruthTargets(7, b"\x00" * 13).pack()  # not whole (x, y, z) rows
     assert stream.feed(Frame(TARGETS_TYPE, 0, 0, 7, bad), 0)
     nan = TruthTargets(7, np.full(3, np.nan, "<f4").tobytes()).pack()

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-from importlib import resources
 from pathlib import Path
 
 DRIVER = Path(__file__).with_name("sp_driver.c")
@@ -20,7 +19,7 @@ def compiler() -> str | None:
 
 
 def c_dir() -> Path:
-    return Path(str(resources.files("firmware_protocol").joinpath("c")))
+    return Path(__file__).resolve().parents[2] / "firmware_protocol" / "c"
 
 
 def build(cc: str, exe: Path) -> subprocess.CompletedProcess:

@@ -7,7 +7,7 @@ Run only when the wire format changes on purpose:
 import json
 from pathlib import Path
 
-from firmware_protocol.vectors import build_test_vectors
+from spiel_edge.protocol.vectors import build_test_vectors
 
 PATH = Path(__file__).resolve().parents[2] / "firmware_protocol" / "test_vectors.json"
 

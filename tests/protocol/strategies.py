@@ -6,8 +6,8 @@ import dataclasses
 
 from hypothesis import strategies as st
 
-from firmware_protocol import MAX_PAYLOAD, REGISTRY, SAMPLE_SIZE, SampleFormat, StreamData
-from firmware_protocol._codec import Message
+from spiel_edge.protocol import MAX_PAYLOAD, REGISTRY, SAMPLE_SIZE, SampleFormat, StreamData
+from spiel_edge.protocol._codec import Message
 
 _INT_BITS = {
     "B": (8, False),

@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_protocol import (
+from spiel_edge.board_config import schema as bc
+from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import (
     ERROR_TEXT,
     Capability,
     ConfigSource,
@@ -23,10 +25,8 @@ from firmware_protocol import (
     StreamData,
     config_blob,
 )
-from firmware_protocol.c_header import COMMAND, HEADER_PATH, main, render
-from firmware_protocol.stream import STREAM_HEADER, STREAM_HEADER_FIELDS
-from spiel_edge.board import schema as bc
-from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol.c_header import COMMAND, HEADER_PATH, main, render
+from spiel_edge.protocol.stream_data import STREAM_HEADER, STREAM_HEADER_FIELDS
 from tests.protocol.c_driver import c_dir, run
 
 HEADER_TEXT = HEADER_PATH.read_text()

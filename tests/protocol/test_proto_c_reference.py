@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_protocol import MAX_PAYLOAD, FrameDecoder, cobs, encode_frame, load_test_vectors
-from firmware_protocol.framing import HEADER, crc32c
+from spiel_edge.protocol import MAX_PAYLOAD, FrameDecoder, cobs, encode_frame, load_test_vectors
+from spiel_edge.protocol.framing import HEADER, crc32c
 from tests.protocol.c_driver import hx, run
 
 VECTORS = load_test_vectors()

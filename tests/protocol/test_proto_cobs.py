@@ -1,4 +1,4 @@
-"""firmware_protocol.cobs (numba kernels and pure fallback) against a per-byte reference."""
+"""spiel_edge.protocol.cobs (numba kernels and pure fallback) against a per-byte reference."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_protocol import cobs
+from spiel_edge.protocol import cobs
 
 
 def reference_encode(data: bytes) -> bytes:
@@ -115,8 +115,8 @@ def test_cobs_kernels_load_without_spiel_edge(tmp_path):
         """
         import sys
         sys.modules["spiel_edge._jit"] = None  # import of it raises ImportError
-        from firmware_protocol import _cobs_numba as k
-        from firmware_protocol import cobs
+        from spiel_edge.protocol import _cobs_numba as k
+        from spiel_edge.protocol import cobs
         import numpy as np
         data = bytes(range(1, 40)) + b"\\0" + bytes(300)
         enc = cobs.encode(data)

@@ -1,12 +1,12 @@
-"""The config blob header codec (firmware_protocol.config_blob), alone and as the board uses it."""
+"""The config blob header codec (spiel_edge.protocol.config_blob), alone and as the board uses it."""
 
 from __future__ import annotations
 
 import pytest
 
-from firmware_protocol import MessageError, config_blob
-from spiel_edge.board import schema as bc
+from spiel_edge.board_config import schema as bc
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import MessageError, config_blob
 
 ACQ = {
     "n_samples": 4096,

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_protocol import (
+from spiel_edge.protocol import (
     MAX_ENCODED_SIZE,
     MAX_PAYLOAD,
     MAX_WIRE_SIZE,
@@ -17,7 +17,7 @@ from firmware_protocol import (
     ProtocolError,
     encode_frame,
 )
-from firmware_protocol.framing import crc32c
+from spiel_edge.protocol.framing import crc32c
 
 
 def chunked(data: bytes, cuts: list[int]) -> list[bytes]:

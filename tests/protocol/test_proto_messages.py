@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_protocol import (
+from spiel_edge.protocol import (
     MAX_PAYLOAD,
     MAX_SAMPLES_PER_FRAME,
     REGISTRY,
@@ -176,6 +176,6 @@ def test_error_table_has_text_for_every_code() -> None:
 
 
 def test_schema_hash_is_stable() -> None:
-    from firmware_protocol import load_test_vectors
+    from spiel_edge.protocol import load_test_vectors
 
     assert load_test_vectors()["schema_hash"] == SCHEMA_HASH

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_protocol import AcquisitionAssembler, SampleFormat, StreamData
+from spiel_edge.protocol import AcquisitionAssembler, SampleFormat, StreamData
 
 
 def acquisition(index: int, n_ch: int = 3, n: int = 8, ts: int = 1000) -> list[StreamData]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_protocol import Frame, FrameDecoder, encode_frame, load_test_vectors
+from spiel_edge.protocol import Frame, FrameDecoder, encode_frame, load_test_vectors
 
 N_STREAMS = 100_000
 
@@ -103,8 +103,8 @@ def test_one_kernel_call_per_read_equals_piece_by_piece(monkeypatch) -> None:
     """FrameDecoder.feed decodes every complete piece of a read in one kernel call; the same
     chunked streams (intact, damaged, oversize, empty pieces, garbage) give the same frames
     and the same counters as decoding piece by piece (no kernels)."""
-    from firmware_protocol import cobs
-    from firmware_protocol.framing import MAX_ENCODED_SIZE
+    from spiel_edge.protocol import cobs
+    from spiel_edge.protocol.framing import MAX_ENCODED_SIZE
 
     rng = np.random.default_rng(7)
     pool = [f.encode() for f in _pool(rng)]

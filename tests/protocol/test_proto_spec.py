@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import re
 import struct
-from importlib import resources
+from pathlib import Path
 
 import pytest
 
-from firmware_protocol import (
+from spiel_edge.board_config import schema as board_schema
+from spiel_edge.protocol import (
     MAX_ENCODED_SIZE,
     MAX_PAYLOAD,
     REGISTRY,
@@ -23,9 +24,8 @@ from firmware_protocol import (
     config_blob,
     decode_message,
 )
-from spiel_edge.board import schema as board_schema
 
-SPEC = resources.files("firmware_protocol").joinpath("PROTOCOL.md").read_text()
+SPEC = (Path(__file__).resolve().parents[2] / "firmware_protocol" / "PROTOCOL.md").read_text()
 
 
 def worked_examples() -> list[bytes]:

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from firmware_protocol import (
+from spiel_edge.protocol import (
     HEADER_SIZE,
     FrameDecoder,
     decode_message,
@@ -14,8 +14,8 @@ from firmware_protocol import (
     encode_message,
     load_test_vectors,
 )
-from firmware_protocol.framing import crc32c
-from firmware_protocol.vectors import build_test_vectors, message_from_fields
+from spiel_edge.protocol.framing import crc32c
+from spiel_edge.protocol.vectors import build_test_vectors, message_from_fields
 
 from .regen_vectors import render
 

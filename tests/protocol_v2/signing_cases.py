@@ -9,11 +9,16 @@ from pathlib import Path
 
 from crc32c import crc32c
 
-from firmware_protocol.image import IMAGE_HEADER, IMAGE_HEADER_FIELDS, IMAGE_HEADER_SIZE, pack_image
-from firmware_protocol.v2_messages import FwBegin, FwWrite
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import verify_upload
 from spiel_edge.errors import DeviceRequestError
+from spiel_edge.protocol.image import (
+    IMAGE_HEADER,
+    IMAGE_HEADER_FIELDS,
+    IMAGE_HEADER_SIZE,
+    pack_image,
+)
+from spiel_edge.protocol.link_messages import FwBegin, FwWrite
 from tests.fwsign import signed_image
 
 NAMES = [name for name, _, _ in IMAGE_HEADER_FIELDS]
@@ -74,7 +79,7 @@ def raw_upload(port: str, image: bytes) -> str | None:
                 dev.request(FwWrite(off, image[off : off + step]))
             verify_upload(dev)
         except DeviceRequestError as exc:
-            from firmware_protocol import ErrorCode
+            from spiel_edge.protocol import ErrorCode
 
             return ErrorCode(exc.code).name
     return None

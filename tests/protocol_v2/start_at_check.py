@@ -11,8 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from firmware_protocol import ErrorCode
 from spiel_edge.errors import DeviceRequestError
+from spiel_edge.protocol import ErrorCode
 
 RATE_HZ = 10.0
 PERIOD_US = 100_000

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_protocol.v2_messages import FwTest, SelfTest
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.device.firmware_requests import upload_image
 from spiel_edge.errors import DeviceError
+from spiel_edge.protocol.link_messages import FwTest, SelfTest
 from tests.fwsign import signed_image
 from tests.protocol_v2.test_v2_firmware_posix import board, script_image
 

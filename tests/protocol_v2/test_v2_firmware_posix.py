@@ -86,8 +86,8 @@ def script_image(posix, version: str, size: int = 6000) -> bytes:
 def test_fw_write_at_an_offset_near_2_to_the_32_is_too_large(posix, tmp_path) -> None:
     """offset + data_len past image_size is TOO_LARGE even where it wraps in u32 (it once
     wrapped to a small number and was answered as an already-written repeat)."""
-    from firmware_protocol import ErrorCode
-    from firmware_protocol.v2_messages import FwBegin, FwWrite
+    from spiel_edge.protocol import ErrorCode
+    from spiel_edge.protocol.link_messages import FwBegin, FwWrite
 
     with board(posix, tmp_path) as b, DeviceSession(b.port, reconnect=False) as dev:
         dev.request(FwBegin(200, 0, bytes(32)))

@@ -10,11 +10,11 @@ import time
 import pytest
 from crc32c import crc32c
 
-from firmware_protocol.v2_messages import BootState, FwBegin, FwVerify
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
 from spiel_edge.errors import DeviceError, DeviceRequestError
+from spiel_edge.protocol.link_messages import BootState, FwBegin, FwVerify
 from spiel_edge.sim.protocol_sim import device_for_url
 from tests.fwsign import signed_image
 
@@ -100,7 +100,7 @@ def test_host_killed_after_verify_or_test(sim_url, stop_after) -> None:
     sha, crc = hashlib.sha256(NEW).digest(), crc32c(NEW)
     with DeviceSession(url, reconnect=False) as dev:
         dev.request(FwBegin(len(NEW), crc, sha))
-        from firmware_protocol.v2_messages import FwTest, FwWrite
+        from spiel_edge.protocol.link_messages import FwTest, FwWrite
 
         dev.request(FwWrite(0, NEW))
         dev.request(FwVerify())
@@ -141,7 +141,7 @@ def test_refused_before_the_switch(sim_url, tmp_path, capsys) -> None:
             dev.request(FwBegin(1 << 20, crc, sha))
         assert exc.value.code == 7  # TOO_LARGE
         dev.request(FwBegin(len(NEW), crc, hashlib.sha256(b"other").digest()))
-        from firmware_protocol.v2_messages import FwTest, FwWrite
+        from spiel_edge.protocol.link_messages import FwTest, FwWrite
 
         dev.request(FwWrite(0, NEW))
         with pytest.raises(DeviceRequestError, match="SHA-256") as exc:
@@ -224,12 +224,12 @@ def test_virtual_board_sensorless_trial_fails_its_self_test_and_rolls_back(sim_u
 def test_virtual_board_trial_nobody_confirms_rolls_back_after_its_window(sim_url) -> None:
     """A host killed after FW_TEST: the trial passes its self-test, FW_INFO says so, and with
     nobody confirming it the watchdog resets it after the trial window: rolled back."""
-    from firmware_protocol.v2_messages import FwConfirm, FwTest, SelfTest
+    from spiel_edge.protocol.link_messages import FwConfirm, FwTest, SelfTest
 
     url = sim_url("trial_window_ms=1500")
     with DeviceSession(url, reconnect=False) as dev:
         dev.request(FwBegin(len(NEW), crc32c(NEW), hashlib.sha256(NEW).digest()))
-        from firmware_protocol.v2_messages import FwWrite
+        from spiel_edge.protocol.link_messages import FwWrite
 
         for off in range(0, len(NEW), 1000):
             dev.request(FwWrite(off, NEW[off : off + 1000]))

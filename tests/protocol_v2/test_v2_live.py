@@ -10,11 +10,11 @@ import time
 
 import numpy as np
 
-from firmware_protocol import SampleFormat
 from spiel_edge.cli import main
 from spiel_edge.device import DeviceSession
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
+from spiel_edge.protocol import SampleFormat
 from spiel_edge.sim.protocol_sim import device_for_url
 
 

@@ -11,23 +11,23 @@ import stat
 
 import pytest
 
-from firmware_protocol.image import (
+from spiel_edge.cli import main
+from spiel_edge.device.firmware import update_firmware
+from spiel_edge.errors import DeviceError
+from spiel_edge.protocol.image import (
     ImageError,
     ImageRefused,
     pack_image,
     parse_image,
     verify_image,
 )
-from firmware_protocol.signing import (
+from spiel_edge.protocol.signing import (
     DEV_PUBLIC_KEY,
     ed25519_verify,
     key_id,
     parse_public_key_text,
     public_key_text,
 )
-from spiel_edge.cli import main
-from spiel_edge.device.firmware import update_firmware
-from spiel_edge.errors import DeviceError
 from spiel_edge.sim.firmware_slots import FACTORY_VERSION, factory_image
 from spiel_edge.sim.protocol_sim import device_for_url
 from tests.fwsign import DEV_KEY, DEV_PUB, dev_signer, signed_image

@@ -7,9 +7,9 @@ import time
 
 import pytest
 
-from firmware_protocol import StreamStart
 from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError
+from spiel_edge.protocol import StreamStart
 from tests.protocol_v2.start_at_check import check_start_at
 
 

@@ -7,18 +7,18 @@ import logging
 import numpy as np
 import pytest
 
-from firmware_protocol.image import (
+from spiel_edge.device.iq import iq_envelope, iq_envelope_reference
+from spiel_edge.device.telemetry import BoardTelemetry
+from spiel_edge.device.timesync import TimeSyncEstimator
+from spiel_edge.errors import InputError
+from spiel_edge.protocol.image import (
     IMAGE_HEADER_SIZE,
     ImageError,
     check_body,
     pack_image,
     parse_image,
 )
-from firmware_protocol.v2_messages import Heartbeat, LogMessage
-from spiel_edge.device.iq import iq_envelope, iq_envelope_reference
-from spiel_edge.device.telemetry import BoardTelemetry
-from spiel_edge.device.timesync import TimeSyncEstimator
-from spiel_edge.errors import InputError
+from spiel_edge.protocol.link_messages import Heartbeat, LogMessage
 
 BODY = bytes(range(256)) * 5
 
@@ -140,7 +140,7 @@ def test_reset_restarts_the_offset_and_keeps_the_drift() -> None:
 
 def test_telemetry_rate_limits_board_logs_and_reports_unknown_flags(caplog) -> None:
     tel = BoardTelemetry("board X", rate_per_s=20, burst=40)
-    with caplog.at_level(logging.INFO, logger="spiel_edge.board"):
+    with caplog.at_level(logging.INFO, logger="spiel_edge.board_config"):
         for i in range(1000):  # 1000 lines within 1 s
             tel.log_line(LogMessage(4, 0, 0, f"line {i}\x1b[31m" + "x" * 500), now=i / 1000)
         tel.summarise(1.0, force=True)
@@ -297,7 +297,7 @@ def _reheadered(image: bytes, **changes) -> bytes:
     header that says something else)."""
     from crc32c import crc32c
 
-    from firmware_protocol.image import IMAGE_HEADER, IMAGE_HEADER_FIELDS
+    from spiel_edge.protocol.image import IMAGE_HEADER, IMAGE_HEADER_FIELDS
 
     names = [name for name, _, _ in IMAGE_HEADER_FIELDS]
     values = dict(zip(names, IMAGE_HEADER.unpack_from(image), strict=True))

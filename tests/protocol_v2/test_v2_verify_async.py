@@ -9,8 +9,12 @@ import hashlib
 import pytest
 from crc32c import crc32c
 
-from firmware_protocol import ErrorCode
-from firmware_protocol.v2_messages import (
+from spiel_edge.device import DeviceSession
+from spiel_edge.device import firmware_requests as fw
+from spiel_edge.device.firmware import update_firmware, verify_upload
+from spiel_edge.errors import DeviceRequestError, DeviceTimeoutError
+from spiel_edge.protocol import ErrorCode
+from spiel_edge.protocol.link_messages import (
     FwBegin,
     FwTest,
     FwVerify,
@@ -18,10 +22,6 @@ from firmware_protocol.v2_messages import (
     FwVerifyResponse,
     FwWrite,
 )
-from spiel_edge.device import DeviceSession
-from spiel_edge.device import firmware_requests as fw
-from spiel_edge.device.firmware import update_firmware, verify_upload
-from spiel_edge.errors import DeviceRequestError, DeviceTimeoutError
 from spiel_edge.sim.protocol_sim import device_for_url
 from tests.fwsign import signed_image
 

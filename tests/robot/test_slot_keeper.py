@@ -89,7 +89,7 @@ def test_a_stream_the_session_restarted_goes_back_into_its_slot():
     import threading
     import types
 
-    from spiel_edge.robot.slotted_stream import SlottedStream
+    from spiel_edge.robot.slot_session import SlottedStream
 
     class Session:
         def __init__(self):
@@ -129,7 +129,7 @@ def test_a_board_with_start_at_is_given_its_slot_in_its_own_clock():
     import time
     import types
 
-    from spiel_edge.robot.slotted_stream import SlottedStream
+    from spiel_edge.robot.slot_session import SlottedStream
 
     class Session:
         stream = None
@@ -157,7 +157,7 @@ def test_a_start_on_the_boards_clock_that_is_refused_is_made_by_the_host(caplog)
     import time
 
     from spiel_edge.device import DeviceSession
-    from spiel_edge.robot.slotted_stream import SlottedStream
+    from spiel_edge.robot.slot_session import SlottedStream
     from spiel_edge.sim import protocol_sim
 
     keeper = SlotKeeper(0.05, 0.01, 0.0005)
@@ -191,9 +191,9 @@ def test_start_at_trust_ends_after_two_starts_in_a_row_that_miss():
 def test_the_start_at_ignored_lie_never_lands_on_the_named_grid_by_chance():
     """The virtual board's `lie=start-at-ignored` starts at once, but half a period later when
     "at once" falls within 1 ms of the named grid: the lie shows on every start."""
-    from spiel_edge.sim.lies import _ignoring_start_times
+    from spiel_edge.sim.lies import ignoring_start_times
 
-    first_due = _ignoring_start_times(lambda start_at_us, period_s, now: 10.0)
+    first_due = ignoring_start_times(lambda start_at_us, period_s, now: 10.0)
     assert first_due(1, 0.025, 3.0123) == 3.0123  # off the grid: at once
     assert first_due(1, 0.025, 3.0) == pytest.approx(3.0125)  # on it: half a period later
     assert first_due(1, 0.025, 3.0249) == pytest.approx(3.0374)

@@ -1,9 +1,9 @@
-"""The one slot starter of `run --slot` and `run --robot` (robot/slotted_stream.start_in_time)."""
+"""The one slot starter of `run --slot` and `run --robot` (robot/slot_session.start_in_time)."""
 
 from __future__ import annotations
 
 from spiel_edge.robot.slot_keeper import StartAtTrust
-from spiel_edge.robot.slotted_stream import start_in_time
+from spiel_edge.robot.slot_session import start_in_time
 
 
 class Session:

@@ -14,7 +14,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.track.assign import INFEASIBLE
-from spiel_edge.track.kalman import _gate, _predict, _sym_inv3, _update
+from spiel_edge.track.kalman import gate_kernel, predict_kernel, sym_inv3, update_kernel
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
 
@@ -102,7 +102,7 @@ def _measurement_noise(r: np.ndarray, out: np.ndarray, floor2: float, fallback2:
     if ok:
         for i in range(3):
             out[i, i] += floor2
-        det = _sym_inv3(out[0, 0], out[0, 1], out[0, 2], out[1, 1], out[1, 2], out[2, 2])[0]
+        det = sym_inv3(out[0, 0], out[0, 1], out[0, 2], out[1, 1], out[1, 2], out[2, 2])[0]
         minor = out[0, 0] * out[1, 1] - out[0, 1] * out[1, 0]
         ok = out[0, 0] > 0.0 and minor > 0.0 and det > 0.0 and np.isfinite(det)
     if not ok:
@@ -128,7 +128,7 @@ def _match(x, p, slots, z, r, usable, gate, gated):
         s = slots[a]
         for j in range(m):
             if usable[j]:
-                d2, logdet = _gate(x[s], p[s], z[j], r[j])
+                d2, logdet = gate_kernel(x[s], p[s], z[j], r[j])
                 if d2 <= gate:
                     cost[a, j] = d2 + logdet
                     gated[j] = True
@@ -156,7 +156,7 @@ def _step(x, p, status, ids, age, hits, misses, next_id, z, r_in, dt, params, co
         usable[j] = np.isfinite(z[j, 0]) and np.isfinite(z[j, 1]) and np.isfinite(z[j, 2])
     for s in range(len(status)):
         if status[s] != FREE:
-            _predict(x[s], p[s], dt, acceleration)
+            predict_kernel(x[s], p[s], dt, acceleration)
             age[s] += 1
             misses[s] += 1  # undone on a hit
     target_slot = np.full(m, -1, dtype=np.int64)
@@ -170,7 +170,7 @@ def _step(x, p, status, ids, age, hits, misses, next_id, z, r_in, dt, params, co
         for a in range(len(slots)):
             j = chosen[a]
             s = slots[a]
-            if j >= 0 and _update(x[s], p[s], z[j], r[j], work):
+            if j >= 0 and update_kernel(x[s], p[s], z[j], r[j], work):
                 hits[s] += 1
                 misses[s] = 0
                 target_slot[j] = s

@@ -7,7 +7,7 @@ import pytest
 from spiel_edge.profile.track_section import TrackSpec
 from spiel_edge.track import imm
 from spiel_edge.track.layout import allocate, model_views, state_views
-from spiel_edge.track.step import _step
+from spiel_edge.track.step import step_kernel
 from tests.track import naive
 
 ACC, Q2, V02 = 1000.0, 4.0, 300.0**2
@@ -81,7 +81,7 @@ def test_step_runs_the_textbook_imm_per_track(rng):
         truth = truth + velocity * 0.02
         z = truth + rng.normal(0, 5, (2, 3))
         r = np.stack([np.diag(rng.uniform(16, 100, 3)) for _ in range(2)])
-        _step(*arrays, z, r, 0.02 if k else 0.0)
+        step_kernel(*arrays, z, r, 0.02 if k else 0.0)
         rf = r + floor2 * np.eye(3)
         for t in range(2):
             if reference[t] is None:  # birth: both models on the target

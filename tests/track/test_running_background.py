@@ -11,7 +11,7 @@ import pytest
 from spiel_edge.cli import main
 from spiel_edge.errors import ConfigError
 from spiel_edge.profile.schema import profile_from_dict, profile_to_dict
-from spiel_edge.runtime.running_background import RunningBackground
+from spiel_edge.runtime.static_scene import RunningBackground
 from tests.core.spiel_csv_fixture import write_spiel_csv
 
 

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from spiel_edge.track.assign import INFEASIBLE, _assign_into, assign
+from spiel_edge.track.assign import INFEASIBLE, assign, assign_into
 from spiel_edge.track.layout import (
     DROPPED,
     NEXT_ID,
@@ -14,7 +14,7 @@ from spiel_edge.track.layout import (
     state_views,
     target_ids,
 )
-from spiel_edge.track.step import _step
+from spiel_edge.track.step import step_kernel
 from tests.track import reference_step
 
 # the IMM off (switch probability and static share 0): the CV filter alone, as the reference
@@ -48,7 +48,7 @@ def test_step_equals_the_reference_on_random_scenes(cap, seed):
         dt = 0.02 if k % 50 else 0.0
         movers += velocity * 0.02
         z, r = _scene(rng, movers, k)
-        snapshot = _step(*arrays, z, r, dt)
+        snapshot = step_kernel(*arrays, z, r, dt)
         x, p, meta, counts = state_views(*arrays[:2])
         ref_ids = reference_step._step(*old, old_next, z, r, dt, PARAMS, old_counts)
         assert target_ids(arrays[1], len(z)) == ref_ids.tolist()
@@ -75,6 +75,6 @@ def test_assignment_into_scratch_equals_the_allocating_one(rng, shape):
         block = rng.uniform(0, 10, shape)
         block[rng.random(shape) < 0.3] = INFEASIBLE
         cost[: shape[0], : shape[1]] = block
-        _assign_into(cost, shape[0], shape[1], ints[0], fwork, *ints[1:], used)
+        assign_into(cost, shape[0], shape[1], ints[0], fwork, *ints[1:], used)
         assert np.array_equal(ints[0, : shape[0]], reference_step._assign(block))
         assert np.array_equal(ints[0, : shape[0]], assign(block))

@@ -1,13 +1,13 @@
-"""The tracker's buffered path (targets written into the step's arrays, ``_step_buffered``)
-against ``_measurements`` and ``_step``: the same numbers, bit for bit."""
+"""The tracker's buffered path (targets written into the step's arrays, ``step_buffered``)
+against ``measurements`` and ``step_kernel``: the same numbers, bit for bit."""
 
 import numpy as np
 import pytest
 
 from spiel_edge.pipeline.staged import Target
 from spiel_edge.track.layout import allocate, measurement_views, snapshot_rows, target_ids
-from spiel_edge.track.step import _step, _step_buffered
-from spiel_edge.track.tracker import Tracker, _measurements
+from spiel_edge.track.step import step_buffered, step_kernel
+from spiel_edge.track.tracker import Tracker, measurements
 
 PARAMS = np.array([2000.0, 16.27, 1.0, 400.0, 300.0**2, 3, 5, 10, 4.0, 0.05, 0.5])
 
@@ -28,7 +28,7 @@ def test_written_measurements_are_those_of_measurements(odd):
         targets.insert(1, Target(*ODD[odd], 1.0, [], 1.0))
     tracker = Tracker()
     tracker._write_measurements(targets)
-    z, r = _measurements(targets)
+    z, r = measurements(targets)
     m = len(targets)
     np.testing.assert_array_equal(tracker._z[:m], z)
     np.testing.assert_array_equal(tracker._r[:m], r)
@@ -40,7 +40,7 @@ def test_all_column_positions_take_the_general_path():
     ]
     tracker = Tracker()
     tracker._write_measurements(targets)
-    z, r = _measurements(targets)
+    z, r = measurements(targets)
     np.testing.assert_array_equal(tracker._z[:3], z)
     np.testing.assert_array_equal(tracker._r[:3], r)
 
@@ -55,8 +55,8 @@ def test_buffered_step_is_the_step():
         r = np.eye(3) * rng.uniform(5, 60, (m, 1, 1))
         zb[:m], rb[:m] = z, r
         dt = 0.02 if k else 0.0
-        snap_a = _step(*a, z, r, dt)
-        snap_b = snapshot_rows(b[0], _step_buffered(*b, m, dt))
+        snap_a = step_kernel(*a, z, r, dt)
+        snap_b = snapshot_rows(b[0], step_buffered(*b, m, dt))
         np.testing.assert_array_equal(snap_a, snap_b)
         assert target_ids(a[1], m) == target_ids(b[1], m)
     for x, y in zip(a, b, strict=True):

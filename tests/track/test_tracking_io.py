@@ -10,7 +10,7 @@ import pytest
 from spiel_edge.cli import main
 from spiel_edge.outputs.scene_view import CHI2_3DOF_95, Trails, ellipsoid
 from spiel_edge.recordings.spiel_csv import Recording
-from spiel_edge.runtime.tracking import NOMINAL_PERIOD_S, time_ordered
+from spiel_edge.runtime.track_records import NOMINAL_PERIOD_S, time_ordered
 from spiel_edge.track import Track
 from tests.core.spiel_csv_fixture import write_spiel_csv
 from tools.bench.track_scene import MoverScore
@@ -158,7 +158,7 @@ def test_tracker_is_fed_the_covariance_in_its_own_calibration():
     the result's own targets."""
     from spiel_edge.pipeline.staged import Result, Target
     from spiel_edge.profile.schema import load_profile
-    from spiel_edge.runtime.tracking import (
+    from spiel_edge.runtime.track_records import (
         TRACKER_COVARIANCE_FLOOR_MM,
         TRACKER_COVARIANCE_SCALE,
         ResultTracker,

@@ -14,10 +14,10 @@ import os
 import time
 from types import SimpleNamespace
 
-from firmware_protocol import cobs as ours
-from firmware_protocol import framing
-from firmware_protocol.framing import FrameDecoder, encode_frame
 from spiel_edge.data import load_subset
+from spiel_edge.protocol import cobs as ours
+from spiel_edge.protocol import framing
+from spiel_edge.protocol.framing import FrameDecoder, encode_frame
 
 
 def _c_extension():
@@ -49,7 +49,7 @@ def main() -> dict:
         "random": [os.urandom(4096) for _ in range(16)],
         "samples": [samples[i : i + 8].tobytes()[:4096] for i in range(16)],
     }
-    impls = {"firmware_protocol.cobs": ours, "cobs C extension": _c_extension()}
+    impls = {"spiel_edge.protocol.cobs": ours, "cobs C extension": _c_extension()}
     result = {}
     try:
         for kind, payloads in kinds.items():

@@ -52,8 +52,8 @@ SECTIONS {
 
 def write_vectors(out: Path) -> bytes:
     """bench_vec.h: the development key, a signed image's 96-byte header and its signature."""
-    from firmware_protocol.image import pack_image
     from spiel_edge.device.fwkeys import load_private_key
+    from spiel_edge.protocol.image import pack_image
 
     key = load_private_key(ROOT / "firmware_protocol/firmware/keys/dev.key")
     image = pack_image(bytes(range(256)) * 4, version="bench", target="posix", signer=key)
@@ -75,7 +75,7 @@ def host(work: Path, repeat: int) -> dict:
         check=True,
     )
     image = write_vectors(work)
-    from firmware_protocol.signing import DEV_PUBLIC_KEY
+    from spiel_edge.protocol.signing import DEV_PUBLIC_KEY
 
     line = f"{DEV_PUBLIC_KEY.hex()} {image[:96].hex()} {image[-64:].hex()}\n"
     out = subprocess.run(

@@ -88,7 +88,7 @@ def ber_run(n: int) -> dict:
             delivered.add(acq.index)
             if len(delivered) >= n:
                 break
-        delivered |= {a.index for a in session.tracker.ready}
+        delivered |= {a.index for a in session.assembly.ready}
         counts = session.counts()
     last = max(delivered)
     damaged = {k for k in device_for_url(url).faults.stats.damaged if k <= last}

@@ -1,4 +1,4 @@
-"""Benchmark the firmware_protocol frame decoder; prints one JSON object.
+"""Benchmark the spiel_edge.protocol frame decoder; prints one JSON object.
 
     .venv/bin/python -m tools.bench.bench_protocol [--frames 20000] [--payload 4096] [--chunk 65536]
 
@@ -14,8 +14,8 @@ import os
 import platform
 import time
 
-from firmware_protocol import FrameDecoder, StreamData, cobs, encode_frame, encode_message
-from firmware_protocol.messages import decode_message
+from spiel_edge.protocol import FrameDecoder, StreamData, cobs, encode_frame, encode_message
+from spiel_edge.protocol.messages import decode_message
 
 
 def _time(fn, repeat: int) -> float:

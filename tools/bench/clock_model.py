@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_protocol import FrameDecoder, Hello, decode_message, encode_message
-from firmware_protocol.v2_messages import TimeSync, TimeSyncResponse
+from spiel_edge.device.link_services import SYNC_BURST, SYNC_PERIOD_S
 from spiel_edge.device.timesync import TimeSyncEstimator
-from spiel_edge.device.v2 import SYNC_BURST, SYNC_PERIOD_S
+from spiel_edge.protocol import FrameDecoder, Hello, decode_message, encode_message
+from spiel_edge.protocol.link_messages import TimeSync, TimeSyncResponse
 
 __all__ = ["ClockSyncResult", "simulate"]
 

@@ -14,10 +14,10 @@ from spiel_edge.measure.bench import synthetic_set
 from spiel_edge.pipeline.compiled import front as F
 from spiel_edge.pipeline.compiled.fused import FusedPipeline
 from spiel_edge.pipeline.staged import Pipeline
-from spiel_edge.pipeline.stages.detect import _detect_kernel
-from spiel_edge.pipeline.stages.features import _features_kernel
-from spiel_edge.pipeline.stages.memg import _memg_kernel
-from spiel_edge.pipeline.stages.preprocess import _preprocess_kernel
+from spiel_edge.pipeline.stages.detect import detect_kernel
+from spiel_edge.pipeline.stages.features import features_kernel
+from spiel_edge.pipeline.stages.memg import memg_kernel
+from spiel_edge.pipeline.stages.preprocess import preprocess_kernel
 from spiel_edge.profile.schema import load_profile
 
 clk = time.perf_counter_ns
@@ -37,21 +37,21 @@ def prof(name, prof, frames, bgs, rounds):
             F._all_finite(f)
             F._all_finite(b)
             t2 = clk()
-            _preprocess_kernel(f, b, blind, cleaned)
+            preprocess_kernel(f, b, blind, cleaned)
             t3 = clk()
             peaks[:, :] = -1
             counts[:] = 0
             t3 = clk()
-            _detect_kernel(cleaned, hi, lo, mina, blind, peaks, counts)
+            detect_kernel(cleaned, hi, lo, mina, blind, peaks, counts)
             t4 = clk()
             params[:] = np.nan
             iters[:] = 0
             t4b = clk()
-            _memg_kernel(cleaned, peaks, counts, muw, maxit, params, iters)
+            memg_kernel(cleaned, peaks, counts, muw, maxit, params, iters)
             t5 = clk()
             uns[:] = np.nan
             t5b = clk()
-            _features_kernel(cleaned, params, peaks, toa, uns)
+            features_kernel(cleaned, params, peaks, toa, uns)
             t6 = clk()
             F._order_by_toa(uns, feats)
             t7 = clk()

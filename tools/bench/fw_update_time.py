@@ -21,8 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from firmware_protocol.image import pack_image as _pack
 from spiel_edge.device.firmware import update_firmware
+from spiel_edge.protocol.image import pack_image as _pack
 
 
 def _signed(body: bytes, **kw) -> bytes:
@@ -104,9 +104,9 @@ def rp2040_case(tmp: Path) -> dict:
 
     from crc32c import crc32c
 
-    from firmware_protocol.v2_messages import FwBegin, FwWrite
     from spiel_edge.device import DeviceSession
     from spiel_edge.device.firmware import verify_upload
+    from spiel_edge.protocol.link_messages import FwBegin, FwWrite
     from tests.firmware.rp2040_board import Rp2040Board, build_rp2040, missing_tools
 
     why = missing_tools()

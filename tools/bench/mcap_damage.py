@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from spiel_edge.data import load_subset
-from spiel_edge.io.limits import InputLimits
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.recordings.mcap_reader import iter_mcap_recordings
 from spiel_edge.recordings.mcap_writer import McapSink
+from spiel_edge.safety.limits import InputLimits
 from tools.bench.damage import count_intact, damage_sweep, sample_offsets
 
 

@@ -15,8 +15,8 @@ import numpy as np
 
 from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.pipeline.staged import Pipeline, Target
-from spiel_edge.runtime.running_background import RunningBackground
-from spiel_edge.runtime.tracking import ResultTracker
+from spiel_edge.runtime.static_scene import RunningBackground
+from spiel_edge.runtime.track_records import ResultTracker
 from spiel_edge.sim.scenes import build_scene
 from spiel_edge.track.assign import INFEASIBLE, assign
 
@@ -100,7 +100,7 @@ def run_movers(
     With ``oracle_sigma_mm`` the targets are the truths plus Gaussian noise of that std (each
     missed with probability 0.05) instead of the pipeline's: the tracker alone.
     ``background``: "scene" (the scene's own target-free background, as a capture), "none"
-    (the profile's stand-in) or "running" (runtime/running_background.py, with the profile's
+    (the profile's stand-in) or "running" (runtime/static_scene.py, with the profile's
     window, 16 when it is off)."""
     rng = np.random.default_rng(0)
     options = SimOptions.from_url(url)

@@ -38,7 +38,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.release.wheel_files import KERNELS, _platform_tag, manifest, package  # noqa: F401
+from tools.release.wheel_files import KERNELS, manifest, package, platform_tag  # noqa: F401
 
 REPO = Path(__file__).resolve().parents[2]
 FRAMES = 50
@@ -156,7 +156,7 @@ def compile_kernels(runner: Runner, python: str, work: Path, wheel: Path) -> tup
         text=True,
         check=True,
     ).stdout
-    ident["platform"] = _platform_tag(tag)
+    ident["platform"] = platform_tag(tag)
     ident["compile_seconds"] = round(time.perf_counter() - t0, 1)
     ident["kernels"] = report["kernels"]
     ident["peak_rss_mib"] = report.get("peak_rss_mib")

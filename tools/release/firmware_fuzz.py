@@ -137,7 +137,7 @@ def update_seeds() -> dict[str, bytes]:
     recovery loader (erased slots) and from a running image in slot 0, then after the reset
     into the trial image FW_CONFIRM, or a REBOOT before it (the rollback); one upload repeats
     a chunk already written (the device's retry path)."""
-    from firmware_protocol.image import pack_image
+    from spiel_edge.protocol.image import pack_image
 
     image = pack_image(
         bytes(range(256)) + bytes(44), version="2.0.0+fuzz", target="posix", signer=_dev_signer()
@@ -179,7 +179,7 @@ def write_dictionary(path: Path) -> Path:
 
 def seed_corpus(corpus: Path) -> int:
     """The request vectors as raw-transport inputs (mode 0) and as framed records (mode 1)."""
-    from firmware_protocol import load_test_vectors
+    from spiel_edge.protocol import load_test_vectors
 
     corpus.mkdir(parents=True, exist_ok=True)
     vectors = load_test_vectors()

@@ -1,4 +1,4 @@
-"""Fuzz the firmware_protocol decoders (framing, messages, reassembly).
+"""Fuzz the spiel_edge.protocol decoders (framing, messages, reassembly).
 
 With atheris installed (``pip install atheris``) this is a libFuzzer target:
     .venv/bin/python -m tools.release.fuzz_protocol -atheris_runs=1000000
@@ -14,7 +14,7 @@ import json
 import random
 import sys
 
-from firmware_protocol import (
+from spiel_edge.protocol import (
     MAX_ENCODED_SIZE,
     AcquisitionAssembler,
     FrameDecoder,

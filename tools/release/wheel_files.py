@@ -14,7 +14,7 @@ from pathlib import Path
 KERNELS = "spiel_edge/_kernels"
 
 
-def _platform_tag(wheel_metadata: str) -> str:
+def platform_tag(wheel_metadata: str) -> str:
     """The platform part of numba's wheel tag (e.g. manylinux_2_17_x86_64.manylinux2014_x86_64)."""
     platforms = []
     for line in wheel_metadata.splitlines():

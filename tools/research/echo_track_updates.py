@@ -20,7 +20,7 @@ import numpy as np
 from spiel_edge.link.sim_options import SimOptions
 from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import load_profile
-from spiel_edge.runtime.tracking import ResultTracker
+from spiel_edge.runtime.track_records import ResultTracker
 from spiel_edge.sim.scenes import build_scene
 from spiel_edge.track.layout import CONFIRMED, ID, MISSES, STATUS, model_views
 from tools.bench.track_scene import MoverScore

@@ -22,8 +22,8 @@ import numpy as np
 from spiel_edge.data import load_subset
 from spiel_edge.measure.bench import synthetic_set
 from spiel_edge.pipeline.compiled import abi
-from spiel_edge.pipeline.compiled.front import _packed_front
-from spiel_edge.pipeline.compiled.fused import FusedPipeline, _numeric
+from spiel_edge.pipeline.compiled.front import packed_front
+from spiel_edge.pipeline.compiled.fused import FusedPipeline, as_float64
 from spiel_edge.pipeline.staged import Pipeline
 from spiel_edge.profile.schema import load_profile
 
@@ -35,13 +35,13 @@ def _front(fused: FusedPipeline, f, b) -> tuple:
     elif b is None:
         b = p.static_model
     ws = fused._workspaces.get()
-    y = _numeric(f, "frames")
-    bg = _numeric(b, "background") if b is not None else ws.background[:0]
+    y = as_float64(f, "frames")
+    bg = as_float64(b, "background") if b is not None else ws.background[:0]
     settings = abi.front_constants(fused.profile)
     fi = np.array([int(settings[n]) for n in abi.FRONT_INTS], dtype=np.int64)
     ff = np.array([settings[n] for n in abi.FRONT_FLOATS], dtype=np.float64)
     features, counts = np.empty_like(ws.features), np.empty_like(ws.counts)
-    status = _packed_front(y, bg, fi, ff, *ws.front_buffers, features, counts)
+    status = packed_front(y, bg, fi, ff, *ws.front_buffers, features, counts)
     bufs = ws.front_buffers[2:]  # cleaned .. features (envelopes hold garbage unless rf)
     return (status,) + tuple(a.tobytes() for a in bufs)
 

@@ -29,7 +29,7 @@ from spiel_edge.messages import ros2_messages as rm
 from spiel_edge.messages import ros2_types
 from spiel_edge.outputs.rmw_zenoh import wire
 from spiel_edge.outputs.sink import STATUS, Sink
-from spiel_edge.outputs.zenoh import _import_zenoh, session_config, zenoh_reason
+from spiel_edge.outputs.zenoh import import_zenoh, session_config, zenoh_reason
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ class RmwZenohSink(Sink):
     ):
         from spiel_edge.outputs.ros2 import ZenohSettings
 
-        self.zenoh = _import_zenoh()
+        self.zenoh = import_zenoh()
         self.settings = settings or ZenohSettings()
         if not self.settings.connect and config is None and not os.environ.get("ZENOH_CONFIG"):
             # rmw_zenoh's own sessions connect to the router on this host

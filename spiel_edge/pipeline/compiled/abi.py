@@ -166,46 +166,46 @@ def front_constants(profile) -> dict:
 
 
 @jit(inline="always")
-def _v1(buf, layout, slot):
+def view_1d(buf, layout, slot):
     o = layout[3 * slot]
     return buf[o : o + layout[3 * slot + 1]]
 
 
 @jit(inline="always")
-def _v2(buf, layout, slot):
+def view_2d(buf, layout, slot):
     o, d0, d1 = layout[3 * slot], layout[3 * slot + 1], layout[3 * slot + 2]
     return buf[o : o + d0 * d1].reshape((d0, d1))
 
 
 @jit(inline="always")
-def _back_views(f64, f32, i64, flags, layout):
+def back_views(f64, f32, i64, flags, layout):
     """The constants from "floats" to "base", in the order of the back steps' parameters
     (``one_target._back_steps``, ``several_targets._scene_steps``)."""
     return (
-        _v1(f64, layout, L_FLOATS), _v1(f64, layout, L_QUALITY),
-        _v1(f64, layout, L_ASSOC_DELAYS), _v1(flags, layout, L_LISTENING),
-        _v2(f64, layout, L_MAX_PATH_DIFF), _v2(i64, layout, L_ANCHORS),
-        _v1(f64, layout, L_COST_WEIGHTS), _v1(f64, layout, L_DELAYS),
-        _v2(f64, layout, L_CHANNELS), _v1(f64, layout, L_EMITTER), _v1(f64, layout, L_FACING),
-        _v1(f32, layout, L_MEAN), _v1(f32, layout, L_STD), _v2(f32, layout, L_W0),
-        _v1(f32, layout, L_B0), _v2(f32, layout, L_W1), _v1(f32, layout, L_B1),
-        _v2(f32, layout, L_W2), _v1(f32, layout, L_B2), _v2(f32, layout, L_WH),
-        _v1(f32, layout, L_BH), _v2(i64, layout, L_FEATURE), _v2(f32, layout, L_THRESHOLD),
-        _v2(f32, layout, L_VALUE), f64[layout[3 * L_BASE]],
+        view_1d(f64, layout, L_FLOATS), view_1d(f64, layout, L_QUALITY),
+        view_1d(f64, layout, L_ASSOC_DELAYS), view_1d(flags, layout, L_LISTENING),
+        view_2d(f64, layout, L_MAX_PATH_DIFF), view_2d(i64, layout, L_ANCHORS),
+        view_1d(f64, layout, L_COST_WEIGHTS), view_1d(f64, layout, L_DELAYS),
+        view_2d(f64, layout, L_CHANNELS), view_1d(f64, layout, L_EMITTER), view_1d(f64, layout, L_FACING),
+        view_1d(f32, layout, L_MEAN), view_1d(f32, layout, L_STD), view_2d(f32, layout, L_W0),
+        view_1d(f32, layout, L_B0), view_2d(f32, layout, L_W1), view_1d(f32, layout, L_B1),
+        view_2d(f32, layout, L_W2), view_1d(f32, layout, L_B2), view_2d(f32, layout, L_WH),
+        view_1d(f32, layout, L_BH), view_2d(i64, layout, L_FEATURE), view_2d(f32, layout, L_THRESHOLD),
+        view_2d(f32, layout, L_VALUE), f64[layout[3 * L_BASE]],
     )  # fmt: skip
 
 
 @jit(inline="always")
-def _scene_views(f64, i64, flags, layout):
+def scene_views(f64, i64, flags, layout):
     """ "scene_ints", "scene_floats", "share_listening" (empty for one target)."""
     return (
-        _v1(i64, layout, L_SCENE_INTS),
-        _v1(f64, layout, L_SCENE_FLOATS),
-        _v1(flags, layout, L_SHARE_LISTENING),
+        view_1d(i64, layout, L_SCENE_INTS),
+        view_1d(f64, layout, L_SCENE_FLOATS),
+        view_1d(flags, layout, L_SHARE_LISTENING),
     )
 
 
 @jit(inline="always")
-def _front_views(f64, i64, layout):
+def front_views(f64, i64, layout):
     """ "front_ints", "front_floats": the front kernel's settings."""
-    return _v1(i64, layout, L_FRONT_INTS), _v1(f64, layout, L_FRONT_FLOATS)
+    return view_1d(i64, layout, L_FRONT_INTS), view_1d(f64, layout, L_FRONT_FLOATS)

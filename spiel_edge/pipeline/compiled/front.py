@@ -4,7 +4,7 @@
 the merged-echo split), features and their ToA ordering on a Workspace's buffers, calling the
 staged stages' kernels in their order, so its features are the staged ones bit for bit
 (tests/core/test_fused.py). The acquisition kernels (``one_target``, ``several_targets``)
-call it through :func:`_packed_front` with its settings packed (``abi.front_constants``).
+call it through :func:`packed_front` with its settings packed (``abi.front_constants``).
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ from spiel_edge.pipeline.compiled.abi import (
     FI_SPLIT,
     FI_TOA,
 )
-from spiel_edge.pipeline.stages.detect import _detect_kernel
-from spiel_edge.pipeline.stages.features import TOA_COLUMN, _features_kernel
-from spiel_edge.pipeline.stages.memg import _memg_kernel
-from spiel_edge.pipeline.stages.preprocess import _envelope_kernel, _preprocess_kernel
-from spiel_edge.pipeline.stages.split import _split_kernel
+from spiel_edge.pipeline.stages.detect import detect_kernel
+from spiel_edge.pipeline.stages.features import TOA_COLUMN, features_kernel
+from spiel_edge.pipeline.stages.memg import memg_kernel
+from spiel_edge.pipeline.stages.preprocess import envelope_kernel, preprocess_kernel
+from spiel_edge.pipeline.stages.split import split_kernel
 
 FRAMES_NOT_FINITE, BACKGROUND_NOT_FINITE = 1, 2
 
@@ -46,7 +46,7 @@ def raise_for(status: int) -> None:
 
 
 @jit(inline="always")
-def _packed_front(
+def packed_front(
     y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
     ws_features, features, counts,
 ):  # fmt: skip
@@ -114,20 +114,20 @@ def _front_kernel(
     if bg.shape[0] > 0 and not _all_finite(bg):
         return BACKGROUND_NOT_FINITE
     if rf:
-        _envelope_kernel(y, carrier, half_width, env)
+        envelope_kernel(y, carrier, half_width, env)
         y = env
         if bg.shape[0] > 0:
-            _envelope_kernel(bg, carrier, half_width, bg_env)
+            envelope_kernel(bg, carrier, half_width, bg_env)
             bg = bg_env
-    _preprocess_kernel(y, bg, blind_zone, cleaned)
+    preprocess_kernel(y, bg, blind_zone, cleaned)
     peaks[:, :] = -1
     counts[:] = 0
-    _detect_kernel(cleaned, threshold_hi, threshold_lo, min_amplitude, blind_zone, peaks, counts)
+    detect_kernel(cleaned, threshold_hi, threshold_lo, min_amplitude, blind_zone, peaks, counts)
     params[:, :, :] = np.nan
     iterations[:, :] = 0
-    _memg_kernel(cleaned, peaks, counts, mu_window, max_iterations, params, iterations)
+    memg_kernel(cleaned, peaks, counts, mu_window, max_iterations, params, iterations)
     if split:
-        _split_kernel(
+        split_kernel(
             cleaned,
             peaks,
             counts,
@@ -139,7 +139,7 @@ def _front_kernel(
             max_iterations,
         )
     unsorted[:, :, :] = np.nan
-    _features_kernel(cleaned, params, peaks, toa_code, unsorted)
+    features_kernel(cleaned, params, peaks, toa_code, unsorted)
     _order_by_toa(unsorted, features)
     return 0
 

@@ -10,7 +10,7 @@ Two routes only. The compiled one needs every stage in a compiled form: the cons
 ``pipeline.kernel_constants()`` (``abi.kernel_config``; looked up again whenever
 ``set_max_targets`` replaces the scene). Otherwise, and whenever the pipeline has a stage
 this module does not run (a stage name in ``staged.STAGES`` missing from COMPILED_STAGES, or
-a Pipeline subclass overriding ``process`` or the steps after association) or per-stage timings are asked for, the staged
+a Pipeline subclass that does not declare ``compiled_equivalent``) or per-stage timings are asked for, the staged
 path runs the whole acquisition: the learned associator's ``reference`` mode or an
 onnxruntime model, greedy selection, more than 6 listening channels for several targets, an
 onnxruntime ToA correction.
@@ -40,9 +40,8 @@ def unsupported_stages(pipeline: staged.Pipeline) -> list[str]:
     known = [s for s in staged.STAGES if s in COMPILED_STAGES]
     if known != [s for s in COMPILED_STAGES if s in known]:
         missing.append("stages reordered")
-    for method in ("process", "locate_hypotheses", "_targets", "locate_target", "phase_timing"):
-        if getattr(type(pipeline), method) is not getattr(staged.Pipeline, method):
-            missing.append(f"{type(pipeline).__name__}.{method}")
+    if not type(pipeline).compiled_equivalent:  # a subclass that did not declare it
+        missing.append(f"{type(pipeline).__name__} (not compiled_equivalent)")
     return missing
 
 
@@ -119,8 +118,8 @@ class FusedPipeline:
         elif background is None:
             background = self.pipeline.static_model  # None unless the profile names one
         ws = self._workspaces.get()
-        y = _numeric(frames, "frames")
-        bg = _numeric(background, "background") if background is not None else ws.background[:0]
+        y = as_float64(frames, "frames")
+        bg = as_float64(background, "background") if background is not None else ws.background[:0]
         if not bg.flags.writeable:  # e.g. the static model: one kernel signature, not two
             bg = self._writable(bg)
         result = run(self.pipeline, self.config, ws, y, bg, np.asarray(frames), background)
@@ -152,7 +151,7 @@ class FusedPipeline:
         return self._run
 
 
-def _numeric(arr: np.ndarray, name: str) -> np.ndarray:
+def as_float64(arr: np.ndarray, name: str) -> np.ndarray:
     """float64 C-contiguous view (a copy only when needed); dtype checked as the staged path."""
     if type(arr) is np.ndarray and arr.dtype == np.float64 and arr.flags.c_contiguous:
         return arr  # the usual case, without numpy's dtype lookups

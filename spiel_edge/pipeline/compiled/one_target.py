@@ -10,11 +10,11 @@ It computes what ``Pipeline.process`` computes for one target, bit for bit
    (:func:`spiel_edge.pipeline.learned.mlp.mlp_scores`, bit for bit
    ``OnnxAssociator.score``'s per-row :func:`~spiel_edge.pipeline.learned.mlp.mlp_row`), or
    none (geometric association);
-3. the associator's search (``associate._exhaustive_kernel`` / ``_hypothesis_kernel``) with
+3. the associator's search (``associate.exhaustive_kernel`` / ``hypothesis_kernel``) with
    the strength and the bonus as ``GeometricAssociator.search_inputs`` builds them;
-4. echo timing (``echo_timing._fused_kernel`` with the numba trees, or clean + refine without
-   a correction), ``echo_quality._echo_quality_kernel``, ``locate.locate_kernel`` and
-   ``uncertainty._covariance_kernel`` as ``Pipeline._target`` (``steps._one_target``).
+4. echo timing (``echo_timing.fused_kernel`` with the numba trees, or clean + refine without
+   a correction), ``echo_quality.echo_quality_kernel``, ``locate.locate_kernel`` and
+   ``uncertainty.covariance_kernel`` as ``Pipeline._target`` (``steps.one_target_kernel``).
 
 Its constants are the pipeline's (``abi.kernel_config``).
 """
@@ -30,18 +30,18 @@ from spiel_edge.pipeline.compiled.abi import (
     I_EXHAUSTIVE,
     L_ANCHORS,
     KernelConfig,
-    _back_views,
-    _front_views,
+    back_views,
+    front_views,
 )
-from spiel_edge.pipeline.compiled.front import _packed_front, raise_for
+from spiel_edge.pipeline.compiled.front import packed_front, raise_for
 from spiel_edge.pipeline.compiled.result import match_list, result
 from spiel_edge.pipeline.compiled.steps import (
-    _association_inputs,
-    _one_target,
-    _search_arguments,
+    association_inputs,
+    one_target_kernel,
+    search_arguments,
 )
 from spiel_edge.pipeline.staged import Target
-from spiel_edge.pipeline.stages.associate import _exhaustive_kernel, _hypothesis_kernel
+from spiel_edge.pipeline.stages.associate import exhaustive_kernel, hypothesis_kernel
 
 
 def run(pipeline, config: KernelConfig, ws, y, bg, raw, background):
@@ -72,15 +72,15 @@ def _acquisition_kernel(
 ):  # fmt: skip
     """The front kernel, its features and counts copied into ``features`` and ``counts``,
     then :func:`_back_steps`: (front status, cost, found, rms); status 0 when done."""
-    fi, ff = _front_views(f64, i64, layout)
-    status = _packed_front(
+    fi, ff = front_views(f64, i64, layout)
+    status = packed_front(
         y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
         ws_features, features, counts,
     )  # fmt: skip
     if status != 0:
         return status, math.inf, False, math.inf
     cost, ok, rms = _back_steps(
-        features, counts, y, bg, cov_scale, ints, _back_views(f64, f32, i64, flags, layout),
+        features, counts, y, bg, cov_scale, ints, back_views(f64, f32, i64, flags, layout),
         bonus, matched, picked, weights, shift, paths, use, clean, position, covariance,
     )  # fmt: skip
     return 0, cost, ok, rms
@@ -92,15 +92,15 @@ def _back_steps(
     use, clean, position, covariance,
 ):  # fmt: skip
     """(association cost, target found, rms mm); matched, position and covariance filled.
-    ``cs``: the constants' views (``abi._back_views``), read by their slots."""
-    all_paths, allowed, strength = _association_inputs(features, counts, ints, cs, bonus)
+    ``cs``: the constants' views (``abi.back_views``), read by their slots."""
+    all_paths, allowed, strength = association_inputs(features, counts, ints, cs, bonus)
     matched[:] = -1
-    args = _search_arguments(all_paths, strength, counts, allowed, ints, cs)
+    args = search_arguments(all_paths, strength, counts, allowed, ints, cs)
     if ints[I_EXHAUSTIVE] != 0:
-        cost = _exhaustive_kernel(*args, matched)
+        cost = exhaustive_kernel(*args, matched)
     else:
-        cost = _hypothesis_kernel(*args, matched, cs[L_ANCHORS])
-    ok, rms = _one_target(
+        cost = hypothesis_kernel(*args, matched, cs[L_ANCHORS])
+    ok, rms = one_target_kernel(
         features, y, bg, matched, cov_scale, ints, cs, clean, picked, weights, shift, use,
         position, covariance, paths,
     )  # fmt: skip

@@ -2,7 +2,7 @@
 replaces computes it: the joint choice after the pool (``SceneAssociator._joint``), the
 shared echoes (``scene.shared_echoes``) and the double-reflection test
 (``scene.is_double_reflection``). Tested against those in tests/core/test_back_scene.py. One
-target (``Pipeline._target``) is ``steps._one_target``, shared with the K = 1 kernel."""
+target (``Pipeline._target``) is ``steps.one_target_kernel``, shared with the K = 1 kernel."""
 
 from __future__ import annotations
 
@@ -20,14 +20,14 @@ from spiel_edge.pipeline.compiled.abi import (
     S_MISSING_SHIFT,
     S_SHARE_PENALTY,
 )
-from spiel_edge.pipeline.stages.joint import MAX_NODES, _select_kernel
+from spiel_edge.pipeline.stages.joint import MAX_NODES, select_kernel
 from spiel_edge.pipeline.stages.scene_geometry import height3
 
 log = logging.getLogger(__name__)
 
 
 @jit
-def _hypotheses(choices, costs, n_echoes, scene_ints, scene_floats, out_matched, out_cost):
+def hypotheses(choices, costs, n_echoes, scene_ints, scene_floats, out_matched, out_cost):
     """As ``SceneAssociator._joint`` after the pool (``choices``/``costs`` its cheapest
     first): the chosen combinations and their costs into ``out_*``; returns how many."""
     n, n_ch = choices.shape
@@ -72,7 +72,7 @@ def _hypotheses(choices, costs, n_echoes, scene_ints, scene_floats, out_matched,
         g = gains[0]
         gains[0] = (0.0 if g < 0.0 else g) + 1e6  # always chosen (Python's max(g, 0.0))
     chosen = np.empty(scene_ints[S_MAX_TARGETS], dtype=np.int64)
-    n_chosen = _select_kernel(
+    n_chosen = select_kernel(
         kept,
         gains,
         scene_ints[S_MAX_TARGETS],
@@ -110,7 +110,7 @@ def _is_variant(choices, order, r):
 
 
 @jit
-def _share(matched, pred, paths, taken, listening, tolerance, out):
+def share(matched, pred, paths, taken, listening, tolerance, out):
     """As ``scene.shared_echoes``: ``matched`` plus the nearest taken echo on each listening
     channel it leaves out, within tolerance, into ``out``; True when that changed anything."""
     changed = False
@@ -131,7 +131,7 @@ def _share(matched, pred, paths, taken, listening, tolerance, out):
 
 
 @jit
-def _double_reflection(paths, other_paths, other_position, emitter, facing, tolerance):
+def double_reflection(paths, other_paths, other_position, emitter, facing, tolerance):
     """As ``scene.is_double_reflection``."""
     height = height3(other_position, emitter, facing)
     n_used = 0

@@ -8,11 +8,11 @@ It computes what ``Pipeline.process`` computes with ``SceneAssociator._joint``, 
 kernels in the same order:
 
 1. the front kernel, the score prior and the strength as the one-target kernel;
-2. the pool search ``associate._search_kernel`` (as ``joint.combination_pool``), then the
-   joint choice's glue in numba (``scene_steps._hypotheses``: the missing-channel shift, the
+2. the pool search ``associate.search_kernel`` (as ``joint.combination_pool``), then the
+   joint choice's glue in numba (``scene_steps.hypotheses``: the missing-channel shift, the
    stable order by cost with the K = 1 pick first, ``drop_variants``, the birth gains) and
-   ``joint._select_kernel``;
-3. per hypothesis ``steps._one_target`` (as ``Pipeline._target``), ``_share`` (as
+   ``joint.select_kernel``;
+3. per hypothesis ``steps.one_target_kernel`` (as ``Pipeline._target``), ``share`` (as
    ``scene.shared_echoes``), the separation and the double-reflection test (as
    ``Pipeline._targets`` with ``scene.is_double_reflection``), using the fixed-order sums of
    :mod:`spiel_edge.pipeline.stages.scene_geometry` that the staged path uses too.
@@ -40,20 +40,20 @@ from spiel_edge.pipeline.compiled.abi import (
     S_MIN_SEPARATION,
     S_SHARE_TOL,
     KernelConfig,
-    _back_views,
-    _front_views,
-    _scene_views,
+    back_views,
+    front_views,
+    scene_views,
 )
-from spiel_edge.pipeline.compiled.front import _packed_front, raise_for
+from spiel_edge.pipeline.compiled.front import packed_front, raise_for
 from spiel_edge.pipeline.compiled.result import match_list, result
-from spiel_edge.pipeline.compiled.scene_steps import _double_reflection, _hypotheses, _share
+from spiel_edge.pipeline.compiled.scene_steps import double_reflection, hypotheses, share
 from spiel_edge.pipeline.compiled.steps import (
-    _association_inputs,
-    _one_target,
-    _search_arguments,
+    association_inputs,
+    one_target_kernel,
+    search_arguments,
 )
 from spiel_edge.pipeline.staged import Target
-from spiel_edge.pipeline.stages.associate import MAX_POOL, _search_kernel
+from spiel_edge.pipeline.stages.associate import MAX_POOL, search_kernel
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.pipeline.stages.scene_geometry import distance3, predicted_paths_into
 from spiel_edge.profile.specs import MAX_TARGETS_LIMIT
@@ -112,16 +112,16 @@ def _scene_acquisition_kernel(
 ):  # fmt: skip
     """The front kernel, its features and counts copied into ``features`` and ``counts``,
     then :func:`_scene_steps`: the number of targets, or minus the front's status."""
-    fi, ff = _front_views(f64, i64, layout)
-    status = _packed_front(
+    fi, ff = front_views(f64, i64, layout)
+    status = packed_front(
         y, bg, fi, ff, env, bg_env, cleaned, peaks, ws_counts, params, iterations, unsorted,
         ws_features, features, counts,
     )  # fmt: skip
     if status != 0:
         return -status
     return _scene_steps(
-        features, counts, y, bg, cov_scale, ints, _back_views(f64, f32, i64, flags, layout),
-        _scene_views(f64, i64, flags, layout), bonus, clean,
+        features, counts, y, bg, cov_scale, ints, back_views(f64, f32, i64, flags, layout),
+        scene_views(f64, i64, flags, layout), bonus, clean,
         *_outputs(out_ints, out_floats, features.shape[0]),
     )  # fmt: skip
 
@@ -155,23 +155,23 @@ def _scene_steps(
 ):  # fmt: skip
     """The kernel's steps: the number of targets found; their matched echoes, positions,
     covariances, rms, scores and paths in ``out_*`` (best first); ``first`` the first
-    hypothesis's echoes. ``cs``: the constants' views (``abi._back_views``), ``scene`` the
-    scene's (``abi._scene_views``)."""
+    hypothesis's echoes. ``cs``: the constants' views (``abi.back_views``), ``scene`` the
+    scene's (``abi.scene_views``)."""
     n_ch, k_max = features.shape[0], features.shape[1]
     scene_ints, scene_floats, share_listening = scene
     mm = cs[L_FLOATS][F_MM_PER_SAMPLE]
     delays, channels, emitter, facing = cs[L_DELAYS], cs[L_CHANNELS], cs[L_EMITTER], cs[L_FACING]
-    all_paths, allowed, strength = _association_inputs(features, counts, ints, cs, bonus)
+    all_paths, allowed, strength = association_inputs(features, counts, ints, cs, bonus)
     pool_choices[:, :] = -1
     pool_costs[:] = np.inf
-    args = _search_arguments(all_paths, strength, counts, allowed, ints, cs)
-    n_pool = _search_kernel(*args, pool_choices, pool_costs)
+    args = search_arguments(all_paths, strength, counts, allowed, ints, cs)
+    n_pool = search_kernel(*args, pool_choices, pool_costs)
     if n_pool == 0:
         first[:] = -1
         return 0
     hyp_matched = np.empty((scene_ints[S_MAX_TARGETS], n_ch), dtype=np.int64)
     hyp_cost = np.empty(scene_ints[S_MAX_TARGETS])
-    n_hyp = _hypotheses(
+    n_hyp = hypotheses(
         pool_choices[:n_pool], pool_costs[:n_pool], k_max, scene_ints, scene_floats, hyp_matched,
         hyp_cost,
     )  # fmt: skip
@@ -198,7 +198,7 @@ def _scene_steps(
     n_out = 0
     for h in range(n_hyp):
         matched = hyp_matched[h]
-        ok, rms = _one_target(
+        ok, rms = one_target_kernel(
             features, y, bg, matched, cov_scale, ints, cs, clean, *scratch, position,
             covariance, paths,
         )  # fmt: skip
@@ -210,11 +210,11 @@ def _scene_steps(
             missing = missing or matched[c] < 0
         if h > 0 and missing:
             predicted_paths_into(position, channels, emitter, pred)
-            changed = _share(
+            changed = share(
                 matched, pred, toa_paths, taken, share_listening, scene_floats[S_SHARE_TOL], more
             )
             if changed:
-                ok2, rms2 = _one_target(
+                ok2, rms2 = one_target_kernel(
                     features, y, bg, more, cov_scale, ints, cs, clean, *scratch, position2,
                     covariance2, paths2,
                 )  # fmt: skip
@@ -230,7 +230,7 @@ def _scene_steps(
                 break
         if not drop:
             for j in range(n_out):
-                if _double_reflection(
+                if double_reflection(
                     paths,
                     out_paths[j],
                     out_position[j],

@@ -52,17 +52,17 @@ from spiel_edge.pipeline.compiled.abi import (
     TIMING_TREES,
 )
 from spiel_edge.pipeline.learned.mlp import mlp_scores
-from spiel_edge.pipeline.stages.echo_quality import _echo_quality_kernel
-from spiel_edge.pipeline.stages.echo_timing import _clean_kernel, _fused_kernel, _refine_kernel
+from spiel_edge.pipeline.stages.echo_quality import echo_quality_kernel
+from spiel_edge.pipeline.stages.echo_timing import clean_kernel, fused_kernel, refine_kernel
 from spiel_edge.pipeline.stages.features import TOA_COLUMN
 from spiel_edge.pipeline.stages.locate import locate_kernel
-from spiel_edge.pipeline.stages.uncertainty import _covariance_kernel
+from spiel_edge.pipeline.stages.uncertainty import covariance_kernel
 
 LOCATE_ITER = 30  # Gauss-Newton iterations of the final position (passed as int(): one signature)
 
 
 @jit
-def _one_target(
+def one_target_kernel(
     features, y, bg, matched, cov_scale, ints, cs, clean, picked, weights, shift, mask, position,
     covariance, paths,
 ):  # fmt: skip
@@ -86,7 +86,7 @@ def _one_target(
     alpha_matched = np.empty(n_ch)
     for c in range(n_ch):
         alpha_matched[c] = features[c, max(matched[c], 0), 0]
-    _echo_quality_kernel(y, bg, timed, alpha_matched, cs[L_QUALITY], weights, shift)
+    echo_quality_kernel(y, bg, timed, alpha_matched, cs[L_QUALITY], weights, shift)
     for c in range(n_ch):
         s = 0.0 if ints[I_TIMING] != TIMING_NONE else shift[c]
         paths[c] = (timed[c] + s - delays[c]) * mm
@@ -100,14 +100,14 @@ def _one_target(
     sigma = np.empty(n_ch)
     for c in range(n_ch):
         sigma[c] = mm / weights[c]
-    _covariance_kernel(
+    covariance_kernel(
         position, paths, sigma, mask, channels, emitter, cov_scale, floats[F_COV_FLOOR], covariance
     )
     return True, rms
 
 
 @jit
-def _association_inputs(features, counts, ints, cs, bonus):
+def association_inputs(features, counts, ints, cs, bonus):
     """The association search's inputs, as the staged associator builds them: the score
     prior into ``bonus`` (the MLP's, or zeros), and (each echo's path in mm, whether it is
     finite, its strength: log amplitude plus prior)."""
@@ -139,8 +139,8 @@ def _association_inputs(features, counts, ints, cs, bonus):
 
 
 @jit(inline="always")
-def _search_arguments(all_paths, strength, counts, allowed, ints, cs):
-    """The search kernels' arguments before their outputs (``associate._search_kernel``)."""
+def search_arguments(all_paths, strength, counts, allowed, ints, cs):
+    """The search kernels' arguments before their outputs (``associate.search_kernel``)."""
     return (
         all_paths, strength, counts, allowed, cs[L_LISTENING], cs[L_CHANNELS], cs[L_EMITTER],
         cs[L_FACING], cs[L_MAX_PATH_DIFF], cs[L_COST_WEIGHTS], ints[I_MIN_CHANNELS],
@@ -181,7 +181,7 @@ def _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, c
         return picked.copy()
     if ints[I_TIMING] == TIMING_TREES:
         out = np.empty(y.shape[0])
-        _fused_kernel(
+        fused_kernel(
             y,
             bg,
             ints[I_BLIND],
@@ -196,7 +196,7 @@ def _echo_timing(y, bg, picked, ints, floats, feature, threshold, value, base, c
             out,
         )
         return out
-    _clean_kernel(y, bg, ints[I_BLIND], clean)
+    clean_kernel(y, bg, ints[I_BLIND], clean)
     out = picked.copy()
-    _refine_kernel(clean, picked, ints[I_HALF_WINDOW], ints[I_LOG] != 0, out)
+    refine_kernel(clean, picked, ints[I_HALF_WINDOW], ints[I_LOG] != 0, out)
     return out

@@ -24,7 +24,7 @@ import numpy as np
 from spiel_edge import _tiers
 from spiel_edge._jit import jit
 from spiel_edge.errors import ModelError
-from spiel_edge.pipeline.learned.tree_ensemble import _fields
+from spiel_edge.pipeline.learned.tree_ensemble import protobuf_fields
 
 WEIGHTS = ("mean", "std", "w0", "b0", "w1", "b1", "w2", "b2", "wh", "bh")  # the tuple's order
 
@@ -46,9 +46,9 @@ _FLOAT = 1
 def read_metadata(blob: bytes) -> dict[str, str]:
     """The model's ``metadata_props`` (key -> value)."""
     out = {}
-    for field, _, value in _fields(blob):
+    for field, _, value in protobuf_fields(blob):
         if field == _MODEL_METADATA:
-            entry = {f: v.decode() for f, _, v in _fields(value)}
+            entry = {f: v.decode() for f, _, v in protobuf_fields(value)}
             out[entry.get(1, "")] = entry.get(2, "")
     return out
 
@@ -57,10 +57,10 @@ def read_mlp(blob: bytes) -> tuple[np.ndarray, ...]:
     """The weights (float32, in WEIGHT_NAMES order) of an association graph of the known
     shape; ModelError for anything else."""
     nodes, tensors = [], {}
-    for field, _, value in _fields(blob):
+    for field, _, value in protobuf_fields(blob):
         if field != _MODEL_GRAPH:
             continue
-        for g_field, _, g_value in _fields(value):
+        for g_field, _, g_value in protobuf_fields(value):
             if g_field == _GRAPH_NODE:
                 nodes.append(_node(g_value))
             elif g_field == _GRAPH_INITIALIZER:
@@ -104,14 +104,14 @@ def _check_shapes(weights: list[np.ndarray]) -> None:
 
 def _node(buf: bytes) -> tuple[str, list[str], dict]:
     op, inputs, attrs = "", [], {}
-    for field, _, value in _fields(buf):
+    for field, _, value in protobuf_fields(buf):
         if field == _NODE_OP_TYPE:
             op = value.decode()
         elif field == _NODE_INPUT:
             inputs.append(value.decode())
         elif field == _NODE_ATTRIBUTE:
             name, scalar = "", None
-            for a_field, _, a_value in _fields(value):
+            for a_field, _, a_value in protobuf_fields(value):
                 if a_field == _ATTR_NAME:
                     name = a_value.decode()
                 elif a_field == _ATTR_F:
@@ -124,7 +124,7 @@ def _node(buf: bytes) -> tuple[str, list[str], dict]:
 
 def _tensor(buf: bytes) -> tuple[str, np.ndarray]:
     name, dims, dtype, raw, floats = "", [], None, None, []
-    for field, wire, value in _fields(buf):
+    for field, wire, value in protobuf_fields(buf):
         if field == _TENSOR_NAME:
             name = value.decode()
         elif field == _TENSOR_DIMS:

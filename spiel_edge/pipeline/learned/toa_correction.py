@@ -90,7 +90,7 @@ class ToaCorrection:
 
     def _numba(self, features: np.ndarray) -> np.ndarray:
         out = np.empty(features.shape[0])
-        tree_ensemble._predict_kernel(
+        tree_ensemble.predict_kernel(
             *self._dense, np.ascontiguousarray(features, dtype=np.float64), out
         )
         return out
@@ -120,7 +120,7 @@ class ToaCorrection:
 
 @jit
 def _correct_kernel(feature, threshold, value, base, x, toa, max_correction, out):
-    tree_ensemble._predict_kernel(feature, threshold, value, base, x, out)
+    tree_ensemble.predict_kernel(feature, threshold, value, base, x, out)
     for r in range(x.shape[0]):
         pred = out[r]
         if not np.isfinite(pred):

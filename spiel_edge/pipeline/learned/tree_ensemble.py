@@ -57,7 +57,7 @@ class Trees:
         return int(self.feature.max()) + 1 if self.feature.size else 0
 
 
-def _fields(buf: bytes):
+def protobuf_fields(buf: bytes):
     """Yield (field number, wire type, value) of one protobuf message."""
     i, n = 0, len(buf)
     while i < n:
@@ -101,7 +101,7 @@ def _packed_varints(buf: bytes) -> list[int]:
 
 def _attribute(buf: bytes) -> tuple[str, object]:
     name, floats, ints, strings, scalar = "", [], [], [], None
-    for field, wire, value in _fields(buf):
+    for field, wire, value in protobuf_fields(buf):
         if field == _ATTR_NAME:
             name = value.decode()
         elif field == _ATTR_F:
@@ -125,13 +125,15 @@ def _attribute(buf: bytes) -> tuple[str, object]:
 
 def read_trees(blob: bytes) -> Trees:
     """The single TreeEnsembleRegressor of an ONNX model, as flat arrays."""
-    graphs = [v for f, w, v in _fields(blob) if f == _MODEL_GRAPH and w == 2]
-    nodes = [v for g in graphs for f, w, v in _fields(g) if f == _GRAPH_NODE and w == 2]
+    graphs = [v for f, w, v in protobuf_fields(blob) if f == _MODEL_GRAPH and w == 2]
+    nodes = [v for g in graphs for f, w, v in protobuf_fields(g) if f == _GRAPH_NODE and w == 2]
     found = []
     for node in nodes:
-        fields = {f: v for f, w, v in _fields(node) if f in (_NODE_OP_TYPE, _NODE_DOMAIN)}
+        fields = {f: v for f, w, v in protobuf_fields(node) if f in (_NODE_OP_TYPE, _NODE_DOMAIN)}
         if fields.get(_NODE_OP_TYPE) == b"TreeEnsembleRegressor":
-            found.append(dict(_attribute(v) for f, w, v in _fields(node) if f == _NODE_ATTRIBUTE))
+            found.append(
+                dict(_attribute(v) for f, w, v in protobuf_fields(node) if f == _NODE_ATTRIBUTE)
+            )
     if len(found) != 1:
         raise ModelError(f"expected one TreeEnsembleRegressor, found {len(found)}")
     return _flatten(found[0])
@@ -219,12 +221,12 @@ def predict(trees: Trees, x: np.ndarray) -> np.ndarray:
     if x.ndim != 2:
         raise ModelError(f"features must be (rows, columns), got shape {x.shape}")
     out = np.empty(x.shape[0])
-    _predict_kernel(*dense(trees), trees.base, x, out)
+    predict_kernel(*dense(trees), trees.base, x, out)
     return out
 
 
 @jit
-def _predict_kernel(feature, threshold, value, base, x, out):
+def predict_kernel(feature, threshold, value, base, x, out):
     n_trees, n_inner = feature.shape
     depth = 0
     while (1 << depth) - 1 < n_inner:

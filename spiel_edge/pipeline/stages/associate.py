@@ -109,9 +109,9 @@ class GeometricAssociator:
         args = self.search_inputs(features, counts, allowed, bonus_mm, min_channels)
         matched = np.full(self.channels.shape[0], -1, dtype=np.int64)
         if self.anchors is None:
-            cost = _exhaustive_kernel(*args, matched)
+            cost = exhaustive_kernel(*args, matched)
         else:
-            cost = _hypothesis_kernel(*args, matched, self.anchors)
+            cost = hypothesis_kernel(*args, matched, self.anchors)
         return matched, cost
 
     def pool(
@@ -125,7 +125,7 @@ class GeometricAssociator:
         args = self.search_inputs(features, counts, None, bonus_mm, None)
         choices = np.full((max_pool, self.channels.shape[0]), -1, dtype=np.int64)
         costs = np.full(max_pool, np.inf)
-        n = _search_kernel(*args, choices, costs)
+        n = search_kernel(*args, choices, costs)
         return choices[:n], costs[:n]
 
     def search_inputs(self, features, counts, allowed=None, bonus_mm=None, min_channels=None):
@@ -224,13 +224,13 @@ def _feasible(paths, choice, c, k, max_diff):
 
 
 @jit
-def _exhaustive_kernel(
+def exhaustive_kernel(
     paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch, best
 ):
     """The best combination into ``best`` (untouched when none is consistent): its cost,
     inf when none."""
     costs = np.full(1, math.inf)
-    _search_kernel(
+    search_kernel(
         paths, strength, counts, allowed, listening, ch, e, facing, max_diff, weights, min_ch,
         best.reshape((1, best.shape[0])), costs,
     )  # fmt: skip
@@ -238,7 +238,7 @@ def _exhaustive_kernel(
 
 
 @jit
-def _search_kernel(
+def search_kernel(
     paths,
     strength,
     counts,
@@ -330,7 +330,7 @@ def _join_predicted(paths, counts, allowed, listening, ch, e, pos, gate, choice)
 
 
 @jit
-def _hypothesis_kernel(
+def hypothesis_kernel(
     paths,
     strength,
     counts,

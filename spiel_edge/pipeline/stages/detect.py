@@ -36,7 +36,7 @@ def detect(
         raise InputError("detect needs threshold > 0, hysteresis in [0, 1] and max_echoes >= 1")
     peaks = np.full((y.shape[0], max_echoes), -1, dtype=np.int64)
     counts = np.zeros(y.shape[0], dtype=np.int64)
-    _detect_kernel(
+    detect_kernel(
         y,
         float(threshold),
         float(threshold * hysteresis),
@@ -49,7 +49,7 @@ def detect(
 
 
 @jit
-def _detect_kernel(y, hi, lo, min_amp, first, peaks, counts):
+def detect_kernel(y, hi, lo, min_amp, first, peaks, counts):
     """One pass per channel: the gradient's rises open echoes and each echo's maximum is
     tracked as the pass goes (sample t - 1 joins the open echo once step t has shown that no
     new echo starts there), the first of equal maxima as an argmax from its start."""

@@ -56,7 +56,7 @@ def echo_quality(
     )
     weights = np.empty(y.shape[0])
     shift = np.empty(y.shape[0])
-    _echo_quality_kernel(
+    echo_quality_kernel(
         y,
         bg,
         np.ascontiguousarray(toa, dtype=np.float64),
@@ -69,7 +69,7 @@ def echo_quality(
 
 
 @jit
-def _echo_quality_kernel(y, bg, toa, alpha, params, weights, shift):
+def echo_quality_kernel(y, bg, toa, alpha, params, weights, shift):
     base, per_background, alpha_counts, shift_after, shift_before = (
         params[0],
         params[1],

@@ -24,7 +24,7 @@ import numpy as np
 
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
-from spiel_edge.pipeline.learned.tree_ensemble import DENSE, _predict_kernel
+from spiel_edge.pipeline.learned.tree_ensemble import DENSE, predict_kernel
 
 ESTIMATORS = {"none": 0, "parabola": 1, "log_parabola": 2}
 FEATURE_HALF_WIDTH = 6  # samples either side of the echo's peak sample (chosen by grouped CV)
@@ -60,12 +60,12 @@ def clean_envelope(
     if bg.size and bg.shape != y.shape:
         raise InputError(f"background shape {bg.shape} does not match frames shape {y.shape}")
     out = np.empty_like(y)
-    _clean_kernel(y, bg, int(max(blind_zone, 0)), out)
+    clean_kernel(y, bg, int(max(blind_zone, 0)), out)
     return out
 
 
 @jit
-def _clean_kernel(y, bg, blind_zone, out):
+def clean_kernel(y, bg, blind_zone, out):
     n_ch, n_t = y.shape
     subtract = bg.shape[0] == n_ch
     for c in range(n_ch):
@@ -92,12 +92,12 @@ def refine_toa(
         raise InputError(f"estimator must be one of {sorted(ESTIMATORS)}, got {estimator!r}")
     out = t.copy()
     if estimator != "none":
-        _refine_kernel(y, t, int(half_window), ESTIMATORS[estimator] == 2, out)
+        refine_kernel(y, t, int(half_window), ESTIMATORS[estimator] == 2, out)
     return out
 
 
 @jit
-def _refine_kernel(y, toa, half_window, log_domain, out):
+def refine_kernel(y, toa, half_window, log_domain, out):
     n_ch, n_t = y.shape
     for c in range(n_ch):
         if not math.isfinite(toa[c]):
@@ -241,24 +241,24 @@ class EchoTiming:
         out = np.empty(y.shape[0])
         log_domain = ESTIMATORS[self.estimator] == ESTIMATORS["log_parabola"]
         limit = float(self.correction.max_correction)
-        _fused_kernel(y, bg, self.blind_zone, t, self.half_window, log_domain, *trees, limit, out)
+        fused_kernel(y, bg, self.blind_zone, t, self.half_window, log_domain, *trees, limit, out)
         return out
 
 
 @jit
-def _fused_kernel(
+def fused_kernel(
     y, bg, blind_zone, toa, half_window, log_domain, feature, threshold, value, base, limit, out
 ):
     """clean_envelope -> refine_toa -> toa_features -> trees, as the separate wrappers do."""
     n_ch = y.shape[0]
     clean = np.empty_like(y)
-    _clean_kernel(y, bg, blind_zone, clean)
+    clean_kernel(y, bg, blind_zone, clean)
     refined = toa.copy()
-    _refine_kernel(clean, toa, half_window, log_domain, refined)
+    refine_kernel(clean, toa, half_window, log_domain, refined)
     feats = np.full((n_ch, 3 * N_WINDOW + N_SCALARS + n_ch), np.nan)
     _features_kernel(y, bg, clean, refined, int(FEATURE_HALF_WIDTH), feats)
     pred = np.empty(n_ch)
-    _predict_kernel(feature, threshold, value, base, feats, pred)
+    predict_kernel(feature, threshold, value, base, feats, pred)
     for c in range(n_ch):
         p = pred[c]
         out[c] = refined[c] if not math.isfinite(p) else refined[c] - min(max(p, -limit), limit)

@@ -15,7 +15,7 @@ import numpy as np
 from spiel_edge._jit import jit
 from spiel_edge.errors import InputError
 from spiel_edge.pipeline.stages._validate import as_frames
-from spiel_edge.pipeline.stages.memg import SQRT2, SQRT_2_OVER_PI, _emg_arguments, emg_value
+from spiel_edge.pipeline.stages.memg import SQRT2, SQRT_2_OVER_PI, emg_arguments, emg_value
 
 FEATURE_NAMES = (
     "alpha",
@@ -59,7 +59,7 @@ def echo_features(
     if toa not in TOA_CODES:
         raise InputError(f"toa must be one of {sorted(TOA_CODES)}, got {toa!r}")
     out = np.full(params.shape[:2] + (N_FEATURES,), np.nan)
-    _features_kernel(y, params, peaks, TOA_CODES[toa], out)
+    features_kernel(y, params, peaks, TOA_CODES[toa], out)
     order = np.argsort(
         np.where(np.isnan(out[:, :, TOA_COLUMN]), np.inf, out[:, :, TOA_COLUMN]),
         axis=1,
@@ -69,7 +69,7 @@ def echo_features(
 
 
 @jit
-def _mode(alpha, mu, sigma, eta):
+def component_mode(alpha, mu, sigma, eta):
     """Time of the component's maximum, mu + sigma * u with u the root of the shape's slope
 
         f(u) = -u (1 + erf(eta u / sqrt 2)) + eta sqrt(2 / pi) exp(-eta^2 u^2 / 2)
@@ -118,7 +118,7 @@ def _leading_half_max(alpha, mu, sigma, eta, mode):
 
 
 @jit
-def _interpolated_peak(y, k):
+def interpolated_peak(y, k):
     """Sub-sample maximum of the data around sample k by a parabola through 3 samples."""
     n_t = y.shape[0]
     if k <= 0 or k >= n_t - 1:
@@ -156,7 +156,7 @@ def _channel_model(params, c, n_t, model, args, out):
             continue
         lo, hi = _support(mu, sigma, n_t)
         for t in range(lo, hi):
-            _, args[0, t], args[1, t] = _emg_arguments(float(t), mu, sigma, eta)
+            _, args[0, t], args[1, t] = emg_arguments(float(t), mu, sigma, eta)
         power = 0.0
         for t in range(lo, hi):
             v = alpha * math.exp(args[0, t]) * (1.0 + math.erf(args[1, t]))
@@ -172,7 +172,7 @@ def _frame_confidence(energy, resid):
 
 
 @jit
-def _features_kernel(y, params, peaks, toa_code, out):
+def features_kernel(y, params, peaks, toa_code, out):
     """Each sum over the frame (energy, residual) adds its terms in time order, one channel's
     after another's; the channels' chains run LANES at a time in one loop, which only changes
     how many run side by side, not any sum's order."""
@@ -221,7 +221,7 @@ def _echo_rows(y, params, peaks, toa_code, c, model, frame_conf, out):
         alpha, mu, sigma, eta = params[c, k, 0], params[c, k, 1], params[c, k, 2], params[c, k, 3]
         if math.isnan(alpha):
             continue
-        mode = _mode(alpha, mu, sigma, eta)
+        mode = component_mode(alpha, mu, sigma, eta)
         lo = max(0, int(math.floor(mode - 2.0 * sigma)))
         hi = min(n_t, int(math.ceil(mode + 2.0 * sigma)) + 1)
         local_e = 0.0
@@ -237,7 +237,7 @@ def _echo_rows(y, params, peaks, toa_code, c, model, frame_conf, out):
         elif toa_code == 2:
             toa = _leading_half_max(alpha, mu, sigma, eta, mode)
         else:
-            toa = _interpolated_peak(y[c], peaks[c, k])
+            toa = interpolated_peak(y[c], peaks[c, k])
         out[c, k, 0] = alpha
         out[c, k, 1] = mu
         out[c, k, 2] = sigma

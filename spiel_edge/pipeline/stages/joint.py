@@ -75,7 +75,7 @@ def select_subset(
         raise InputError("max_targets and max_nodes must be >= 1, share_penalty >= 0")
     n_echoes = int(choices.max()) + 1 if choices.size else 0
     out = np.empty(max_targets, dtype=np.int64)
-    n = _select_kernel(
+    n = select_kernel(
         choices, gains, int(max_targets), float(share_penalty), int(max_nodes), n_echoes, out
     )
     return out[:n].copy()
@@ -123,7 +123,7 @@ def _apply(choices, j, uses, step):
 
 
 @jit
-def _select_kernel(choices, gains, max_k, share_penalty, max_nodes, n_echoes, best):
+def select_kernel(choices, gains, max_k, share_penalty, max_nodes, n_echoes, best):
     m = gains.shape[0]
     positive = np.zeros(m + 1)  # prefix sums of the positive gains (the bound)
     for i in range(m):

@@ -65,7 +65,7 @@ def locate(
 
 
 @_solve
-def _solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2):
+def solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2):
     """:func:`spiel_edge.pipeline.stages.memg.solve_spd` for n = 3 on scalars (the lower triangle of
     a symmetric a): the same operations in the same order, so the same bits, without arrays.
     Returns (ok, x0, x1, x2); ok False when a is not positive definite."""
@@ -155,7 +155,7 @@ def _initial_guess(d, use, e, ch, facing):
     a00 += ridge
     a11 += ridge
     a22 += ridge
-    ok, q0, q1, q2 = _solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2)
+    ok, q0, q1, q2 = solve3(a00, a10, a11, a20, a21, a22, b0, b1, b2)
     if not ok:
         q0 = q1 = q2 = 0.0
     qf = q0 * facing[0] + q1 * facing[1] + q2 * facing[2]
@@ -216,7 +216,7 @@ def _gauss_newton(d, use, w, e, ch, p0, p1, p2, max_iter):
             a22 += g2 * g2
         accepted = False
         for _try in range(6):
-            ok, s0, s1, s2 = _solve3(
+            ok, s0, s1, s2 = solve3(
                 a00 + lam * (a00 + 1e-9),
                 a10,
                 a11 + lam * (a11 + 1e-9),

@@ -64,7 +64,7 @@ def fit_memg(
     params = np.full((y.shape[0], peaks.shape[1], 4), np.nan)
     iterations = np.zeros(peaks.shape, dtype=np.int64)
     if (window_before, window_after) == (WINDOW_BEFORE, WINDOW_AFTER):
-        _memg_kernel(y, peaks, counts, float(mu_window), int(max_iterations), params, iterations)
+        memg_kernel(y, peaks, counts, float(mu_window), int(max_iterations), params, iterations)
     else:
         window = (int(window_before), int(window_after))
         _fit_windowed(y, peaks, counts, float(mu_window), int(max_iterations), window, params)
@@ -72,8 +72,8 @@ def fit_memg(
 
 
 def _fit_windowed(y, peaks, counts, mu_window, max_iter, window, params) -> None:
-    """:func:`_memg_kernel`'s clusters and windows with another window, each cluster by the
-    compiled :func:`_fit_cluster` (no kernel of its own: boards with other windows have one
+    """:func:`memg_kernel`'s clusters and windows with another window, each cluster by the
+    compiled :func:`fit_cluster` (no kernel of its own: boards with other windows have one
     or two channels, a few echoes each)."""
     before, after = window
     n_t = y.shape[1]
@@ -91,7 +91,7 @@ def _fit_windowed(y, peaks, counts, mu_window, max_iter, window, params) -> None
             work = np.empty(
                 2 * n_comp + 4 * n_par + 2 * n_par * n_par + (3 * n_comp + 1) * (hi - lo)
             )
-            _fit_cluster(
+            fit_cluster(
                 y[c], lo, hi, peaks[c, first : last + 1], n_comp, mu_window, max_iter, p, work
             )
             params[c, first : last + 1] = p[:n_par].reshape(n_comp, 4)
@@ -112,7 +112,7 @@ def _check_peaks(peaks, counts, n_t):
 
 
 @jit(inline="always")
-def _emg_arguments(t, mu, sigma, eta):
+def emg_arguments(t, mu, sigma, eta):
     """u and the arguments of the exp and the erf in :func:`_emg_shape`."""
     u = (t - mu) / sigma
     return u, -0.5 * u * u, eta * u / SQRT2
@@ -120,14 +120,14 @@ def _emg_arguments(t, mu, sigma, eta):
 
 @jit(inline="always")
 def emg_value(t, alpha, mu, sigma, eta):
-    _, x_exp, x_erf = _emg_arguments(t, mu, sigma, eta)
+    _, x_exp, x_erf = emg_arguments(t, mu, sigma, eta)
     return alpha * math.exp(x_exp) * (1.0 + math.erf(x_erf))
 
 
 @jit(inline="always")
 def _emg_shape(t, mu, sigma, eta):
     """u, the Gaussian g and the skew factor e of one component at t (its value: alpha g e)."""
-    u, x_exp, x_erf = _emg_arguments(t, mu, sigma, eta)
+    u, x_exp, x_erf = emg_arguments(t, mu, sigma, eta)
     return u, math.exp(x_exp), 1.0 + math.erf(x_erf)
 
 
@@ -187,7 +187,7 @@ def _solve_spd_inline(a, b, n, x):
 
 @jit
 def work_size(n_comp):
-    """Floats of :func:`_fit_cluster`'s ``work`` for up to n_comp components (the window of
+    """Floats of :func:`fit_cluster`'s ``work`` for up to n_comp components (the window of
     n_comp detections, each within CLUSTER_GAP of the next, spans < window_size samples)."""
     n_par = 4 * n_comp
     return 2 * n_comp + 4 * n_par + 2 * n_par * n_par + (3 * n_comp + 1) * window_size(n_comp)
@@ -199,11 +199,11 @@ def window_size(n_comp):
 
 
 @jit(inline="always")
-def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
+def trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
     """The cost sum r^2 at p over y[lo:hi] (the same sum as
     ``tests/core/naive.normal_equations``, the one-pass reference); each
     component's u, g, e go to shape[3 * (n_comp * i + k):][:3] and the residuals to resid[i]
-    (i = t - lo), from which :func:`_jacobian_sums` makes the normal equations.
+    (i = t - lo), from which :func:`jacobian_sums` makes the normal equations.
 
     Stops early, returning the partial sum, once it reaches ``bound`` (the cost to beat): a
     sum of non-negative terms never falls as terms are added (rounding is monotone), so the
@@ -214,7 +214,7 @@ def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
         mu, sigma, eta = p[4 * k + 1], p[4 * k + 2], p[4 * k + 3]
         for t in range(lo, hi):
             at = 3 * (n_comp * (t - lo) + k)
-            shape[at], shape[at + 1], shape[at + 2] = _emg_arguments(float(t), mu, sigma, eta)
+            shape[at], shape[at + 1], shape[at + 2] = emg_arguments(float(t), mu, sigma, eta)
     cost = 0.0
     for t in range(lo, hi):
         i = t - lo
@@ -234,8 +234,8 @@ def _trial_cost(y, lo, hi, p, n_comp, shape, resid, bound):
 
 
 @jit(inline="always")
-def _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
-    """J^T J into a and J^T r into b from :func:`_trial_cost`'s stores for the same p: the
+def jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
+    """J^T J into a and J^T r into b from :func:`trial_cost`'s stores for the same p: the
     terms and their order are ``tests/core/naive.normal_equations``, so a and b are its bit
     for bit."""
     if n_comp == 1:
@@ -264,7 +264,7 @@ def _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b):
 
 @jit(inline="always")
 def _jacobian_sums_1(n_win, alpha, sigma, eta, shape, resid, a, b):
-    """:func:`_jacobian_sums` for one component, its sums in registers."""
+    """:func:`jacobian_sums` for one component, its sums in registers."""
     a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
     b0 = b1 = b2 = b3 = 0.0
     for i in range(n_win):
@@ -297,12 +297,12 @@ def _jacobian_sums_1(n_win, alpha, sigma, eta, shape, resid, a, b):
 # the runtime the views of ``work`` and the arrays handed to its steps skip their atomic
 # reference counts, which took ~20 % of its time (perf: NRT_incref / NRT_decref)
 @jit(_nrt=False)
-def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
+def fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     """LM on components fitted jointly over y[lo:hi]; p holds 4 * n_comp parameters.
 
     A trial evaluates the cost alone, keeping each sample's u, g, e and residual; only an
     accepted step that the fit goes on from turns them into the next normal equations
-    (:func:`_jacobian_sums`), so rejected and final steps cost no Jacobian. Stops when an
+    (:func:`jacobian_sums`), so rejected and final steps cost no Jacobian. Stops when an
     accepted step lowers the cost by less than REL_TOL of itself: the fits that ran to the cap
     were weakly identified shapes (eta or sigma at a bound, wide flat echoes) creeping along a
     flat valley with no effect on the ToA (docs/performance.md).
@@ -339,8 +339,8 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
     shape = work[start : start + 3 * n_comp * n_win]
     resid = work[start + 3 * n_comp * n_win : start + (3 * n_comp + 1) * n_win]
     lam = LAMBDA_START
-    cost = _trial_cost(y, lo, hi, p, n_comp, shape, resid, np.inf)
-    _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
+    cost = trial_cost(y, lo, hi, p, n_comp, shape, resid, np.inf)
+    jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
     iterations = 0
     for it in range(max_iter):
         iterations += 1
@@ -356,13 +356,13 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
             for i in range(n_par):
                 trial[i] = p[i] + step[i]
             _clamp(trial, n_comp, lower_mu, upper_mu, alpha_max)
-            new_cost = _trial_cost(y, lo, hi, trial, n_comp, shape, resid, cost)
+            new_cost = trial_cost(y, lo, hi, trial, n_comp, shape, resid, cost)
             if new_cost < cost:
                 converged = cost - new_cost <= REL_TOL * cost
                 for i in range(n_par):
                     p[i] = trial[i]
                 if not converged and it + 1 < max_iter:  # the fit goes on from here
-                    _jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
+                    jacobian_sums(n_win, p, n_comp, shape, resid, jac_row, a, b)
                 cost = new_cost
                 lam = max(lam * LAMBDA_DOWN, 1e-7)
                 improved = not converged
@@ -374,7 +374,7 @@ def _fit_cluster(y, lo, hi, peaks, n_comp, mu_window, max_iter, p, work):
 
 
 @jit
-def _memg_kernel(y, peaks, counts, mu_window, max_iter, params, iterations):
+def memg_kernel(y, peaks, counts, mu_window, max_iter, params, iterations):
     """Fit every channel's echoes into params; LM iterations per echo into iterations."""
     n_ch, n_t = y.shape
     n_max = 4 * peaks.shape[1]
@@ -389,7 +389,7 @@ def _memg_kernel(y, peaks, counts, mu_window, max_iter, params, iterations):
             n_comp = last - first + 1
             lo = max(0, peaks[c, first] - WINDOW_BEFORE)
             hi = min(n_t, peaks[c, last] + WINDOW_AFTER + 1)
-            used = _fit_cluster(
+            used = fit_cluster(
                 y[c], lo, hi, peaks[c, first : last + 1], n_comp, mu_window, max_iter, p, work
             )
             for k in range(n_comp):

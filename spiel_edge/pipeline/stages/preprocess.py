@@ -34,12 +34,12 @@ def preprocess(
         if bg.size:
             bg = envelope(bg, carrier_cycles_per_sample)
     out = np.empty_like(y)
-    _preprocess_kernel(y, bg, int(blind_zone), out)
+    preprocess_kernel(y, bg, int(blind_zone), out)
     return out
 
 
 @jit
-def _preprocess_kernel(y, bg, blind_zone, out):
+def preprocess_kernel(y, bg, blind_zone, out):
     n_ch, n_t = y.shape
     subtract = bg.shape[0] == n_ch
     for c in range(n_ch):
@@ -65,12 +65,12 @@ def envelope(rf: np.ndarray, carrier_cycles_per_sample: float) -> np.ndarray:
         )
     half_width = max(1, int(round(0.5 / carrier_cycles_per_sample)))
     out = np.empty_like(y)
-    _envelope_kernel(y, carrier_cycles_per_sample, half_width, out)
+    envelope_kernel(y, carrier_cycles_per_sample, half_width, out)
     return out
 
 
 @jit
-def _envelope_kernel(y, f, half_width, out):
+def envelope_kernel(y, f, half_width, out):
     n_ch, n_t = y.shape
     i_mix = np.empty(n_t)
     q_mix = np.empty(n_t)

@@ -31,7 +31,7 @@ import numpy as np
 
 from spiel_edge.pipeline.stages.associate import EXHAUSTIVE_MAX_CHANNELS
 from spiel_edge.pipeline.stages.joint import combination_pool, drop_variants, select_subset
-from spiel_edge.pipeline.stages.scene_geometry import _predicted_paths, height3
+from spiel_edge.pipeline.stages.scene_geometry import height3, predicted_paths_kernel
 
 
 class SceneAssociator:
@@ -166,7 +166,7 @@ def predicted_paths(position_mm: np.ndarray, channels_mm: np.ndarray, emitter_mm
     """Echo path (mm) per channel of a point target (summed in a fixed order: scene_geometry)."""
     p = np.ascontiguousarray(position_mm, dtype=np.float64)
     ch = np.ascontiguousarray(channels_mm, dtype=np.float64)
-    return _predicted_paths(p, ch, np.ascontiguousarray(emitter_mm, dtype=np.float64))
+    return predicted_paths_kernel(p, ch, np.ascontiguousarray(emitter_mm, dtype=np.float64))
 
 
 def shared_echoes(

@@ -49,7 +49,7 @@ def predicted_paths_into(position, channels, emitter, out):
 
 
 @jit
-def _predicted_paths(position, channels, emitter):
+def predicted_paths_kernel(position, channels, emitter):
     out = np.empty(channels.shape[0])
     predicted_paths_into(position, channels, emitter, out)
     return out

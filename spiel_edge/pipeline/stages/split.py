@@ -23,8 +23,8 @@ from spiel_edge.pipeline.stages.memg import (
     CLUSTER_GAP,
     WINDOW_AFTER,
     WINDOW_BEFORE,
-    _fit_cluster,
     emg_value,
+    fit_cluster,
     work_size,
 )
 
@@ -73,7 +73,7 @@ def split_merged(
     if mu_window <= 0 or max_iterations < 1:
         raise InputError("mu_window must be > 0 and max_iterations >= 1")
     iterations = np.zeros(peaks.shape, dtype=np.int64)
-    _split_kernel(
+    split_kernel(
         y,
         peaks,
         counts,
@@ -121,7 +121,7 @@ def _insert(peaks, params, iterations, n, at, peak, p, used):
 
 
 @jit
-def _split_kernel(y, peaks, counts, params, iterations, min_sigma, max_ratio, mu_window, max_iter):
+def split_kernel(y, peaks, counts, params, iterations, min_sigma, max_ratio, mu_window, max_iter):
     """In place on one acquisition's peaks, counts, params and iterations."""
     n_ch, n_t = y.shape
     k_max = peaks.shape[1]
@@ -152,7 +152,7 @@ def _split_kernel(y, peaks, counts, params, iterations, min_sigma, max_ratio, mu
             for i in range(4):
                 one[i] = params[c, k, i]
             cost1 = _window_cost(y[c], lo, hi, one, int(ONE_COMPONENT))
-            used = _fit_cluster(
+            used = fit_cluster(
                 y[c], lo, hi, starts, int(TWO_COMPONENTS), mu_window, max_iter, p, work
             )
             cost2 = _window_cost(y[c], lo, hi, p, int(TWO_COMPONENTS))

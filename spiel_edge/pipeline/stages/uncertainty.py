@@ -63,12 +63,12 @@ def position_covariance(
     e = np.ascontiguousarray(emitter_mm, dtype=np.float64)
     if not np.all(np.isfinite(p)):
         p = np.zeros(3)
-    _covariance_kernel(p, d, s, u, ch, e, float(scale), float(floor_mm), out)
+    covariance_kernel(p, d, s, u, ch, e, float(scale), float(floor_mm), out)
     return out
 
 
 @jit
-def _covariance_kernel(p, d, sigma, use, ch, e, scale, floor_mm, out):
+def covariance_kernel(p, d, sigma, use, ch, e, scale, floor_mm, out):
     a = np.zeros((3, 3))
     rss = 0.0
     n_use = 0

@@ -3,7 +3,7 @@
 96-byte header of PROTOCOL.md 14.3 + BODY, + the Ed25519 signature trailer of 14.6 when a key is
 given), as `spiel-edge firmware pack --key` writes it, for the build (which must not need the
 spiel-edge package): the image a new board's slot 0 holds in firmware.uf2. The header layout
-is firmware_protocol/image.py's; tests/firmware/test_rp2040.py checks both agree.
+is spiel_edge/protocol/image.py's; tests/firmware/test_rp2040.py checks both agree.
 Signing (a PKCS#8 PEM Ed25519 key, as `spiel-edge firmware keygen` writes it) uses the
 `cryptography` package when it is there, else `openssl pkeyutl` (OpenSSL 3); KEY.pub (the
 public key the build includes) must be its public half."""
