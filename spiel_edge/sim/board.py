@@ -187,6 +187,8 @@ class VirtualBoard(BoardConfigMixin, BoardLinkServices, AcquireMixin):
         out = []
         if self.silent:  # a firmware that hangs at start: it reads nothing
             return out
+        if now < self._blocked_until:  # a blocking check (FW_VERIFY): what comes is lost
+            return out
         for frame in self._decoder.feed(data):
             wire = self._answer(frame, now)
             if wire is not None:

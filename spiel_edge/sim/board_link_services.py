@@ -346,6 +346,10 @@ class BoardLinkServices:
         return m.FwWriteResponse(self.fw.lengths[slot])
 
     verify_s = 0.0  # how long an asynchronous FW_VERIFY's check takes (answered BUSY meanwhile)
+    # the check blocks the board's loop, as the C core's one signature check does: after its
+    # BUSY answer the board reads nothing until the check is done
+    verify_blocks = False
+    _blocked_until = 0.0
 
     def _fw_verify(self, req: m.FwVerify, now: float) -> m.Message:
         """FW_VERIFY: checked at once, or (the ASYNC flag, as the C core does) BUSY first and
@@ -355,6 +359,8 @@ class BoardLinkServices:
             return self._fw_check(req, now)
         if self._fw_verify_at is None:
             self._fw_verify_at = now + self.verify_s
+            if self.verify_blocks:
+                self._blocked_until = self._fw_verify_at
         elif now >= self._fw_verify_at:
             return self._fw_check(req, now)
         return ErrorResponse(ErrorCode.BUSY, req.MSG_TYPE, "checking the image: ask again")

@@ -37,7 +37,8 @@ class Scripted:
     def __init__(self, *script) -> None:
         self.script, self.asked = list(script), []
 
-    def request(self, msg):
+    def request(self, msg, **options):
+        assert options == {"retry_busy": False}  # BUSY must come back to verify_upload
         self.asked.append(msg)
         step = self.script.pop(0)
         if step is DeviceTimeoutError:
@@ -100,5 +101,15 @@ def test_the_virtual_board_answers_busy_until_its_check_is_done(sim_url) -> None
 def test_an_update_waits_for_a_slow_check(sim_url) -> None:
     url = sim_url()
     device_for_url(url).board.verify_s = 1.0
+    result = update_firmware(url, NEW, boot_wait_s=10)
+    assert result.confirmed and result.version == "sim-0.2.0"
+
+
+def test_an_update_waits_through_a_check_that_blocks_the_board(sim_url) -> None:
+    """As the C core: BUSY, then nothing read for longer than four tries of a request (the
+    emulated Pico at load 8-12); the host knows the board is checking and waits it through."""
+    url = sim_url()
+    board = device_for_url(url).board
+    board.verify_s, board.verify_blocks = 2.5, True
     result = update_firmware(url, NEW, boot_wait_s=10)
     assert result.confirmed and result.version == "sim-0.2.0"
