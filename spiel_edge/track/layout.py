@@ -158,15 +158,15 @@ def snapshot_buffer(floats):
 
 
 def snapshot_rows(floats: np.ndarray, rows: int) -> np.ndarray:
-    """A copy of the snapshot's first ``rows`` rows (after :func:`_step_buffered` or
-    :func:`_snapshot_now`): the Track objects keep it while the buffer is reused."""
+    """A copy of the snapshot's first ``rows`` rows (after :func:`step.step_buffered` or
+    :func:`step.snapshot_now`): the Track objects keep it while the buffer is reused."""
     at = _F_SCRATCH + _SNAP
     return floats[at : at + rows * SNAPSHOT].reshape(rows, SNAPSHOT).copy()
 
 
 def measurement_views(floats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(z (SLOTS, 3), r (SLOTS, 3, 3)): views of :func:`allocate`'s float array where
-    :func:`_step_buffered` reads the targets' positions and covariances."""
+    :func:`step.step_buffered` reads the targets' positions and covariances."""
     z = floats[_F_SCRATCH + _Z : _F_SCRATCH + _ZR].reshape(SLOTS, 3)
     return z, floats[_F_SCRATCH + _ZR : _F_SCRATCH + _FLOATS].reshape(SLOTS, 3, 3)
 

@@ -328,8 +328,8 @@ def emg_jacobian_row(t, alpha, mu, sigma, eta, out, col):
 @njit
 def normal_equations(y, lo, hi, p, n_comp, jac_row, a, b):
     """J^T J into a and J^T r into b over y[lo:hi], and the cost sum r^2 at p, in one plain
-    pass: the sums the fit takes, in the same order, from memg's ``_trial_cost`` and
-    ``_jacobian_sums`` (the tests hold them to it bit for bit)."""
+    pass: the sums the fit takes, in the same order, from memg's ``trial_cost`` and
+    ``jacobian_sums`` (the tests hold them to it bit for bit)."""
     n_par = 4 * n_comp
     a[:, :] = 0.0
     b[:] = 0.0

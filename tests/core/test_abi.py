@@ -26,8 +26,8 @@ def _views(name: str) -> list[str]:
     ret = next(n for n in ast.walk(_function(abi, name)) if isinstance(n, ast.Return))
     out = []
     for item in ret.value.elts:
-        if isinstance(item, ast.Call):  # _vN(buffer, layout, L_NAME)
-            ndim = int(item.func.id[2:])
+        if isinstance(item, ast.Call):  # view_Nd(buffer, layout, L_NAME)
+            ndim = int(item.func.id.removeprefix("view_").removesuffix("d"))
             buffer, slot = item.args[0].id, item.args[2].id
         else:  # a scalar: buffer[layout[3 * L_NAME]]
             ndim, buffer, slot = 0, item.value.id, item.slice.slice.right.id
@@ -57,9 +57,9 @@ def test_every_slot_number_is_the_tables():
 
 
 def test_the_views_follow_the_table_and_the_kernels_read_them_by_slot():
-    back = _views("_back_views")
-    scene = _views("_scene_views")
-    front_views = _views("_front_views")
+    back = _views("back_views")
+    scene = _views("scene_views")
+    front_views = _views("front_views")
     assert back + scene + front_views == list(abi.CONSTANTS.names())
     # the kernels read the back views as cs[L_NAME]: the slot is the tuple's index
     for module in (one_target, several_targets, steps):
@@ -77,7 +77,7 @@ def test_the_views_follow_the_table_and_the_kernels_read_them_by_slot():
 def test_the_front_settings_reach_the_front_kernel_in_its_order():
     call = next(
         n
-        for n in ast.walk(_function(front, "_packed_front"))
+        for n in ast.walk(_function(front, "packed_front"))
         if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "_front_kernel"
     )
     names = []

@@ -48,7 +48,7 @@ def test_hypotheses_equal_the_joint_choice(profile, rng, monkeypatch, keep_best)
         out_m = np.empty((k, 4), np.int64)
         out_c = np.empty(k)
         ints = np.array([k, sa.extra_min_channels, keep_best], np.int64)
-        n_hyp = back_scene._hypotheses(choices, costs, 4, ints, floats, out_m, out_c)
+        n_hyp = back_scene.hypotheses(choices, costs, 4, ints, floats, out_m, out_c)
         assert n_hyp == len(expected), trial
         for (m, c), got_m, got_c in zip(expected, out_m, out_c, strict=False):
             assert np.array_equal(m, got_m) and c == got_c, trial
@@ -70,7 +70,7 @@ def test_share_equals_shared_echoes(profile, rng):
         out = np.empty(4, np.int64)
         pred_k = np.empty(4)
         predicted_paths_into(position, ch, e, pred_k)
-        changed = back_scene._share(matched, pred_k, paths, taken, listening, tol, out)
+        changed = back_scene.share(matched, pred_k, paths, taken, listening, tol, out)
         assert np.array_equal(out, expected) and changed == bool((expected != matched).any())
 
 
@@ -86,7 +86,7 @@ def test_double_reflection_equals_staged(profile, rng):
         paths[rng.random(4) < 0.15] = np.nan
         tol = float(rng.uniform(0, 20))
         expected = is_double_reflection(paths, other_paths, other, e, facing, tol)
-        assert back_scene._double_reflection(paths, other_paths, other, e, facing, tol) == expected
+        assert back_scene.double_reflection(paths, other_paths, other, e, facing, tol) == expected
         found += expected
     assert 0 < found < 500
 

@@ -69,9 +69,9 @@ def test_a_pure_wheel_is_packaged_with_its_kernels(tmp_path):
 
 def test_numbas_platform_tag_is_taken_from_its_wheel_metadata():
     meta = "Wheel-Version: 1.0\nTag: cp311-cp311-manylinux_2_27_aarch64\nTag: cp311-cp311-manylinux_2_28_aarch64\n"
-    assert build_wheels._platform_tag(meta) == "manylinux_2_27_aarch64.manylinux_2_28_aarch64"
+    assert build_wheels.platform_tag(meta) == "manylinux_2_27_aarch64.manylinux_2_28_aarch64"
     with pytest.raises(SystemExit):
-        build_wheels._platform_tag("Wheel-Version: 1.0\n")
+        build_wheels.platform_tag("Wheel-Version: 1.0\n")
 
 
 @pytest.mark.skipif(not os.environ.get("SPIEL_TEST_WHEEL"), reason="set SPIEL_TEST_WHEEL=<wheel>")

@@ -10,12 +10,12 @@ def test_one_kernel_finder_sees_the_fused_and_staged_kernels():
     names = set(warmup.pipeline_kernels())
     kernels = (
         "compiled.front._front_kernel",
-        "stages.memg._memg_kernel",
-        "stages.split._split_kernel",
+        "stages.memg.memg_kernel",
+        "stages.split.split_kernel",
     )
     for kernel in (
         *kernels,
-        "stages.associate._hypothesis_kernel",
+        "stages.associate.hypothesis_kernel",
         "compiled.several_targets._scene_acquisition_kernel",
         "learned.mlp.mlp_scores",
     ):
