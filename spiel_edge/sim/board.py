@@ -93,7 +93,7 @@ class BoardStats:
 
 
 # The request table: every request this board answers, its handler and the lowest protocol
-# version it is answered under (version 2: board_v2.py). The C core's table (firmware/core/
+# version it is answered under (version 2: board_link_services.py). The C core's table (firmware/core/
 # device.c, requests[]) has the same rows: tests/firmware/test_core_scope.py.
 REQUESTS: dict[type, tuple[str, int]] = {
     Hello: ("_hello", 1),
@@ -227,7 +227,7 @@ class VirtualBoard(BoardConfigMixin, BoardLinkServices, AcquireMixin):
                 ErrorCode.UNSUPPORTED, req.MSG_TYPE, "not a request this board handles"
             )
         name, version = entry
-        refused = self._need_v2(req) if version >= 2 else None  # board_v2.py
+        refused = self._need_v2(req) if version >= 2 else None  # board_link_services.py
         return refused if refused is not None else getattr(self, name)(req, now)
 
     # --- session -------------------------------------------------------------------------
