@@ -31,7 +31,8 @@ def blocks() -> list[tuple[str, list[str]]]:
 
 def test_there_are_runnable_blocks():
     names = {name.split("#")[0] for name, _ in blocks()}
-    assert {"pictures.md", "virtual-board.md", "pipeline.md"} <= names
+    assert {"pictures.md", "virtual-board.md", "pipeline.md", "tracking.md", "robot.md"} <= names
+    assert "integrator.md" in names
 
 
 @pytest.mark.parametrize("name, lines", blocks(), ids=[b[0] for b in blocks()])
