@@ -177,7 +177,7 @@ def test_pack_update_confirm_and_roll_back(elf, tmp_path, capsys) -> None:
         h = reboot(b.port)
         assert (h.firmware_version, h.mark) == (FACTORY, MARK.decode())
 
-        assert main(["firmware", "update", "--port", b.port, str(packed)]) == 0
+        assert main(["firmware", "update", "--port", b.port, "--wait", "60", str(packed)]) == 0
         h = hello(b.port)  # the copied application runs: its patched board_name answers
         assert (h.firmware_version, h.mark) == ("mps2-1.1.0", "spiel-c m002")
         h = power_cycle(b)

@@ -259,10 +259,10 @@ def test_update_refusals_and_a_hung_trial_rolled_back_by_the_watchdog(small_imag
     """firmware pack --key + update: the board checks the signature (FW_VERIFY answers BUSY and
     the host asks again: one Ed25519 check is seconds of the emulated M0+), the boot stage
     installs slot 1 into the execution region (flash to flash) and runs it as a trial; the host
-    confirms it, which raises the board's security counter to the image's 2. Then a forged
-    (a body byte changed, its digests recomputed), an unsigned and an older image (counter 1),
-    uploaded past the host's own checks, are refused by FW_VERIFY, and `firmware update` says
-    in one line why. Then an image that hangs (its reset handler is `b .`): it never kicks the
+    confirms it, which raises the board's security counter to the image's 2. Then the forged
+    images of signing_cases (header, counter or body changed with their digests recomputed,
+    wrong key, truncated signature, unsigned), uploaded past the host's own checks, are refused
+    by FW_VERIFY, and an older image (counter 1) by `firmware update` in one line. Then an image that hangs (its reset handler is `b .`): it never kicks the
     watchdog the boot stage armed, the watchdog resets the chip and the boot stage rolls back
     to the confirmed image, with no power cycle."""
     with Rp2040Board(small_image, tmp_path / "emulator.log") as pico:
@@ -295,7 +295,7 @@ def update_and_roll_back(pico: Rp2040Board, app: Path, tmp_path: Path) -> None:
     )
     assert ran.returncode == 0, ran.stderr
     started = time.monotonic()
-    ran = cli("firmware", "update", "--port", pico.port, packed, timeout=300)
+    ran = cli("firmware", "update", "--port", pico.port, "--wait", 60, packed, timeout=300)
     took = time.monotonic() - started
     assert ran.returncode == 0, ran.stderr + ran.stdout
     h, info = hello_when_up(pico.port)
@@ -320,11 +320,10 @@ def update_and_roll_back(pico: Rp2040Board, app: Path, tmp_path: Path) -> None:
 
 
 def refused(pico: Rp2040Board, good: bytes, tmp_path: Path) -> None:
-    """FW_VERIFY of the emulated Pico refuses a forged, an unsigned and an older image (three
-    uploads of the 38 KB image: the emulator's CPU is dear); the board keeps what it runs."""
-    forged = forged_images(good, other_signer(tmp_path))
-    for name in ("tampered body", "unsigned"):
-        image, code = forged[name]
+    """FW_VERIFY of the emulated Pico refuses every forgery the other targets refuse (tampered
+    header, counter or body, wrong key, truncated signature, unsigned) and an older image; the
+    board keeps what it runs."""
+    for name, (image, code) in forged_images(good, other_signer(tmp_path)).items():
         started = time.monotonic()
         assert raw_upload(pico.port, image) == code, name
         print(f"{name}: refused ({code}) in {time.monotonic() - started:.1f} s")
