@@ -46,7 +46,8 @@ let sim = null, cdc = null, boots = 0, outWait = null, timer = null, wallStart =
 // at once with zero bytes, which makes the device take an interrupt every 10 us of emulated time
 // and never sleep.
 function pump() {
-  if (outWait === null || !pending.length) return;
+  // no chip between a watchdog reset and the next boot (host bytes can come in between)
+  if (sim === null || outWait === null || !pending.length) return;
   const data = Uint8Array.from(pending.splice(0, Math.min(outWait, pending.length)));
   outWait = null;
   sim.rp2040.usbCtrl.endpointReadDone(cdc.outEndpoint, data);
@@ -108,6 +109,7 @@ function boot(flash, scratch) {
     watchdog.onWatchdogTrigger = () => {};
     const keep = mcu.flash.slice(0), regs = watchdog.scratchData.slice(0);
     sim = null; // the running loop ends with this instruction
+    outWait = null; // that chip's armed OUT read ends with it
     setImmediate(() => boot(keep, regs));
   };
   cdc = new USBCDC(mcu.usbCtrl);
