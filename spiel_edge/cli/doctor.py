@@ -8,6 +8,7 @@ import shlex
 import click
 
 from spiel_edge.errors import SpielError
+from spiel_edge.safety.shown import escape
 from spiel_edge.service.doctor import CONFIG_DIR, run_checks
 
 
@@ -60,10 +61,10 @@ def command(profile_name, calibration, config_dir, skip_numba, port, as_json) ->
     if as_json:
         click.echo(json.dumps({"ok": ok, "checks": [c.as_dict() for c in checks]}, indent=2))
     else:
-        for c in checks:
-            click.echo(f"[{' ok ' if c.ok else 'FAIL'}] {c.name}: {c.detail}")
+        for c in checks:  # details carry paths, environment values and exception texts
+            click.echo(f"[{' ok ' if c.ok else 'FAIL'}] {c.name}: {escape(c.detail)}")
             if not c.ok and c.fix:
-                click.echo(f"       fix: {c.fix}")
+                click.echo(f"       fix: {escape(c.fix)}")
         click.echo("all good" if ok else f"{sum(not c.ok for c in checks)} problem(s)")
     return 0 if ok else 1
 

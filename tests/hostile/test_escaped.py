@@ -109,3 +109,18 @@ def test_last_rounds_unclear_messages_are_one_clear_line(sim_url, tmp_path, caps
     assert main(["config", "pull", "--port", sim_url("lie=endless-config")]) == 2
     err = capsys.readouterr().err
     assert "config goes on beyond" in err and err.count("\n") == 1, err
+
+
+def test_doctor_shows_what_its_checks_found_escaped(monkeypatch, capsys) -> None:
+    """A check's detail and fix carry paths, environment values and exception texts: a path
+    holding an escape sequence is shown, never sent to the terminal."""
+    from spiel_edge.cli import doctor
+    from spiel_edge.service.host_checks import Check
+
+    hostile = "/srv/\x1b]0;owned\x07cache\x1b[2J"
+    found = [Check("numba cache", False, f"{hostile}: not writable", f"chmod u+w {hostile}")]
+    monkeypatch.setattr(doctor, "run_checks", lambda *a, **k: found)
+    assert main(["doctor", "--skip-numba"]) == 1
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "\x07" not in out
+    assert "\\x1b]0;owned\\x07cache\\x1b[2J: not writable" in out and "fix: chmod u+w /srv/" in out
