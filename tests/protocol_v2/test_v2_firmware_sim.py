@@ -269,3 +269,23 @@ def test_a_silent_image_of_the_same_version_is_reported_rolled_back(sim_url) -> 
         info = firmware_info(dev)
         assert (info.running_slot, info.boot_state) == (result.slot, BootState.CONFIRMED)
         assert info.running_slot == info.confirmed_slot != 1
+
+
+def test_a_self_test_that_does_not_finish_is_reported_as_the_trial_it_is(
+    sim_url, monkeypatch
+) -> None:
+    """Issue 43: the trial runs but its self-test has not finished when the host stops
+    waiting: the update is reported as "trial" (not confirmed, not rolled back, with why), and
+    that is what the board reports afterwards: the new slot, on trial, unconfirmed."""
+    from spiel_edge.sim.board_link_services import BoardLinkServices
+
+    monkeypatch.setattr(BoardLinkServices, "SELFTEST_S", 30.0)  # longer than the host waits
+    url = sim_url()
+    image = signed_image(bytes(300), version="9.1.0", target="sim")
+    result = update_firmware(url, image, boot_wait_s=2)
+    assert (result.outcome, result.version, result.confirmed) == ("trial", "9.1.0", False)
+    assert "self-test did not finish within 2 s" in result.reason
+    with DeviceSession(url, reconnect=False) as dev:
+        info = firmware_info(dev)
+        assert (info.running_slot, info.boot_state) == (result.slot, BootState.TRIAL)
+        assert info.confirmed_slot != result.slot
