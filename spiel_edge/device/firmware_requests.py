@@ -105,6 +105,13 @@ def describe_info(info: FwInfo, hello=None) -> list[str]:
             f"  slot {slot}: {states.get(state, state)}, version {version}, {size} bytes, "
             f"crc32c {crc:08x}"
         )
+    if info.boot_state == BootState.TEST_PENDING:
+        other = 1 - info.running_slot if info.running_slot in (0, 1) else "?"
+        lines.append(
+            f"  FW_TEST was accepted: slot {other}'s image boots once, on trial, at the next "
+            "reset (an update that did not reach its test boot left it): `spiel-edge firmware "
+            "update` with that image finishes it"
+        )
     if info.boot_state == BootState.TRIAL:
         tests = {
             SelfTest.NONE: "no self-test reported",

@@ -289,3 +289,21 @@ def test_a_self_test_that_does_not_finish_is_reported_as_the_trial_it_is(
         info = firmware_info(dev)
         assert (info.running_slot, info.boot_state) == (result.slot, BootState.TRIAL)
         assert info.confirmed_slot != result.slot
+
+
+def test_a_pending_test_boot_is_explained_and_the_next_update_finishes_it(sim_url, capsys) -> None:
+    """Issue 43: a host that died between FW_TEST and the test boot leaves TEST_PENDING:
+    `firmware info` says what it means and what to do; `firmware update` finishes it."""
+    from spiel_edge.device.firmware_requests import upload_image
+    from spiel_edge.protocol.link_messages import FwTest
+
+    url = sim_url()
+    image = signed_image(bytes(300), version="9.2.0", target="sim")
+    with DeviceSession(url, reconnect=False) as dev:
+        upload_image(dev, url, image, crc32c(image), hashlib.sha256(image).digest(), None)
+        dev.request(FwTest(60_000))  # the reset a minute away: the host dies before it
+    assert main(["firmware", "info", "--port", url]) == 0
+    out = capsys.readouterr().out
+    assert "test pending" in out and "slot 1's image boots once, on trial" in out, out
+    result = update_firmware(url, image, boot_wait_s=10)
+    assert (result.outcome, result.version, result.slot) == ("confirmed", "9.2.0", 1)
