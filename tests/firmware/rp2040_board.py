@@ -9,6 +9,7 @@ the emulator keeps a core busy, so no test may leave one running.
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import subprocess
@@ -62,15 +63,20 @@ def build_rp2040(out_dir: Path, extra: tuple[str, ...] = ()) -> Path:
 class Rp2040Board:
     """One emulated Pico running ``image``; ``port`` is its USB CDC port (a pty)."""
 
-    def __init__(self, image: Path, log: Path) -> None:
+    def __init__(self, image: Path, log: Path, env: dict[str, str] | None = None) -> None:
         self.image, self.log = Path(image), Path(log)
+        self.env = env  # added to this process's environment (run.mjs: RP2040_EMU_*)
         self.proc: subprocess.Popen | None = None
         self.port = ""
 
     def start(self, timeout_s: float = 60.0) -> Rp2040Board:
         with open(self.log, "ab") as err:
             self.proc = subprocess.Popen(
-                [str(RUN), str(self.image)], stdout=subprocess.PIPE, stderr=err, text=True
+                [str(RUN), str(self.image)],
+                stdout=subprocess.PIPE,
+                stderr=err,
+                text=True,
+                env=None if self.env is None else {**os.environ, **self.env},
             )
         line = self.proc.stdout.readline().strip()  # the script waits at most 5 s for socat
         if not line.endswith("/tty"):

@@ -13,7 +13,9 @@ arm-none-eabi-gcc, node, socat or rp2040js (.ci/run installs them)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import re
 import struct
 import subprocess
 import sys
@@ -27,7 +29,7 @@ from spiel_edge.board_config import schema as bc
 from spiel_edge.compat import tomllib
 from spiel_edge.device import DeviceSession
 from spiel_edge.device.firmware import firmware_info, update_firmware
-from spiel_edge.errors import DeviceError
+from spiel_edge.errors import DeviceError, SpielError
 from spiel_edge.link.usb_ids import BOARD_USB_IDS
 from spiel_edge.profile.schema import load_profile
 from spiel_edge.protocol import Reboot, encode_message
@@ -272,9 +274,10 @@ def test_update_refusals_and_a_hung_trial_rolled_back_by_the_watchdog(small_imag
     confirms it, which raises the board's security counter to the image's 2. Then the forged
     images of signing_cases (header, counter or body changed with their digests recomputed,
     wrong key, truncated signature, unsigned), uploaded past the host's own checks, are refused
-    by FW_VERIFY, and an older image (counter 1) by `firmware update` in one line. Then an image that hangs (its reset handler is `b .`): it never kicks the
-    watchdog the boot stage armed, the watchdog resets the chip and the boot stage rolls back
-    to the confirmed image, with no power cycle."""
+    by FW_VERIFY, and an older image (counter 1) by `firmware update` in one line. Then an
+    image that hangs (its reset handler is `b .`): it never kicks the watchdog the boot stage
+    armed, the watchdog resets the chip and the boot stage rolls back to the confirmed image,
+    with no power cycle."""
     with Rp2040Board(small_image, tmp_path / "emulator.log") as pico:
         update_and_roll_back(pico.start(), small_image.with_name("app-emu.bin"), tmp_path)
 
@@ -352,3 +355,85 @@ def refused(pico: Rp2040Board, good: bytes, tmp_path: Path) -> None:
         1,
         BootState.CONFIRMED,
     )
+
+
+# The flash operations of one update of the small image, as run.mjs counts them (stores to one
+# 256-byte page; a sector erase is 16): the upload into slot 1, the boot record's FW_TEST write,
+# the boot stage's flash-to-flash install into the execution region, and the record written as
+# the trial is confirmed (the security counter with it). Counted by the sweep's first run.
+CUT_REGIONS = {  # name -> (first, end) flash offsets (rp2040_board.h)
+    "upload": (0x110000, 0x190000),
+    "record": (0x190000, 0x1F0000),
+    "install": (0x010000, 0x090000),
+}
+
+
+def _flash_ops(log: str) -> list[tuple[int, str]]:
+    """(operation number, region name) of every flash operation an emulator log reports."""
+    out = []
+    for n, at in re.findall(r"flash op (\d+) at 0x([0-9a-f]+)", log):
+        where = int(at, 16)
+        name = next((k for k, (a, b) in CUT_REGIONS.items() if a <= where < b), "other")
+        out.append((int(n), name))
+    return out
+
+
+def _cut_points(ops: list[tuple[int, str]], sweep: int) -> list[int]:
+    """Default: the middle of the install and the first operation of the confirm's record
+    write (the security counter's); SPIEL_RP2040_CUT_SWEEP=N: every record operation and every
+    Nth of the others (1: every operation)."""
+    runs: list[list[tuple[int, str]]] = []
+    for op in ops:
+        if runs and runs[-1][-1][1] == op[1]:
+            runs[-1].append(op)
+        else:
+            runs.append([op])
+    names = [r[0][1] for r in runs]
+    assert names == ["upload", "record", "install", "record"], names
+    if sweep:
+        return [n for n, name in ops if name == "record" or n % sweep == 0]
+    install, confirm = runs[2], runs[3]
+    return [install[len(install) // 2][0], confirm[0][0]]
+
+
+def test_a_power_cut_during_an_update_boots_a_complete_image(small_image, tmp_path):
+    """The RP2040 boot decision under power cuts (issue 37 item 3; issue 38's counter): the
+    emulator loses power at a chosen flash operation of `firmware update` (run.mjs
+    RP2040_EMU_CUT_AT, the store lost, the watchdog's scratch registers cleared). The board
+    must come back running a complete image, the old or the new one, the same update must
+    then succeed, confirmed, and its counter hold: an older image is refused."""
+    import os
+
+    app = small_image.with_name("app-emu.bin").read_bytes()
+    image = signed_image(app, version="rp2040-1.1.0", target="rp2040", security_counter=2)
+    older = signed_image(app, version="rp2040-1.0.9", target="rp2040", security_counter=1)
+    counted = tmp_path / "count.log"
+    with Rp2040Board(small_image, counted, env={"RP2040_EMU_FLASH_OPS": "1"}) as pico:
+        assert update_firmware(pico.start().port, image, boot_wait_s=60).confirmed
+    ops = _flash_ops(counted.read_text())
+    cuts = _cut_points(ops, int(os.environ.get("SPIEL_RP2040_CUT_SWEEP", "0")))
+    outcomes = []
+    for cut in cuts:
+        log = tmp_path / f"cut{cut}.log"
+        with Rp2040Board(small_image, log, env={"RP2040_EMU_CUT_AT": str(cut)}) as pico:
+            pico.start()
+            with contextlib.suppress(SpielError):  # the cut ends it; a later one finishes it
+                update_firmware(pico.port, image, boot_wait_s=60)
+            pico.wait_message(f"power cut at flash op {cut}")
+            booted = pico.messages().count("USB configured")
+            pico.wait_message("USB configured", count=max(booted, 2), timeout_s=60)
+            h, info = hello_when_up(pico.port, timeout_s=60)
+            assert h.serial == "RP2040-EMU-0001", cut
+            assert h.firmware_version in ("1.0.0+rp2040", "rp2040-1.1.0"), (cut, h)
+            on_new = h.firmware_version == "rp2040-1.1.0"
+            if on_new and info.boot_state == BootState.CONFIRMED:  # then its counter too
+                assert raw_upload(pico.port, older) == "FW_ROLLBACK", cut
+            outcomes.append((dict(ops)[cut], on_new))
+            done = update_firmware(pico.port, image, boot_wait_s=60)
+            assert done.confirmed and done.version == "rp2040-1.1.0", (cut, done)
+            h, info = hello_when_up(pico.port, timeout_s=60)
+            assert (h.firmware_version, info.confirmed_slot) == ("rp2040-1.1.0", info.running_slot)
+            assert raw_upload(pico.port, older) == "FW_ROLLBACK", cut
+    for name in CUT_REGIONS:  # the figure of docs/measurements.md (-s shows it)
+        new = [on_new for where, on_new in outcomes if where == name]
+        print(f"cuts in the {name}: {len(new)}, {sum(new)} came back on the new image")

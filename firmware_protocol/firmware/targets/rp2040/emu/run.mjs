@@ -9,6 +9,10 @@
 // A watchdog reset (REBOOT, a trial that stops kicking) starts a new chip with the same flash
 // and watchdog scratch registers, as a real watchdog reset keeps them. Exits when stdin closes
 // or its parent goes; diagnostics go to stderr only (RP2040_EMU_TRACE=1: every transfer too).
+// Power cuts for the tests: RP2040_EMU_CUT_AT=N cuts the power at the first store of the Nth
+// flash operation since start (an operation: stores to one 256-byte page; an erase spans 16),
+// that store lost; a new chip starts with the flash as it was and the watchdog scratch
+// registers cleared, as after a power cycle. RP2040_EMU_FLASH_OPS=1 reports every operation.
 import { readFileSync } from 'node:fs';
 import { Simulator, USBCDC } from 'rp2040js';
 
@@ -36,6 +40,37 @@ function loadImage(flash) {
   } else {
     flash.set(data, 0);
   }
+}
+
+const cutAt = Number(process.env.RP2040_EMU_CUT_AT || 0);
+const reportOps = Boolean(process.env.RP2040_EMU_FLASH_OPS);
+let flashOps = 0, lastPage = -1;
+
+// Count the flash operations of a chip's stores (the emulator build erases and programs flash
+// by storing into the XIP window, flash_rp2040.c) and cut the power at the chosen one.
+function watchFlash(mcu) {
+  if (!cutAt && !reportOps) return;
+  const store = mcu.writeUint32.bind(mcu); // writeUint8/16 store through it too
+  mcu.writeUint32 = (address, value) => {
+    if (address >= 0x10000000 && address < 0x10000000 + mcu.flash.length && sim?.rp2040 === mcu) {
+      const page = (address - 0x10000000) >>> 8;
+      if (page !== lastPage) {
+        lastPage = page;
+        flashOps++;
+        if (reportOps) process.stderr.write(`rp2040js: flash op ${flashOps} at 0x${(page << 8).toString(16)}\n`);
+        if (flashOps === cutAt) {
+          process.stderr.write(`rp2040js: power cut at flash op ${flashOps}\n`);
+          const keep = mcu.flash.slice(0);
+          sim = null; // the running loop ends with this instruction, its store lost
+          outWait = null;
+          lastPage = -1;
+          setImmediate(() => boot(keep, null));
+          return;
+        }
+      }
+    }
+    store(address, value);
+  };
 }
 
 const pending = []; // host -> device bytes the device has not read yet
@@ -99,6 +134,7 @@ function boot(flash, scratch) {
   mcu.logger = quiet;
   mcu.loadBootrom(bootrom); // (this erases the flash array: fill it afterwards)
   if (flash) mcu.flash.set(flash); else loadImage(mcu.flash);
+  watchFlash(mcu);
   const watchdog = mcu.peripherals[0x40058];
   if (scratch) watchdog.scratchData.set(scratch);
   watchdog.onWatchdogTrigger = () => {
