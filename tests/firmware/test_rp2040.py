@@ -5,7 +5,9 @@ for the same recordings, config push/commit/pull kept across a REBOOT through th
 firmware update through the boot stage (flash to flash install) and a hung trial image rolled
 back by the watchdog the boot stage armed, with no power cycle; signed images (PROTOCOL.md
 14.6): the boot stage and FW_VERIFY take only images signed by the development key (the build's
-FW_KEY), a forged, an unsigned and an older (lower security counter) image are refused.
+FW_KEY), every forgery, an unsigned and an older (lower security counter) image are refused;
+power cuts during an update (the emulator's flash kept, the chip restarted) boot a complete
+image.
 
 Few and short on purpose: the emulator keeps a core busy while it runs, so each test starts
 one and stops it the moment it ends. Skipped, naming what is missing, without make,
