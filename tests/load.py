@@ -20,6 +20,12 @@ import numpy as np
 
 TICK_S = 0.002
 MOST_LATE = 0.05  # more of the wake-ups later than the margin: timing asserts are skipped
+# more runnable processes per core than this: timing asserts are skipped too. Virtual boards
+# are threads of the test's process, which wait for one another's GIL as well as for a core:
+# the suite passed its timing asserts at load <= 5.5 on 2 cores (six runs beside busy
+# processes, 2026-12-04), but at 6.7 a host-started board's marks were 45 where the sampler's
+# 3 % of late wake-ups explained 22.
+MOST_LOAD_PER_CORE = 3.0
 
 
 _PROBE = f"""
@@ -74,7 +80,7 @@ class HostTiming:
         times ``events``, rounded up); when more than ``most`` of the wake-ups were late the
         timing asserts would mean nothing: the test is skipped, saying why."""
         share = self.late_share(margin_s)
-        if share > most:
+        if share > most or _load_per_core() > MOST_LOAD_PER_CORE:
             import pytest
 
             pytest.skip(f"timing asserts need a host that keeps time: {self.why(margin_s)}")
@@ -86,6 +92,14 @@ class HostTiming:
     def why(self, margin_s: float) -> str:
         load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
         return (
-            f"load {load:.1f}: {self.late_share(margin_s):.1%} of {len(self.late_s)} wake-ups "
+            f"load {load:.1f} on {os.cpu_count()} cores: {self.late_share(margin_s):.1%} of "
+            f"{len(self.late_s)} wake-ups "
             f"later than {margin_s * 1e3:g} ms (p99 {self.p99_ms():.1f} ms)"
         )
+
+
+def _load_per_core() -> float:
+    """The 1-minute load average per core; 0 where the system does not say."""
+    if not hasattr(os, "getloadavg"):
+        return 0.0
+    return os.getloadavg()[0] / (os.cpu_count() or 1)
