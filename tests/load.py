@@ -90,16 +90,18 @@ class HostTiming:
         return float(np.percentile(np.array(self.late_s or [0.0]), 99)) * 1e3
 
     def why(self, margin_s: float) -> str:
-        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
         return (
-            f"load {load:.1f} on {os.cpu_count()} cores: {self.late_share(margin_s):.1%} of "
+            f"load {_load():.1f} on {os.cpu_count()} cores: {self.late_share(margin_s):.1%} of "
             f"{len(self.late_s)} wake-ups "
             f"later than {margin_s * 1e3:g} ms (p99 {self.p99_ms():.1f} ms)"
         )
 
 
+def _load() -> float:
+    """The 1-minute load average; NaN where the system does not say."""
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+
+
 def _load_per_core() -> float:
-    """The 1-minute load average per core; 0 where the system does not say."""
-    if not hasattr(os, "getloadavg"):
-        return 0.0
-    return os.getloadavg()[0] / (os.cpu_count() or 1)
+    """:func:`_load` per core (NaN compares false: no skip where it is unknown)."""
+    return _load() / (os.cpu_count() or 1)

@@ -16,7 +16,9 @@ arm-none-eabi-gcc, node, socat or rp2040js (.ci/run installs them)."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
+import os
 import re
 import struct
 import subprocess
@@ -384,12 +386,7 @@ def _cut_points(ops: list[tuple[int, str]], sweep: int) -> list[int]:
     """Default: the middle of the install and the first operation of the confirm's record
     write (the security counter's); SPIEL_RP2040_CUT_SWEEP=N: every record operation and every
     Nth of the others (1: every operation)."""
-    runs: list[list[tuple[int, str]]] = []
-    for op in ops:
-        if runs and runs[-1][-1][1] == op[1]:
-            runs[-1].append(op)
-        else:
-            runs.append([op])
+    runs = [list(run) for _, run in itertools.groupby(ops, key=lambda op: op[1])]
     names = [r[0][1] for r in runs]
     assert names == ["upload", "record", "install", "record"], names
     if sweep:
@@ -404,8 +401,6 @@ def test_a_power_cut_during_an_update_boots_a_complete_image(small_image, tmp_pa
     RP2040_EMU_CUT_AT, the store lost, the watchdog's scratch registers cleared). The board
     must come back running a complete image, the old or the new one, the same update must
     then succeed, confirmed, and its counter hold: an older image is refused."""
-    import os
-
     app = small_image.with_name("app-emu.bin").read_bytes()
     image = signed_image(app, version="rp2040-1.1.0", target="rp2040", security_counter=2)
     older = signed_image(app, version="rp2040-1.0.9", target="rp2040", security_counter=1)
@@ -413,6 +408,7 @@ def test_a_power_cut_during_an_update_boots_a_complete_image(small_image, tmp_pa
     with Rp2040Board(small_image, counted, env={"RP2040_EMU_FLASH_OPS": "1"}) as pico:
         assert update_firmware(pico.start().port, image, boot_wait_s=60).confirmed
     ops = _flash_ops(counted.read_text())
+    region = dict(ops)
     cuts = _cut_points(ops, int(os.environ.get("SPIEL_RP2040_CUT_SWEEP", "0")))
     outcomes = []
     for cut in cuts:
@@ -430,7 +426,7 @@ def test_a_power_cut_during_an_update_boots_a_complete_image(small_image, tmp_pa
             on_new = h.firmware_version == "rp2040-1.1.0"
             if on_new and info.boot_state == BootState.CONFIRMED:  # then its counter too
                 assert raw_upload(pico.port, older) == "FW_ROLLBACK", cut
-            outcomes.append((dict(ops)[cut], on_new))
+            outcomes.append((region[cut], on_new))
             done = update_firmware(pico.port, image, boot_wait_s=60)
             assert done.confirmed and done.version == "rp2040-1.1.0", (cut, done)
             h, info = hello_when_up(pico.port, timeout_s=60)

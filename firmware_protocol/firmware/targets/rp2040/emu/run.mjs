@@ -60,11 +60,8 @@ function watchFlash(mcu) {
         if (reportOps) process.stderr.write(`rp2040js: flash op ${flashOps} at 0x${(page << 8).toString(16)}\n`);
         if (flashOps === cutAt) {
           process.stderr.write(`rp2040js: power cut at flash op ${flashOps}\n`);
-          const keep = mcu.flash.slice(0);
-          sim = null; // the running loop ends with this instruction, its store lost
-          outWait = null;
           lastPage = -1;
-          setImmediate(() => boot(keep, null));
+          restart(mcu.flash.slice(0), null); // this store lost
           return;
         }
       }
@@ -128,6 +125,14 @@ function wake() {
   timer = setImmediate(() => run(sim));
 }
 
+// A new chip with this flash (and these watchdog scratch registers, or cleared): the running
+// loop ends with the current instruction, and that chip's armed OUT read with it.
+function restart(flash, scratch) {
+  sim = null;
+  outWait = null;
+  setImmediate(() => boot(flash, scratch));
+}
+
 function boot(flash, scratch) {
   sim = new Simulator();
   const mcu = sim.rp2040;
@@ -143,10 +148,7 @@ function boot(flash, scratch) {
     watchdog.alarm.enable = false;
     watchdog.timer.enable = false;
     watchdog.onWatchdogTrigger = () => {};
-    const keep = mcu.flash.slice(0), regs = watchdog.scratchData.slice(0);
-    sim = null; // the running loop ends with this instruction
-    outWait = null; // that chip's armed OUT read ends with it
-    setImmediate(() => boot(keep, regs));
+    restart(mcu.flash.slice(0), watchdog.scratchData.slice(0));
   };
   cdc = new USBCDC(mcu.usbCtrl);
   cdc.onSerialData = (buf) => {
