@@ -1,10 +1,13 @@
 """One board of ``run --robot`` in its own thread (robot/serve.py runs them): its link and
 session, its pipeline and its clock estimate, so a board that is unplugged, slow or gone
 stalls nobody else: its session waits for it to come back (docs/integrator.md) while the
-others stream. The thread keeps its board's stream in the board's trigger slot
-(robot/schedule.py): it maps the board's stamps to the host's clock (robot/clock.py), and when
-its pulses stray more than the sync margin from the slot, it restarts the stream at the slot's
-next start. Its reports go to the runner's queue."""
+others stream. The board is prepared and opened as `run` opens one (runtime/live.py's
+LiveRun: the profile resolved, the ToA correction chosen and the pipeline built once) and
+its acquisitions come through `run`'s live loop (LiveRunner), whose step here reports the
+targets to the fusion instead of writing a record. The thread keeps its board's stream in
+the board's trigger slot (robot/schedule.py): it maps the board's stamps to the host's clock
+(robot/clock.py), and when its pulses stray more than the sync margin from the slot, it
+restarts the stream at the slot's next start. Its reports go to the runner's queue."""
 
 from __future__ import annotations
 
@@ -16,9 +19,6 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-import numpy as np
-
-from spiel_edge.device import DeviceSession
 from spiel_edge.errors import DeviceError, SpielError
 from spiel_edge.robot.clock import (
     Disagreement,
@@ -32,6 +32,7 @@ from spiel_edge.robot.fusion import BoardReport, reports_targets
 from spiel_edge.robot.schedule import Schedule
 from spiel_edge.robot.slot_keeper import SlotPhase, StartAtTrust
 from spiel_edge.robot.slot_session import start_in_time
+from spiel_edge.runtime.live import LiveConfig, LiveRun
 
 log = logging.getLogger(__name__)
 
@@ -68,11 +69,26 @@ class BoardWorker(threading.Thread):
         self.phase = SlotPhase(schedule, board.name, t0)  # its pulses against its slot
         self.out = out
         self.stop = stop
-        self.association = association
-        self.max_targets = max_targets
-        self.toa_correction = toa_correction
         self.open_timeout_s = open_timeout_s
-        self.session = DeviceSession(board.port, reconnect_timeout_s=reconnect_timeout)
+        # prepared as `run` prepares a board: files, profile, ToA correction, pipeline (the
+        # kernels are ready: run --robot compiled every board's before this)
+        self.live = LiveRun(
+            LiveConfig(
+                port=board.port,
+                profile=board.profile,
+                calibration=board.calibration,
+                use_board=board.calibration is None,
+                association=association,
+                max_targets=max_targets,
+                toa_correction=toa_correction,
+                reconnect_timeout=reconnect_timeout,
+                track=False,  # the fusion tracks
+                output=None,
+                tiered=False,
+            )
+        )
+        self.live.prepare()
+        self.session = self.live.session
         self.clock = StampClock()
         self.stats = WorkerStats()
         self.pipeline = None
@@ -123,20 +139,9 @@ class BoardWorker(threading.Thread):
         self.out.put(("drop", self.board.name, why))
 
     def _open(self) -> None:
-        from spiel_edge.runtime.loop import open_pipeline
-
-        b = self.board
-        pipeline, _ = open_pipeline(
-            self.session,
-            b.profile,
-            b.calibration,
-            self.association,
-            use_board=b.calibration is None,
-            toa_correction=self.toa_correction,
-            max_targets=self.max_targets,
-            chosen=True,  # robot/serve.py chose it, once per board
-        )
-        self.pipeline = pipeline
+        self.live.open()
+        self.pipeline = self.live.pipeline
+        self.live.runner.step = self._step  # `run`'s loop; each acquisition reported here
 
     def _start_in_slot(self) -> None:
         """(Re)start the stream at the slot's next start (from the board's own thread)."""
@@ -172,44 +177,47 @@ class BoardWorker(threading.Thread):
         self.phase.started(self.synced, host_timed)
 
     def _loop(self) -> None:
-        window = self.schedule.window_s
-        for acq in self.session.acquisitions(self.stop):
-            arrival = acq.received_ns / 1e9
-            stamp = acq.timestamp_us / 1e6
-            late = self.clock.observe(stamp, arrival)
-            if self.clock.ready and self._disagree.observe(late, arrival):
-                raise DeviceError(
-                    f"its clock disagrees with the host's by {late:+.1f} s "
-                    f"(stamps not in microseconds, or a clock that jumps)"
-                )
-            pulse = self._measured_pulse(acq)  # protocol 2: TIME_SYNC's, when it is tight
-            if (pulse is not None) != self.synced:  # another time axis: learn the bias afresh
-                self.synced = pulse is not None
-                self.phase.started(self.synced, self._host_timed)
-            if pulse is None:  # protocol 1: the one-way estimate from the stamps' arrivals
-                pulse = self.clock.to_host(stamp) - window
-            timed = self._timed
-            if self.session.stream is not timed or timed is None:
-                # the session restarted the stream itself (the board came back): not in a
-                # slot; reported as measured, and put back in its slot at once
-                off_slot, t = self.clock.ready, pulse
-            elif (acq.index - timed.first_acquisition) & 0xFFFFFFFF >= 1 << 31:
-                off_slot, t = False, pulse  # left over from before the last start
-            else:
-                missed = (
-                    self._named is not None
-                    and self.synced
-                    and self._missed_named_start(acq.index - timed.first_acquisition, pulse)
-                )
-                t, off_slot = self.phase.observe(pulse)
-                off_slot = off_slot or missed
-            report = self._report(acq, t, arrival)
-            self.stats.acquisitions += 1
-            self.out.put(("report", self.board.name, report))
-            if off_slot:
-                self.stats.restarts += 1
-                log.info("board %s left its slot; restarting it in the slot", self.board.name)
-                self._start_in_slot()
+        self.live.run(self.stop)  # `run`'s live loop, with _step for each acquisition
+
+    def _step(self, acq) -> None:
+        """One acquisition: its pulse on the host's clock, its targets reported, and the
+        stream put back in its slot when it left it."""
+        arrival = acq.received_ns / 1e9
+        stamp = acq.timestamp_us / 1e6
+        late = self.clock.observe(stamp, arrival)
+        if self.clock.ready and self._disagree.observe(late, arrival):
+            raise DeviceError(
+                f"its clock disagrees with the host's by {late:+.1f} s "
+                f"(stamps not in microseconds, or a clock that jumps)"
+            )
+        pulse = self._measured_pulse(acq)  # protocol 2: TIME_SYNC's, when it is tight
+        if (pulse is not None) != self.synced:  # another time axis: learn the bias afresh
+            self.synced = pulse is not None
+            self.phase.started(self.synced, self._host_timed)
+        if pulse is None:  # protocol 1: the one-way estimate from the stamps' arrivals
+            pulse = self.clock.to_host(stamp) - self.schedule.window_s
+        timed = self._timed
+        if self.session.stream is not timed or timed is None:
+            # the session restarted the stream itself (the board came back): not in a slot;
+            # reported as measured, and put back in its slot at once
+            off_slot, t = self.clock.ready, pulse
+        elif (acq.index - timed.first_acquisition) & 0xFFFFFFFF >= 1 << 31:
+            off_slot, t = False, pulse  # left over from before the last start
+        else:
+            missed = (
+                self._named is not None
+                and self.synced
+                and self._missed_named_start(acq.index - timed.first_acquisition, pulse)
+            )
+            t, off_slot = self.phase.observe(pulse)
+            off_slot = off_slot or missed
+        report = self._report(acq, t, arrival)
+        self.stats.acquisitions += 1
+        self.out.put(("report", self.board.name, report))
+        if off_slot:
+            self.stats.restarts += 1
+            log.info("board %s left its slot; restarting it in the slot", self.board.name)
+            self._start_in_slot()
 
     def _missed_named_start(self, k: int, pulse: float) -> bool:
         """The first pulse (the ``k``-th of the stream) after a start named in the board's
@@ -227,17 +235,11 @@ class BoardWorker(threading.Thread):
         return True
 
     def _report(self, acq, pulse: float, arrival: float) -> BoardReport:
-        error = None
-        result = None
-        try:
-            background = None if acq.background is None else acq.background.astype(np.float64)
-            result = self.pipeline.process(acq.samples.astype(np.float64), background)
-        except SpielError as exc:
-            self.stats.errors += 1
-            error = str(exc)
+        result, error = self.live.runner.process(acq)  # as `run` processes it
+        self.stats.errors += error is not None
         truth = acq.truth_targets_mm
         if truth is not None:
-            truth = self.board.mount.to_base(np.asarray(truth, float))
+            truth = self.board.mount.to_base(truth.astype(float))
         return BoardReport(
             self.board.name,
             pulse,

@@ -63,8 +63,7 @@ class RobotRunner:
         self.stop = threading.Event()
         self.queue: queue.Queue = queue.Queue(maxsize=1024)
         self.t0 = 0.0  # slots count from here: set once every board is open
-        from spiel_edge.runtime.loop import live_toa_correction  # chosen once per board
-
+        # each board prepared as `run` prepares one (its ToA correction chosen there)
         self.workers = [
             BoardWorker(
                 b,
@@ -74,7 +73,7 @@ class RobotRunner:
                 self.stop,
                 association=association,
                 max_targets=max_targets,
-                toa_correction=live_toa_correction(b.port, toa_correction),
+                toa_correction=toa_correction,
                 reconnect_timeout=reconnect_timeout,
             )
             for b in robot.boards

@@ -27,20 +27,28 @@ log = logging.getLogger(__name__)
 RUN_STEPS = ("stream", "fused-geometric", "fused-learned", "tracker")  # what `run` compiles
 
 
-def exercise_run(profile, association, max_targets, track: bool, toa_correction=None) -> None:
+def exercise_run(
+    profile, association, max_targets, track: bool, toa_correction=None, pipeline=None
+) -> None:
     """What ``run`` compiles before its first record: the stream decoder, the pipeline on a
     closed-form acquisition of the profile's shape (one target and ``max_targets``) and the
-    tracker on the results."""
+    tracker on the results. ``pipeline``: the run's own, built for ``profile`` (runtime/
+    live.py builds it once): exercised here and left with the targets it was set to."""
     from spiel_edge.pipeline.factory import build_pipeline
     from spiel_edge.runtime.track_records import ResultTracker
 
     step_stream()
-    pipeline = build_pipeline(profile, association, toa_correction)
+    if pipeline is None:
+        pipeline = build_pipeline(profile, association, toa_correction)
     frames, background = closed_form_acquisition(profile)
     results = []
-    for k in sorted({1, max_targets or 1}):
-        pipeline.set_max_targets(k)
-        results += [pipeline.process(frames, background), pipeline.process(frames, None)]
+    kept = pipeline.max_targets
+    try:
+        for k in sorted({1, max_targets or 1}):
+            pipeline.set_max_targets(k)
+            results += [pipeline.process(frames, background), pipeline.process(frames, None)]
+    finally:
+        pipeline.set_max_targets(kept)
     if track:
         tracker = ResultTracker(profile.track)
         for i, result in enumerate(results):
@@ -55,6 +63,7 @@ def prepare_for_run(
     toa_correction=None,
     stream=None,
     notifier=None,
+    pipeline=None,
 ) -> dict:
     """Before ``run`` opens a board: load every kernel it needs from the cache, or, when one
     is missing, say so at once (what, why, about how long) and compile them with progress on
@@ -66,7 +75,7 @@ def prepare_for_run(
     t0 = time.perf_counter()
     try:
         with _kernel_cache.no_compile():
-            exercise_run(profile, association, max_targets, track, toa_correction)
+            exercise_run(profile, association, max_targets, track, toa_correction, pipeline)
         return {"compiled": False, "seconds": round(time.perf_counter() - t0, 3)}
     except _kernel_cache.CompileNeeded as exc:
         if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
@@ -92,7 +101,7 @@ def prepare_for_run(
             run_child(step, progress)
     _kernel_cache.listeners.append(progress)  # what the profile needs beyond the steps: here
     try:
-        exercise_run(profile, association, max_targets, track, toa_correction)
+        exercise_run(profile, association, max_targets, track, toa_correction, pipeline)
     except SpielError as exc:
         log.debug("kernel preparation: %s", exc)
     finally:

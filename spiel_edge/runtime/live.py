@@ -3,9 +3,11 @@ for a library user.
 
 A :class:`LiveConfig` says what to run (the port, the profile and calibration, the outputs,
 the limits, tracking); :class:`LiveRun` does it in four steps, each once: ``prepare`` (every
-file checked, the profile resolved, the ToA correction chosen, the kernels' tier started:
-before the board is touched), ``open`` (the board, its pipeline built and sized once, the
-outputs, the stream started, in its trigger slot with ``slot``), ``run`` and ``close``.
+file checked, the profile resolved, the ToA correction chosen, the pipeline built and sized,
+the kernels' tier started on it: before the board is touched), ``open`` (the board; a second
+pipeline only when the board's stored config changes the profile; the outputs), ``start``
+(the stream, in its trigger slot with ``slot``), ``run`` and ``close``. A board of
+``run --robot`` is opened the same way (robot/board_worker.py), with its own loop step.
 :func:`run` is the whole of it::
 
     from spiel_edge.runtime.live import LiveConfig, run
@@ -31,6 +33,7 @@ from spiel_edge.errors import ConfigError, DeviceError
 from spiel_edge.outputs import Sink, check_outputs, open_outputs
 from spiel_edge.outputs.fanout import check_output_key
 from spiel_edge.outputs.ros2_options import ros2_output_options
+from spiel_edge.pipeline.factory import build_pipeline
 from spiel_edge.profile.schema import apply_calibration, load_profile
 from spiel_edge.protocol import SampleFormat
 from spiel_edge.runtime.loop import (
@@ -40,6 +43,7 @@ from spiel_edge.runtime.loop import (
     live_toa_correction,
     load_background,
     open_pipeline,
+    warm_up,
 )
 from spiel_edge.runtime.realtime import apply_realtime
 from spiel_edge.runtime.recorded import chosen_toa_correction
@@ -75,6 +79,9 @@ class LiveConfig:
     foxglove: str | None = None
     zenoh: str | None = None
     force: bool = False  # outputs may replace files
+    # False: the caller has every kernel ready, nothing is tiered (run --robot compiles every
+    # board's before any board opens: robot/live.py)
+    tiered: bool = True
     # the outputs' ROS 2 and Zenoh options by their `run` names (record_profile, frame_id,
     # zenoh_encoding, ...: outputs/ros2_options.py); a key left out is the option's default
     ros2: Mapping[str, Any] = field(default_factory=dict)
@@ -107,6 +114,7 @@ class LiveRun:
         self.runner: LiveRunner | None = None
         self.slotted = None
         self._background = None
+        self._prepared = None  # the pipeline built for ``profile`` before the board opens
         self._record = config.record
         self._base = None
         self._output_options: dict = {}
@@ -140,14 +148,21 @@ class LiveRun:
 
             self.port = default_port()  # DeviceError naming the choices
         self.toa_correction = live_toa_correction(self.port, c.toa_correction)
-        self.tiers = start_tiered(
-            self.profile,
-            c.association,
-            c.max_targets,
-            c.track,
-            self.toa_correction,
-            notifier=self.notifier,
-        )
+        self._prepared = build_pipeline(self.profile, c.association, self.toa_correction)
+        if c.max_targets:
+            self._prepared.set_max_targets(c.max_targets)
+        if c.tiered:  # the kernels exercised on this pipeline: it is the run's (built once)
+            self.tiers = start_tiered(
+                self.profile,
+                c.association,
+                c.max_targets,
+                c.track,
+                self.toa_correction,
+                notifier=self.notifier,
+                pipeline=self._prepared,
+            )
+        else:
+            warm_up(self._prepared)
         apply_realtime(c.realtime)  # compiled: the link's and the outputs' threads inherit it
         self.session = DeviceSession(self.port, reconnect_timeout_s=c.reconnect_timeout)
 
@@ -165,6 +180,7 @@ class LiveRun:
             max_targets=c.max_targets,
             chosen=True,
             resolved=(self._base, self.profile),
+            prepared=self._prepared,
         )
         profile = self.pipeline.profile
         self.sink = self._open_sink(profile, source)

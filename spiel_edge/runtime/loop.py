@@ -120,19 +120,24 @@ def open_pipeline(
     max_targets: int | None = None,
     chosen: bool = False,
     resolved=None,
+    prepared: Pipeline | None = None,
 ) -> tuple[Pipeline, str]:
     """Open ``session``, choose the profile (``calibration`` > the board's stored config, unless
     ``use_board`` is false > ``profile_name``), build the pipeline (up to ``max_targets``
     targets) and warm it up. Returns the pipeline and where its geometry came from; closing
     the session is the caller's. ``toa_correction``: as :func:`live_toa_correction` chooses,
     or as given when the caller chose it already (``chosen``); ``resolved``: the profile and
-    the calibrated one when the caller loaded them (board_config/flash.run_profile)."""
+    the calibrated one when the caller loaded them (board_config/profile_choice.run_profile);
+    ``prepared``: the pipeline the caller built (and warmed up) for the second of them, used
+    unless the board's stored config changes the profile."""
     if not chosen:
         toa_correction = live_toa_correction(session.url, toa_correction)
     session.open()
     profile, source = run_profile(
         session, profile_name, calibration, use_board=use_board, resolved=resolved
     )
+    if prepared is not None and resolved is not None and profile is resolved[1]:
+        return prepared, source  # the board left the profile as it was: built once
     pipeline = build_pipeline(profile, association, toa_correction)
     if max_targets:
         pipeline.set_max_targets(max_targets)
@@ -216,6 +221,9 @@ class LiveRunner:
         self.tracker = tracker  # records gain ``tracks`` (runtime/track_records.py)
         self.on_record: Callable[[], None] | None = None  # e.g. the systemd watchdog ping
         self.on_acquisition: Callable[[LiveAcquisition], None] | None = None  # run --slot
+        # what is done with each acquisition (None: its record written, ``handle``); a board
+        # of ``run --robot`` reports its targets to the fusion instead (robot/board_worker.py)
+        self.step: Callable[[LiveAcquisition], object] | None = None
         self.stats = LiveStats()
         self.tiers = None  # a runtime.tiered.TieredStart: interpreted kernels until compiled
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
@@ -237,8 +245,9 @@ class LiveRunner:
         if holding:
             self.sink.batch()  # NDJSON flushed once the acquisitions read so far are all handled
         waiting = getattr(getattr(self.session, "tracker", None), "ready", ())
+        step = self.step or self.handle
         for acq in self.session.acquisitions(stop):
-            self.handle(acq)
+            step(acq)
             if self.tiers is not None and self.tiers.is_interpreted:
                 self._between_tiers()
             if self.on_acquisition is not None:
@@ -302,16 +311,9 @@ class LiveRunner:
             **_stamp_fields(acq),
         }
         stats.records += 1
-        try:
-            # an I/Q profile's ranging pipeline takes the pairs themselves (their phase times
-            # the echo: pipeline/ranging.py); every other pipeline the envelope
-            takes_iq = acq.iq is not None and getattr(self.pipeline, "takes_iq", False)
-            frames = acq.iq if takes_iq else acq.samples
-            result = self.pipeline.process(frames.astype(np.float64), self._background_for(acq))
-        except SpielError as exc:
-            stats.errors += 1
-            self.problems.log(str(exc), f"first at acquisition {acq.index}")
-            record = {**head, **error_record(str(exc))}
+        result, error = self.process(acq)
+        if result is None:
+            record = {**head, **error_record(error)}
             tracks = self._track(None, acq)
         else:
             stats.fixes += result.position_mm is not None
@@ -327,6 +329,20 @@ class LiveRunner:
         if self.tiers is not None and self.tiers.is_interpreted:
             record["tier"] = "interpreted"  # the same values; compiled records carry no tier
         return record
+
+    def process(self, acq: LiveAcquisition):
+        """The pipeline's result for one acquisition, and None; or None and why the pipeline
+        rejected it (counted, logged once per kind of problem)."""
+        try:
+            # an I/Q profile's ranging pipeline takes the pairs themselves (their phase times
+            # the echo: pipeline/ranging.py); every other pipeline the envelope
+            takes_iq = acq.iq is not None and getattr(self.pipeline, "takes_iq", False)
+            frames = acq.iq if takes_iq else acq.samples
+            return self.pipeline.process(frames.astype(np.float64), self._background_for(acq)), None
+        except SpielError as exc:
+            self.stats.errors += 1
+            self.problems.log(str(exc), f"first at acquisition {acq.index}")
+            return None, str(exc)
 
     def _track(self, result, acq: LiveAcquisition) -> list[dict] | None:
         """Track on the board's clock (sets the result's targets' track ids)."""

@@ -329,11 +329,13 @@ def start_tiered(
     notifier=None,
     what: str = "run",
     exercise=None,
+    pipeline=None,
 ) -> TieredStart | None:
     """Before a command opens its board: the compiled tier when every kernel it needs is
     cached; else the interpreted tier with its compile started in the background. None when
     a tiered start is off or impossible (SPIEL_EDGE_TIERED=0, no writable cache folder,
-    numba outside the tested range): then kernels compile first, as before."""
+    numba outside the tested range): then kernels compile first, as before. ``pipeline``:
+    the command's own for ``profile``, exercised in place of a second one (runtime/live.py)."""
     from spiel_edge import _kernel_cache, _tiers
     from spiel_edge.errors import SpielError
     from spiel_edge.runtime.first_start import (
@@ -352,7 +354,7 @@ def start_tiered(
                 if exercise is not None:  # a command of its own kernels (fuse: the tracker)
                     exercise()
                 else:
-                    exercise_run(profile, association, max_targets, track, toa_correction)
+                    exercise_run(profile, association, max_targets, track, toa_correction, pipeline)
             return tiers  # all cached: the compiled tier
     except _kernel_cache.CompileNeeded as exc:
         if os.environ.get(_kernel_cache.ENV_FORBID, "0") not in ("", "0"):
@@ -365,7 +367,14 @@ def start_tiered(
     if not enabled() or not cache_writable() or folder is None or not _tiers.KERNELS:
         if exercise is None:  # (a command of its own kernels compiles them in place)
             prepare_for_run(
-                profile, association, max_targets, track, toa_correction, stream, notifier
+                profile,
+                association,
+                max_targets,
+                track,
+                toa_correction,
+                stream,
+                notifier,
+                pipeline,
             )
         return None
     interpreted, plan, units = make_plan(
