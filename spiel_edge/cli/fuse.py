@@ -132,8 +132,8 @@ def command(
     --zenoh KEY`, on this computer or another) and write their targets fused in the robot's
     frame, one record per trigger cycle (docs/robot.md). With --replay, the boards' recorded
     records instead, offline (no Zenoh)."""
-    from spiel_edge.cli._robot import check_fused_outputs, open_fused_outputs, robot_inputs
     from spiel_edge.robot.description import load_robot
+    from spiel_edge.robot.fused_outputs import check_fused_outputs, robot_inputs
     from spiel_edge.safety.guard import FilePlan
 
     robot = load_robot(robot_file)
@@ -176,7 +176,7 @@ def command(
         Tracker(robot.track_spec()).update([], 0.0)
         apply_realtime(realtime)
     meta = {"robot": robot.name, "fused_over": "zenoh"}
-    sink = open_fused_outputs(robot, force, outputs, meta, odom=odom_key is not None)
+    sink = _open_outputs(robot, force, outputs, meta, odom=odom_key is not None)
     stop = threading.Event()
     finalizers = Finalizers()
     finalizers.add(sink.close_files)
@@ -203,7 +203,7 @@ def command(
 
 def _replay(robot, items, odom_file, odom_topic, track, plan, outputs) -> int:
     """``fuse --replay``: every input read and checked before the outputs open."""
-    from spiel_edge.cli._robot import check_fused_outputs, open_fused_outputs
+    from spiel_edge.robot.fused_outputs import check_fused_outputs
     from spiel_edge.robot.odometry_sources import read_odometry_file
     from spiel_edge.robot.record_fuse import read_replay
     from spiel_edge.robot.record_fuse import replay as fuse_replay
@@ -223,7 +223,7 @@ def _replay(robot, items, odom_file, odom_topic, track, plan, outputs) -> int:
     streams = read_replay(robot, files)
     odometry = read_odometry_file(odom_file, odom_topic) if odom_file else None
     meta = {"robot": robot.name, "fused_over": "replay", "replayed": ",".join(sorted(files))}
-    sink = open_fused_outputs(robot, plan.force, outputs, meta, odom=odometry is not None)
+    sink = _open_outputs(robot, plan.force, outputs, meta, odom=odometry is not None)
     fuse = None
     exercise = _tracker_exercise(robot) if track else None
     try:
@@ -234,6 +234,17 @@ def _replay(robot, items, odom_file, odom_topic, track, plan, outputs) -> int:
     finally:
         _close_and_summarise(sink, fuse)
     return _status(sink, fuse)
+
+
+def _open_outputs(robot, force: bool, outputs: dict, metadata: dict, odom: bool):
+    """The fused run's outputs (robot/fused_outputs.py, as `run --robot` opens them), and the
+    Foxglove view's address said."""
+    from spiel_edge.cli._status_line import say_live_views
+    from spiel_edge.robot.fused_outputs import open_fused_outputs
+
+    sink = open_fused_outputs(robot, force, outputs, metadata, odom=odom)
+    say_live_views(sink)
+    return sink
 
 
 def _tracker_exercise(robot):

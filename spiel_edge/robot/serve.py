@@ -99,6 +99,7 @@ class RobotRunner:
             )
         self.records = 0
         self.latencies_ms: list[float] = []
+        self.on_record = None  # each fused record, after the outputs have it (a library run)
 
     def run(self, stop: threading.Event | None = None, *, frames: int | None = None) -> int:
         """Until ``stop`` or ``frames`` fused records; returns the records written."""
@@ -142,16 +143,18 @@ class RobotRunner:
             for w in self.workers:
                 w.join(timeout=3.0)
             sys.setswitchinterval(switch)
-            self._close_odometry()
+            self.close_odometry()
         return self.records
 
     def _odometry(self, payload: bytes, arrived: float) -> None:
         """A pose onto the boards' clock (Unix time onto perf_counter's axis)."""
         self.odometry.add_message(payload, arrived, time.perf_counter() - time.time())
 
-    def _close_odometry(self) -> None:
-        if self._odom_feed is not None:
-            self._odom_feed.close()
+    def close_odometry(self) -> None:
+        """The odometry subscription closed (once; also when the run never started)."""
+        feed, self._odom_feed = self._odom_feed, None
+        if feed is not None:
+            feed.close()
 
     def _start_streams(self, stop: threading.Event) -> None:
         """Every open board's stream started in its slot of one cycle, from this thread while
@@ -185,6 +188,8 @@ class RobotRunner:
             diag["restarts"] = w.stats.restarts
         self.sink.write(record)
         self.records += 1
+        if self.on_record is not None:
+            self.on_record(record)
 
     def summary(self) -> str:
         parts = []

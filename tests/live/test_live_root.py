@@ -97,6 +97,24 @@ def test_a_walk_of_port_climbs_back_up_at_most_3_times():
     assert w.calls["spiel_edge.profile.schema:load_profile"] == 1
     assert w.calls["spiel_edge.runtime.loop:live_toa_correction"] == 1
     assert w.calls["spiel_edge.runtime.loop:open_pipeline"] == 1
+    # one pipeline: the kernel check exercises the run's own (was 2: the check built another)
+    assert w.calls["spiel_edge.pipeline.factory:build_pipeline"] == 1
+
+
+def test_run_robot_opens_each_board_as_run_does_and_runs_runs_loop():
+    """Each board of `run --robot` through LiveRun and LiveRunner (no loop of its own): one
+    pipeline and one ToA choice per board, plus the kernel check's one per profile."""
+    from tests.house.call_walk import walk
+
+    w, code = walk(["run", "--robot", "virtual-4", "--frames", "3", "-o", "/dev/null"])
+    assert code == 0
+    assert w.calls["spiel_edge.runtime.live:LiveRun.prepare"] == 4
+    assert w.calls["spiel_edge.runtime.live:LiveRun.open"] == 4
+    assert w.calls["spiel_edge.runtime.loop:LiveRunner.run"] == 4
+    assert w.calls["spiel_edge.runtime.loop:live_toa_correction"] == 4
+    assert w.calls["spiel_edge.pipeline.factory:build_pipeline"] == 1 + 4
+    assert w.calls["spiel_edge.robot.board_worker:BoardWorker._step"] >= 12  # 3 cycles x 4
+    assert len(w.climbs) <= 3, w.report()
 
 
 def test_run_robot_says_the_foxglove_view_address(tmp_path, capsys):
