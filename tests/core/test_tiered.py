@@ -524,3 +524,106 @@ def test_the_background_compile_and_its_workers_run_at_the_lowest_priority():
     if hasattr(os, "SCHED_IDLE"):  # Linux: the idle class, for the worker too
         assert got["policy"] == os.SCHED_IDLE == got["child"][1]
         assert "SCHED_IDLE" in got["said"]
+
+
+class _FixedBoard:
+    """A session of fixed acquisitions: the vendored subset, 20 ms apart on the board's clock
+    (two runs over it see the same inputs, unlike a live board's)."""
+
+    url = "test://fixed"
+
+    def __init__(self, n: int):
+        from spiel_edge.data import load_subset
+        from spiel_edge.device import LiveAcquisition
+
+        subset = load_subset()
+        self.items = [
+            LiveAcquisition(
+                index=i,
+                timestamp_us=20_000 * i,
+                sample_rate_hz=22_000,
+                samples=subset.frames[i % len(subset.frames)].astype(np.uint16),
+                received_ns=time.perf_counter_ns(),
+                host_time=1.0e9 + 0.02 * i,
+                background=subset.backgrounds[i % len(subset.frames)].astype(np.uint16),
+            )
+            for i in range(n)
+        ]
+
+    def acquisitions(self, stop):
+        yield from self.items
+
+    def counts(self) -> dict:
+        return {"lost": 0, "damaged": 0, "overruns": 0, "reconnects": 0}
+
+    def newest_only(self, behind_s: float) -> int:
+        return 0  # nothing waits: every acquisition is handled
+
+
+class _SwitchAfter:
+    """A TieredStart's two calls the live loop makes: interpreted kernels for the first ``n``
+    acquisitions, then the dispatchers back (as TieredStart switches once its compile ended)."""
+
+    rounds = ()
+
+    def __init__(self, n: int):
+        self.interpreted = _tiers.Interpreted()
+        self.interpreted.enter()
+        self.tier, self.n = "interpreted", n
+
+    @property
+    def is_interpreted(self) -> bool:
+        return self.tier == "interpreted"
+
+    def between(self) -> bool:
+        self.n -= 1
+        if self.n > 0:
+            return False
+        self.interpreted.leave()
+        self.tier = "compiled"
+        return True
+
+    def status_text(self) -> str:
+        return self.tier
+
+
+def test_the_tracker_keeps_its_tracks_across_the_switch():
+    """The same tracker, pipeline and session on both tiers: a run that switches after 8
+    acquisitions gives the tracks of a run that never did (ids, ages, velocities), and its
+    tracks at the end are as old as the whole run."""
+    from spiel_edge.outputs import Sink
+    from spiel_edge.pipeline.factory import build_pipeline
+    from spiel_edge.profile.schema import load_profile
+    from spiel_edge.runtime.loop import LiveRunner
+    from spiel_edge.runtime.track_records import ResultTracker
+    from spiel_edge.runtime.warmup import pipeline_kernels
+
+    pipeline_kernels()
+    profile = load_profile()
+
+    class Collect(Sink):
+        def __init__(self):
+            self.records = []
+
+        def write(self, record):
+            self.records.append(record)
+
+    def live(tiers) -> list[dict]:
+        pipeline = build_pipeline(profile, None)
+        pipeline.set_max_targets(2)
+        sink = Collect()
+        runner = LiveRunner(_FixedBoard(24), pipeline, sink, tracker=ResultTracker(profile.track))
+        runner.tiers = tiers
+        try:
+            runner.run(__import__("threading").Event())
+        finally:
+            if tiers is not None and tiers.is_interpreted:
+                tiers.interpreted.leave()
+        return sink.records
+
+    switched = live(_SwitchAfter(8))
+    assert [r.get("tier", "compiled") for r in switched] == ["interpreted"] * 8 + ["compiled"] * 16
+    straight = live(None)
+    assert [{**r, "tier": None} for r in switched] == [{**r, "tier": None} for r in straight]
+    last = switched[-1]["tracks"]
+    assert last and max(t["age"] for t in last) == 24  # one track from the first acquisition on
