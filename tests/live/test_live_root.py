@@ -138,3 +138,14 @@ def test_a_recording_without_ndjson(tmp_path, capsys):
     )
     assert len(records) == 3 and mcap.stat().st_size > 0
     assert capsys.readouterr().out == ""  # a recording, and nothing on stdout
+
+
+def test_a_board_as_fast_as_it_can_keeps_a_clock_the_host_trusts(caplog):
+    """`--rate 0` on the virtual board: its stamps advance with its acquisitions, so no stamp
+    falls back to the arrival time (a burst stamped with one time did, with two warnings)."""
+    records = []
+    with caplog.at_level("WARNING"):
+        run(LiveConfig(port="sim://", rate=0, frames=120, output=None), on_record=records.append)
+    assert len(records) == 120
+    assert {r.get("stamp_source") for r in records} <= {"board", None}
+    assert not [r.message for r in caplog.records if "clock" in r.getMessage()]

@@ -121,7 +121,7 @@ def test_stream_paces_acquisitions_and_counts_overruns(replay_scene):
 def test_annotations_carry_truth_and_background_of_the_recording(replay_scene):
     board = VirtualBoard(replay_scene)
     answers(board, StreamStart(rate_hz=0), seq=1)
-    frames = stream_frames(board, 0.0, room=4000)
+    frames = stream_frames(board, 0.0, room=4000) + stream_frames(board, 0.01, room=4000)
     notes = [Annotation.unpack(f.payload) for f in frames if f.msg_type == ANNOTATION_TYPE]
     assert len(notes) >= 2
     k = notes[1].acquisition
@@ -133,6 +133,23 @@ def test_annotations_carry_truth_and_background_of_the_recording(replay_scene):
         if f.msg_type == MsgType.STREAM_DATA and StreamData.unpack(f.payload).acquisition == k
     )
     np.testing.assert_array_equal(channel0.samples_array(), replay_scene._frames[k][0])
+
+
+def test_as_fast_as_it_can_is_one_listening_window_apart(replay_scene):
+    """Rate 0: back to back, never two acquisitions within one listening window (64 samples at
+    22 kHz: 2.9 ms), so the board's stamps advance with its acquisitions (a burst stamped with
+    one time reads as a clock that stood still, and the host stops trusting it)."""
+    board = VirtualBoard(replay_scene, now=0.0)
+    answers(board, StreamStart(rate_hz=0), seq=1, now=0.0)
+    data = []
+    for now in (0.0, 0.001, 0.0095, 0.0095, 0.05):  # a host that drains late reads a burst
+        frames = stream_frames(board, now)
+        data += [StreamData.unpack(f.payload) for f in frames if f.msg_type == MsgType.STREAM_DATA]
+    stamps = [d.timestamp_us for d in data[::4]]
+    assert [d.acquisition for d in data[::4]] == list(range(len(stamps))) and len(stamps) >= 5
+    window_us = 64 / 22_000 * 1e6
+    assert all(b - a >= window_us - 1 for a, b in zip(stamps, stamps[1:], strict=False))
+    assert stamps[-1] <= 50_000  # never ahead of the board's clock
 
 
 def test_stream_frames_follow_the_spec(replay_scene):
