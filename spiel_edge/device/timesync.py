@@ -39,11 +39,12 @@ those not said: a boot-id storm or a garbage-spewing board cannot flood the log.
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from spiel_edge.device.clock_corridor import Envelope, corridor
 
 __all__ = ["ClockEstimate", "SyncCounters", "SyncSample", "TimeSyncEstimator"]
 
@@ -62,7 +63,6 @@ STEP_AFTER = 5  # consecutive agreeing outliers: the board's clock was stepped
 RESOLUTION_US = 2.0  # both clocks' resolution (whole us on the wire) on top of half a round trip
 FAST_UNTIL = 64  # exchanges in the window before the session syncs at its normal period
 FAST_PERIOD_S = 0.1
-SEARCH_STEPS = 50  # golden-section steps: the rate to 0.618**50 of 1e-3, about 4e-14
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,7 +125,7 @@ class TimeSyncEstimator:
         self._prior: tuple[float, float] | None = None  # (rate, sd) measured before a reset
         self._bound: ClockEstimate | None = None  # the best exchange's hard bound
         self._fitted: ClockEstimate | None = None  # the line through the window
-        self._envelope: _Envelope | None = None  # every line the window allows
+        self._envelope: Envelope | None = None  # every line the window allows
         self._history: deque[bool] = deque(maxlen=HISTORY)  # recent answers: kept or not
         self._said: dict[str, tuple[float, int]] = {}  # message kind -> (said at, not said)
         self.consistent = True  # False: the last fit found no line within every round trip
@@ -252,7 +252,7 @@ class TimeSyncEstimator:
         self.consistent = True
         self._envelope = None
         if self._fitted is not None:
-            corridor, self._envelope = _corridor(list(self._samples), self._prior)
+            corridor, self._envelope = fit_corridor(list(self._samples), self._prior)
             self.consistent = corridor is not None
             if corridor is not None:
                 self.estimate = self._fitted = corridor
@@ -341,177 +341,26 @@ class TimeSyncEstimator:
         return out
 
 
-def _corridor(
+def fit_corridor(
     samples: list[SyncSample], prior: tuple[float, float] | None
-) -> tuple[ClockEstimate | None, _Envelope | None]:
-    """The centre line of the lines above every send and below every read, and the envelope of
-    all those lines; (None, None) when no line fits."""
+) -> tuple[ClockEstimate | None, Envelope | None]:
+    """The exchanges' corridor (device/clock_corridor.py) as a clock line: sends and reads
+    widened by the clocks' resolution, the rate within +-MAX_DRIFT (within SIGMAS of
+    ``prior``, the rate and its deviation measured before a reset, first); and the envelope
+    of every allowed line. (None, None) when no line fits."""
     board = np.array([x.board_us for x in samples])
     sent = np.array([x.sent_us for x in samples]) - RESOLUTION_US
     read = np.array([x.received_us for x in samples]) + RESOLUTION_US
-    b0, h0 = float(board.mean()), float(sent.mean())
-    board, sent, read = board - b0, sent - h0, read - h0  # centred: no cancellation
-    # For any rate, the lowest read - rate * board lies on the lower hull of the reads and the
-    # highest send - rate * board on the upper hull of the sends: the searches below look at
-    # those few points (a dozen) instead of the whole window (up to 512), once per exchange.
-    order = np.argsort(board, kind="stable")
-    bx = board[order]
-    xs = bx.tolist()
-    top = _hull(*_hull_candidates(bx, read[order], lower=True), lower=True)
-    bottom = _hull(*_hull_candidates(bx, sent[order], lower=False), lower=False)
-    lowest, highest = _lowest(top), _highest(bottom)
-
-    def width(rate: float) -> float:  # concave in rate: its maximum is the widest corridor
-        return lowest(rate) - highest(rate)
-
-    lo, hi = 1.0 - MAX_DRIFT, 1.0 + MAX_DRIFT
+    wide = (1.0 - MAX_DRIFT, 1.0 + MAX_DRIFT)
+    narrow = None
     if prior is not None:  # the rate measured before a reset narrows the search
-        lo, hi = max(lo, prior[0] - SIGMAS * prior[1]), min(hi, prior[0] + SIGMAS * prior[1])
-    rate = _widest(width, lo, hi)
-    if width(rate) < 0.0 and prior is not None:
-        lo, hi = 1.0 - MAX_DRIFT, 1.0 + MAX_DRIFT
-        rate = _widest(width, lo, hi)
-    w = width(rate)
-    if w < 0.0:
+        narrow = (
+            max(wide[0], prior[0] - SIGMAS * prior[1]),
+            min(wide[1], prior[0] + SIGMAS * prior[1]),
+        )
+    found, envelope = corridor(board, sent, read, wide, narrow)
+    if found is None:
         return None, None
-    # the rates with a corridor at all: how far the rate may be off
-    r_lo = _root(width, lo, rate) if width(lo) < 0.0 else lo
-    r_hi = _root(width, hi, rate) if width(hi) < 0.0 else hi
-    offset = 0.5 * (lowest(rate) + highest(rate))
-    growth = max(rate - r_lo, r_hi - rate)
-    # Every feasible line's offset at the centre lies within half the width plus the rate's
-    # play times the window's half-length (the corridor's walls turn with the rate): a bound
-    # for every line the exchanges allow, used to judge answers; stamps use the envelope.
-    reach = max(abs(xs[0]), abs(xs[-1])) * growth
-    base = 0.5 * w + reach + RESOLUTION_US
-    line = ClockEstimate(b0, h0 + float(offset), rate, base, growth, True)
-    envelope = _Envelope(b0, h0, top, bottom, r_lo, r_hi)
-    envelope.top_at = {r: lowest(r) for r in (r_lo, r_hi)}
-    envelope.bottom_at = {r: highest(r) for r in (r_lo, r_hi)}
+    base = 0.5 * found.width + found.reach + RESOLUTION_US
+    line = ClockEstimate(found.b0, found.h0 + found.offset, found.rate, base, found.growth, True)
     return line, envelope
-
-
-def _lowest(hull: tuple[list[float], list[float]]):
-    """rate -> the lowest y - rate * x over the hull's points."""
-    points = list(zip(*hull, strict=True))
-    return lambda rate: min([y - rate * x for x, y in points])
-
-
-def _highest(hull: tuple[list[float], list[float]]):
-    """rate -> the highest y - rate * x over the hull's points."""
-    points = list(zip(*hull, strict=True))
-    return lambda rate: max([y - rate * x for x, y in points])
-
-
-class _Envelope:
-    """The host times that the lines allowed by the exchanges give a board time: no higher
-    than the lower convex hull of the reads, no lower than the upper hull of the sends, with
-    rates within [r_lo, r_hi] (a relaxation of the corridor, so the range holds whatever line
-    is true; within the window it is about the corridor's width, not its width plus the rate's
-    play times the window). Beyond the window (or where the hull's slope leaves the rates), the
-    extreme rate's line through the hull bounds it. ``top_at``/``bottom_at``: the extreme
-    rates' lines under every read / over every send (offsets at 0), set by the caller."""
-
-    def __init__(self, b0, h0, top, bottom, r_lo: float, r_hi: float) -> None:
-        self.b0, self.h0, self.r_lo, self.r_hi = b0, h0, r_lo, r_hi
-        self.top, self.bottom = top, bottom
-        self.top_at: dict[float, float] = {}
-        self.bottom_at: dict[float, float] = {}
-
-    def bounds(self, board_us: float) -> tuple[float, float]:
-        x = board_us - self.b0
-        high = _along(self.top, x, self.r_lo, self.r_hi, self.top_at)
-        low = _along(self.bottom, x, self.r_hi, self.r_lo, self.bottom_at)
-        return self.h0 + min(low, high), self.h0 + max(low, high)
-
-
-def _hull_candidates(x: np.ndarray, y: np.ndarray, *, lower: bool, passes: int = 8):
-    """The points (sorted by x) that may be on the lower (upper) hull, as lists for
-    :func:`_hull`: a few vectorised passes drop every point clearly above (below) the chord of
-    its two neighbours among those kept, which no hull has as a vertex (a window of 512 jittered
-    exchanges keeps a few dozen). Near-collinear points are kept for :func:`_hull` to judge,
-    so the hull is the one of all the points."""
-    keep = np.arange(len(x))
-    for _ in range(passes if len(x) > 64 else 0):  # a short window: _hull alone is faster
-        if len(keep) < 3:
-            break
-        a, b, c = keep[:-2], keep[1:-1], keep[2:]
-        left = (x[b] - x[a]) * (y[c] - y[a])
-        right = (y[b] - y[a]) * (x[c] - x[a])
-        cross = left - right
-        margin = 1e-9 * (np.abs(left) + np.abs(right))
-        out = (cross < -margin) if lower else (cross > margin)
-        if not out.any():
-            break
-        keep = np.concatenate((keep[:1], b[~out], keep[-1:]))
-    return x[keep].tolist(), y[keep].tolist()
-
-
-def _hull(xs: list[float], ys: list[float], *, lower: bool) -> tuple[list[float], list[float]]:
-    """The lower (or upper) convex hull of points sorted by x (monotone chain)."""
-    hx: list[float] = []
-    hy: list[float] = []
-    for x, y in zip(xs, ys, strict=True):
-        if hx and x == hx[-1]:  # the same board time: keep the tighter point
-            if (y < hy[-1]) if lower else (y > hy[-1]):
-                hx.pop(), hy.pop()
-            else:
-                continue
-        while len(hx) >= 2:
-            cross = (hx[-1] - hx[-2]) * (y - hy[-2]) - (hy[-1] - hy[-2]) * (x - hx[-2])
-            if (cross <= 0.0) if lower else (cross >= 0.0):
-                hx.pop(), hy.pop()
-            else:
-                break
-        hx.append(x)
-        hy.append(y)
-    return hx, hy
-
-
-def _along(hull, x: float, left_rate: float, right_rate: float, at: dict) -> float:
-    """The hull's value at ``x`` where its slope is a rate the exchanges allow; else the line of
-    the nearest allowed rate through the hull (``left_rate`` left of the points)."""
-    hx, hy = hull
-    i = bisect_right(hx, x)
-    if i == 0:
-        rate = left_rate
-    elif i == len(hx):
-        rate = right_rate if x > hx[-1] else None
-        if rate is None:  # exactly the last point
-            return hy[-1]
-    else:
-        slope = (hy[i] - hy[i - 1]) / (hx[i] - hx[i - 1])
-        lo, hi = min(left_rate, right_rate), max(left_rate, right_rate)
-        if lo <= slope <= hi:
-            return hy[i - 1] + slope * (x - hx[i - 1])
-        rate = lo if slope < lo else hi
-    return at[rate] + rate * x
-
-
-def _widest(f, lo: float, hi: float) -> float:
-    """Golden-section search for the maximum of a concave function on [lo, hi]."""
-    g = 0.5 * (math.sqrt(5.0) - 1.0)
-    a, b = lo, hi
-    c, d = b - g * (b - a), a + g * (b - a)
-    fc, fd = f(c), f(d)
-    for _ in range(SEARCH_STEPS):
-        if fc >= fd:
-            b, d, fd = d, c, fc
-            c = b - g * (b - a)
-            fc = f(c)
-        else:
-            a, c, fc = c, d, fd
-            d = a + g * (b - a)
-            fd = f(d)
-    return 0.5 * (a + b)
-
-
-def _root(f, outside: float, inside: float) -> float:
-    """Bisection between f(outside) < 0 <= f(inside): the edge of the feasible rates."""
-    for _ in range(SEARCH_STEPS - 10):  # 0.5**40 of 1e-3
-        mid = 0.5 * (outside + inside)
-        if f(mid) >= 0.0:
-            inside = mid
-        else:
-            outside = mid
-    return inside

@@ -163,6 +163,64 @@ def test_a_run_that_switches_tiers_records_what_replay_computes(tmp_path):
     assert [_record_key(r) for r in replayed] == [_record_key(r) for r in live]
 
 
+COLD = os.environ.get("SPIEL_TEST_COLD_SWITCH", "")
+
+
+@pytest.mark.skipif(
+    not COLD,
+    reason="a real cold compile, 0.5-3 min on 2 cores: SPIEL_TEST_COLD_SWITCH=1 (ch101-one, "
+    "19 kernels) or =spiel-icra23 (56 kernels)",
+)
+def test_a_run_switches_after_a_real_cold_compile_and_records_what_replay_computes(tmp_path):
+    """From an empty kernel cache, as a checkout starts: interpreted at once, the background
+    process really compiles, the run switches once without losing the board, every
+    acquisition not processed is counted, and the records equal replay's of the recording."""
+    profile = "spiel-icra23" if COLD == "spiel-icra23" else "ch101-one"
+    targets = "40,20,180" if profile == "spiel-icra23" else "0,0,300"
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "SPIEL_EDGE_COMPILE_AFTER_EXIT": "0"}
+    env.pop("SPIEL_EDGE_TIERED", None)
+    mcap, out = tmp_path / "run.mcap", tmp_path / "live.ndjson"
+    port = f"sim://?scene=model&profile={profile}&targets={targets}&noise=5"
+    args = ["run", "--port", port, "--profile", profile, "--rate", "20", "--no-track"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "spiel_edge.cli", *args, "--record", str(mcap), "-o", str(out)],
+        env=env,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    said, deadline = [], time.monotonic() + 900
+    try:
+        for line in proc.stderr:
+            said.append(line)
+            if "compiled kernels in use after" in line or time.monotonic() > deadline:
+                break
+        time.sleep(3.0)  # 60 acquisitions on the compiled tier
+        proc.send_signal(signal.SIGINT)
+        said += proc.stderr.readlines()
+        assert proc.wait(30) == 0, "".join(said)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = "".join(said)
+    assert "has no compiled copy" in text and "compiled kernels in use after" in text, text
+    assert len(list(cache.rglob("*.nbi"))) >= 10  # it did compile, into the empty cache
+    live = [json.loads(line) for line in out.read_text().splitlines()]
+    tiers = [r.get("tier", "compiled") for r in live]
+    assert tiers[0] == "interpreted" and tiers[-1] == "compiled"
+    assert tiers == sorted(tiers, key=lambda t: t == "compiled")  # one switch, never back
+    index = [r["acquisition"] for r in live]
+    gaps = sum(b - a - 1 for a, b in zip(index, index[1:], strict=False))
+    skipped = re.search(r"(\d+) skipped", text)
+    assert gaps == (int(skipped.group(1)) if skipped else 0), text  # every gap counted
+    print(f"cold switch ({profile}): {text.strip().splitlines()[-1]}")
+    replay = _cli("replay", str(mcap), "--profile", profile, env={"NUMBA_CACHE_DIR": str(cache)})
+    assert replay.returncode == 0, replay.stderr
+    replayed = [json.loads(line) for line in replay.stdout.splitlines()]
+    assert [_record_key(r) for r in replayed] == [_record_key(r) for r in live]
+
+
 def _processes_with(marker: str) -> list[int]:
     found = []
     for proc in Path("/proc").iterdir():

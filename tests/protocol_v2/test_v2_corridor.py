@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spiel_edge.device import timesync
-from spiel_edge.device.timesync import MAX_DRIFT, RESOLUTION_US, SyncSample
+from spiel_edge.device import clock_corridor as cc
+from spiel_edge.device.timesync import MAX_DRIFT, RESOLUTION_US, SyncSample, fit_corridor
 
 
 def _window(seed: int, n: int, jitter_us: float, drift: float) -> list[SyncSample]:
@@ -35,15 +35,15 @@ def _reference_width(samples: list[SyncSample]):
 )
 def test_the_hulls_give_the_whole_windows_corridor(seed, n, jitter_us, drift) -> None:
     samples = _window(seed, n, jitter_us, drift)
-    line, envelope = timesync._corridor(samples, None)
+    line, envelope = fit_corridor(samples, None)
     assert line is not None and envelope is not None
     width = _reference_width(samples)
     lo, hi = 1.0 - MAX_DRIFT, 1.0 + MAX_DRIFT
-    rate = timesync._widest(width, lo, hi)  # the search on the whole window
+    rate = cc.widest(width, lo, hi)  # the search on the whole window
     assert line.rate == rate
     for r in (lo, hi, rate, envelope.r_lo, envelope.r_hi, 0.5 * (lo + rate)):
-        lowest = timesync._lowest(envelope.top)(r)
-        highest = timesync._highest(envelope.bottom)(r)
+        lowest = cc.lowest(envelope.top)(r)
+        highest = cc.highest(envelope.bottom)(r)
         assert lowest - highest == width(r)
     assert envelope.r_lo < rate < envelope.r_hi
     assert width(envelope.r_lo) >= 0.0 and width(envelope.r_hi) >= 0.0
@@ -53,7 +53,7 @@ def test_no_line_fits_contradicting_exchanges() -> None:
     good = _window(1, 40, 100.0, 1.0)
     # an answer 50 ms away from the others, with a short round trip: no line passes it all
     bad = SyncSample(good[20].sent_us, good[20].sent_us + 300.0, good[20].board_us + 50_000.0)
-    assert timesync._corridor([*good, bad], None) == (None, None)
+    assert fit_corridor([*good, bad], None) == (None, None)
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -66,8 +66,8 @@ def test_the_candidates_keep_every_hull_vertex(seed, lower) -> None:
     k = int(rng.integers(1, n - 1))
     x[k] = x[k - 1]  # a repeated board time
     y = 1.0001 * x + rng.random(n) * (1e3 if seed % 2 else 3e4)
-    assert timesync._hull(
-        *timesync._hull_candidates(x, y, lower=lower), lower=lower
-    ) == timesync._hull(x.tolist(), y.tolist(), lower=lower)
-    kept = timesync._hull_candidates(x, y, lower=lower)[0]
+    assert cc.hull(*cc.hull_candidates(x, y, lower=lower), lower=lower) == cc.hull(
+        x.tolist(), y.tolist(), lower=lower
+    )
+    kept = cc.hull_candidates(x, y, lower=lower)[0]
     assert len(kept) < n // 2  # it does drop most of a jittered window
