@@ -214,7 +214,8 @@ def test_a_run_switches_after_a_real_cold_compile_and_records_what_replay_comput
     gaps = sum(b - a - 1 for a, b in zip(index, index[1:], strict=False))
     skipped = re.search(r"(\d+) skipped", text)
     assert gaps == (int(skipped.group(1)) if skipped else 0), text  # every gap counted
-    print(f"cold switch ({profile}): {text.strip().splitlines()[-1]}")
+    switch = next(line for line in said if "compiled kernels in use after" in line)
+    print(f"cold switch ({profile}): {switch.strip()}; {text.strip().splitlines()[-1]}")
     replay = _cli("replay", str(mcap), "--profile", profile, env={"NUMBA_CACHE_DIR": str(cache)})
     assert replay.returncode == 0, replay.stderr
     replayed = [json.loads(line) for line in replay.stdout.splitlines()]

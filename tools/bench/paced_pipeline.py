@@ -3,8 +3,9 @@
     python -m tools.bench.paced_pipeline [N]
 
 The fused pipeline (four targets) and the record's JSON encoding on the vendored
-acquisitions, one thread, ``time.thread_time`` around each call: back to back, after a 20 ms
-sleep (a board at 50/s), and after a 20 ms busy loop. No I/O and no loop of the run path's:
+acquisitions, one thread, ``time.thread_time`` around each call: back to back, after a sleep
+of 0.5, 3 (a board as fast as it can) and 20 ms (a board at 50/s), and after a 20 ms busy
+loop. No I/O and no loop of the run path's:
 what the pacing alone costs on this machine.
 """
 
@@ -44,6 +45,8 @@ def main(n: int) -> dict:
     out = {}
     for name, before in (
         ("back_to_back", lambda: None),
+        ("sleep_0.5ms", lambda: time.sleep(0.0005)),
+        ("sleep_3ms", lambda: time.sleep(0.003)),  # a board as fast as it can: one window
         ("sleep_20ms", lambda: time.sleep(0.02)),
         ("back_to_back_again", lambda: None),
         ("busy_20ms", lambda: _spin(0.02)),
