@@ -141,7 +141,11 @@ class BoardWorker(threading.Thread):
     def _open(self) -> None:
         self.live.open()
         self.pipeline = self.live.pipeline
-        self.live.runner.step = self._step  # `run`'s loop; each acquisition reported here
+        runner = self.live.runner
+        runner.step = self._step  # `run`'s loop; each acquisition reported here
+        runner.background_hint = (
+            f"board {self.board.name} sends none (`run --robot` takes no --background)"
+        )
 
     def _start_in_slot(self) -> None:
         """(Re)start the stream at the slot's next start (from the board's own thread)."""

@@ -228,6 +228,7 @@ class LiveRunner:
         self.tiers = None  # a runtime.tiered.TieredStart: interpreted kernels until compiled
         self._link_background: tuple[np.ndarray, np.ndarray] | None = None
         self._warned_no_background = False
+        self.background_hint = "give --background FILE"  # what to do when none comes
         self.problems = OncePerProblem(log)
         sink.set_status_provider(self.diagnostics)  # ROS 2 sinks publish it on /diagnostics
 
@@ -341,7 +342,7 @@ class LiveRunner:
             return self.pipeline.process(frames.astype(np.float64), self._background_for(acq)), None
         except SpielError as exc:
             self.stats.errors += 1
-            self.problems.log(str(exc), f"first at acquisition {acq.index}")
+            self.problems.log(str(exc), f"first at acquisition {acq.index} of {self.session.url}")
             return None, str(exc)
 
     def _track(self, result, acq: LiveAcquisition) -> list[dict] | None:
@@ -361,7 +362,9 @@ class LiveRunner:
                 not self._warned_no_background
                 and self.pipeline.profile.preprocess.background_subtraction
             ):
-                log.warning("no background capture: positions will be poor; give --background FILE")
+                log.warning(
+                    "no background capture: positions will be poor; %s", self.background_hint
+                )
                 self._warned_no_background = True
             return None
         cached = self._link_background

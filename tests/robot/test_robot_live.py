@@ -75,3 +75,31 @@ def test_the_documented_example_runs():
     scope: dict = {}
     exec(compile(example, "docs/live-api.md", "exec"), scope)  # noqa: S102  (our own docs)
     assert len(scope["records"]) == 20 and scope["live"].runner.records == 20
+
+
+def test_a_board_without_a_background_is_named_not_told_to_give_one(caplog):
+    """A robot's board processes as `run` does; its warning for a missing background capture
+    names the board and does not ask for --background, which `run --robot` refuses."""
+    import time
+
+    import numpy as np
+
+    from spiel_edge.data import load_subset
+    from spiel_edge.device import LiveAcquisition
+
+    live = RobotRun(RobotConfig("virtual-4", output=None))
+    live.prepare()
+    worker = live.runner.workers[0]
+    worker._open()
+    try:
+        frames = load_subset().frames[0].astype(np.uint16)
+        acq = LiveAcquisition(0, 0, 22_000, frames, time.perf_counter_ns(), time.time())
+        with caplog.at_level("WARNING"):
+            result, error = worker.live.runner.process(acq)
+        assert error is None and result is not None
+        said = [r.getMessage() for r in caplog.records if "background" in r.getMessage()]
+        assert len(said) == 1 and f"board {worker.board.name}" in said[0], said
+        assert "give --background" not in said[0]
+    finally:
+        worker.session.close()
+        live.close()
