@@ -92,7 +92,9 @@ def script():
         ConfigRead(0, 200, ConfigSource.ACTIVE),
         ConfigRead(len(b) - 5, 64, ConfigSource.ACTIVE),  # shorter at the end
         ConfigRead(len(b) + 5, 64, ConfigSource.ACTIVE),  # empty past it
-        StreamStart(3, 0.0, 0, 0, 0),  # three acquisitions as fast as possible
+        StreamStart(3, 0.0, 0, 0, 0),  # three as fast as possible: two come before the stop,
+        ("wait", 0.002),  # one listening window (2.9 ms) apart, whatever the host's pace
+        ("wait", 0.002),
         StreamStatusRequest(),
         StreamStop(),  # idle: OK, nothing sent
         StreamStart(0, 100.0, 64, 0, 0),

@@ -119,6 +119,9 @@ def test_a_measurement_the_front_end_loses_is_skipped_not_invented(core):
     core.feed(encode_message(Hello(1, 2, 8256, 0), seq=1))
     assert core.command("acqfail 6") == "ok"  # reads: 4 of acquisition 0, then ch 0, 1, *2*
     out = core.feed(encode_message(StreamStart(3, 0.0, 64, 0, 0), seq=2))
+    for t_us in (3_000, 6_000):  # as fast as it can: one listening window (2.9 ms) apart
+        core.set_time(t_us)
+        out += core.poll(50)
     assembler, done, frames = AcquisitionAssembler(), [], 0
     for f in FrameDecoder().feed(out):
         if f.msg_type == StreamData.MSG_TYPE:
@@ -128,3 +131,26 @@ def test_a_measurement_the_front_end_loses_is_skipped_not_invented(core):
                 done.append(acq.index)
     assert done == [0, 2] and frames == 4 + 2 + 4
     assert core.stats()["overruns"] == 1
+
+
+def test_as_fast_as_it_can_is_one_listening_window_apart(core):
+    """Rate 0 with a front end that answers at once (here a frozen clock): one acquisition per
+    listening window (64 samples at 22 kHz: 2909 us), each stamped with its own time, as the
+    virtual board does (tests/live/test_sim_board.py); a burst with one stamp reads on the host
+    as a clock that stood still."""
+    from spiel_edge.protocol import Hello, StreamData, StreamStart, encode_message
+
+    def stamps(wire: bytes) -> set[int]:
+        frames = FrameDecoder().feed(wire)
+        data = [StreamData.unpack(f.payload) for f in frames if f.msg_type == StreamData.MSG_TYPE]
+        return {d.timestamp_us for d in data}
+
+    core.feed(encode_message(Hello(1, 2, 8256, 0), seq=1))
+    first = stamps(core.feed(encode_message(StreamStart(0, 0.0, 64, 0, 0), seq=2)))
+    first |= stamps(core.poll(50))
+    core.set_time(2_000)
+    early = stamps(core.poll(50))
+    core.set_time(2_950)
+    later = stamps(core.poll(50))
+    assert len(first) == 1 and early == set() and len(later) == 1
+    assert min(later) - max(first) >= 2_909

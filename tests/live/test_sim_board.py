@@ -142,14 +142,14 @@ def test_as_fast_as_it_can_is_one_listening_window_apart(replay_scene):
     board = VirtualBoard(replay_scene, now=0.0)
     answers(board, StreamStart(rate_hz=0), seq=1, now=0.0)
     data = []
-    for now in (0.0, 0.001, 0.0095, 0.0095, 0.05):  # a host that drains late reads a burst
+    for now in (0.0, 0.001, 0.0095, 0.0095, 0.05, 0.0531, 0.06):  # a host that reads late
         frames = stream_frames(board, now)
         data += [StreamData.unpack(f.payload) for f in frames if f.msg_type == MsgType.STREAM_DATA]
     stamps = [d.timestamp_us for d in data[::4]]
     assert [d.acquisition for d in data[::4]] == list(range(len(stamps))) and len(stamps) >= 5
     window_us = 64 / 22_000 * 1e6
     assert all(b - a >= window_us - 1 for a, b in zip(stamps, stamps[1:], strict=False))
-    assert stamps[-1] <= 50_000  # never ahead of the board's clock
+    assert stamps[-1] <= 60_000  # never ahead of the board's clock (the last read: 60 ms)
 
 
 def test_stream_frames_follow_the_spec(replay_scene):

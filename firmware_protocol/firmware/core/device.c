@@ -56,6 +56,7 @@ static struct {
     uint8_t n_channels;
     uint16_t n_samples;
     uint64_t period_us;    /* 0: as fast as possible */
+    uint64_t window_us;    /* one acquisition's listening time: at rate 0, the least gap */
     uint64_t next_us;      /* when the next acquisition is due */
     uint32_t remaining;    /* acquisitions (sent or skipped) still to schedule; 0 endless */
     int endless;
@@ -334,6 +335,9 @@ static result_t do_stream_start(const uint8_t *p, uint16_t len, uint16_t seq)
     st.n_channels = popcount(mask);
     st.n_samples = n_samples;
     st.period_us = period_us;
+    st.window_us = dev.settings.sample_rate_hz != 0u
+                       ? (uint64_t)n_samples * 1000000u / dev.settings.sample_rate_hz
+                       : 0u;
     st.next_us = due;
     st.remaining = n_acq;
     st.endless = n_acq == 0;
@@ -377,7 +381,9 @@ static result_t do_stream_status(void)
 /* Count one scheduled acquisition (sent or skipped) against n_acquisitions. */
 static void scheduled(uint64_t now)
 {
-    st.next_us = st.period_us ? st.next_us + st.period_us : now;
+    /* as fast as possible is one listening window apart: a front end that answers at once
+     * (a file of scans, a test driver's frozen clock) must not stamp a burst with one time */
+    st.next_us = st.period_us ? st.next_us + st.period_us : now + st.window_us;
     if (!st.endless && --st.remaining == 0) {
         st.last = 1;
         if (!st.busy) {
