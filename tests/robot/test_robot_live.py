@@ -34,7 +34,7 @@ def test_no_output_but_the_callback(capsys):
     assert len(records) == 3 and capsys.readouterr().out == ""
 
 
-def test_a_bad_board_profile_fails_before_any_board_opens(tmp_path):
+def test_a_missing_board_calibration_fails_before_any_board_opens(tmp_path):
     text = (ROOT / "spiel_edge/robot/builtin/virtual-4.toml").read_text()
     calibrated = text.replace("slot = 0\n", 'slot = 0\ncalibration = "no-such.toml"\n', 1)
     robot = tmp_path / "rover.toml"
