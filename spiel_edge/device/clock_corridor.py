@@ -23,8 +23,8 @@ SEARCH_STEPS = 50  # golden-section steps: the rate to 0.618**50 of 1e-3, about 
 @dataclass(frozen=True, slots=True)
 class Corridor:
     """The centre line, centred at (``b0``, ``h0``): host - h0 = offset + rate * (board - b0);
-    ``width`` its width at that rate, ``growth`` how far the rate may be off, ``reach`` the
-    play that gives the offset across the window."""
+    ``width`` its width at that rate, ``growth`` how far the rate may be off, ``reach`` how
+    far that play of the rate moves the line across the window's half-length."""
 
     b0: float
     h0: float
