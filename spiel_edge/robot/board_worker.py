@@ -91,7 +91,6 @@ class BoardWorker(threading.Thread):
         self.session = self.live.session
         self.clock = StampClock()
         self.stats = WorkerStats()
-        self.pipeline = None
         self.ready = threading.Event()  # set once the board is open (or dropped)
         self.go = threading.Event()  # set by the runner once every stream started in its slot
         self._host_timed = False  # the host sent its last start (no START_AT)
@@ -101,6 +100,11 @@ class BoardWorker(threading.Thread):
         self.trust = StartAtTrust(schedule.margin_s)  # does it keep the time it is named?
         self._named: tuple[float, float] | None = None  # (when, period) of such a start
         self._disagree = Disagreement()  # seconds off the clock estimate: the board is dropped
+
+    @property
+    def pipeline(self):
+        """The board's pipeline (None until it is open)."""
+        return self.live.pipeline
 
     @property
     def t0(self) -> float:
@@ -140,7 +144,6 @@ class BoardWorker(threading.Thread):
 
     def _open(self) -> None:
         self.live.open()
-        self.pipeline = self.live.pipeline
         runner = self.live.runner
         runner.step = self._step  # `run`'s loop; each acquisition reported here
         runner.background_hint = (

@@ -397,10 +397,11 @@ class VirtualBoard(BoardConfigMixin, BoardLinkServices, AcquireMixin):
                 out += self._acquire(s)
                 room -= size
                 s.sent += 1
-            # as fast as it can: one listening window after this one, as the C core does (a
-            # burst stamped with one time reads as a clock that stood still)
-            listen = s.n_samples / self.scene.sample_rate_hz
-            s.next_time = now + listen if s.period == 0.0 else s.next_time + s.period
+            if s.period:
+                s.next_time += s.period
+            else:  # as fast as it can: one listening window on, as the C core does (a burst
+                # stamped with one time reads as a clock that stood still)
+                s.next_time = now + s.n_samples / self.scene.sample_rate_hz
             s.scheduled += 1
             if s.remaining is not None and s.scheduled >= s.remaining:
                 self._stream = s = None
